@@ -1,0 +1,16 @@
+"""usvlog: field logs of small unmanned surface vessels -> estimates, models, replays."""
+
+__version__ = "0.1.0"
+
+from .errors import UsvlogError  # noqa: E402
+from .log import FieldLog  # noqa: E402
+
+
+def load(path, **kwargs) -> FieldLog:
+    """Load a canonical MCAP log (recovering what it can from a damaged file)."""
+    from .io.mcapio import read_log
+
+    return read_log(path, **kwargs)
+
+
+__all__ = ["FieldLog", "UsvlogError", "load", "__version__"]

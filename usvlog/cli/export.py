@@ -1,0 +1,19 @@
+from __future__ import annotations
+
+from ..io.export import export_log
+from ..io.mcapio import read_log
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="export each channel of a log to CSV or Parquet")
+    p.add_argument("log", help="canonical MCAP log")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--format", choices=["csv", "parquet"], default="csv")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    for path in export_log(read_log(args.log), args.out, fmt=args.format, force=args.force):
+        print(path)
+    return 0

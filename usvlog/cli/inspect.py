@@ -1,0 +1,21 @@
+from __future__ import annotations
+
+from ..io.mcapio import read_log
+from ..summary import format_summary, summarize
+from .common import print_json
+
+
+def register(sub) -> None:
+    p = sub.add_parser("inspect", help="channels, counts, rates, time range, gaps and damage of a log")
+    p.add_argument("log", help="canonical MCAP log")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    s = summarize(read_log(args.log))
+    if args.json:
+        print_json(s.to_dict())
+    else:
+        print(format_summary(s))
+    return 0

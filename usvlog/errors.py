@@ -1,0 +1,39 @@
+"""One exception tree for usvlog.
+
+Every error a user can cause (bad input, a missing file, an existing output) is a
+:class:`UsvlogError`.  The CLI turns it into one line on stderr and exit code 2.
+Subclasses also inherit the matching builtin so library callers can catch
+``ValueError`` / ``OSError`` as usual.
+"""
+
+from __future__ import annotations
+
+
+class UsvlogError(Exception):
+    """Base class of every error usvlog raises on purpose."""
+
+
+class InputError(UsvlogError, ValueError):
+    """Input data is malformed: names the file, the channel and the row or time."""
+
+
+class FormatError(InputError):
+    """A file is not in the expected format at all (e.g. not MCAP)."""
+
+
+class ConfigError(UsvlogError, ValueError):
+    """A parameter, scenario or settings value is invalid."""
+
+
+class OutputExistsError(UsvlogError, FileExistsError):
+    """An output exists and ``force`` was not given."""
+
+
+class StorageError(UsvlogError, OSError):
+    """The file system refused: missing input, unwritable output, disk full."""
+
+
+def where(path: object = None, channel: str | None = None, at: str | None = None) -> str:
+    """Format the 'file, channel, row/time' prefix used by every error message."""
+    parts = [str(p) for p in (path, channel, at) if p not in (None, "")]
+    return " ".join(parts)

@@ -1,0 +1,63 @@
+"""Atomic outputs: write to a temporary file beside the target, fsync, rename."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+from ..errors import OutputExistsError, StorageError
+
+
+def check_output(path, force: bool) -> Path:
+    p = Path(path)
+    if p.exists() and not force:
+        raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
+    if p.exists() and p.is_dir():
+        raise StorageError(f"{p}: output is a directory")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_path(path, *, force: bool = False):
+    """Yield a temporary path; on success it replaces ``path`` atomically.
+
+    On any error the temporary file is removed and ``path`` is left untouched.
+    """
+    p = check_output(path, force)
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise StorageError(f"{p}: directory {parent} does not exist")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
+    except OSError as err:
+        raise StorageError(f"{p}: cannot create output ({err.strerror})") from err
+    os.close(fd)
+    ok = False
+    try:
+        yield Path(tmp)
+        try:
+            with open(tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            if p.exists() and not force:  # appeared meanwhile
+                raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
+            os.replace(tmp, p)
+        except OSError as err:
+            if isinstance(err, OutputExistsError):
+                raise
+            raise StorageError(f"{p}: cannot write output ({err.strerror or err})") from err
+        ok = True
+    finally:
+        if not ok:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+
+
+def write_bytes_atomic(path, data: bytes, *, force: bool = False) -> None:
+    with atomic_path(path, force=force) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_text_atomic(path, text: str, *, force: bool = False) -> None:
+    write_bytes_atomic(path, text.encode(), force=force)

@@ -1,0 +1,35 @@
+"""Export a log: one CSV or Parquet file per channel."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import ConfigError, StorageError
+from ..log import FieldLog
+from .atomic import atomic_path
+
+
+def channel_filename(topic: str, fmt: str) -> str:
+    return topic.strip("/").replace("/", "__") + ("." + fmt)
+
+
+def export_log(log: FieldLog, out_dir, *, fmt: str = "csv", force: bool = False) -> list[Path]:
+    """Write each channel to ``out_dir/<topic>.<fmt>`` (index ``t_ns`` as the first column)."""
+    if fmt not in ("csv", "parquet"):
+        raise ConfigError(f"export format {fmt!r} is not csv or parquet")
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StorageError(f"{out}: cannot create directory ({err.strerror})") from err
+    written = []
+    for topic in log.topics:
+        path = out / channel_filename(topic, fmt)
+        frame = log.channels[topic]
+        with atomic_path(path, force=force) as tmp:
+            if fmt == "csv":
+                frame.to_csv(tmp, float_format="%.17g")
+            else:
+                frame.to_parquet(tmp)
+        written.append(path)
+    return written

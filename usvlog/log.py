@@ -1,0 +1,149 @@
+"""FieldLog: the in-memory form of one run.
+
+One pandas DataFrame per topic, indexed by int64 ``t_ns`` (ns since the Unix epoch,
+the MCAP log time), plus metadata records ``{name: {key: str}}`` as stored in MCAP.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+from .frames import Datum
+from .vessel import Vessel
+
+META_DATUM = "usvlog.datum"
+META_VESSEL = "usvlog.vessel"
+META_PROVENANCE = "usvlog.provenance"  # stored as usvlog.provenance/0, /1, ... in order
+
+
+@dataclass(frozen=True)
+class RecoveryReport:
+    """What was recovered from a damaged (truncated) file."""
+
+    file_size: int
+    bytes_recovered: int     # bytes of the file that were used (complete records)
+    bytes_lost: int          # bytes after the last complete chunk
+    messages_recovered: int
+    lost_from_ns: int | None  # earliest time that may be missing (end of recovered data)
+    lost_to_ns: int | None    # latest time known to be missing, when known (else None)
+    reason: str
+
+    def describe(self) -> str:
+        s = (f"recovered {self.messages_recovered} messages; {self.bytes_lost} of {self.file_size} bytes lost"
+             f" ({self.reason})")
+        if self.lost_from_ns is not None:
+            s += f"; data after {format_time(self.lost_from_ns)} lost"
+        return s
+
+    def to_dict(self) -> dict:
+        return {"file_size": self.file_size, "bytes_recovered": self.bytes_recovered,
+                "bytes_lost": self.bytes_lost, "messages_recovered": self.messages_recovered,
+                "lost_from_ns": self.lost_from_ns, "lost_to_ns": self.lost_to_ns, "reason": self.reason}
+
+
+def format_time(t_ns: int) -> str:
+    return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+@dataclass
+class FieldLog:
+    channels: dict[str, pd.DataFrame] = field(default_factory=dict)
+    meta: dict[str, dict[str, str]] = field(default_factory=dict)
+    schemas: dict[str, dict] = field(default_factory=dict)  # topic -> schema read from file (if any)
+    recovery: RecoveryReport | None = None
+    source: str | None = None  # path it was loaded from
+
+    # -- channels -------------------------------------------------------------------
+    def __contains__(self, topic: str) -> bool:
+        return topic in self.channels
+
+    def __getitem__(self, topic: str) -> pd.DataFrame:
+        try:
+            return self.channels[topic]
+        except KeyError:
+            where = f"{self.source}: " if self.source else ""
+            have = ", ".join(sorted(self.channels)) or "none"
+            raise InputError(f"{where}channel {topic} is missing (channels: {have})") from None
+
+    def get(self, topic: str) -> pd.DataFrame | None:
+        return self.channels.get(topic)
+
+    def set(self, topic: str, frame: pd.DataFrame) -> None:
+        """Add or replace a channel; the index becomes int64 ``t_ns``."""
+        idx = frame.index
+        if idx.name != "t_ns" or idx.dtype != np.int64:
+            if isinstance(idx, pd.DatetimeIndex):
+                vals = idx.as_unit("ns").asi8
+            else:
+                vals = np.asarray(idx, dtype=np.int64)
+            frame = frame.set_axis(pd.Index(vals, name="t_ns"), axis=0)
+        self.channels[topic] = frame
+
+    @property
+    def topics(self) -> list[str]:
+        return sorted(self.channels)
+
+    def time_range(self) -> tuple[int, int] | None:
+        lo = [int(f.index.min()) for f in self.channels.values() if len(f)]
+        hi = [int(f.index.max()) for f in self.channels.values() if len(f)]
+        return (min(lo), max(hi)) if lo else None
+
+    # -- metadata -------------------------------------------------------------------
+    @property
+    def datum(self) -> Datum | None:
+        d = self.meta.get(META_DATUM)
+        return Datum.from_dict(d) if d else None
+
+    @datum.setter
+    def datum(self, value: Datum) -> None:
+        self.meta[META_DATUM] = value.to_dict()
+
+    @property
+    def vessel(self) -> Vessel | None:
+        d = self.meta.get(META_VESSEL)
+        return Vessel.from_dict(d) if d else None
+
+    @vessel.setter
+    def vessel(self, value: Vessel) -> None:
+        self.meta[META_VESSEL] = value.to_dict()
+
+    @property
+    def provenance(self) -> list[dict[str, str]]:
+        keys = sorted((k for k in self.meta if k.startswith(META_PROVENANCE + "/")),
+                      key=lambda k: int(k.rsplit("/", 1)[1]))
+        return [self.meta[k] for k in keys]
+
+    def add_provenance(self, *, producer: str, source: str = "", settings: dict | None = None,
+                       **extra) -> None:
+        """Append a provenance record: what produced (or changed) this log, from what, how."""
+        from . import __version__
+
+        rec = {"producer": producer, "usvlog_version": __version__, "source": source,
+               "settings": json.dumps(settings or {}, sort_keys=True, default=str)}
+        rec.update({k: v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=str)
+                    for k, v in extra.items()})
+        n = len(self.provenance)
+        self.meta[f"{META_PROVENANCE}/{n}"] = rec
+
+    # -- I/O conveniences (the work is in usvlog.io) ----------------------------------
+    def save(self, path, *, force: bool = False, **kwargs) -> None:
+        from .io.mcapio import write_log
+
+        write_log(self, path, force=force, **kwargs)
+
+    def copy(self) -> "FieldLog":
+        return FieldLog(channels=dict(self.channels), meta={k: dict(v) for k, v in self.meta.items()},
+                        schemas=dict(self.schemas), recovery=self.recovery, source=self.source)
+
+    def equals(self, other: "FieldLog") -> bool:
+        if set(self.channels) != set(other.channels) or self.meta != other.meta:
+            return False
+        return all(self.channels[k].equals(other.channels[k]) and
+                   list(self.channels[k].columns) == list(other.channels[k].columns)
+                   for k in self.channels)

@@ -1,0 +1,26 @@
+"""Locate the data shipped with usvlog: channel schemas and replay scenarios.
+
+In a wheel they live inside the package (``usvlog/_schemas``, ``usvlog/_replay``);
+in a source checkout they are the top-level ``schemas/`` and ``replay/`` folders.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+_PKG = Path(__file__).resolve().parent
+
+
+def _find(packaged: str, top: str) -> Path:
+    for cand in (_PKG / packaged, _PKG.parent / top):
+        if cand.is_dir():
+            return cand
+    return _PKG.parent / top
+
+
+def schemas_dir() -> Path:
+    return _find("_schemas", "schemas")
+
+
+def replay_dir() -> Path:
+    return _find("_replay", "replay")

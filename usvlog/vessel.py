@@ -1,0 +1,354 @@
+"""The paper's 3-DOF vessel: parameters, thruster geometry and map, dynamics (1)-(6).
+
+Pure functions of arrays. ``nu`` is the velocity the model acts on (relative to the
+water when there is a current); ``tau = [tau_u, tau_v = 0, tau_r]``.
+
+Expanding M nu_dot + C(nu) nu + D nu = tau with (4)-(6):
+
+    m u_dot                      = tau_u + m (xg r + v) r - d11 u
+    m v_dot + m xg r_dot         = -m u r - d22 v
+    m xg v_dot + Iz r_dot        = tau_r - m xg u r - d33 r
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+
+from .errors import ConfigError, InputError
+
+PARAM_NAMES = ("m", "Iz", "d11", "d22", "d33", "xg")
+THRUST_UNITS = ("newton", "normalized", "pwm_us")
+THRUSTER_MAPS = ("identity", "linear", "quadratic")
+
+
+@dataclass(frozen=True, kw_only=True)
+class VesselParams:
+    """Model parameters of eq. (3), SI units, paper symbols."""
+
+    m: float = 33.0
+    Iz: float = 10.0
+    d11: float = 5.0
+    d22: float = 5.0
+    d33: float = 5.0
+    xg: float = 0.1
+
+    def __post_init__(self):
+        for f in PARAM_NAMES:
+            v = getattr(self, f)
+            if not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"vessel parameter {f} = {v!r} is not a finite number")
+        if self.m <= 0:
+            raise ConfigError(f"vessel parameter m = {self.m} must be > 0")
+        if self.Iz <= 0:
+            raise ConfigError(f"vessel parameter Iz = {self.Iz} must be > 0")
+        for f in ("d11", "d22", "d33"):
+            if getattr(self, f) < 0:
+                raise ConfigError(f"vessel parameter {f} = {getattr(self, f)} must be >= 0")
+
+    @property
+    def Iz_eff(self) -> float:
+        """Iz - m xg^2: Theorem 3.1 condition 1 requires it > 0."""
+        return self.Iz - self.m * self.xg**2
+
+    def as_array(self) -> np.ndarray:
+        return np.array([getattr(self, f) for f in PARAM_NAMES], dtype=float)
+
+    def to_dict(self) -> dict[str, float]:
+        return {f: float(getattr(self, f)) for f in PARAM_NAMES}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Thrusters:
+    """Twin-thruster geometry and the map from recorded command to force (N).
+
+    ``map``: ``identity`` (commands already newtons), ``linear`` (F = forward_n c for
+    c >= 0, reverse_n c below) or ``quadratic`` (F = forward_n c|c| / reverse_n c|c|),
+    with c the normalized command in [-1, 1]. PWM commands are first normalized with
+    ``pwm_neutral_us`` and ``pwm_span_us`` (full command at neutral +- span).
+    ``forward_n``/``reverse_n`` are also the force limits used for saturation.
+    """
+
+    arm_m: float = 0.3
+    map: str = "identity"
+    forward_n: float = 20.0
+    reverse_n: float = 12.0
+    pwm_neutral_us: float = 1500.0
+    pwm_span_us: float = 400.0
+    known: bool = True  # False when the map is only a guess (reported by identification)
+
+    def __post_init__(self):
+        if self.map not in THRUSTER_MAPS:
+            raise ConfigError(f"thruster map {self.map!r} is not one of {', '.join(THRUSTER_MAPS)}")
+        if not (self.arm_m > 0 and math.isfinite(self.arm_m)):
+            raise ConfigError(f"thruster arm_m = {self.arm_m} must be a finite number > 0")
+        if not (self.forward_n > 0 and self.reverse_n > 0):
+            raise ConfigError("thruster forward_n and reverse_n must be > 0")
+        if not (self.pwm_span_us > 0):
+            raise ConfigError(f"thruster pwm_span_us = {self.pwm_span_us} must be > 0")
+
+    # -- command <-> force -------------------------------------------------------
+    def normalize(self, command, unit: str):
+        """Recorded command -> normalized command in [-1, 1] (pwm_us or normalized)."""
+        c = np.asarray(command, dtype=float)
+        if unit == "normalized":
+            return np.clip(c, -1.0, 1.0)
+        if unit == "pwm_us":
+            return np.clip((c - self.pwm_neutral_us) / self.pwm_span_us, -1.0, 1.0)
+        raise ConfigError(f"thrust unit {unit!r} cannot be normalized")
+
+    def command_to_force(self, command, unit: str):
+        """Recorded thruster command in ``unit`` -> force in newtons."""
+        if unit not in THRUST_UNITS:
+            raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
+        c = np.asarray(command, dtype=float)
+        if unit == "newton":
+            return c.copy()
+        c = self.normalize(c, unit)
+        if self.map == "identity":
+            raise ConfigError(
+                f"thrust commands in {unit} need a thruster map (linear or quadratic), not identity")
+        shape = c if self.map == "linear" else c * np.abs(c)
+        return np.where(c >= 0, self.forward_n * shape, self.reverse_n * shape)
+
+    def force_to_command(self, force, unit: str):
+        """Force in newtons -> command in ``unit`` (saturated to the thruster limits)."""
+        f = self.saturate(force)
+        if unit == "newton":
+            return f
+        scale = np.where(f >= 0, self.forward_n, self.reverse_n)
+        x = f / scale
+        if self.map == "identity":
+            raise ConfigError(
+                f"thrust commands in {unit} need a thruster map (linear or quadratic), not identity")
+        c = x if self.map == "linear" else np.sign(x) * np.sqrt(np.abs(x))
+        if unit == "normalized":
+            return c
+        if unit == "pwm_us":
+            return self.pwm_neutral_us + self.pwm_span_us * c
+        raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
+
+    def saturate(self, force):
+        return np.clip(np.asarray(force, dtype=float), -self.reverse_n, self.forward_n)
+
+    # -- geometry ----------------------------------------------------------------
+    def tau_from_forces(self, f_left, f_right):
+        """(tau_u, tau_r): port thruster pushing harder gives positive (starboard) r."""
+        f_left, f_right = np.asarray(f_left, float), np.asarray(f_right, float)
+        return f_left + f_right, self.arm_m * (f_left - f_right)
+
+    def forces_from_tau(self, tau_u, tau_r):
+        """Inverse of :meth:`tau_from_forces` (no saturation)."""
+        tau_u, tau_r = np.asarray(tau_u, float), np.asarray(tau_r, float)
+        d = tau_r / self.arm_m
+        return 0.5 * (tau_u + d), 0.5 * (tau_u - d)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Vessel:
+    name: str = "paper-section-iv"
+    params: VesselParams = field(default_factory=VesselParams)
+    thrusters: Thrusters = field(default_factory=Thrusters)
+
+    def to_toml(self) -> str:
+        p, t = self.params, self.thrusters
+        lines = [f'name = "{self.name}"', "", "[model]"]
+        lines += [f"{k} = {_toml_float(v)}" for k, v in p.to_dict().items()]
+        lines += ["", "[thrusters]"]
+        for f in fields(Thrusters):
+            v = getattr(t, f.name)
+            if isinstance(v, bool):
+                lines.append(f"{f.name} = {'true' if v else 'false'}")
+            elif isinstance(v, str):
+                lines.append(f'{f.name} = "{v}"')
+            else:
+                lines.append(f"{f.name} = {_toml_float(v)}")
+        return "\n".join(lines) + "\n"
+
+    def to_dict(self) -> dict[str, str]:
+        """Flat string map (MCAP metadata record)."""
+        d = {"name": self.name}
+        d.update({f"model.{k}": repr(v) for k, v in self.params.to_dict().items()})
+        d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()})
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, str]) -> "Vessel":
+        model = {k.split(".", 1)[1]: float(v) for k, v in d.items() if k.startswith("model.")}
+        thr: dict = {}
+        for f in fields(Thrusters):
+            key = f"thrusters.{f.name}"
+            if key in d:
+                v = d[key]
+                thr[f.name] = v if f.type == "str" else (v == "True") if f.type == "bool" else float(v)
+        return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr))
+
+    def with_params(self, **changes) -> "Vessel":
+        return replace(self, params=replace(self.params, **changes))
+
+
+def _toml_float(v: float) -> str:
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return repr(float(v))
+
+
+def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
+    """Parse a vessel TOML document (see README) into a :class:`Vessel`."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    model = doc.get("model", {})
+    thr = doc.get("thrusters", {})
+    known_m = set(PARAM_NAMES)
+    known_t = {f.name for f in fields(Thrusters)}
+    for k in model:
+        if k not in known_m:
+            raise ConfigError(f"{source}: [model] has unknown key {k!r} (expected {', '.join(PARAM_NAMES)})")
+    for k in thr:
+        if k not in known_t:
+            raise ConfigError(f"{source}: [thrusters] has unknown key {k!r}")
+    try:
+        params = VesselParams(**{k: float(v) for k, v in model.items()})
+        thrusters = Thrusters(**{k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in thr.items()})
+    except (ConfigError, TypeError, ValueError) as err:
+        raise ConfigError(f"{source}: {err}") from err
+    return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters)
+
+
+def default_vessel() -> Vessel:
+    """The paper's Section IV vessel: m = 33 kg, Iz = 10 kg m^2, d = 5, xg = 0.1 m."""
+    return Vessel()
+
+
+# ---------------------------------------------------------------------------
+# Dynamics, eq. (3); vectorised over leading axes
+# ---------------------------------------------------------------------------
+
+def mass_matrix(p: VesselParams) -> np.ndarray:
+    """M of eq. (4)."""
+    return np.array([[p.m, 0.0, 0.0], [0.0, p.m, p.m * p.xg], [0.0, p.m * p.xg, p.Iz]])
+
+
+def coriolis_matrix(nu, p: VesselParams) -> np.ndarray:
+    """C(nu) of eq. (5), shape (..., 3, 3)."""
+    nu = np.asarray(nu, float)
+    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
+    z = np.zeros_like(u)
+    a = p.m * (p.xg * r + v)
+    b = p.m * u
+    return np.stack([np.stack([z, z, -a], -1), np.stack([z, z, b], -1), np.stack([a, -b, z], -1)], -2)
+
+
+def damping_matrix(p: VesselParams) -> np.ndarray:
+    """D of eq. (6)."""
+    return np.diag([p.d11, p.d22, p.d33])
+
+
+def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
+    """(u_dot, v_dot, r_dot) of eq. (3) in closed form.
+
+    Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike.
+    """
+    f1 = tau_u + m * (xg * r + v) * r - d11 * u
+    f2 = -m * u * r - d22 * v
+    f3 = tau_r - m * xg * u * r - d33 * r
+    det = m * Iz - (m * xg) * (m * xg)
+    return f1 / m, (Iz * f2 - m * xg * f3) / det, (m * f3 - m * xg * f2) / det
+
+
+def nu_dot(nu, tau_u, tau_r, p: VesselParams):
+    """nu_dot = M^-1 (tau - C(nu) nu - D nu), vectorised over leading axes."""
+    nu = np.asarray(nu, float)
+    ud, vd, rd = nu_dot_terms(nu[..., 0], nu[..., 1], nu[..., 2], tau_u, tau_r,
+                              p.m, p.Iz, p.d11, p.d22, p.d33, p.xg)
+    return np.stack(np.broadcast_arrays(ud, vd, rd), -1)
+
+
+def nu_dot_jacobian(nu, p: VesselParams):
+    """d(nu_dot)/d(nu), shape (..., 3, 3); tau enters linearly (see :func:`nu_dot_tau_matrix`)."""
+    nu = np.asarray(nu, float)
+    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
+    m, xg, Iz = p.m, p.xg, p.Iz
+    det = m * Iz - (m * xg) ** 2
+    z = np.zeros_like(u)
+    # partials of f1, f2, f3 w.r.t. (u, v, r)
+    f1 = np.stack([z - p.d11, m * r, m * v + 2 * m * xg * r], -1)
+    f2 = np.stack([-m * r, z - p.d22, -m * u], -1)
+    f3 = np.stack([-m * xg * r, z, -m * xg * u - p.d33], -1)
+    row_u = f1 / m
+    row_v = (Iz * f2 - m * xg * f3) / det
+    row_r = (m * f3 - m * xg * f2) / det
+    return np.stack([row_u, row_v, row_r], -2)
+
+
+def nu_dot_tau_matrix(p: VesselParams) -> np.ndarray:
+    """B such that nu_dot = ... + B @ [tau_u, tau_r] (the input matrix)."""
+    det = p.m * p.Iz - (p.m * p.xg) ** 2
+    return np.array([[1.0 / p.m, 0.0], [0.0, -p.m * p.xg / det], [0.0, p.m / det]])
+
+
+def eta_dot(eta, nu, current_ne=(0.0, 0.0)):
+    """Eq. (1) plus a current in NED: eta_dot = R(psi) nu + [c_n, c_e, 0]."""
+    eta, nu = np.asarray(eta, float), np.asarray(nu, float)
+    psi = eta[..., 2]
+    c, s = np.cos(psi), np.sin(psi)
+    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
+    return np.stack([c * u - s * v + current_ne[0], s * u + c * v + current_ne[1], r], -1)
+
+
+def plant_rhs(x, tau_u, tau_r, p: VesselParams, current_ne=(0.0, 0.0)):
+    """State x = [n, e, psi, u, v, r] -> x_dot (eqs. (1) and (3))."""
+    x = np.asarray(x, float)
+    return np.concatenate([eta_dot(x[..., :3], x[..., 3:], current_ne),
+                           nu_dot(x[..., 3:], tau_u, tau_r, p)], -1)
+
+
+def plant_jacobian(x, p: VesselParams):
+    """d(plant_rhs)/dx, shape (..., 6, 6) (independent of tau and of a constant current)."""
+    x = np.asarray(x, float)
+    psi, u, v = x[..., 2], x[..., 3], x[..., 4]
+    c, s = np.cos(psi), np.sin(psi)
+    J = np.zeros(x.shape[:-1] + (6, 6))
+    J[..., 0, 2] = -s * u - c * v
+    J[..., 1, 2] = c * u - s * v
+    J[..., 0, 3], J[..., 0, 4] = c, -s
+    J[..., 1, 3], J[..., 1, 4] = s, c
+    J[..., 2, 5] = 1.0
+    J[..., 3:, 3:] = nu_dot_jacobian(x[..., 3:], p)
+    return J
+
+
+def model_residual(nu, nu_dot_meas, tau_u, tau_r, p: VesselParams):
+    """M nu_dot + C(nu) nu + D nu - tau for given accelerations (shape (..., 3))."""
+    nu = np.asarray(nu, float)
+    M, D = mass_matrix(p), damping_matrix(p)
+    Cnu = np.einsum("...ij,...j->...i", coriolis_matrix(nu, p), nu)
+    tau = np.stack([np.asarray(tau_u, float) + 0 * nu[..., 0], 0 * nu[..., 0],
+                    np.asarray(tau_r, float) + 0 * nu[..., 0]], -1)
+    return np.asarray(nu_dot_meas) @ M.T + Cnu + nu @ D.T - tau
+
+
+def rk4_step(x, tau_u, tau_r, p: VesselParams, dt: float, current_ne=(0.0, 0.0)):
+    """One RK4 step of the plant with thrust held over the step."""
+    k1 = plant_rhs(x, tau_u, tau_r, p, current_ne)
+    k2 = plant_rhs(x + 0.5 * dt * k1, tau_u, tau_r, p, current_ne)
+    k3 = plant_rhs(x + 0.5 * dt * k2, tau_u, tau_r, p, current_ne)
+    k4 = plant_rhs(x + dt * k3, tau_u, tau_r, p, current_ne)
+    return x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def euler_step(x, tau_u, tau_r, p: VesselParams, dt: float, current_ne=(0.0, 0.0)):
+    """First-order step, as the paper's Section IV simulation."""
+    return x + dt * plant_rhs(x, tau_u, tau_r, p, current_ne)
+
+
+def check_finite(name: str, arr, source: str = "") -> None:
+    a = np.asarray(arr, float)
+    if not np.all(np.isfinite(a)):
+        i = int(np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).any(-1))[0]) if a.ndim else 0
+        raise InputError(f"{source} {name}: non-finite value at row {i}".strip())
