@@ -321,3 +321,60 @@ def assemble(lits, lit_off, data, vs, ve):
                 out[p] = data[j]
                 p += 1
     return out, offs
+
+
+@njit(cache=True)
+def message_records(data, ps, pe, cid, seq, t):
+    """MCAP Message records (publish time = log time) for payloads data[ps[i]:pe[i]].
+
+    Returns (bytes uint8, int64 offsets of the n+1 record bounds)."""
+    n = len(ps)
+    offs = np.empty(n + 1, np.int64)
+    offs[0] = 0
+    for i in range(n):
+        offs[i + 1] = offs[i] + 31 + (pe[i] - ps[i])
+    out = np.empty(offs[n], np.uint8)
+    for i in range(n):
+        p = offs[i]
+        out[p] = OP_MESSAGE
+        length = np.uint64(22 + pe[i] - ps[i])
+        for k in range(8):
+            out[p + 1 + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
+        c = np.uint64(cid[i])
+        out[p + 9] = np.uint8(c & np.uint64(255))
+        out[p + 10] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
+        s = np.uint64(seq[i])
+        for k in range(4):
+            out[p + 11 + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
+        tt = np.uint64(t[i])
+        for k in range(8):
+            b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
+            out[p + 15 + k] = b
+            out[p + 23 + k] = b
+        q = p + 31
+        for j in range(ps[i], pe[i]):
+            out[q] = data[j]
+            q += 1
+    return out, offs
+
+
+@njit(cache=True)
+def chunk_bounds(rec_offs, chunk_size, first_extra):
+    """Split records into chunks the way the mcap Writer does: a chunk is closed right
+    after the record that takes its size past ``chunk_size``. Returns the index one
+    past the last record of each chunk."""
+    n = len(rec_offs) - 1
+    ends = np.empty(n, np.int64)
+    m = 0
+    count = first_extra
+    for i in range(n):
+        count += rec_offs[i + 1] - rec_offs[i]
+        if count > chunk_size:
+            ends[m] = i + 1
+            m += 1
+            count = 0
+    if m == 0 or ends[m - 1] != n:
+        if n > 0:
+            ends[m] = n
+            m += 1
+    return ends[:m]

@@ -65,42 +65,234 @@ def encode_log(log: FieldLog) -> list[tuple[str, dict, np.ndarray, list[bytes]]]
     return out
 
 
+def _compression(compression: str) -> str:
+    if compression not in ("zstd", "lz4", "none"):
+        raise InputError(f"unknown compression {compression!r} (zstd, lz4 or none)")
+    return compression
+
+
 def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
               compression: str = "zstd") -> None:
-    """Write ``log`` as a canonical MCAP file, atomically."""
+    """Write ``log`` as a canonical MCAP file, atomically.
+
+    The file is the one the mcap library's ``Writer`` writes for the same messages
+    (byte for byte; ``_write_log_reference`` does it that way and the tests compare),
+    but the message and index records are built by compiled loops.
+    """
+    _compression(compression)
+    data = encode_file(log, chunk_size=chunk_size, compression=compression)
+    with atomic_path(path, force=force) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+
+
+def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, dict, Codec]]]:
+    """(mcap Schema records, Channel records, both in registration order, and
+    [(topic, schema, codec)] in channel-id order)."""
+    from mcap.records import Channel, Schema
+
+    schemas, channels, both, out, ids = [], [], [], [], {}
+    for topic in log.topics:
+        schema, codec = _codec_for(log, topic)
+        sname = schema.get("title", topic)
+        sdata = json.dumps(schema, sort_keys=False).encode()
+        key = (sname, sdata)
+        if key not in ids:
+            ids[key] = len(schemas) + 1
+            schemas.append(Schema(id=ids[key], name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            both.append(schemas[-1])
+        channels.append(Channel(id=len(channels) + 1, topic=topic, message_encoding=MESSAGE_ENCODING,
+                                schema_id=ids[key], metadata={}))
+        both.append(channels[-1])
+        out.append((topic, schema, codec))
+    return schemas, channels, both, out
+
+
+def encode_file(log: FieldLog, *, chunk_size: int = 1 << 20, compression: str = "zstd") -> bytes:
+    """The bytes of the canonical MCAP file of ``log`` (see :func:`write_log`)."""
+    import zlib
+
+    from mcap.data_stream import RecordBuilder
+    from mcap.opcode import Opcode
+    from mcap.records import (Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex,
+                              Statistics, SummaryOffset)
+
+    from .. import _kernels as K
+
+    comp = _compression(compression)
+    schemas, channels, registered, encs = _schema_records(log)
+
+    # payloads of every channel in one buffer; messages in (time, channel, row) order
+    bufs, ts, cids, rows, starts, ends = [], [], [], [], [], []
+    base = 0
+    for ci, (topic, _schema, codec) in enumerate(encs):
+        frame = log.channels[topic]
+        t = np.asarray(frame.index, dtype=np.int64)
+        if len(t) and t.min() < 0:
+            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+        data, offs = codec.encode_packed(frame, topic)
+        bufs.append(data)
+        ts.append(t)
+        cids.append(np.full(len(t), ci + 1, dtype=np.int64))
+        rows.append(np.arange(len(t), dtype=np.int64))
+        starts.append(offs[:-1] + base)
+        ends.append(offs[1:] + base)
+        base += len(data)
+    cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dtype=dt))
+    t_all, c_all, r_all = cat(ts, np.int64), cat(cids, np.int64), cat(rows, np.int64)
+    order = np.lexsort((r_all, c_all, t_all))
+    t_all, c_all, r_all = t_all[order], c_all[order], r_all[order]
+    payload = cat(bufs, np.uint8)
+    recs, rec_offs = K.message_records(payload, cat(starts, np.int64)[order], cat(ends, np.int64)[order],
+                                       c_all, r_all, t_all)
+
+    out = bytearray(MAGIC)
+    rb = RecordBuilder()
+
+    def emit() -> int:
+        """Append what the record builder holds; returns the offset it starts at."""
+        at = len(out)
+        out.extend(rb.end())
+        return at
+
+    Header(profile="", library=f"usvlog {__version__}").write(rb)
+    emit()
+    meta_index = []
+    for name in sorted(log.meta):
+        Metadata(name=name, metadata={str(k): str(v) for k, v in log.meta[name].items()}).write(rb)
+        at = emit()
+        meta_index.append(MetadataIndex(offset=at, length=len(out) - at, name=name))
+
+    # schema and channel records open the first chunk, as the mcap Writer puts them
+    for r in registered:
+        r.write(rb)
+    prefix = rb.end()
+    chunk_indexes = []
+    n = len(t_all)
+    bounds = K.chunk_bounds(rec_offs, int(chunk_size), len(prefix)).tolist() if n else []
+    a = 0
+    for b in bounds:
+        head = prefix if a == 0 else b""
+        body = memoryview(recs)[rec_offs[a]:rec_offs[b]]
+        chunk_data = head + body.tobytes() if head else body.tobytes()
+        if comp == "zstd":
+            import zstandard
+
+            packed, cname = zstandard.compress(chunk_data), "zstd"
+        elif comp == "lz4":
+            import lz4.frame
+
+            packed, cname = lz4.frame.compress(chunk_data), "lz4"
+        else:
+            packed, cname = chunk_data, ""
+        tc = t_all[a:b]
+        t0, t1 = int(tc.min()), int(tc.max())
+        Chunk(compression=cname, data=packed, message_start_time=t0, message_end_time=t1,
+              uncompressed_crc=zlib.crc32(chunk_data), uncompressed_size=len(chunk_data)).write(rb)
+        chunk_at = emit()
+        chunk_len = len(out) - chunk_at
+        # one Message Index record per channel, in order of the channel's first message
+        cc = c_all[a:b]
+        uniq, first = np.unique(cc, return_index=True)
+        index_at = len(out)
+        offsets = {}
+        in_chunk = rec_offs[a:b] - rec_offs[a] + len(head)
+        for cid in uniq[np.argsort(first)].tolist():
+            sel = cc == cid
+            entries = np.empty((int(sel.sum()), 2), dtype="<u8")
+            entries[:, 0] = tc[sel]
+            entries[:, 1] = in_chunk[sel]
+            offsets[cid] = len(out)
+            out.extend(_REC.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes))
+            out.extend(struct.pack("<HI", cid, entries.nbytes))
+            out.extend(entries.tobytes())
+        chunk_indexes.append(ChunkIndex(
+            message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_at,
+            chunk_length=chunk_len, message_index_offsets=offsets,
+            message_index_length=len(out) - index_at, compression=cname,
+            compressed_size=len(packed), uncompressed_size=len(chunk_data)))
+        a = b
+
+    DataEnd(0).write(rb)
+    emit()
+
+    # summary: the same groups, in the same order, as the mcap Writer
+    summary_start = len(out)
+    sb = RecordBuilder()
+    groups = []
+
+    def group(opcode, records) -> None:
+        g0 = sb.count
+        for r in records:
+            r.write(sb)
+        groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + g0,
+                                    group_length=sb.count - g0))
+
+    if n:
+        _, first = np.unique(c_all, return_index=True)
+        chan_order = c_all[np.sort(first)].tolist()
+        counts = np.bincount(c_all)
+        per_channel = {cid: int(counts[cid]) for cid in chan_order}
+    else:
+        per_channel = {}
+    stats = Statistics(attachment_count=0, channel_count=len(channels), channel_message_counts=per_channel,
+                       chunk_count=len(chunk_indexes), message_count=n, metadata_count=len(meta_index),
+                       message_start_time=int(t_all.min()) if n else 0,
+                       message_end_time=int(t_all.max()) if n else 0, schema_count=len(schemas))
+    group(Opcode.SCHEMA, schemas)
+    group(Opcode.CHANNEL, channels)
+    group(Opcode.STATISTICS, [stats])
+    group(Opcode.CHUNK_INDEX, chunk_indexes)
+    group(Opcode.ATTACHMENT_INDEX, [])
+    group(Opcode.METADATA_INDEX, meta_index)
+    summary_offset_start = summary_start + sb.count
+    for g in groups:
+        g.write(sb)
+    summary = sb.end()
+    crc = zlib.crc32(summary)
+    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+    out.extend(summary)
+    Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc).write(rb)
+    emit()
+    out.extend(MAGIC)
+    return bytes(out)
+
+
+def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
+                         compression: str = "zstd") -> None:
+    """Write ``log`` through the mcap library's Writer, one ``add_message`` per message
+    (the reference :func:`write_log` is tested against)."""
     from mcap.writer import CompressionType, Writer
 
-    comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
-    encoded = encode_log(log)
+    comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE}[_compression(compression)]
+    _schemas, _channels, registered, encs = _schema_records(log)
+    encoded = []
+    for topic, _schema, codec in encs:
+        frame = log.channels[topic]
+        t = np.asarray(frame.index, dtype=np.int64)
+        if len(t) and t.min() < 0:
+            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+        encoded.append((t, codec.encode_reference(frame, topic)))
     with atomic_path(path, force=force) as tmp:
         with open(tmp, "wb") as fh:
             w = Writer(fh, chunk_size=chunk_size, compression=comp)
             w.start(profile="", library=f"usvlog {__version__}")
             for name in sorted(log.meta):
                 w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
-            schema_ids: dict[str, int] = {}
-            chan_ids, times, rows, chans = [], [], [], []
-            for ci, (topic, schema, t, payloads) in enumerate(encoded):
-                sname = schema.get("title", topic)
-                sdata = json.dumps(schema, sort_keys=False).encode()
-                key = sname + "\0" + sdata.decode()
-                if key not in schema_ids:
-                    schema_ids[key] = w.register_schema(name=sname, encoding=SCHEMA_ENCODING, data=sdata)
-                cid = w.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
-                                         schema_id=schema_ids[key])
-                chan_ids.append(cid)
-                times.append(t)
-                rows.append(np.arange(len(t)))
-                chans.append(np.full(len(t), ci))
-            if times:
-                t_all = np.concatenate(times)
-                c_all = np.concatenate(chans)
-                r_all = np.concatenate(rows)
+            for r in registered:
+                if hasattr(r, "topic"):
+                    w.register_channel(topic=r.topic, message_encoding=r.message_encoding, schema_id=r.schema_id)
+                else:
+                    w.register_schema(name=r.name, encoding=r.encoding, data=r.data)
+            if encoded:
+                t_all = np.concatenate([t for t, _ in encoded])
+                c_all = np.concatenate([np.full(len(t), i) for i, (t, _) in enumerate(encoded)])
+                r_all = np.concatenate([np.arange(len(t)) for t, _ in encoded])
                 order = np.lexsort((r_all, c_all, t_all))
-                add = w.add_message
                 for t_i, c_i, r_i in zip(t_all[order].tolist(), c_all[order].tolist(), r_all[order].tolist()):
-                    add(channel_id=chan_ids[c_i], log_time=t_i, data=encoded[c_i][3][r_i],
-                        publish_time=t_i, sequence=r_i)
+                    w.add_message(channel_id=c_i + 1, log_time=t_i, data=encoded[c_i][1][r_i],
+                                  publish_time=t_i, sequence=r_i)
             w.finish()
 
 
