@@ -141,6 +141,26 @@ def part_path(path, part: int | None) -> Path:
     return p.with_name(f"{p.stem}_{part:03d}{p.suffix or '.mcap'}")
 
 
+def check_outputs(path, *, rotating: bool, force: bool) -> None:
+    """Fail before recording when the output (or, rotating, any part of it) exists or cannot be made."""
+    p = Path(path)
+    if p.exists() and p.is_dir():
+        raise StorageError(f"{p}: output is a directory")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise StorageError(f"{p}: directory {parent} does not exist")
+    if force:
+        return
+    first = part_path(p, 0 if rotating else None)
+    if first.exists():
+        raise OutputExistsError(f"{first}: output exists (use --force to overwrite)")
+    if rotating:
+        pat = re.compile(re.escape(p.stem) + r"_\d{3,}" + re.escape(p.suffix or ".mcap") + "$")
+        for q in parent.iterdir():
+            if pat.match(q.name):
+                raise OutputExistsError(f"{q}: output exists (use --force to overwrite)")
+
+
 def _storage_error(path, err: OSError, what: str) -> StorageError:
     reason = {errno.ENOSPC: "disk full", errno.EFBIG: "file too large for the file system or limit",
               errno.EDQUOT: "disk quota exceeded"}.get(err.errno, err.strerror or str(err))
@@ -185,7 +205,7 @@ class Recorder:
             raise ConfigError(f"compression {compression!r}: use zstd, lz4 or none") from None
         self._base = Path(path)
         self._rotating = rotate_mb is not None or rotate_min is not None
-        self._check_outputs(force)
+        check_outputs(self._base, rotating=self._rotating, force=force)
         self.flush_s = float(flush_s)
         self.rotate_bytes = None if rotate_mb is None else int(rotate_mb * 1e6)
         self.rotate_ns = None if rotate_min is None else int(rotate_min * 60e9)
@@ -227,24 +247,6 @@ class Recorder:
         return self._utc0 + (time.monotonic_ns() - self._mono0)
 
     # -- files ---------------------------------------------------------------------
-    def _check_outputs(self, force: bool) -> None:
-        p = self._base
-        if p.exists() and p.is_dir():
-            raise StorageError(f"{p}: output is a directory")
-        parent = p.parent if str(p.parent) else Path(".")
-        if not parent.is_dir():
-            raise StorageError(f"{p}: directory {parent} does not exist")
-        if force:
-            return
-        first = part_path(p, 0 if self._rotating else None)
-        if first.exists():
-            raise OutputExistsError(f"{first}: output exists (use --force to overwrite)")
-        if self._rotating:
-            pat = re.compile(re.escape(p.stem) + r"_\d{3,}" + re.escape(p.suffix or ".mcap") + "$")
-            for q in parent.iterdir():
-                if pat.match(q.name):
-                    raise OutputExistsError(f"{q}: output exists (use --force to overwrite)")
-
     @property
     def path(self) -> Path:
         """The file being written now."""

@@ -7,7 +7,7 @@ import time
 from dataclasses import dataclass
 
 from ...errors import ConfigError
-from .recorder import Recorder, RecorderStatus
+from .recorder import Recorder, RecorderStatus, check_outputs
 from .sources import Source, parse_source
 
 
@@ -24,9 +24,10 @@ class RecordSummary:
                 "status": self.status.to_dict(), "source_errors": dict(self.source_errors)}
 
 
-def open_sources(recorder, gnss: str | None = None, compass: str | None = None,
+def open_sources(gnss: str | None = None, compass: str | None = None,
                  thrust: str | None = None) -> list[Source]:
-    """Sources for the given URLs (not started). GNSS and compass may share one URL."""
+    """Sources for the given URLs, endpoints open, not started (``attach`` a recorder, then
+    ``start``). GNSS and compass may share one URL."""
     wanted = [("gnss", gnss, "nmea"), ("compass", compass, "nmea"), ("thrust", thrust, "json")]
     by_url: dict[str, list] = {}
     for name, url, kind in wanted:
@@ -39,7 +40,7 @@ def open_sources(recorder, gnss: str | None = None, compass: str | None = None,
     out = []
     try:
         for names, spec, kind in by_url.values():
-            out.append(Source("+".join(names), spec, recorder, kind))
+            out.append(Source("+".join(names), spec, None, kind))
     except Exception:
         for s in out:
             s.close()
@@ -61,15 +62,18 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
         raise ConfigError(f"--duration-s {duration_s} must be > 0")
     stop = stop or threading.Event()
     sources_desc = {k: v for k, v in (("gnss", gnss), ("compass", compass), ("thrust", thrust)) if v}
-    rec = Recorder(out, vessel=vessel, flush_s=flush_s, rotate_mb=rotate_mb, rotate_min=rotate_min,
-                   force=force, sources=sources_desc)
+    check_outputs(out, rotating=rotate_mb is not None or rotate_min is not None, force=force)
+    sources = open_sources(gnss, compass, thrust)  # a busy port or a missing device fails here
     try:
-        sources = open_sources(rec, gnss, compass, thrust)
+        rec = Recorder(out, vessel=vessel, flush_s=flush_s, rotate_mb=rotate_mb, rotate_min=rotate_min,
+                       force=force, sources=sources_desc)
     except Exception:
-        rec.close()
+        for s in sources:
+            s.close()
         raise
     t0 = time.monotonic()
     for s in sources:
+        s.attach(rec)
         s.start()
     stopped_by = "stop"
     try:

@@ -84,7 +84,7 @@ class Source(threading.Thread):
     port or device fails before recording starts.
     """
 
-    def __init__(self, name: str, spec: SourceSpec, recorder, kind: str = "nmea"):
+    def __init__(self, name: str, spec: SourceSpec, recorder=None, kind: str = "nmea"):
         super().__init__(name=f"usvlog-source-{name}", daemon=True)
         if kind not in ("nmea", "json"):
             raise ConfigError(f"source {name}: kind {kind!r} is not nmea or json")
@@ -129,6 +129,10 @@ class Source(threading.Thread):
     @property
     def dropped(self) -> int:
         return udp_drops(self._sock) if self.spec.scheme == "udp" and self._sock is not None else -1
+
+    def attach(self, recorder) -> None:
+        """The recorder the lines go to (before ``start()``)."""
+        self.rec = recorder
 
     def stop(self) -> None:
         self._stop_ev.set()
