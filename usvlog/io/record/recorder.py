@@ -529,7 +529,7 @@ class Recorder:
                 raise InputError("not a JSON object")
             stamp = obj.get("stamp_ns")
             if stamp is None and obj.get("t") is not None:
-                stamp = int(round(float(obj["t"]) * 1e9))
+                stamp = int(round(float(obj["t"]) * 1e6)) * 1000  # float seconds: µs resolution
             if stamp is not None:
                 stamp = int(stamp)
                 if stamp < 0:
