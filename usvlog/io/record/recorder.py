@@ -318,7 +318,8 @@ class Recorder:
 
     def _fail(self, err: OSError) -> None:
         if self._error is None:
-            self._error = _storage_error(self.path, err, "recording stopped, what was written before stays readable")
+            self._error = _storage_error(self.path, err, "recording stopped")
+            self._error = StorageError(f"{self._error}; what was written before stays readable")
         fh, self._fh = self._fh, None
         if fh is not None:
             with contextlib.suppress(Exception):
