@@ -15,7 +15,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,15 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from usvlog.io.mcapio import read_log  # noqa: E402
-from usvlog.io.record.loopback import LoopbackBoat, udp_target  # noqa: E402
-
-
-def free_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    p = s.getsockname()[1]
-    s.close()
-    return p
+from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target  # noqa: E402
 
 
 def main() -> int:
@@ -50,7 +41,7 @@ def main() -> int:
     thrust_hz = a.rate - 2 * gnss_hz - compass_hz
     tmp = Path(tempfile.mkdtemp(prefix="bench_record_"))
     out = tmp / "bench.mcap"
-    p_nmea, p_json = free_port(), free_port()
+    p_nmea, p_json = free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{p_nmea}",
            "--compass", f"udp://127.0.0.1:{p_nmea}", "--thrust", f"udp://127.0.0.1:{p_json}", "--json"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),

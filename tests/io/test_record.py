@@ -17,25 +17,16 @@ import numpy as np
 import pytest
 
 from usvlog.cli import main as cli_main
-from usvlog.errors import InputError, OutputExistsError, StorageError
+from usvlog.errors import InputError, OutputExistsError
 from usvlog.frames import Datum, ssa
 from usvlog.io.mcapio import read_log, read_logs
 from usvlog.io.record import Recorder, record
-from usvlog.io.record.loopback import LoopbackBoat, udp_target
-from usvlog.nmea import with_checksum
+from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target
 from usvlog.vessel import default_vessel
 
 
 ROOT = Path(__file__).resolve().parents[2]
 T0 = 1_750_000_000 * 10**9
-
-
-def free_udp_port() -> int:
-    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
 
 
 class TcpServer:

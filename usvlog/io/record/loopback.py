@@ -88,6 +88,15 @@ def udp_target(url_or_addr):
     return lambda data: sock.sendto(data, addr)
 
 
+def free_udp_port(host: str = "127.0.0.1") -> int:
+    """A UDP port that is free now (for tests and benchmarks on loopback)."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind((host, 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
 class LoopbackBoat:
     """Sends the sensor streams of a boat on a circle until ``duration_s`` or ``stop``.
 

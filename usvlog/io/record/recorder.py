@@ -1,8 +1,9 @@
 """Recorder: live samples -> a canonical MCAP log that survives a killed process.
 
-Every message goes into the mcap Writer's open chunk (in memory); about once a
-``flush_s`` a background thread closes the chunk, writes it and fsyncs the file,
-so a SIGKILL or a power cut loses at most the last interval. Metadata records
+Every message goes into the mcap Writer's open chunk (in memory); a background
+thread closes the chunk, writes it and fsyncs the file at a fixed rate (every
+0.8 ``flush_s``), so no message waits in memory longer than ``flush_s`` and a
+SIGKILL or a power cut loses at most the last ``flush_s`` (1 s by default). Metadata records
 (vessel, provenance, and the datum as soon as the first fix gives it) are written
 between chunks and fsynced at once; ``usvlog.io.mcapio.read_log`` reads metadata
 found anywhere before the cut and every complete chunk. ``close()`` finishes the
@@ -227,7 +228,6 @@ class Recorder:
         self._written = 0
         self._error: StorageError | None = None
         self._closed = False
-        self._dirty = False
         self._last_fix = None          # (lat, lon, t_ns)
         self._quality = None           # (fix_quality, satellites, hdop)
         self._last_status_ns = self.now_ns()
@@ -314,7 +314,6 @@ class Recorder:
         self._w.flush()
         self._fh.flush()
         os.fsync(self._fh.fileno())
-        self._dirty = False
 
     def _fail(self, err: OSError) -> None:
         if self._error is None:
@@ -371,7 +370,6 @@ class Recorder:
                 raise self._error from err
             self._seq[topic] = seq + 1
             self._written += 1
-            self._dirty = True
 
     def _source(self, name: str) -> _Source:
         s = self._sources.get(name)
@@ -577,7 +575,8 @@ class Recorder:
                 self._fail(err)
                 raise self._error from err
 
-    def _tick(self) -> None:
+    def _tick(self, fsync: bool = True) -> None:
+        """Status rows, provenance now and then, the open chunk to the OS (and to disk)."""
         now = self.now_ns()
         dt = max((now - self._last_status_ns) / 1e9, 1e-9)
         self._last_status_ns = now
@@ -590,27 +589,45 @@ class Recorder:
                                       "clock_offset_s": None if est is None else est.offset_ns / 1e9}, now)
         if now - self._last_prov_ns >= 10e9:
             self._write_provenance()
-        self._sync()
+        if fsync:
+            self._sync()
+        else:
+            self._w.flush()
+            self._fh.flush()
+
+    def _maybe_rotate(self) -> None:
         size = self._fh.tell()
         if ((self.rotate_bytes is not None and size >= self.rotate_bytes) or
-                (self.rotate_ns is not None and now - self._opened_ns >= self.rotate_ns)):
+                (self.rotate_ns is not None and self.now_ns() - self._opened_ns >= self.rotate_ns)):
             self._finish_part()
             self._bytes_done += size
             self._part += 1
             self._open_part()
 
     def _flush_loop(self) -> None:
-        while not self._stop.wait(self.flush_s):
-            with self._lock:
-                if self._closed or self._error is not None:
-                    return
-                try:
-                    self._tick()
-                except OSError as err:
+        # flush_s bounds how long a message waits in memory: flushing at a fixed rate of
+        # 0.8 flush_s leaves a fifth of it for a late wake-up on a busy machine
+        period = 0.8 * self.flush_s
+        nxt = time.monotonic() + period
+        while not self._stop.wait(max(0.0, nxt - time.monotonic())):
+            nxt = max(nxt + period, time.monotonic() + 0.1 * period)
+            try:
+                with self._lock:
+                    if self._closed or self._error is not None:
+                        return
+                    self._tick(fsync=False)        # in the page cache now: a killed process loses nothing more
+                    fd = self._fh.fileno()
+                os.fsync(fd)                       # to disk, without holding up the sources
+                with self._lock:
+                    if self._closed or self._error is not None:
+                        return
+                    self._maybe_rotate()
+            except OSError as err:
+                with self._lock:
                     self._fail(err)
-                    return
-                except StorageError:
-                    return
+                return
+            except StorageError:
+                return
 
     def _finish_part(self) -> None:
         self._write_provenance(closed=True)
@@ -665,8 +682,7 @@ class Recorder:
 
     def _tick_final(self) -> None:
         self._last_prov_ns = self.now_ns()  # _tick must not write it: the closing record follows
-        self.rotate_bytes = self.rotate_ns = None
-        self._tick()
+        self._tick(fsync=False)
         self._finish_part()
         with contextlib.suppress(OSError):
             self._bytes_done += self.path.stat().st_size
