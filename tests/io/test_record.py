@@ -377,6 +377,11 @@ def test_unwritable_output_exits_2_with_one_line(tmp_path, capsys):
         rc = cli_main(["record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{port}", "--duration-s", "1"])
         err = capsys.readouterr().err
         assert rc == 2 and err.count("\n") == 1 and msg in err, err
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:     # another program has the port
+        busy.bind(("127.0.0.1", 0))
+        rc = cli_main(["record", "--out", str(tmp_path / "r.mcap"), "--gnss", f"udp://127.0.0.1:{busy.getsockname()[1]}"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot listen" in err and err.count("\n") == 1
     rc = cli_main(["record", "--out", str(tmp_path / "r.mcap"), "--gnss", "ftp://x:1"])
     err = capsys.readouterr().err
     assert rc == 2 and "unsupported scheme" in err and err.count("\n") == 1
@@ -411,3 +416,32 @@ def test_disk_full_stops_with_one_line_and_keeps_what_was_written(tmp_path):
     assert log.recovery is not None and len(log["/thrust/command"]) > 100
     left = log["/thrust/command"].left.to_numpy()
     assert np.isfinite(left).all()
+
+
+def test_tcp_source_reconnects_after_the_link_drops(tmp_path):
+    from usvlog.io.record import Source, parse_source
+    from usvlog.nmea import with_checksum
+
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(10)
+    rec = Recorder(tmp_path / "tcp.mcap", flush_s=0.1)
+    src = Source("compass", parse_source(f"tcp://127.0.0.1:{server.getsockname()[1]}"), rec, "nmea")
+    src.start()
+    sent = []
+    for link in range(2):                       # the cable is pulled after the first 5 headings
+        conn, _ = server.accept()
+        for i in range(5):
+            h = 10.0 * (5 * link + i)
+            sent.append(h)
+            conn.sendall((with_checksum(f"HEHDT,{h:.1f},T") + "\r\n").encode())
+        time.sleep(0.2)
+        conn.close()
+    wait_for(lambda: src.reconnects >= 2, 10, "the source to notice the second drop")
+    src.stop()
+    src.join(5)
+    server.close()
+    rec.close()
+    log = read_log(tmp_path / "tcp.mcap")
+    assert np.allclose(log["/compass/heading"].heading_rad, ssa(np.radians(sent)))
+    ev = log["/events"].text.tolist()
+    assert sum("connected" in e for e in ev) >= 2 and sum("reconnecting" in e for e in ev) == 2

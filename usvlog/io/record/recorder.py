@@ -84,6 +84,7 @@ class RecorderStatus:
     hdop: float | None
     fix_quality: int | None
     error: str | None
+    source_errors: tuple[str, ...] = ()    # e.g. "compass: cannot connect to ..." (filled by the session)
 
     def line(self) -> str:
         """The one-line live status."""
@@ -107,6 +108,7 @@ class RecorderStatus:
         if self.hdop is not None and math.isfinite(self.hdop):
             parts.append(f"hdop {self.hdop:.1f}")
         parts.append(f"{self.file_bytes / 1e6:.2f} MB")
+        parts.extend(self.source_errors)
         if self.error:
             parts.append(f"ERROR {self.error}")
         return " | ".join(parts)
@@ -115,6 +117,7 @@ class RecorderStatus:
         d = {k: getattr(self, k) for k in ("elapsed_s", "path", "file_bytes", "messages_written", "fix_age_s",
                                           "satellites", "hdop", "fix_quality", "error")}
         d["files"] = list(self.files)
+        d["source_errors"] = list(self.source_errors)
         d["last_fix"] = list(self.last_fix) if self.last_fix else None
         d["sources"] = [s.__dict__ for s in self.sources]
         return d

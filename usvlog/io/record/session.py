@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from dataclasses import dataclass
@@ -87,7 +88,8 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
                 stopped_by = "error"
                 break
             if on_status is not None:
-                on_status(rec.status())
+                errs = tuple(f"{s.source_name}: {s.error}" for s in sources if s.error)
+                on_status(dataclasses.replace(rec.status(), source_errors=errs))
             if duration_s is not None and time.monotonic() - t0 >= duration_s:
                 stopped_by = "duration"
                 break

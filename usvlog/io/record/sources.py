@@ -101,7 +101,7 @@ class Source(threading.Thread):
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             with contextlib.suppress(OSError):
                 s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            # no SO_REUSEADDR: a second listener on the port would silently take half the datagrams
             try:
                 s.bind((spec.host, spec.port))
             except OSError as err:
