@@ -331,6 +331,8 @@ def _kill_after(tmp_path, n_s):
     assert log.recovery is not None                       # no footer: recovered
     assert log.vessel == default_vessel() and log.datum is not None
     assert log.datum.lat_deg == pytest.approx(sent.fixes[0][2], abs=1e-7)
+    offsets = __import__("json").loads(log.provenance[0]["clock_offsets"])   # known, though never closed
+    assert abs(offsets["gnss+compass"]["offset_ns"]) < 0.1e9 and offsets["gnss+compass"]["samples"] > 0
     for topic, hz, n_sent in (("/gnss/fix", 10, len(sent.fixes)), ("/compass/heading", 20, len(sent.headings)),
                               ("/thrust/command", 100, len(sent.thrust))):
         f = log[topic]

@@ -235,6 +235,7 @@ class Recorder:
         self._quality = None           # (fix_quality, satellites, hdop)
         self._last_status_ns = self.now_ns()
         self._last_prov_ns = 0
+        self._prov_offsets = 0         # sources with a clock offset in the last provenance record
         self._bytes_done = 0           # bytes of finished parts
         self.paths: list[Path] = []
         self._part = 0
@@ -590,8 +591,10 @@ class Recorder:
             self.write(TOPIC_STATUS, {"source": s.name, "messages": s.messages, "garbage": s.garbage,
                                       "dropped": s.dropped, "rate_hz": s.rate_hz,
                                       "clock_offset_s": None if est is None else est.offset_ns / 1e9}, now)
-        if now - self._last_prov_ns >= 10e9:
-            self._write_provenance()
+        have = sum(s.offset.total > 0 for s in self._sources.values())
+        if now - self._last_prov_ns >= 10e9 or have > self._prov_offsets:
+            self._write_provenance()   # every 10 s, and as soon as a source's clock offset is first known
+            self._prov_offsets = have
         if fsync:
             self._sync()
         else:
