@@ -22,6 +22,7 @@ from usvlog.frames import Datum, ssa
 from usvlog.io.mcapio import read_log, read_logs
 from usvlog.io.record import Recorder, record
 from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target
+from usvlog.nmea import with_checksum
 from usvlog.vessel import default_vessel
 
 
@@ -95,7 +96,7 @@ def test_recorder_api_round_trip(tmp_path):
     assert fix.lat_deg.tolist() == [59.5, 59.6] and fix.lon_deg.tolist() == [10.25, 10.35]
     assert fix.cov_type.tolist() == [2, 0]
     assert (fix.cov_ee_m2.iloc[0], fix.cov_nn_m2.iloc[0], fix.cov_uu_m2.iloc[0], fix.cov_en_m2.iloc[0]) == (0.04, 0.09, 0.25, 0.0)
-    assert math.isnan(fix.alt_m.iloc[1]) and math.isnan(fix.cov_ee_m2.iloc[1])
+    assert math.isnan(fix.alt_m.iloc[1]) and fix.cov_ee_m2.iloc[1] == 0.0   # unknown: zeros, type 0
     hd = log["/compass/heading"]
     assert hd.heading_rad.iloc[0] == pytest.approx(math.radians(-10.0)) and hd.reference.iloc[0] == "magnetic"
     th = log["/thrust/command"]
@@ -107,6 +108,37 @@ def test_recorder_api_round_trip(tmp_path):
     assert prov["producer"] == "usvlog record" and prov["closed"] == "true"
     with pytest.raises(InputError, match="/thrust/command.*unit"):
         Recorder(tmp_path / "x.mcap").thrust(1, 1, unit="volts")
+
+
+def test_recorded_file_is_standard_mcap_and_every_message_validates(tmp_path):
+    import json
+
+    import jsonschema
+    from mcap.reader import make_reader
+
+    from usvlog.channels import schema_by_name
+
+    out = tmp_path / "v.mcap"
+    with Recorder(out, vessel=default_vessel()) as rec:
+        rec.nmea(with_checksum("GPRMC,120000.00,A,5954.000,N,01042.000,E,1.0,90.0,010625,,"), source="gnss")
+        rec.nmea(with_checksum("GPGGA,120000.10,5954.001,N,01042.001,E,1,07,1.2,3.0,M,40.0,M,,"), source="gnss")
+        rec.nmea(with_checksum("GPGGA,120000.20,,,,,0,00,,,M,,M,,"), source="gnss")
+        rec.nmea("$GPGGA,broken*00", source="gnss")
+        rec.nmea(with_checksum("HCHDG,98.3,1.5,E,,"), source="compass")
+        rec.json_line('{"left": 1500, "right": 1600, "unit": "pwm_us"}', source="thrust")
+        rec.json_line("not json", source="thrust")
+        rec.event("note")
+    counts = {}
+    with open(out, "rb") as fh:
+        reader = make_reader(fh)                 # the mcap library's own reader, through the summary
+        for schema, channel, message in reader.iter_messages():
+            jsonschema.Draft202012Validator(schema_by_name(schema.name)).validate(json.loads(message.data))
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+        assert len(reader.get_summary().chunk_indexes) >= 1
+    assert counts == {"/gnss/fix": 2, "/gnss/quality": 2, "/raw/nmea": 5, "/compass/heading": 1,
+                      "/thrust/command": 1, "/raw/json": 1, "/events": 1, "/recorder/status": 3}
+    fix = read_log(out)["/gnss/fix"]             # RMC first (no altitude), then GGA (with it)
+    assert math.isnan(fix.alt_m.iloc[0]) and fix.alt_m.iloc[1] == pytest.approx(43.0)
 
 
 def test_flushed_chunks_and_datum_survive_a_kill(tmp_path):
@@ -422,7 +454,6 @@ def test_disk_full_stops_with_one_line_and_keeps_what_was_written(tmp_path):
 
 def test_tcp_source_reconnects_after_the_link_drops(tmp_path):
     from usvlog.io.record import Source, parse_source
-    from usvlog.nmea import with_checksum
 
     server = socket.create_server(("127.0.0.1", 0))
     server.settimeout(10)

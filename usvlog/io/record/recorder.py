@@ -53,7 +53,7 @@ META_RECORDING = "usvlog.recording"   # {run_id, part, started_utc}: lets read_l
 THRUST_UNITS = ("newton", "normalized", "pwm_us")
 _POSITION_PRIORITY = {"GGA": 0, "RMC": 1, "GLL": 2}  # one fix per epoch, from the best sentence a source sends
 _PREFER_WINDOW_NS = 2_000_000_000
-_NAN9 = (math.nan,) * 9
+_UNKNOWN_COV = (0.0,) * 9  # LocationFix convention: zeros with covariance type 0 (unknown)
 
 
 # -----------------------------------------------------------------------------
@@ -397,13 +397,14 @@ class Recorder:
     def gnss(self, lat_deg: float, lon_deg: float, alt_m: float = math.nan, *, t_ns: int | None = None,
              stamp_ns: int | None = None, cov=None, frame_id: str = "gnss", source: str = "api",
              _counted: bool = False) -> None:
-        """A position fix (degrees, metres). ``cov``: None (unknown), 3 ENU variances in m^2
-        (diagonal known) or a full 3x3 / 9-element ENU covariance."""
+        """A position fix (degrees, metres; ``alt_m`` NaN when unknown, stored as null). ``cov``:
+        None (unknown: zeros, type 0), 3 ENU variances in m^2 (diagonal known, type 2) or a full
+        3x3 / 9-element ENU covariance (type 3)."""
         if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
             raise InputError(f"channel {TOPIC_FIX}: position {lat_deg},{lon_deg} out of range")
         t = self.now_ns() if t_ns is None else int(t_ns)
         if cov is None:
-            c, ctype = _NAN9, 0
+            c, ctype = _UNKNOWN_COV, 0
         else:
             flat = [float(x) for row in (cov if hasattr(cov, "__len__") else [cov]) for x in
                     (row if hasattr(row, "__len__") else [row])]
