@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import usvlog
 from usvlog.cli import main as cli_main
 from usvlog.errors import InputError, OutputExistsError
 from usvlog.frames import Datum, ssa
@@ -193,6 +194,7 @@ def test_rotation_consecutive_files_load_as_one_run(tmp_path):
     assert all(read_log(p).recovery is None for p in paths)
     # given in any order, the parts are put back in order and loaded as one run
     log = read_logs(list(reversed(paths)))
+    assert usvlog.load(paths).equals(log)
     th = log["/thrust/command"]
     assert th.left.tolist() == [float(i) for i in range(n)]
     assert th.index.is_monotonic_increasing
