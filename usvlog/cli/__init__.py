@@ -14,7 +14,14 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "estimate", "demo"]
+VERBS = [
+    "simulate",
+    "inspect",
+    "export",
+    "estimate",
+    "record",
+    "demo",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:
