@@ -202,6 +202,11 @@ def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    return vessel_from_dict(doc, source)
+
+
+def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
+    """A parsed vessel document ({name, model: {...}, thrusters: {...}}) -> :class:`Vessel`."""
     model = doc.get("model", {})
     thr = doc.get("thrusters", {})
     known_m = set(PARAM_NAMES)

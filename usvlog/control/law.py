@@ -64,15 +64,16 @@ def control_law(full, G, P, ue, ueI, psie, psieI, re, u_d, u_d_dot, r_d, r_d_dot
 
 
 @njit
-def control_tick(x, u_ref, dt, cs, kind, prm, G, P, S, T, out):
+def control_tick(x, u_ref, dtheta, dt, cs, kind, prm, G, P, S, T, out):
     """One controller tick; updates ``cs`` in place and writes the decisions into ``out``.
 
-    S = [delta_theta, gamma, iterations, psi_omega, psi_zeta, surge_order, u_omega, u_zeta,
+    ``dtheta`` is the carrot distance delta_theta at this tick.
+    S = [delta_theta (default), gamma, iterations, psi_omega, psi_zeta, surge_order, u_omega, u_zeta,
          full (1) / baseline (0), anti_windup, prefilter_init (0 reference, 1 state)]
     T = [arm_m, forward_n, reverse_n]
     """
     pn, pe, psi, u, v, r = x[0], x[1], x[2], x[3], x[4], x[5]
-    th, cpn, cpe, can, cae, psi_ref, xt = guidance_step(kind, prm, pn, pe, cs[0], S[1], int(S[2]), S[0])
+    th, cpn, cpe, can, cae, psi_ref, xt = guidance_step(kind, prm, pn, pe, cs[0], S[1], int(S[2]), dtheta)
     cs[0] = th
     order = int(S[5])
     if cs[8] == 0.0:
@@ -136,20 +137,21 @@ def control_tick(x, u_ref, dt, cs, kind, prm, G, P, S, T, out):
 
 
 @njit
-def run_open_loop(X, u_ref, dt, cs, kind, prm, G, P, S, T):
+def run_open_loop(X, u_ref, dtheta, dt, cs, kind, prm, G, P, S, T):
     """Controller decisions for a sequence of states X (N x 6) at ticks with steps dt (N)."""
     n = X.shape[0]
     out = np.empty((n, 23))
     for k in range(n):
-        control_tick(X[k], u_ref[k], dt[k], cs, kind, prm, G, P, S, T, out[k])
+        control_tick(X[k], u_ref[k], dtheta[k], dt[k], cs, kind, prm, G, P, S, T, out[k])
     return out
 
 
-def speed_at(schedule: np.ndarray, t_rel) -> np.ndarray:
-    """u_ref from a piecewise-constant schedule [[t_s, u_d], ...] (sorted by t_s)."""
+def speed_at(schedule: np.ndarray, t_rel, column: int = 1) -> np.ndarray:
+    """Column ``column`` (1: u_ref, 2: delta_theta) of a piecewise-constant schedule
+    [[t_s, u_d, (delta_theta)], ...] sorted by t_s, at times ``t_rel``."""
     t_rel = np.asarray(t_rel, dtype=float)
     idx = np.searchsorted(schedule[:, 0], t_rel, side="right") - 1
-    return schedule[np.clip(idx, 0, len(schedule) - 1), 1]
+    return schedule[np.clip(idx, 0, len(schedule) - 1), column]
 
 
 class Controller:
@@ -173,17 +175,21 @@ class Controller:
         self.cs = np.zeros(CS_LEN)
         self.cs[CS_THETA] = initial_theta(self.path, float(x0[0]), float(x0[1]))
 
-    def step(self, x, u_ref: float, dt: float, out: np.ndarray | None = None) -> np.ndarray:
+    def step(self, x, u_ref: float, dt: float, out: np.ndarray | None = None,
+             delta_theta: float | None = None) -> np.ndarray:
         """One tick; returns the output row (see OUT_COLUMNS)."""
         row = np.empty(NOUT) if out is None else out
-        control_tick(np.asarray(x, dtype=float), float(u_ref), float(dt), self.cs, self.path.kind,
+        dth = self.guidance.delta_theta if delta_theta is None else float(delta_theta)
+        control_tick(np.asarray(x, dtype=float), float(u_ref), dth, float(dt), self.cs, self.path.kind,
                      self.path.prm, self.G, self.P, self.S, self.T, row)
         return row
 
-    def run(self, X, u_ref, dt) -> np.ndarray:
+    def run(self, X, u_ref, dt, delta_theta=None) -> np.ndarray:
         """Open loop over recorded states: (N, NOUT) decisions, starting from the current state."""
         X = np.ascontiguousarray(np.asarray(X, dtype=float))
+        dth = np.full(len(X), self.guidance.delta_theta) if delta_theta is None else delta_theta
         return run_open_loop(X, np.ascontiguousarray(np.asarray(u_ref, float)),
+                             np.ascontiguousarray(np.asarray(dth, float)),
                              np.ascontiguousarray(np.asarray(dt, float)), self.cs, self.path.kind,
                              self.path.prm, self.G, self.P, self.S, self.T)
 
