@@ -14,7 +14,7 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "demo", "gains", "replay"]
+VERBS = ["simulate", "inspect", "export", "estimate", "demo", "gains", "replay"]
 
 
 def build_parser() -> argparse.ArgumentParser:
