@@ -28,7 +28,7 @@ from .control.paths import Path, path_from_spec
 from .errors import ConfigError, InputError
 from .frames import ssa
 from .log import FieldLog
-from .simulate import SensorSettings, SimSettings, field_log_from_run, plant_step
+from .simulate import SensorSettings, SimSettings, draw_sensor_noise, field_log_from_run, plant_step
 from .vessel import Vessel, default_vessel, vessel_from_dict
 
 META_PATH = "usvlog.path"
@@ -236,9 +236,59 @@ def make_controller(scen: Scenario, path: Path, vessel: Vessel | None = None, ga
                       full=(controller or scen.controller) == "full")
 
 
-def _ekf_estimator(scen: Scenario, path: Path):  # pragma: no cover - needs usvlog.estimate
-    raise ConfigError(f"{scen.source}: controller_input = \"ekf\" needs usvlog.estimate.OnlineEKF, "
-                      "which this build does not have")
+class EKFInTheLoop:
+    """The controller's state from ``usvlog.estimate.OnlineEKF`` (dynamic model with current),
+    fed with the very sensor samples the log records (GPS and compass noise drawn up front
+    by ``draw_sensor_noise``), predicted with the applied forces at every controller tick.
+
+    GPS fixes are used in local NED before the log's lat/lon rounding (1e-8 deg, ~1 mm);
+    compass readings are rounded to the log's 1e-4 rad like the recorded ones.
+    """
+
+    def __init__(self, st: SimSettings, t: np.ndarray, noise: dict, dt_ctrl: float):
+        from .estimate import OnlineEKF
+        from .estimate.settings import EstimateSettings
+
+        sn = st.sensors
+        self.ekf = OnlineEKF(st.vessel, EstimateSettings(model="dynamic", current=True),
+                             x0=np.array([*st.eta0, *st.nu0, 0.0, 0.0], float))
+        self.dt = dt_ctrl
+        gi, keep = noise["gps_index"], noise["gps_keep"]
+        off = noise["gps_noise"] + noise["gps_bias"]
+        for k, dn, de in noise["gps_jumps"]:
+            off[k] = off[k] + (dn, de)
+        self.gps = {int(k): (float(o[0]), float(o[1])) for k, o, ok in zip(gi, off, keep) if ok}
+        self.gps_var = max(sn.gps_noise_m, 0.05) ** 2
+        cb = math.radians(sn.compass_bias_deg)
+        self.compass = {int(k): cb + float(w) for k, w in zip(noise["compass_index"], noise["compass_noise"])}
+        self.compass_var = max(math.radians(sn.compass_noise_deg), math.radians(0.1)) ** 2
+        self.last = -1
+        self.X: list[np.ndarray] = []
+        self.S: list[np.ndarray] = []
+
+    def __call__(self, k: int, x, tau) -> np.ndarray:
+        ekf = self.ekf
+        if self.last >= 0:
+            ekf.predict(self.dt, tau[0], tau[1])
+        for j in range(self.last + 1, k + 1):  # samples since the previous tick, at this tick's state
+            if j in self.gps:
+                dn, de = self.gps[j]
+                ekf.update_gnss(x[0] + dn, x[1] + de, self.gps_var)
+            if j in self.compass:
+                ekf.update_heading(float(np.round(ssa(x[2] + self.compass[j]), 4)), self.compass_var)
+        self.last = k
+        xh = ekf.x
+        self.X.append(xh)
+        self.S.append(np.sqrt(np.clip(np.diag(ekf.P), 0.0, None)))
+        return np.ascontiguousarray(xh[:6])
+
+    def frame(self, t_ns: np.ndarray):
+        X, S = np.array(self.X), np.array(self.S)
+        names = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"]
+        cols = {c: X[:, i] for i, c in enumerate(names)}
+        cols["psi_rad"] = ssa(cols["psi_rad"])
+        cols.update({f"{c}_std": S[:, i] for i, c in enumerate(names)})
+        return frame_from_columns(cols, t_ns, codec_for_topic("/estimate/state"))
 
 
 def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: int | None = None,
@@ -249,20 +299,25 @@ def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: in
     ctl_name = controller or scen.controller
     path = scen.path(st.datum)
     ctl = make_controller(scen, path, controller=ctl_name)
-    est = None if scen.controller_input == "truth" else _ekf_estimator(scen, path)
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(st.duration_s / st.dt_s))) * st.dt_s
+    noise = draw_sensor_noise(st, t, rng)
+    every = max(1, int(round(1.0 / (scen.guidance.rate_hz * st.dt_s))))
+    est = None if scen.controller_input == "truth" else EKFInTheLoop(st, t, noise, every * st.dt_s)
     run = closed_loop(path, st.vessel, ctl, duration_s=st.duration_s, dt_s=st.dt_s, integrator=st.integrator,
                       current_ne=st.current_ne, eta0=st.eta0, nu0=st.nu0, schedule=scen.schedule,
                       rate_hz=scen.guidance.rate_hz, estimator=est)
-    rng = np.random.default_rng(seed)
     extra = {"controller": ctl_name, "controller_input": run.controller_input,
              "gains": scen.gains.to_dict(), "guidance": scen.guidance.to_dict(), "path": scen.path_spec,
              "speed_schedule": [list(s) for s in scen.speed], "eta0": list(st.eta0), "nu0": list(st.nu0),
              "scenario_file": scen.source}
     log = field_log_from_run(st, run.t, run.states, run.tau[:, 0], run.tau[:, 1], rng,
                              producer="usvlog simulate (closed loop)", scenario=scen.name, seed=seed,
-                             extra_settings=extra)
+                             extra_settings=extra, noise=noise)
     t0 = int(log["/truth/state"].index[0])
     t_ns = t0 + np.round(run.t[run.tick] * 1e9).astype(np.int64)
+    if est is not None:  # the onboard estimate the controller ran on, as a boat's log has it
+        log.set("/estimate/state", est.frame(t_ns))
     thr = st.vessel.thrusters
     log.set("/control/state", controller_frame(run.ctrl, t_ns, "/control/state", thr, command_unit(thr)))
     log.meta[META_PATH] = path.metadata()
@@ -319,6 +374,8 @@ class ReplayMetrics:
     command_rms: float | None         # replayed vs recorded left/right commands, in command_unit
     command_max_abs: float | None
     force_rms_n: float | None         # the same in newtons (when the log has forces)
+    decisions_compared: int           # ticks matched with a recorded /control/state (closed-loop runs)
+    decisions_max_abs: float | None   # max |replayed - recorded| of forces and moments there (N, N m)
     whatif_controller: str | None
     whatif: TrackingMetrics | None
 
@@ -442,6 +499,18 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
             okf = np.isfinite(df)
             if okf.any():
                 f_rms = float(np.sqrt(np.mean(df[okf] ** 2)))
+    n_dec, dec_max = 0, None
+    rec_cs = log.get("/control/state")
+    if rec_cs is not None and len(rec_cs):
+        tr_ns = np.asarray(rec_cs.index, dtype=np.int64)
+        j = np.clip(np.searchsorted(tr_ns, t_tick), 0, len(tr_ns) - 1)
+        hit = tr_ns[j] == t_tick
+        n_dec = int(hit.sum())
+        if n_dec:
+            cols = ["tau_u_n", "tau_r_nm", "thrust_left_n", "thrust_right_n"]
+            a = frame[cols].to_numpy(dtype=float)[hit]
+            b = rec_cs[cols].to_numpy(dtype=float)[j[hit]]
+            dec_max = float(np.nanmax(np.abs(a - b)))
     m_replay = tracking_metrics(rows, t_rel, scen.metrics_start_s)
     m_whatif = None
     if whatif:
@@ -464,6 +533,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     metrics = ReplayMetrics(state_source=topic, controller=ctl_name, replay=m_replay,
                             command_unit=unit if sel is not None else None, n_commands_compared=n_cmp,
                             command_rms=c_rms, command_max_abs=c_max, force_rms_n=f_rms,
+                            decisions_compared=n_dec, decisions_max_abs=dec_max,
                             whatif_controller=wif_name if whatif else None, whatif=m_whatif)
     out.add_provenance(producer="usvlog replay", source=src,
                        settings={"scenario": scen.source or scen.name, "state_source": topic,

@@ -188,10 +188,47 @@ def _every(t: np.ndarray, rate_hz: float, dt: float) -> np.ndarray:
     return np.arange(0, len(t), step)
 
 
+def draw_sensor_noise(st: SimSettings, t: np.ndarray, rng: np.random.Generator) -> dict:
+    """Every random sensor error of a run (they do not depend on the states), in draw order.
+
+    GPS: white noise, wandering bias, jumps (sample index, dn, de), dropouts (a keep mask);
+    compass: white noise (rad). Indices are plant steps at which each sensor samples.
+    """
+    sn = st.sensors
+    gi = _every(t, sn.gps_rate_hz, st.dt_s)
+    tg = t[gi]
+    noise = rng.normal(0.0, 1.0, (len(gi), 2)) * sn.gps_noise_m
+    bias = np.zeros((len(gi), 2))
+    if sn.gps_bias_sigma_m > 0:
+        a = math.exp(-1.0 / (sn.gps_rate_hz * sn.gps_bias_tau_s))
+        w = rng.normal(0.0, sn.gps_bias_sigma_m * math.sqrt(1 - a * a), (len(gi), 2))
+        b = rng.normal(0.0, sn.gps_bias_sigma_m, 2)
+        for k in range(len(gi)):
+            b = a * b + w[k]
+            bias[k] = b
+    keep = np.ones(len(gi), bool)
+    for (start, dur) in sn.gps_dropouts:
+        keep &= ~((tg >= start) & (tg < start + dur))
+    jumps = []
+    for (tj, size) in sn.gps_jumps:
+        k = int(np.argmin(np.abs(tg - tj)))
+        ang = rng.uniform(0, 2 * np.pi)
+        jumps.append((k, size * math.cos(ang), size * math.sin(ang)))
+    ci = _every(t, sn.compass_rate_hz, st.dt_s)
+    std = math.radians(sn.compass_noise_deg)
+    return {"gps_index": gi, "gps_noise": noise, "gps_bias": bias, "gps_keep": keep, "gps_jumps": jumps,
+            "compass_index": ci, "compass_noise": rng.normal(0.0, 1.0, len(ci)) * std}
+
+
 def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u: np.ndarray,
                        tau_r: np.ndarray, rng: np.random.Generator, *, producer: str,
-                       scenario: str, seed: int, extra_settings: dict | None = None) -> FieldLog:
-    """Turn a simulated trajectory (states at times t, thrust held over each step) into a log."""
+                       scenario: str, seed: int, extra_settings: dict | None = None,
+                       noise: dict | None = None) -> FieldLog:
+    """Turn a simulated trajectory (states at times t, thrust held over each step) into a log.
+
+    ``noise``: sensor noise drawn beforehand by :func:`draw_sensor_noise` (a closed loop
+    whose estimator must see the very measurements the log records); None draws it here.
+    """
     t0 = start_ns(st.start_utc)
     t_ns = t0 + np.round(t * 1e9).astype(np.int64)
     sn = st.sensors
@@ -221,27 +258,15 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], codec_for_topic("/thrust/command")))
 
     # GPS
-    gi = _every(t, sn.gps_rate_hz, st.dt_s)
-    tg = t[gi]
-    noise = rng.normal(0.0, 1.0, (len(gi), 2)) * sn.gps_noise_m
-    bias = np.zeros((len(gi), 2))
-    if sn.gps_bias_sigma_m > 0:
-        a = math.exp(-1.0 / (sn.gps_rate_hz * sn.gps_bias_tau_s))
-        w = rng.normal(0.0, sn.gps_bias_sigma_m * math.sqrt(1 - a * a), (len(gi), 2))
-        b = rng.normal(0.0, sn.gps_bias_sigma_m, 2)
-        for k in range(len(gi)):
-            b = a * b + w[k]
-            bias[k] = b
-    pn = states[gi, 0] + noise[:, 0] + bias[:, 0]
-    pe = states[gi, 1] + noise[:, 1] + bias[:, 1]
-    keep = np.ones(len(gi), bool)
-    for (start, dur) in sn.gps_dropouts:
-        keep &= ~((tg >= start) & (tg < start + dur))
-    for (tj, size) in sn.gps_jumps:
-        k = int(np.argmin(np.abs(tg - tj)))
-        ang = rng.uniform(0, 2 * np.pi)
-        pn[k] += size * math.cos(ang)
-        pe[k] += size * math.sin(ang)
+    if noise is None:
+        noise = draw_sensor_noise(st, t, rng)
+    gi = noise["gps_index"]
+    pn = states[gi, 0] + noise["gps_noise"][:, 0] + noise["gps_bias"][:, 0]
+    pe = states[gi, 1] + noise["gps_noise"][:, 1] + noise["gps_bias"][:, 1]
+    keep = noise["gps_keep"]
+    for k, dn, de in noise["gps_jumps"]:
+        pn[k] += dn
+        pe[k] += de
     lat, lon, alt = ned_to_geodetic(pn, pe, np.zeros_like(pn), datum=st.datum)
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
@@ -255,9 +280,9 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     log.set("/gnss/fix", frame_from_columns(gps, t_ns[gi][keep], codec_for_topic("/gnss/fix")))
 
     # compass
-    ci = _every(t, sn.compass_rate_hz, st.dt_s)
+    ci = noise["compass_index"]
     std = math.radians(sn.compass_noise_deg)
-    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + rng.normal(0.0, 1.0, len(ci)) * std)
+    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
     comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]), "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
     log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], codec_for_topic("/compass/heading")))
@@ -283,5 +308,6 @@ def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) 
     return fn(settings or SimSettings(), seed)
 
 
-__all__ = ["SensorSettings", "SimSettings", "excitation_run", "field_log_from_run", "plant_step",
+__all__ = ["SensorSettings", "SimSettings", "excitation_run", "field_log_from_run", "draw_sensor_noise",
+           "plant_step",
            "simulate", "start_ns", "SCENARIOS", "replace", "pd"]

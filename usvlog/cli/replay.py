@@ -63,6 +63,9 @@ def format_metrics(m) -> str:
         lines.append(f"  replayed vs recorded commands ({m.command_unit}, {m.n_commands_compared} ticks): "
                      f"RMS {m.command_rms:.3g}, max {m.command_max_abs:.3g}"
                      + (f"; forces RMS {m.force_rms_n:.3g} N" if m.force_rms_n is not None else ""))
+    if m.decisions_max_abs is not None:
+        lines.append(f"  replayed vs recorded /control/state ({m.decisions_compared} ticks): "
+                     f"max |difference| of forces {m.decisions_max_abs:.3g}")
     if m.whatif is not None:
         block(f"what-if ({m.whatif_controller})", m.whatif)
     return "\n".join(lines)
