@@ -333,7 +333,8 @@ class TrackingMetrics:
     """How well a run followed the path (over ticks from ``start_s`` on)."""
 
     n_ticks: int
-    duration_s: float
+    start_s: float            # metrics from this time on (the scenario's [metrics] start_s, or 0
+    duration_s: float         # when the run is shorter than that)
     cross_track_rms_m: float
     cross_track_p95_m: float
     cross_track_max_m: float
@@ -349,12 +350,13 @@ def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) ->
     t_s = np.asarray(t_s, float)
     dt = np.diff(t_s, append=t_s[-1] + (t_s[-1] - t_s[-2] if len(t_s) > 1 else 0.0))
     sel = t_s - t_s[0] >= start_s
-    if not sel.any():
-        raise ConfigError(f"metrics start_s = {start_s} is after the end of the run")
+    if not sel.any():  # a run shorter than the transient: measure all of it
+        start_s = 0.0
+        sel = np.ones(len(t_s), bool)
     r = rows[sel]
     xt = np.abs(r[:, COL["cross_track_m"]])
     rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
-    return TrackingMetrics(n_ticks=int(sel.sum()), duration_s=float(dt[sel].sum()),
+    return TrackingMetrics(n_ticks=int(sel.sum()), start_s=float(start_s), duration_s=float(dt[sel].sum()),
                            cross_track_rms_m=rms(xt), cross_track_p95_m=float(np.percentile(xt, 95)),
                            cross_track_max_m=float(xt.max()),
                            heading_error_rms_rad=rms(r[:, COL["psi_e_rad"]]),

@@ -52,7 +52,7 @@ def format_metrics(m) -> str:
     lines = [f"state source: {m.state_source}; controller: {m.controller}"]
 
     def block(name, t):
-        lines.append(f"{name}: {t.n_ticks} ticks, {t.duration_s:.1f} s")
+        lines.append(f"{name}: {t.n_ticks} ticks, {t.duration_s:.1f} s from t = {t.start_s:g} s")
         lines.append(f"  cross-track RMS {t.cross_track_rms_m:.4f} m, p95 {t.cross_track_p95_m:.4f} m, "
                      f"max {t.cross_track_max_m:.4f} m")
         lines.append(f"  heading error RMS {t.heading_error_rms_rad:.5f} rad, surge error RMS "
