@@ -26,7 +26,7 @@ TOML (a gains file, or the same tables inside a scenario file)::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 

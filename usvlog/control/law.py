@@ -27,7 +27,6 @@ integrators and the prefilters advance to k+1.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

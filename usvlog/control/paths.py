@@ -64,37 +64,31 @@ def path_eval(kind, prm, theta):
     c0 = k0 + nseg + 1
     t0 = prm[k0]
     tN = prm[k0 + nseg]
-    if theta <= t0:
-        j = 0
-        h = theta - t0
-        b = c0
-        return prm[b] + h * prm[b + 1], prm[b + 4] + h * prm[b + 5], prm[b + 1], prm[b + 5]
-    if theta >= tN:
+    if theta <= t0:  # straight on before the first waypoint
+        g = theta - t0
+        return prm[c0] + g * prm[c0 + 1], prm[c0 + 4] + g * prm[c0 + 5], prm[c0 + 1], prm[c0 + 5]
+    h = 0.0
+    if theta >= tN:  # straight on beyond the last waypoint
         j = nseg - 1
-        b = c0 + 8 * j
-        s = tN - prm[k0 + j]
-        n = prm[b] + s * (prm[b + 1] + s * (prm[b + 2] + s * prm[b + 3]))
-        e = prm[b + 4] + s * (prm[b + 5] + s * (prm[b + 6] + s * prm[b + 7]))
-        dn = prm[b + 1] + s * (2.0 * prm[b + 2] + 3.0 * s * prm[b + 3])
-        de = prm[b + 5] + s * (2.0 * prm[b + 6] + 3.0 * s * prm[b + 7])
         h = theta - tN
-        return n + h * dn, e + h * de, dn, de
-    lo = 0
-    hi = nseg
-    while hi - lo > 1:  # knots[lo] <= theta < knots[hi]
-        mid = (lo + hi) // 2
-        if prm[k0 + mid] <= theta:
-            lo = mid
-        else:
-            hi = mid
-    j = lo
+        s = tN - prm[k0 + j]
+    else:
+        lo = 0
+        hi = nseg
+        while hi - lo > 1:  # knots[lo] <= theta < knots[hi]
+            mid = (lo + hi) // 2
+            if prm[k0 + mid] <= theta:
+                lo = mid
+            else:
+                hi = mid
+        j = lo
+        s = theta - prm[k0 + j]
     b = c0 + 8 * j
-    s = theta - prm[k0 + j]
     n = prm[b] + s * (prm[b + 1] + s * (prm[b + 2] + s * prm[b + 3]))
     e = prm[b + 4] + s * (prm[b + 5] + s * (prm[b + 6] + s * prm[b + 7]))
     dn = prm[b + 1] + s * (2.0 * prm[b + 2] + 3.0 * s * prm[b + 3])
     de = prm[b + 5] + s * (2.0 * prm[b + 6] + 3.0 * s * prm[b + 7])
-    return n, e, dn, de
+    return n + h * dn, e + h * de, dn, de
 
 
 @njit
