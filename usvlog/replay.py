@@ -23,7 +23,8 @@ import numpy as np
 
 from .channels import codec_for_topic, frame_from_columns
 from .control.gains import Gains, GuidanceSettings, gains_from_dict
-from .control.law import COL, NOUT, Controller, speed_at
+from .control._jit import njit
+from .control.law import COL, NOUT, Controller, control_tick, speed_at
 from .control.paths import Path, path_from_spec
 from .errors import ConfigError, InputError
 from .frames import ssa
@@ -179,6 +180,32 @@ class ClosedLoopRun:
     controller_input: str  # "truth" or "ekf"
 
 
+@njit
+def _closed_loop_kernel(x, n, every, dt, u_ref, dtheta, prm, cn, ce, rk4, cs, kind, pprm, G, P, S, T):
+    """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled."""
+    states = np.empty((n, 6))
+    tau = np.empty((n, 2))
+    ctrl = np.empty(((n + every - 1) // every, NOUT))
+    xa = np.empty(6)
+    tu = 0.0
+    tr = 0.0
+    j = 0
+    for k in range(n):
+        if k % every == 0:
+            for i in range(6):
+                xa[i] = x[i]
+            control_tick(xa, u_ref[k], dtheta[k], every * dt, cs, kind, pprm, G, P, S, T, ctrl[j])
+            tu = ctrl[j, 14]
+            tr = ctrl[j, 15]
+            j += 1
+        for i in range(6):
+            states[k, i] = x[i]
+        tau[k, 0] = tu
+        tau[k, 1] = tr
+        x = plant_step(x, tu, tr, prm, dt, cn, ce, rk4)
+    return states, tau, ctrl
+
+
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
                 integrator: str, current_ne, eta0, nu0, schedule: np.ndarray, rate_hz: float,
                 estimator=None) -> ClosedLoopRun:
@@ -198,6 +225,12 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
     ticks = np.arange(0, n, every)
     ctrl = np.empty((len(ticks), NOUT))
     controller.reset(x)
+    if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
+        c = controller
+        states, tau, ctrl = _closed_loop_kernel(x, n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta),
+                                                prm, cn, ce, rk4, c.cs, c.path.kind, c.path.prm,
+                                                c.G, c.P, c.S, c.T)
+        return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth")
     tu = tr = 0.0
     j = 0
     step = controller.step

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
+from numba.extending import register_jitable
 
 from .channels import codec_for_topic, frame_from_columns
 from .errors import ConfigError
@@ -101,25 +102,35 @@ def start_ns(iso: str) -> int:
 # plant integration
 # -----------------------------------------------------------------------------
 
+@register_jitable
+def _plant_rhs(n, e, psi, u, v, r, tau_u, tau_r, prm, cn, ce):
+    c, s = math.cos(psi), math.sin(psi)
+    ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+    return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
+
+
+@register_jitable
 def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
-    """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path)."""
-    m, Iz, d11, d22, d33, xg = prm
+    """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path).
 
-    def f(n, e, psi, u, v, r):
-        c, s = math.cos(psi), math.sin(psi)
-        ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg)
-        return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
-
-    x = state
-    k1 = f(*x)
+    Plain Python, and also callable from numba-compiled loops (``register_jitable``).
+    """
+    x0, x1, x2, x3, x4, x5 = state
+    k1 = _plant_rhs(x0, x1, x2, x3, x4, x5, tau_u, tau_r, prm, cn, ce)
     if not rk4:
-        return tuple(a + dt * b for a, b in zip(x, k1))
+        return (x0 + dt * k1[0], x1 + dt * k1[1], x2 + dt * k1[2], x3 + dt * k1[3], x4 + dt * k1[4],
+                x5 + dt * k1[5])
     h = 0.5 * dt
-    k2 = f(*(a + h * b for a, b in zip(x, k1)))
-    k3 = f(*(a + h * b for a, b in zip(x, k2)))
-    k4 = f(*(a + dt * b for a, b in zip(x, k3)))
+    k2 = _plant_rhs(x0 + h * k1[0], x1 + h * k1[1], x2 + h * k1[2], x3 + h * k1[3], x4 + h * k1[4],
+                    x5 + h * k1[5], tau_u, tau_r, prm, cn, ce)
+    k3 = _plant_rhs(x0 + h * k2[0], x1 + h * k2[1], x2 + h * k2[2], x3 + h * k2[3], x4 + h * k2[4],
+                    x5 + h * k2[5], tau_u, tau_r, prm, cn, ce)
+    k4 = _plant_rhs(x0 + dt * k3[0], x1 + dt * k3[1], x2 + dt * k3[2], x3 + dt * k3[3], x4 + dt * k3[4],
+                    x5 + dt * k3[5], tau_u, tau_r, prm, cn, ce)
     w = dt / 6.0
-    return tuple(a + w * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4))
+    return (x0 + w * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]), x1 + w * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
+            x2 + w * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]), x3 + w * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3]),
+            x4 + w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]), x5 + w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]))
 
 
 def _multisine(t: np.ndarray, freqs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
