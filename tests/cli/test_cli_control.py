@@ -86,3 +86,45 @@ def test_paper_sine_runs_on_the_ekf_and_replays_exactly():
     res = replay_log(log, scen, whatif=False)
     assert res.metrics.state_source == "/estimate/state"
     assert res.metrics.decisions_max_abs < 1e-9
+
+
+def test_replay_without_recorded_commands_ticks_at_the_controller_rate():
+    scen = load_scenario("paper-sine")
+    log = simulate_scenario(scen, duration_s=20.0)
+    log.channels.pop("/thrust/command")
+    log.channels.pop("/control/state")
+    res = replay_log(log, scen, whatif=False)
+    m = res.metrics
+    assert m.command_rms is None and m.decisions_max_abs is None and m.command_unit is None
+    rc = res.log["/replay/controller"]
+    assert np.allclose(np.diff(rc.index.to_numpy()), 10_000_000)   # 100 Hz
+    log.channels.pop("/estimate/state")
+    log.channels.pop("/truth/state")
+    with pytest.raises(usvlog.UsvlogError, match="no /estimate/state or /truth/state"):
+        replay_log(log, scen)
+
+
+@pytest.mark.parametrize("text,msg", [
+    ("[scenaro]\nname = 'x'\n", "unknown section \\[scenaro\\]"),
+    ("[path]\ntype = 'circle'\nradius_m = 4\n[gains]\nKPu = 1\n[speed]\nu_d = 0.3\n[simulation]\ndt = 0.1\n",
+     "\\[simulation\\] has unknown key\\(s\\) dt"),
+    ("[path]\ntype = 'circle'\nradius_m = 4\n[gains]\nKPu = 1\n", "\\[speed\\] needs"),
+    ("[path]\ntype = 'circle'\nradius_m = 4\n[gains]\nKPu = -1\n[speed]\nu_d = 0.3\n", "KPu = -1"),
+    ("[path]\ntype = 'circle'\nradius_m = 4\n[gains]\n[speed]\nschedule = [[10, 0.3], [5, 0.2]]\n", "increase"),
+])
+def test_bad_scenarios_name_file_and_key(tmp_path, text, msg):
+    p = tmp_path / "s.toml"
+    p.write_text(text)
+    with pytest.raises(usvlog.UsvlogError, match=msg) as err:
+        load_scenario(p)
+    assert "s.toml" in str(err.value)
+
+
+def test_reserved_regression_sections_and_vessel_file(tmp_path):
+    (tmp_path / "boat.toml").write_text("name = 'boat'\n[model]\nm = 40.0\n[thrusters]\nforward_n = 30.0\n")
+    (tmp_path / "s.toml").write_text(
+        "[vessel]\nfile = 'boat.toml'\n[path]\ntype = 'line'\nlength_m = 50\n[gains]\n[speed]\nu_d = 0.5\n"
+        "[dataset]\nlog = 'x.mcap'\n[baseline]\nfile = 'b.json'\n")
+    s = load_scenario(tmp_path / "s.toml")
+    assert s.sim.vessel.params.m == 40.0 and s.sim.vessel.thrusters.forward_n == 30.0
+    assert s.doc["dataset"]["log"] == "x.mcap"

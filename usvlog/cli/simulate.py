@@ -11,7 +11,9 @@ from .common import stage
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario of the paper's plant into a canonical log")
     p.add_argument("scenario", help="built-in open-loop scenario (excitation), a closed-loop scenario name "
-                                    "in replay/ (paper-circle, paper-sine) or a scenario TOML file")
+                                    "in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
+                                    "closed-loop scenario takes its settings from the file (only --duration-s, "
+                                    "--seed, --vessel and --controller override them)")
     p.add_argument("--out", required=True, help="output MCAP file")
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed, same file; default 0, "
                                                           "or the closed-loop scenario's)")
