@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..io.atomic import check_output
-from ..io.config import load_gains, load_scenario, load_vessel_or_scenario_vessel
+from ..io.config import load_gains, load_scenario, load_vessel_or_scenario_vessel, read_toml
 from ..io.mcapio import read_log, write_log
 from ..replay import replay_log
 from .common import print_json, stage
@@ -13,7 +15,8 @@ def register(sub) -> None:
     p = sub.add_parser("replay", help="replay a recorded run through guidance + controller, and a what-if run")
     p.add_argument("log", help="recorded run (canonical MCAP)")
     p.add_argument("--scenario", required=True, help="scenario TOML or name in replay/ (path, gains, guidance, speed)")
-    p.add_argument("--gains", default=None, help="gains TOML overriding the scenario's [gains]")
+    p.add_argument("--gains", default=None,
+                   help="gains TOML overriding the scenario's [gains] (and [guidance] when it has one)")
     p.add_argument("--vessel", default=None,
                    help="vessel TOML for the controller's model and the what-if plant "
                         "(default: the scenario's [vessel], else the log's)")
@@ -31,7 +34,11 @@ def register(sub) -> None:
 def run(args) -> int:
     check_output(args.out, args.force)
     scen = load_scenario(args.scenario)
-    gains = load_gains(args.gains)[0] if args.gains else None
+    gains = None
+    if args.gains:
+        gains, guidance = load_gains(args.gains)
+        if "guidance" in read_toml(args.gains):  # a [guidance] table there overrides the scenario's
+            scen = replace(scen, guidance=guidance)
     vessel = load_vessel_or_scenario_vessel(args.vessel) if args.vessel else None
     stage(f"reading {args.log}")
     log = read_log(args.log)
