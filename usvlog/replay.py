@@ -179,6 +179,24 @@ class ClosedLoopRun:
     ctrl: np.ndarray       # (M, NOUT) controller rows (see usvlog.control.law.OUT_COLUMNS)
     controller_input: str  # "truth" or "ekf"
 
+    def to_dataframe(self):
+        """Plant states and applied forces at every step (index: time in s)."""
+        import pandas as pd
+
+        cols = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]
+        df = pd.DataFrame(self.states, columns=cols, index=pd.Index(self.t, name="t_s"))
+        df["psi_rad"] = ssa(df["psi_rad"].to_numpy())
+        df["tau_u_n"], df["tau_r_nm"] = self.tau[:, 0], self.tau[:, 1]
+        return df
+
+    def controller_dataframe(self):
+        """Controller rows at every tick (columns: usvlog.control.law.OUT_COLUMNS)."""
+        import pandas as pd
+
+        from .control.law import OUT_COLUMNS
+
+        return pd.DataFrame(self.ctrl, columns=list(OUT_COLUMNS), index=pd.Index(self.t[self.tick], name="t_s"))
+
 
 @njit
 def _closed_loop_kernel(x, n, every, dt, u_ref, dtheta, prm, cn, ce, rk4, cs, kind, pprm, G, P, S, T):
