@@ -220,3 +220,15 @@ def test_gain_check_of_the_paper_and_condition_3():
     assert not bad.ok
     assert [c.name for c in bad.conditions if not c.holds] == ["condition 3"]
     assert not bad.hurwitz  # the Routh-Hurwitz condition is also necessary
+
+
+def test_without_the_surge_prefilter_the_step_is_a_transient_for_both(scen):
+    """The documented choice: "tracks exactly" needs u_d_dot fed forward (surge prefilter)."""
+    from dataclasses import replace
+
+    raw = replace(scen, guidance=replace(scen.guidance, surge_order=0), sim=replace(scen.sim, duration_s=130.0))
+    cs = simulate_scenario(raw)["/control/state"]
+    t = _t(cs)
+    ue = cs["u_e_mps"].to_numpy()
+    assert np.abs(ue[t >= 100]).max() == pytest.approx(0.1, rel=1e-3)   # u_d jumps, u cannot
+    assert settling_time(t, ue, 100.0, 0.01) > 10.0
