@@ -19,6 +19,8 @@ VERBS = [
     "inspect",
     "export",
     "estimate",
+    "gains",
+    "replay",
     "record",
     "demo",
 ]

@@ -34,5 +34,29 @@ def run(args) -> int:
     print(format_summary(summarize(log)))
     stage(f"[3] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    _control_stages(out, first=4)
     stage(f"done: results in {out}/")
     return 0
+
+
+def _control_stages(out: Path, first: int) -> None:
+    """Section IV closed loop, gain check, replay with a baseline what-if."""
+    from ..control.gains import check_gains
+    from ..io.config import load_scenario
+    from ..replay import replay_log, simulate_scenario
+    from .replay import format_metrics
+
+    scen = load_scenario("paper-circle")
+    circ = out / "paper-circle.mcap"
+    stage(f"[{first}] simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
+    log = simulate_scenario(scen)
+    write_log(log, circ, force=True)
+    stage(f"[{first + 1}] gains: Theorem 3.1 for the paper's gains")
+    chk = check_gains(scen.sim.vessel.params, scen.gains)
+    print(chk.verdict)
+    print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
+    rep = out / "paper-circle-replay.mcap"
+    stage(f"[{first + 2}] replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
+    res = replay_log(read_log(circ), scen, whatif_controller="baseline")
+    write_log(res.log, rep, force=True)
+    print(format_metrics(res.metrics))
