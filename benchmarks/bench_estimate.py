@@ -50,21 +50,24 @@ def main() -> None:
     n = len(pb.dts)
     run_fast(head(pb, 1000), q, s.max_consecutive_rejects, True)   # compile / load the cache
 
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     fast = run_fast(pb, q, s.max_consecutive_rejects, True)
-    t_fast = time.perf_counter() - t
+    t_fast, c_fast = time.perf_counter() - t, time.process_time() - c
 
     k = n if args.reference_s is None else min(n, int(args.reference_s / s.output_step_s))
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     ref = run_reference_path(head(pb, k), q, s.max_consecutive_rejects, True)
-    t_ref = (time.perf_counter() - t) * n / k
+    t_ref, c_ref = (time.perf_counter() - t) * n / k, (time.process_time() - c) * n / k
 
     real = (pb.t_ns[-1] - pb.t_ns[0]) * 1e-9
     print(f"model {args.model}, {pb.nx} states, {n} steps, {len(pb.mstep)} measurements, {real:.0f} s of data")
-    print(f"filterpy loop + numpy RTS : {t_ref:8.2f} s{' (scaled from %d steps)' % k if k < n else ''}"
-          f"  ({real / t_ref:7.0f}x real time)")
-    print(f"compiled fast path        : {t_fast:8.2f} s  ({real / t_fast:7.0f}x real time)")
-    print(f"speed-up                  : {t_ref / t_fast:8.1f}x")
+    print("(wall time; CPU time of this process in brackets: the machine may be shared)")
+    print(f"filterpy loop + numpy RTS : {t_ref:8.2f} s [{c_ref:7.2f} s]"
+          f"{' (scaled from %d steps)' % k if k < n else ''}"
+          f"  ({real / t_ref:6.0f}x [{real / c_ref:6.0f}x] real time)")
+    print(f"compiled fast path        : {t_fast:8.2f} s [{c_fast:7.2f} s]"
+          f"  ({real / t_fast:6.0f}x [{real / c_fast:6.0f}x] real time)")
+    print(f"speed-up                  : {t_ref / t_fast:8.1f}x [{c_ref / c_fast:6.1f}x]")
     if k == n:
         d = max(float(np.max(np.abs(fast.XS - ref.XS))), float(np.max(np.abs(fast.X - ref.X))))
     else:  # compare the forward pass on the common head

@@ -251,29 +251,28 @@ class RawRun:
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X = np.zeros((N, nx))
-    PP = np.zeros((N, nx, nx))
+    X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
+    PP = np.empty((N if smoother else 1, nx, nx))
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
     ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
-                         pb.model, q, pb.gates, max_rej, X, PP, innov, acc)
-    SDf = np.sqrt(np.maximum(np.einsum("kii->ki", PP), 0.0))
-    PBf = PP[:, 2:5, 2:5].copy()
+                         pb.model, q, pb.gates, max_rej, X, PP, SDf, PBf, innov, acc)
     if smoother:
-        XS, SDs, PBs = np.zeros_like(X), np.zeros_like(X), np.zeros((N, 3, 3))
+        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
         kernels.smooth(X, PP, pb.dts, pb.taus, pb.prm, pb.model, q, XS, SDs, PBs)
     else:
-        XS, SDs, PBs = X.copy(), SDf.copy(), PBf.copy()
+        XS, SDs, PBs = X, SDf, PBf
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
 
 
 def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     """Innovation log-likelihood of the forward pass (no covariances stored)."""
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X = np.zeros((N, nx))
+    X = np.empty((N, nx))
+    one = np.empty((1, nx, nx))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR,
-                                 pb.prm, pb.model, q, pb.gates, max_rej, X, np.zeros((1, nx, nx)),
-                                 np.zeros((M, 4)), np.zeros(M, np.int8)))
+                                 pb.prm, pb.model, q, pb.gates, max_rej, X, one, one[:, 0],
+                                 np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8)))
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:

@@ -222,10 +222,11 @@ class Work:
 
 @njit(cache=True)
 def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
-            X, PP, innov, accepted):
+            X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
-    Stores the posterior of every step in X[k], PP[k] (PP may have length 1: not stored),
+    Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
+    covariance block of states 2..4 in PB[k] (PP, SD, PB may have length 1: not stored),
     per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
     the log-likelihood terms.
@@ -276,6 +277,12 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
             for a in range(nx):
                 for b in range(nx):
                     PP[k, a, b] = P[a, b]
+        if SD.shape[0] == N:
+            for a in range(nx):
+                SD[k, a] = math.sqrt(max(P[a, a], 0.0))
+            for a in range(3):
+                for b in range(3):
+                    PB[k, a, b] = P[2 + a, 2 + b]
     return ll
 
 
