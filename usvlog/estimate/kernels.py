@@ -96,6 +96,20 @@ def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
 
 
 @njit(cache=True)
+def sparse_matmul(A, B, out):
+    """out = A B, skipping the zero entries of A (the model Jacobians have a few a row)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(B.shape[1]):
+            out[i, j] = 0.0
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[k, j]
+
+
+@njit(cache=True)
 def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
     """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P.
 
@@ -109,15 +123,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
             Phi[i, j] = dt * F[i, j]
         Phi[i, i] += 1.0
     xo[2] = wrap(xo[2])
-    # tmp = F P (sparse rows of F)
-    for i in range(nx):
-        for j in range(nx):
-            tmp[i, j] = 0.0
-        for k in range(nx):
-            a = F[i, k]
-            if a != 0.0:
-                for j in range(nx):
-                    tmp[i, j] += a * P[k, j]
+    sparse_matmul(F, P, tmp)
     dt2 = dt * dt
     for i in range(nx):
         for j in range(i, nx):
@@ -352,14 +358,7 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
                     Pp[a, b] = Pk[a, b]
                     Phi[a, b] = 1.0 if a == b else 0.0
         # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-        for a in range(nx):
-            for b in range(nx):
-                B[a, b] = 0.0
-            for c in range(nx):
-                w = Phi[a, c]
-                if w != 0.0:
-                    for b in range(nx):
-                        B[a, b] += w * Pk[c, b]
+        sparse_matmul(Phi, Pk, B)
         _chol_solve(L, inv, Pp, B, Ct)
         for a in range(nx):
             d[a] = XS[k + 1, a] - xp[a]
