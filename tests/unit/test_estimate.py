@@ -308,3 +308,17 @@ def test_to_log_round_trip(tmp_path):
     for topic in ("/estimate/state", "/estimate/innovations"):
         msg = orjson.loads(codec_for_topic(topic).encode(out[topic].iloc[:3], topic)[1])
         jsonschema.validate(msg, schema_for_topic(topic))
+
+
+def test_yaw_rate_channel_is_used():
+    log = simulate("excitation", SimSettings(duration_s=60.0), seed=11)
+    tr = log["/truth/state"].iloc[::2]                 # a 50 Hz gyro, 0.005 rad/s noise
+    rng = np.random.default_rng(0)
+    gyro = pd.DataFrame({"r_radps": tr["r_radps"].to_numpy() + rng.normal(0, 0.005, len(tr))}, index=tr.index)
+    log.set("/imu/yaw_rate", gyro)
+    plain = estimate(log)
+    with_gyro = estimate(log, EstimateSettings(yaw_rate_topic="/imu/yaw_rate", yaw_rate_noise_radps=0.005))
+    assert with_gyro.report.sensor("yaw_rate").accepted >= len(gyro) - 3
+    assert with_gyro.report.sensor("yaw_rate").mean_nis == pytest.approx(1.0, abs=0.15)
+    e0, e1 = (_errors(r.state, log["/truth/state"])["r_degps"] for r in (plain, with_gyro))
+    assert e1 < 0.5 * e0

@@ -22,8 +22,9 @@ class OnlineEKF:
 
     ``predict(dt, tau_u, tau_r)`` propagates with the applied forces (ignored by the
     kinematic model); ``update_gnss`` / ``update_heading`` apply a measurement through
-    the chi-square gate and return True when it was accepted. ``x`` is
-    [n, e, psi, u, v, r] (+ [c_n, c_e] with current states), ``P`` its covariance.
+    the chi-square gate and return True when it was accepted. ``x`` is the state of
+    :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
+    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot]. ``P`` is its covariance.
     """
 
     def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
