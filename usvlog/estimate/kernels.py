@@ -139,7 +139,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
 
 
 @njit(cache=True)
-def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, A, tmp, P2):
+def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     """Gated measurement update in place (Joseph form).
 
     Writes [res_0, res_1, nis, log-likelihood term] into ``res``; returns True when the
@@ -266,7 +266,7 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
             kind = mkind[j]
             force = rej[kind] >= max_rej
             ok = update(x, P, kind, mz[j, 0], mz[j, 1], mR[j, 0], mR[j, 1], mR[j, 2],
-                        gates[kind], force, res, K, Po, tmp, P2)
+                        gates[kind], force, res, K, P2)
             for a in range(4):
                 innov[j, a] = res[a]
             ll += res[3]

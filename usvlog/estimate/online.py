@@ -69,7 +69,7 @@ class OnlineEKF:
         w = self._w
         force = self._rej[kind] >= self.settings.max_consecutive_rejects
         ok = kernels.update(self._x, self._P, kind, float(z0), float(z1), float(R00), float(R01),
-                            float(R11), self._gates[kind], force, w.res, w.K, w.Phi, w.tmp, w.tmp2)
+                            float(R11), self._gates[kind], force, w.res, w.K, w.tmp2)
         self.last_nis = float(w.res[2])
         self._rej[kind] = 0 if ok else self._rej[kind] + 1
         return bool(ok)
