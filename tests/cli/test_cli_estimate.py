@@ -54,3 +54,22 @@ def test_estimate_missing_channel_one_line(tmp_path, capsys):
     err = [ln for ln in capsys.readouterr().err.strip().splitlines() if "error" in ln]
     assert len(err) == 1 and "nogps.mcap" in err[0] and "/gnss/fix" in err[0]
     assert not (tmp_path / "o.mcap").exists()
+
+
+def test_estimate_vessel_file_is_used(current_file, tmp_path, capsys):
+    from usvlog.vessel import default_vessel
+
+    v = default_vessel().with_params(m=40.0)
+    toml = tmp_path / "boat.toml"
+    toml.write_text(v.to_toml().replace('name = "paper-section-iv"', 'name = "heavier"'))
+    out = tmp_path / "v.mcap"
+    assert main(["estimate", str(current_file), "--out", str(out), "--model", "dynamic",
+                 "--vessel", str(toml), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["settings"]["vessel"] == "heavier" and rep["settings"]["vessel_params"]["m"] == 40.0
+    # a wrong mass makes the model worse at explaining the data than the log's own vessel
+    assert main(["estimate", str(current_file), "--out", str(tmp_path / "w.mcap"), "--model", "dynamic",
+                 "--json"]) == 0
+    own = json.loads(capsys.readouterr().out)
+    assert own["settings"]["vessel"] == "paper-section-iv"
+    assert own["loglik"] > rep["loglik"]
