@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..estimate import EstimateSettings, estimate
 from ..io.export import export_log
 from ..io.mcapio import read_log, write_log
 from ..simulate import SimSettings, simulate
@@ -32,7 +33,13 @@ def run(args) -> int:
     stage("[2] inspect")
     log = read_log(raw)
     print(format_summary(summarize(log)))
-    stage(f"[3] export -> {out / 'csv'}")
+    est_path = out / "estimate.mcap"
+    stage(f"[3] estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
+    result = estimate(log, EstimateSettings(model="dynamic"))
+    print(result.report.format())
+    log = result.to_log(log)
+    write_log(log, est_path, force=True)
+    stage(f"[4] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
     _control_stages(out, first=4)
     stage(f"done: results in {out}/")
