@@ -21,6 +21,7 @@ VERBS = [
     "estimate",
     "gains",
     "replay",
+    "regress",
     "record",
     "demo",
 ]
