@@ -147,9 +147,11 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
     rel = state.get("relative", False)
     with np.errstate(invalid="ignore", over="ignore"):
         # relative seconds to the ns; epoch seconds (float64: ~0.2 us resolution) to the us
-        t = np.round(v * 1e9) if rel else np.round(v * 1e6) * 1000.0
-        ok = np.isfinite(t) & (t >= 0) & (t < 2**62)
+        t = np.round(v * 1e9) if rel else np.round(v * 1e6)
+        ok = np.isfinite(t) & (t >= 0) & (t < (2**62 if rel else 2**62 / 1000))
         ti = np.where(ok, t, -1).astype(np.int64)
+        if not rel:
+            ti = np.where(ok, ti * 1000, -1)
     if rel:
         ti = np.where(ok, ti + int(start_ns or 0), -1)
     return ti
@@ -186,14 +188,13 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
                          f"{', '.join(map(str, headers[:30]))})")
     if on_mapping is not None:
         on_mapping(report)
-    usecols = sorted(set(mapping.values()), key=headers.index)
     thrust_unit = opts.thrust_unit
     state: dict = {}
     line0 = 2
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", pd.errors.ParserWarning)
-            reader = pd.read_csv(p, sep=sep, usecols=usecols, chunksize=opts.chunk_rows,
+            reader = pd.read_csv(p, sep=sep, chunksize=opts.chunk_rows,
                                  keep_default_na=False, na_values=[""], on_bad_lines="warn",
                                  encoding_errors="replace", skip_blank_lines=False, low_memory=True)
             for chunk in reader:

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -35,10 +37,29 @@ def _quiet():
         yield sink
 
 
+@contextlib.contextmanager
+def _quiet_fds():
+    """The C indexer of pymavlink writes to file descriptor 2 itself: silence it at the fd level."""
+    for s in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            s.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved + [null]:
+            os.close(fd)
+
+
 def _messages(path, types):
     from pymavlink.DFReader import DFReader_binary
 
-    with _quiet():
+    with _quiet_fds(), _quiet():
         log = DFReader_binary(str(path), zero_time_base=True)
     try:
         while True:

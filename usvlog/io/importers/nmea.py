@@ -244,7 +244,10 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
                 continue
             if kind == "gnss":
                 if stamp is not None and stamp == last_fix_stamp:
-                    continue  # the same fix from another sentence
+                    # the same fix from another sentence: GGA adds the altitude RMC/GLL lack
+                    if typ == "GGA" and buf.gnss["stamp_ns"] and buf.gnss["stamp_ns"][-1] == stamp:
+                        buf.gnss["alt_m"][-1] = vals[2]
+                    continue
                 last_fix_stamp = stamp
             t = t_prefix if t_prefix is not None else stamp
             if t is None:
