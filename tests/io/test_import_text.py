@@ -63,10 +63,21 @@ def test_csv_streamed_to_mcap_equals_in_memory(tmp_path):
     merged_csv(p)
     mem = import_file(p).log
     out = tmp_path / "run.mcap"
-    import_file(p, out=out, chunk_rows=250)
+    import_file(p, out=out, chunk_rows=250)  # many batches -> many chunks
     back = read_log(out)
     for topic in mem.topics:
         pd.testing.assert_frame_equal(back[topic], mem[topic], check_dtype=False)
+    # the file is valid MCAP for the mcap library too: summary, indexes, messages in order
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as fh:
+        rd = make_reader(fh)
+        summ = rd.get_summary()
+        assert summ.statistics.message_count == sum(len(mem[t]) for t in mem.topics)
+        assert len(summ.chunk_indexes) > 1
+        msgs = list(rd.iter_messages(topics=["/gnss/fix"]))
+        assert [m.log_time for _, _, m in msgs] == mem["/gnss/fix"].index.tolist()
+        assert rd.get_summary().metadata_indexes and "usvlog.datum" in {m.name for m in rd.iter_metadata()}
     prov = back.provenance[0]
     import hashlib
 
