@@ -7,7 +7,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
+from ..frames import ssa
 from ..io.export import export_log
+from ..io.importers import import_file
+from ..io.mergedcsv import write_merged_csv
 from ..io.mcapio import read_log, write_log
 from ..simulate import SimSettings, simulate
 from ..summary import format_summary, summarize
@@ -34,5 +39,21 @@ def run(args) -> int:
     print(format_summary(summarize(log)))
     stage(f"[3] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    merged = out / "merged.csv"
+    imported = out / "imported.mcap"
+    stage(f"[4] import: the run as one merged logger CSV {merged} -> usvlog import -> {imported}")
+    write_merged_csv(log, merged, force=True)
+    thrust_unit = str(log["/thrust/command"]["unit"].iloc[0])
+    res = import_file(merged, vessel=log.vessel, thrust_unit=thrust_unit, out=imported, force=True)
+    back = read_log(imported)
+    for topic, col in (("/gnss/fix", "lat_deg"), ("/gnss/fix", "lon_deg"), ("/compass/heading", "heading_rad"),
+                       ("/thrust/command", "left")):
+        a, b = log[topic], back[topic]
+        same_t = len(a) == len(b) and bool((a.index == b.index).all())
+        err = float(np.max(np.abs(ssa(b[col].to_numpy() - a[col].to_numpy())) if col == "heading_rad" else
+                           np.abs(b[col].to_numpy() - a[col].to_numpy()))) if same_t else float("nan")
+        print(f"import    {topic:<18} {col:<12} {len(b):>7} of {len(a):>7} samples, same times: {same_t}, "
+              f"max |diff| {err:.3g}")
+    print(f"import    skipped records: {dict(res.report.skipped) or 'none'}")
     stage(f"done: results in {out}/")
     return 0

@@ -48,7 +48,7 @@ class ImportOptions:
     topics: dict = field(default_factory=dict)    # bag role -> "/topic[.field.path]"
     thrust_unit: str | None = None                # None: guessed from the values
     start_utc_ns: int | None = None               # for relative time columns
-    chunk_rows: int = 200_000
+    chunk_rows: int = 50_000
 
     def __post_init__(self):
         if self.thrust_unit is not None and self.thrust_unit not in THRUST_UNITS:
@@ -163,7 +163,7 @@ def file_identity(path) -> dict:
 
 def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
-                datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 200_000,
+                datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
                 on_mapping=None) -> ImportResult:
     """Import one field log.
 

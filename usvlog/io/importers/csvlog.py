@@ -131,6 +131,9 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         naive = ts.dt.tz_localize(None).dt.as_unit("ns")
         arr = naive.to_numpy(dtype="datetime64[ns]").view(np.int64)
         return np.where(naive.isna().to_numpy() | (arr < 0), -1, arr).astype(np.int64)
+    if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype):
+        t = col.to_numpy(dtype=np.int64)
+        return np.where(t >= 0, t, -1)
     v, present = _numeric(col, kind, header, line0, report) if not pd.api.types.is_numeric_dtype(col.dtype) \
         else (col.to_numpy(dtype=float, na_value=np.nan), col.notna().to_numpy())
     if kind == "time_ns":
