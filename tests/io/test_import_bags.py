@@ -19,15 +19,6 @@ PSI = np.linspace(-3.0, 3.0, N)  # NED heading, rad
 WZ = np.linspace(-0.5, 0.5, N)   # FLU yaw rate
 STAMP_LAG = 3_000_000            # header stamps 3 ms before the record time
 
-CUSTOM_MSG = """
-std_msgs/Header header
-float64 heading_deg
-BoatPose pose
-================================================================================
-MSG: test_msgs/BoatPose
-float64 lat
-float64 lon
-"""
 CUSTOM_MSG2 = """std_msgs/msg/Header header
 float64 heading_deg
 test_msgs/msg/BoatPose pose
@@ -78,17 +69,20 @@ def _messages(store, nofix_every: int = 0):
     return out
 
 
-def write_ros1(path, nofix_every=0):
-    from rosbags.rosbag1 import Writer
-
-    store = _typestore(True)
-    msgs = _messages(store, nofix_every)
-    with Writer(path) as w:
+def _fill(writer, store, msgs, serialize):
+    with writer as w:
         conns = {}
         for topic, typ, t, m in msgs:
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t, store.serialize_ros1(m, typ))
+            w.write(conns[topic], t, serialize(m, typ))
+
+
+def write_ros1(path, nofix_every=0):
+    from rosbags.rosbag1 import Writer
+
+    store = _typestore(True)
+    _fill(Writer(path), store, _messages(store, nofix_every), store.serialize_ros1)
     return path
 
 
@@ -96,14 +90,8 @@ def write_ros2(path, storage: str, nofix_every=0):
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     store = _typestore(False)
-    msgs = _messages(store, nofix_every)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    with Writer(path, version=9, storage_plugin=plugin) as w:
-        conns = {}
-        for topic, typ, t, m in msgs:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t, store.serialize_cdr(m, typ))
+    _fill(Writer(path, version=9, storage_plugin=plugin), store, _messages(store, nofix_every), store.serialize_cdr)
     return path
 
 
