@@ -26,12 +26,11 @@ def encode_messages(codec, frame: pd.DataFrame, topic: str = "") -> list[bytes]:
     Each column is serialized by orjson in one call and split into its values
     (numbers and null never contain a comma); strings are serialized once per
     distinct value. Rows are then joined with the property names in C
-    (``map(b"".join, zip(...))``) instead of building a dict per row. Schemas with
-    array fields fall back to ``codec.encode``.
+    (``map(b"".join, zip(...))``) instead of building a dict per row.
     """
     import orjson
 
-    if any(f.kind == "array" for f in codec.fields) or not codec.fields or not len(frame):
+    if not codec.fields or not len(frame):
         return codec.encode(frame, topic)
     missing = [c for c in codec.columns if c not in frame.columns]
     if missing:
@@ -48,6 +47,13 @@ def encode_messages(codec, frame: pd.DataFrame, topic: str = "") -> list[bytes]:
             pieces.append(list(map(b"".join, zip(repeat(b'{"sec":'), _split(orjson.dumps(sec.tolist()), n),
                                                   repeat(b',"nsec":'), _split(orjson.dumps(nsec.tolist()), n),
                                                   repeat(b"}")))))
+        elif f.kind == "array":
+            parts: list = [b"["]
+            for j, c in enumerate(f.columns):
+                v = np.asarray(frame[c].to_numpy(), dtype=float).tolist()
+                parts += ([b","] if j else []) + [_split(orjson.dumps(v), n)]
+            parts.append(b"]")
+            pieces.append(_rows(parts, n))
         elif f.kind == "float":
             pieces.append(_split(orjson.dumps(np.asarray(col.to_numpy(), dtype=float).tolist()), n))
         elif f.kind == "int":
@@ -60,8 +66,14 @@ def encode_messages(codec, frame: pd.DataFrame, topic: str = "") -> list[bytes]:
             enc = [orjson.dumps(str(u)) for u in uniques]
             pieces.append([enc[c] for c in codes.tolist()])
     pieces.append(b"}")
-    cols = [repeat(p) if isinstance(p, bytes) else p for p in pieces]
-    return list(map(b"".join, zip(*cols)))
+    return _rows(pieces, n)
+
+
+def _rows(pieces: list, n: int) -> list[bytes]:
+    """Join constant bytes and per-row lists of bytes into n rows (in C)."""
+    if all(isinstance(p, bytes) for p in pieces):
+        return [b"".join(pieces)] * n
+    return list(map(b"".join, zip(*[repeat(p) if isinstance(p, bytes) else p for p in pieces])))
 
 
 def _split(text: bytes, n: int) -> list[bytes]:
