@@ -382,3 +382,31 @@ def test_column_encoder_matches_codec_bytes(topic):
             cols[c] = v
     frame = frame_from_columns(cols, np.arange(n, dtype=np.int64), codec)
     assert encode_messages(codec, frame, topic) == codec.encode(frame, topic)
+
+
+def test_imported_messages_validate_against_their_schemas(tmp_path):
+    """Every message an import writes (CSV with gaps, NMEA with RMC-only fixes, VTG, HDG) is schema-valid."""
+    import json
+
+    import jsonschema
+    from mcap.reader import make_reader
+
+    from usvlog.channels import schema_by_name, schema_names
+
+    validators = {n: jsonschema.Draft202012Validator(schema_by_name(n)) for n in schema_names()}
+    c = tmp_path / "merged.csv"
+    merged_csv(c, n=200)
+    n = tmp_path / "nav.nmea"
+    n.write_text("\n".join(nmea_lines(20, prefix=True) + [
+        "2024-05-02T00:00:00Z " + _cs("GPRMC,000000.00,A,3351.3674,S,15112.9207,E,3.9,90.0,020524,,,A"),
+        "2024-05-02T00:00:00.1Z " + _cs("GPVTG,45.0,T,,M,10.0,N,18.52,K,A"),
+        "2024-05-02T00:00:00.2Z " + _cs("HCHDG,100.0,2.0,E,3.5,W")]) + "\n")
+    seen = set()
+    for src in (c, n):
+        out = tmp_path / (src.stem + ".mcap")
+        import_file(src, out=out)
+        with open(out, "rb") as fh:
+            for schema, channel, message in make_reader(fh).iter_messages():
+                validators[schema.name].validate(json.loads(message.data))
+                seen.add(channel.topic)
+    assert seen == {"/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity"}

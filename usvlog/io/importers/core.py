@@ -121,7 +121,9 @@ class Assembler:
             return None
         cols = {k: np.asarray(v) for k, v in cols.items()}
         cols.setdefault("stamp_ns", t)
-        keep = np.ones(n, bool)
+        neg = t < 0
+        self.report.skip(f"{stream}_time_negative", int(neg.sum()))
+        keep = ~neg
         values = STREAMS[stream][1]
         if stream == "gnss":
             lat = np.asarray(cols["lat_deg"], float)
@@ -130,16 +132,21 @@ class Assembler:
             with np.errstate(invalid="ignore"):
                 rng = ~nan & ((np.abs(lat) > 90.0) | (np.abs(lon) > 180.0))
             zero = ~nan & (lat == 0.0) & (lon == 0.0)
-            self.report.skip("gnss_nan", int(nan.sum()))
-            self.report.skip("gnss_out_of_range", int(rng.sum()))
-            self.report.skip("gnss_no_fix", int(zero.sum()))
+            self.report.skip("gnss_nan", int((nan & keep).sum()))
+            self.report.skip("gnss_out_of_range", int((rng & keep).sum()))
+            self.report.skip("gnss_no_fix", int((zero & keep).sum()))
             keep &= ~(nan | rng | zero)
         else:
             bad = np.zeros(n, bool)
             for c in values:
                 bad |= ~np.isfinite(np.asarray(cols[c], float))
-            self.report.skip(f"{stream}_nan", int(bad.sum()))
+            self.report.skip(f"{stream}_nan", int((bad & keep).sum()))
             keep &= ~bad
+            if stream == "velocity":
+                with np.errstate(invalid="ignore"):
+                    negv = keep & (np.asarray(cols["sog_mps"], float) < 0)
+                self.report.skip("velocity_out_of_range", int(negv.sum()))
+                keep &= ~negv
         t_keep = t[keep]
         tk, back, dup = _time_filter(t_keep, self._last.get(stream))
         self.report.skip(f"{stream}_time_backwards", back)
@@ -157,10 +164,14 @@ class Assembler:
         if self.datum is None:
             alt0 = float(c["alt_m"][0]) if "alt_m" in c and np.isfinite(c["alt_m"][0]) else 0.0
             self.datum = Datum(lat_deg=float(c["lat_deg"][0]), lon_deg=float(c["lon_deg"][0]), alt_m=alt0)
+        alt = np.asarray(c.get("alt_m", np.full(n, np.nan)), float)
+        if not np.isfinite(alt).all():
+            # LocationFix needs a number; the 3-DOF model never uses altitude
+            self.report.note("altitude unknown for some fixes: written as 0 m")
+            alt = np.where(np.isfinite(alt), alt, 0.0)
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64),
                 "frame_id": np.asarray(c.get("frame_id", np.full(n, "gnss", dtype=object)), dtype=object),
-                "lat_deg": c["lat_deg"].astype(float), "lon_deg": c["lon_deg"].astype(float),
-                "alt_m": np.asarray(c.get("alt_m", np.full(n, np.nan)), float)}
+                "lat_deg": c["lat_deg"].astype(float), "lon_deg": c["lon_deg"].astype(float), "alt_m": alt}
         for k in _COV:
             cols[k] = np.asarray(c.get(k, np.zeros(n)), float)
         cols["cov_type"] = np.asarray(c.get("cov_type", np.zeros(n, np.int64)), np.int64)
