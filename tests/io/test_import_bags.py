@@ -174,3 +174,29 @@ def test_wrong_format_forced(tmp_path):
         import_file(path, "ros2")
     with pytest.raises((FormatError, InputError), match="x.bag"):
         import_file(path, "ulog")
+
+
+@pytest.mark.parametrize("msgtype, wrap", [
+    ("geometry_msgs/msg/QuaternionStamped", lambda T, h, q: dict(header=h, quaternion=q)),
+    ("geometry_msgs/msg/PoseStamped", lambda T, h, q: dict(header=h, pose=T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=0.0, y=0.0, z=0.0), orientation=q))),
+])
+def test_orientation_messages_guessed_as_heading(tmp_path, msgtype, wrap):
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    path = tmp_path / "pose_bag"
+    with Writer(path, version=9) as w:
+        conn = w.add_connection("/boat/pose", msgtype, typestore=store)
+        for i in range(N):
+            t = T0 + i * 50_000_000
+            h = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=t // 10**9, nanosec=t % 10**9),
+                                         frame_id="map")
+            yaw_enu = math.pi / 2 - PSI[i]
+            q = T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw_enu / 2), w=math.cos(yaw_enu / 2))
+            w.write(conn, t, store.serialize_cdr(T[msgtype](**wrap(T, h, q)), msgtype))
+    res = import_file(path)
+    assert res.report.mapping["heading"].startswith("/boat/pose.")
+    np.testing.assert_allclose(res.log["/compass/heading"]["heading_rad"], PSI, atol=1e-6)

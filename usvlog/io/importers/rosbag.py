@@ -7,6 +7,8 @@ Automatic topic guesses by message type (printed so the user can correct them):
 * ``sensor_msgs/Imu`` -> ``/compass/heading`` from the orientation quaternion
   (REP-103 ENU yaw, counter-clockwise from east: psi_NED = pi/2 - yaw_ENU) and
   ``/imu/yaw_rate`` from ``angular_velocity.z`` (FLU z up: r_FRD = -omega_z);
+* ``geometry_msgs/QuaternionStamped``, ``PoseStamped``, ``nav_msgs/Odometry``
+  orientations (ENU, as the IMU) -> heading when there is no IMU;
 * ``std_msgs/Float32|Float64`` on a topic named like a compass heading -> heading
   (clockwise from north; degrees when the values exceed 2 pi), on topics named
   like left/right thrusters -> ``/thrust/command`` (held at the left topic's times).
@@ -34,6 +36,9 @@ _FLOATS = {"std_msgs/msg/Float32", "std_msgs/msg/Float64"}
 _NAVSAT = "sensor_msgs/msg/NavSatFix"
 _IMU = "sensor_msgs/msg/Imu"
 _HEADING_NAMES = ("heading", "compass", "hdg")
+_ORIENTATION_TYPES = {"geometry_msgs/msg/QuaternionStamped": "quaternion",
+                      "geometry_msgs/msg/PoseStamped": "pose.orientation",
+                      "nav_msgs/msg/Odometry": "pose.pose.orientation"}
 _LEFT_NAMES = ("left", "port")
 _RIGHT_NAMES = ("right", "starboard", "stbd")
 _THRUST_NAMES = ("thrust", "motor", "cmd", "thruster", "pwm", "esc")
@@ -98,6 +103,10 @@ def _guess(conns, report) -> dict:
     if imu:
         guess.setdefault("heading", (imu, ""))
         guess["yaw_rate"] = (imu, "")
+    for typ, fpath in _ORIENTATION_TYPES.items():  # other common carriers of an ENU orientation
+        t = first(lambda t, ty, typ=typ: ty == typ, _HEADING_NAMES + ("pose", "odom"))
+        if t:
+            guess.setdefault("heading", (t, fpath))
     for role, names in (("thrust_left", _LEFT_NAMES), ("thrust_right", _RIGHT_NAMES)):
         t = first(lambda t, ty, names=names: ty in _FLOATS and any(n in t.lower() for n in names)
                   and any(n in t.lower() for n in _THRUST_NAMES))
