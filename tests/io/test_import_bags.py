@@ -200,3 +200,9 @@ def test_orientation_messages_guessed_as_heading(tmp_path, msgtype, wrap):
     res = import_file(path)
     assert res.report.mapping["heading"].startswith("/boat/pose.")
     np.testing.assert_allclose(res.log["/compass/heading"]["heading_rad"], PSI, atol=1e-6)
+
+
+def test_ros2_directory_forced_as_ros1(tmp_path):
+    path = write_ros2(tmp_path / "b2", "sqlite3")
+    with pytest.raises(FormatError, match="b2: not a ROS 1 bag"):
+        import_file(path, "ros1")

@@ -62,6 +62,18 @@ def _open_path(path: Path, fmt: str, stack) -> Path:
     return link
 
 
+def _check_kind(path: Path, fmt: str) -> None:
+    """A forced format must match the content: ROS 1 is one file, ROS 2 a directory or .db3/.mcap file."""
+    head = b""
+    if path.is_file():
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    if fmt == "ros1" and not head.startswith(b"#ROSBAG V2.0"):
+        raise FormatError(f"{path}: not a ROS 1 bag (no '#ROSBAG V2.0' header)")
+    if fmt == "ros2" and path.is_file() and not head.startswith((b"SQLite format 3\x00", b"\x89MCAP")):
+        raise FormatError(f"{path}: not a ROS 2 bag (neither a bag directory nor a sqlite3/mcap file)")
+
+
 def _field(msg, path: str):
     obj = msg
     for part in [x for x in path.split(".") if x]:
@@ -130,6 +142,7 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
+    _check_kind(Path(path), fmt)
     tmpdirs: list[Path] = []
     try:
         bag = _open_path(Path(path), fmt, tmpdirs)
