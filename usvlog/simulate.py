@@ -177,6 +177,12 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
 # sensors -> field log
 # -----------------------------------------------------------------------------
 
+# Sensor resolution (decimal places) of the recorded values: 1e-8 deg (~1 mm), 1 mm,
+# 1e-4 rad (0.006 deg), 1 mN, 1e-4 of full command. Far below the noise, and it keeps
+# logs small (short decimals compress well).
+_QUANTUM = {"latlon": 8, "alt": 3, "heading": 4, "thrust": 3, "normalized": 4}
+
+
 def _every(t: np.ndarray, rate_hz: float, dt: float) -> np.ndarray:
     step = max(1, int(round(1.0 / (rate_hz * dt))))
     return np.arange(0, len(t), step)
@@ -208,8 +214,10 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     unit = "newton" if thr.map == "identity" else "normalized"
     cmd_l = thr.force_to_command(fl, unit)
     cmd_r = thr.force_to_command(fr, unit)
-    thrust = {"stamp_ns": t_ns[ti], "left": np.asarray(cmd_l, float), "right": np.asarray(cmd_r, float),
-              "unit": np.array([unit] * len(ti), dtype=object), "thrust_left_n": fl, "thrust_right_n": fr}
+    q = _QUANTUM["thrust"] if unit == "newton" else _QUANTUM["normalized"]
+    thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
+              "right": np.round(np.asarray(cmd_r, float), q), "unit": np.array([unit] * len(ti), dtype=object),
+              "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
     log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], codec_for_topic("/thrust/command")))
 
     # GPS
@@ -238,7 +246,8 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
     gps = {"stamp_ns": t_ns[gi], "frame_id": np.array(["gnss"] * len(gi), dtype=object),
-           "lat_deg": lat, "lon_deg": lon, "alt_m": alt,
+           "lat_deg": np.round(lat, _QUANTUM["latlon"]), "lon_deg": np.round(lon, _QUANTUM["latlon"]),
+           "alt_m": np.round(alt, _QUANTUM["alt"]),
            "cov_ee_m2": z + var, "cov_en_m2": z, "cov_eu_m2": z, "cov_ne_m2": z, "cov_nn_m2": z + var,
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
@@ -249,7 +258,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     ci = _every(t, sn.compass_rate_hz, st.dt_s)
     std = math.radians(sn.compass_noise_deg)
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + rng.normal(0.0, 1.0, len(ci)) * std)
-    comp = {"stamp_ns": t_ns[ci], "heading_rad": hd, "reference": np.array(["true"] * len(ci), dtype=object),
+    comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]), "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
     log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], codec_for_topic("/compass/heading")))
 
