@@ -107,7 +107,9 @@ def test_series_values_and_timelines(rrd, view_log):
     assert ct == pytest.approx(ctl["cross_track_m"].to_numpy())
     # recorded thrust -> tau through the vessel geometry equals what the controller applied
     tu = np.array(ents["/runs/circle/ts/tau_u/recorded"]["rows"]["Scalars:scalars"]).ravel()
-    assert tu == pytest.approx(ctl["tau_u_n"].to_numpy(), abs=1e-9)
+    thr = view_log["/thrust/command"]
+    assert tu == pytest.approx(thr["thrust_left_n"].to_numpy() + thr["thrust_right_n"].to_numpy(), abs=1e-12)
+    assert tu == pytest.approx(ctl["tau_u_n"].to_numpy(), abs=2.1e-3)  # forces are recorded to 1 mN
     # heading: displayed psi_d never more than 180 deg from displayed psi, and wraps to the log's psi_d
     est = view_log["/estimate/state"]
     psi = np.array(ents["/runs/circle/ts/psi/estimate"]["rows"]["Scalars:scalars"]).ravel()
