@@ -34,5 +34,13 @@ def run(args) -> int:
     print(format_summary(summarize(log)))
     stage(f"[3] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    stage(f"[4] view -> {out / 'demo.rrd'} (open it with: rerun {out / 'demo.rrd'})")
+    from ..viz import to_rrd
+
+    to_rrd(log, out / "demo.rrd", names=["demo"], force=True)
+    stage(f"[5] report -> {out / 'report' / 'report.html'}")
+    from ..report import write_report
+
+    write_report(log, out / "report", force=True)
     stage(f"done: results in {out}/")
     return 0
