@@ -514,13 +514,24 @@ def spawn_viewer(rrd_path) -> subprocess.Popen:
 
 
 def serve(rrd_path, *, host: str = DEFAULT_HOST, port: int | None = None, grpc_port: int | None = None) -> int:
-    """Serve an .rrd file to a browser viewer until interrupted; returns the exit code."""
-    proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port))
+    """Serve an .rrd file to a browser viewer until interrupted; returns the exit code.
+
+    ``python -m rerun`` starts the viewer binary as a child, so the server runs in its own
+    process group and the whole group is stopped on Ctrl-C.
+    """
+    import os
+    import signal
+
+    proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port),
+                            start_new_session=True)
     try:
         return proc.wait()
     except KeyboardInterrupt:
-        proc.terminate()
-        proc.wait(timeout=10)
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
         return 0
 
 
