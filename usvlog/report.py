@@ -31,6 +31,13 @@ FIGURES = ("fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_hea
            "fit_velocities.png", "fit_track.png")
 
 
+AXES_NOTE = {
+    "paper": "Plane figures are drawn as in the paper: X (north) to the right, Y (east) up, which is the "
+             "mirror image of a map (usvlog report --axes map draws them north up).",
+    "map": "Plane figures are drawn as a map: north up, east to the right.",
+}
+
+
 def check_report_outputs(out_dir, force: bool) -> Path:
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -95,56 +102,102 @@ def _measured_track(log: FieldLog):
     return _steered_track(log)
 
 
-def _plane(ax):
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("East, Y (m)")
-    ax.set_ylabel("North, X (m)")
+class _Axes:
+    """How a plane figure maps (north, east) to the page.
+
+    ``paper``: as in the paper's figures, X (north) to the right and Y (east) up, which is
+    the mirror image of a map; ``map``: east to the right and north up.
+    """
+
+    def __init__(self, mode: str):
+        if mode not in ("paper", "map"):
+            raise ValueError(f"axes {mode!r} is not 'paper' or 'map'")
+        self.mode = mode
+
+    def xy(self, n, e):
+        return (n, e) if self.mode == "paper" else (e, n)
+
+    def label(self, ax):
+        ax.set_aspect("equal", adjustable="datalim")
+        if self.mode == "paper":
+            ax.set_xlabel("X, north (m)")
+            ax.set_ylabel("Y, east (m)")
+        else:
+            ax.set_xlabel("East (m)")
+            ax.set_ylabel("North (m)")
 
 
-def _fig_track(plt, log, path, *, style: str, measured: bool, baseline: FieldLog | None):
+def _run_label(log: FieldLog, default: str) -> str:
+    """'full controller' / 'baseline PI/PID' from the log's provenance, else ``default``."""
+    import json
+
+    for rec in reversed(log.provenance):
+        try:
+            ctl = json.loads(rec.get("settings", "{}")).get("controller")
+        except (ValueError, AttributeError):
+            ctl = None
+        if ctl == "full":
+            return "controller (9)-(10)"
+        if ctl == "baseline":
+            return "baseline PI/PID"
+        if isinstance(ctl, str) and ctl:
+            return ctl
+    return default
+
+
+def _fig_track(plt, log, path, *, style: str, measured: bool, baseline: FieldLog | None, axes: _Axes):
     tr = _measured_track(log) if measured else _steered_track(log)
     if tr is None:
         return None
+    xy = axes.xy
     fig, ax = plt.subplots(figsize=(6.2, 6.0))
-    if path is not None:
-        ax.plot(path[:, 1], path[:, 0], style, color="k", lw=1.2, label="desired path")
     name, t, n, e = tr
+    label = name if baseline is None else f"{name}, {_run_label(log, 'this log')}"
     if name == "GPS fixes":
-        ax.plot(e, n, ".", color="C0", ms=2, label=name)
+        ax.plot(*xy(n, e), "-", color="C0", lw=0.8, label="GPS track")
     else:
-        ax.plot(e, n, "-", color="C0", lw=1.4, label=name)
+        ax.plot(*xy(n, e), "-", color="C0", lw=1.4, label=label)
+    if path is not None:  # on top, so the dashes show where the boat is on the path
+        ax.plot(*xy(path[:, 0], path[:, 1]), style, color="k", lw=1.2, label="desired path", zorder=4)
     ok = np.isfinite(n) & np.isfinite(e)
     if ok.any():
         k = np.nonzero(ok)[0][0]
-        ax.plot(e[k], n[k], "o", color="C0", ms=5, mfc="none", label="start")
+        ax.plot(*xy(n[k], e[k]), "o", color="C0", ms=5, mfc="none", label="start", zorder=5)
+    mc = _main_controller(log)
+    if mc is not None and mc[2] is not None and "n_m" in mc[2].columns:
+        steps = vd.speed_steps(mc[1])
+        if steps:
+            ts = np.array([s[0] for s in steps], dtype=np.int64)
+            sn, se = vd.interp(ts, mc[2], "n_m"), vd.interp(ts, mc[2], "e_m")
+            ax.plot(*xy(sn, se), "^", color="C1", ms=7, label="speed step (u_d)", zorder=6)
     if not measured:
         wi = vd.nonempty(log, "/replay/whatif/state")
         if wi is not None:
-            ax.plot(_col(wi, "e_m"), _col(wi, "n_m"), "-.", color="C4", lw=1.1, label="what-if run")
+            ax.plot(*xy(_col(wi, "n_m"), _col(wi, "e_m")), "-.", color="C4", lw=1.1, label="what-if run")
         if baseline is not None:
             bt = _steered_track(baseline)
             if bt is not None:
-                ax.plot(bt[3], bt[2], "-", color="C3", lw=1.0, alpha=0.8, label=f"baseline {bt[0]}")
-    else:
+                ax.plot(*xy(bt[2], bt[3]), "-", color="C3", lw=1.0, alpha=0.8,
+                        label=f"{bt[0]}, {_run_label(baseline, 'baseline')}")
+    axes.label(ax)
+    if measured:
         est = vd.nonempty(log, "/estimate/state")
         if est is not None and "current_n_mps" in est.columns:
             cn, ce = np.nanmean(_col(est, "current_n_mps")), np.nanmean(_col(est, "current_e_mps"))
             sp = math.hypot(cn, ce)
             if np.isfinite(sp) and sp > 0.01:
-                _current_arrow(fig, ax, cn, ce, sp)
-    _plane(ax)
-    ax.legend(loc="lower right", fontsize=8, framealpha=0.85)
+                _current_arrow(fig, ax, *xy(cn, ce), sp)
+    ax.legend(loc="best", fontsize=8, framealpha=0.85)
     return fig
 
 
-def _current_arrow(fig, ax, cn, ce, sp):
+def _current_arrow(fig, ax, cx, cy, sp):
     """The paper's "approximate current direction" arrow, in the top-left corner of the axes."""
-    _plane(ax)
     fig.canvas.draw()  # final axes size, so the arrow's direction is true on screen
     bb = ax.get_window_extent()
     L = 45.0  # pixels
     x0, y0 = 0.07, 0.80
-    tip = (x0 + L * ce / sp / bb.width, y0 + L * cn / sp / bb.height)
+    tip = (x0 + L * cx / sp / bb.width, y0 + L * cy / sp / bb.height)
     ax.annotate("", xy=tip, xytext=(x0, y0), xycoords="axes fraction", textcoords="axes fraction",
                 arrowprops=dict(arrowstyle="-|>", lw=1.8, color="C2"))
     ax.text(0.03, 0.97, f"approximate current ({sp:.2f} m/s)", transform=ax.transAxes, color="C2",
@@ -161,12 +214,12 @@ def _fig_errors(plt, log, baseline):
         if bmc is not None:
             series.append(("baseline", baseline, bmc, "-"))
     fig, axes = plt.subplots(3, 1, figsize=(7.0, 6.4), sharex=True)
-    names = {"log": "this controller", "baseline": "baseline"}
+    names = {"log": _run_label(log, "this log"), "baseline": _run_label(baseline, "baseline") if baseline else ""}
     colors = {"log": "C0", "baseline": "C3"}
     for key, lg, (label, f, sf, desc), ls in series:
         t0 = f.index[0]
         t = _seconds(f.index.to_numpy(), t0)
-        nm = f"{names[key]} ({desc})" if baseline is not None else desc
+        nm = names[key] if baseline is not None else _run_label(lg, desc)
         if "psi_e_rad" in f.columns:
             axes[0].plot(t, ssa(_col(f, "psi_e_rad")), ls, color=colors[key], lw=1.2, label=nm)
         if "u_e_mps" in f.columns:
@@ -239,14 +292,15 @@ def _fig_fit_velocities(plt, log):
     return fig
 
 
-def _fig_fit_track(plt, log):
+def _fig_fit_track(plt, log, axes: _Axes):
     fit = vd.nonempty(log, "/identify/fit")
     if fit is None or not {"n_m", "e_m", "n_sim_m", "e_sim_m"} <= set(fit.columns):
         return None
     fig, ax = plt.subplots(figsize=(6.2, 6.0))
-    ax.plot(_col(fit, "e_m"), _col(fit, "n_m"), "-", color="0.35", lw=1.2, label="measured")
-    ax.plot(_col(fit, "e_sim_m"), _col(fit, "n_sim_m"), "--", color="C3", lw=1.2, label="model (simulated)")
-    _plane(ax)
+    ax.plot(*axes.xy(_col(fit, "n_m"), _col(fit, "e_m")), "-", color="0.35", lw=1.2, label="measured")
+    ax.plot(*axes.xy(_col(fit, "n_sim_m"), _col(fit, "e_sim_m")), "--", color="C3", lw=1.2,
+            label="model (simulated)")
+    axes.label(ax)
     ax.set_title("Identification: measured vs simulated track")
     ax.legend(fontsize=8, loc="lower right")
     return fig
@@ -259,28 +313,34 @@ def _save(fig, path: Path, force: bool) -> None:
     plt.close(fig)
 
 
-def write_report(log: FieldLog, out_dir, *, baseline: FieldLog | None = None, force: bool = False) -> Path:
-    """Write ``report.html`` and its PNG figures into ``out_dir``; returns the page's path."""
+def write_report(log: FieldLog, out_dir, *, baseline: FieldLog | None = None, force: bool = False,
+                 axes: str = "paper") -> Path:
+    """Write ``report.html`` and its PNG figures into ``out_dir``; returns the page's path.
+
+    ``axes="paper"`` draws the plane figures as the paper does (X = north to the right,
+    Y = east up); ``axes="map"`` draws them north up.
+    """
+    ax_mode = _Axes(axes)
     out = check_report_outputs(out_dir, force)
     out.mkdir(parents=True, exist_ok=True)
     plt = _plt()
     path = vd.path_polyline(log)
     figs = [
         ("fig1_track.png", "Fig. 1 style: desired path (dashed) and trajectory of the USV (solid)",
-         lambda: _fig_track(plt, log, path, style="--", measured=False, baseline=baseline),
+         lambda: _fig_track(plt, log, path, style="--", measured=False, baseline=baseline, axes=ax_mode),
          "a state channel (/estimate/state, /truth/state) or GPS fixes"),
         ("fig2_errors.png", "Fig. 2 style: yaw tracking error, surge speed tracking error and sway speed"
          + (" (this log dashed, baseline solid)" if baseline is not None else ""),
          lambda: _fig_errors(plt, log, baseline), "a controller channel (/control/state or /replay/controller)"),
         ("fig4_path.png", "Fig. 4 style: desired path (dotted) and measured trajectory (solid)",
-         lambda: _fig_track(plt, log, path, style=":", measured=True, baseline=None),
+         lambda: _fig_track(plt, log, path, style=":", measured=True, baseline=None, axes=ax_mode),
          "/estimate/state or /gnss/fix"),
         ("fig5_speed_heading.png", "Fig. 5 style: actual (solid) and desired (dashed) surge speed (top) and "
          "yaw angle (bottom)", lambda: _fig_speed_heading(plt, log), "a controller channel and a state channel"),
         ("fit_velocities.png", "Identification fit: measured vs simulated u, v, r",
          lambda: _fig_fit_velocities(plt, log), "/identify/fit"),
         ("fit_track.png", "Identification fit: measured vs simulated track",
-         lambda: _fig_fit_track(plt, log), "/identify/fit"),
+         lambda: _fig_fit_track(plt, log, ax_mode), "/identify/fit"),
     ]
     shown, missing = [], []
     for name, caption, make, needs in figs:
@@ -291,11 +351,11 @@ def write_report(log: FieldLog, out_dir, *, baseline: FieldLog | None = None, fo
         _save(fig, out / name, force)
         shown.append((name, caption))
     page = out / PAGE
-    write_text_atomic(page, _html(log, baseline, shown, missing), force=force)
+    write_text_atomic(page, _html(log, baseline, shown, missing, AXES_NOTE[axes]), force=force)
     return page
 
 
-def _html(log, baseline, shown, missing) -> str:
+def _html(log, baseline, shown, missing, axes_note: str) -> str:
     e = html.escape
     title = f"usvlog report: {Path(log.source).name if log.source else 'log'}"
     tr = log.time_range()
@@ -327,6 +387,7 @@ def _html(log, baseline, shown, missing) -> str:
             parts.append(f"<li>... {len(ev) - 200} more</li>")
         parts.append("</ul>")
     parts.append("<h2>Figures</h2>")
+    parts.append(f"<p>{e(axes_note)}</p>")
     for name, caption in shown:
         parts.append(f"<figure><img src='{e(name)}' alt='{e(caption)}'><figcaption>{e(caption)}</figcaption></figure>")
     if missing:

@@ -137,7 +137,7 @@ def view_log():
 
 
 @pytest.fixture(scope="session")
-def view_file(tmp_path_factory, view_log):
+def view_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("viewlogs") / "circle.mcap"
-    write_log(view_log, path)
+    write_log(make_view_log(duration_s=20.0), path)
     return path

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from usvlog import viewdata as vd
+from usvlog.cli import main
 from usvlog.errors import OutputExistsError
 from usvlog.report import FIGURES, write_report
 from usvlog.simulate import SimSettings, simulate
@@ -34,9 +35,6 @@ def test_report_full_log(tmp_path, view_log, excitation_log):
     ct = view_log["/control/state"]["cross_track_m"].to_numpy()
     assert f"{np.sqrt(np.mean(ct ** 2)):.3f}" in html
     assert "GPS fixes rejected by the estimator</td><td class='num'>2<" in html
-    with pytest.raises(OutputExistsError):
-        write_report(view_log, tmp_path / "rep")
-    write_report(view_log, tmp_path / "rep", force=True)
 
 
 def test_report_raw_log_draws_what_it_can(tmp_path):
@@ -47,6 +45,9 @@ def test_report_raw_log_draws_what_it_can(tmp_path):
     assert drawn == {"fig1_track.png", "fig4_path.png"}
     assert "Not drawn" in html and "/identify/fit" in html
     assert not (tmp_path / "raw" / "fig2_errors.png").exists()
+    with pytest.raises(OutputExistsError):
+        write_report(log, tmp_path / "raw")
+    write_report(log, tmp_path / "raw", force=True, axes="map")
 
 
 def test_metrics_match_independent_numbers(view_log):
@@ -61,9 +62,7 @@ def test_metrics_match_independent_numbers(view_log):
 
 def test_cli_report(tmp_path, view_file):
     out = tmp_path / "r"
-    r = subprocess.run([sys.executable, "-m", "usvlog", "report", str(view_file), "--out", str(out)],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+    assert main(["report", str(view_file), "--out", str(out), "--axes", "map"]) == 0
     assert (out / "report.html").exists() and (out / "fig5_speed_heading.png").exists()
     r = subprocess.run([sys.executable, "-m", "usvlog", "report", str(view_file), "--out", str(out)],
                        capture_output=True, text=True)

@@ -11,6 +11,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from usvlog import viewdata as vd
+from usvlog.cli import main
 from usvlog.errors import OutputExistsError
 from usvlog.frames import ssa
 from usvlog.io.mcapio import read_log
@@ -205,14 +206,13 @@ def test_viewer_command_binds_localhost():
     assert "--serve-web" not in viewer_command("x.rrd")
 
 
-def test_cli_view_writes_rrd_next_to_log(view_file):
-    r = subprocess.run([sys.executable, "-m", "usvlog", "view", str(view_file)], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
+def test_cli_view_writes_rrd_next_to_log(view_file, capsys):
+    assert main(["view", str(view_file)]) == 0
     out = view_file.with_suffix(".rrd")
-    assert r.stdout.strip() == str(out)
+    assert capsys.readouterr().out.strip() == str(out)
     ents, bp = read_rrd(out)
     log = read_log(view_file)
     ud = ents["/runs/circle/ts/u/u_d_control"]["rows"]["Scalars:scalars"]
     assert ud[-1] == [pytest.approx(log["/control/state"]["u_d_mps"].iloc[-1])]
     r = subprocess.run([sys.executable, "-m", "usvlog", "view", str(view_file)], capture_output=True, text=True)
-    assert r.returncode == 2 and "exists" in r.stderr
+    assert r.returncode == 2 and "exists" in r.stderr and len(r.stderr.strip().splitlines()) == 1

@@ -12,6 +12,9 @@ def register(sub) -> None:
     p.add_argument("baseline", nargs="?", default=None,
                    help="optional second log (e.g. the baseline PI/PID run) compared in Fig. 2")
     p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--axes", choices=["paper", "map"], default="paper",
+                   help="plane figures as in the paper (X = north to the right, Y = east up; default) "
+                        "or as a map (north up)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.set_defaults(func=run)
 
@@ -23,6 +26,6 @@ def run(args) -> int:
     log = read_log(args.log)
     base = read_log(args.baseline) if args.baseline else None
     stage(f"writing report to {args.out}")
-    page = write_report(log, args.out, baseline=base, force=args.force)
+    page = write_report(log, args.out, baseline=base, force=args.force, axes=args.axes)
     print(page)
     return 0
