@@ -183,7 +183,9 @@ def _fig_track(plt, log, path, *, style: str, measured: bool, baseline: FieldLog
     if measured:
         est = vd.nonempty(log, "/estimate/state")
         if est is not None and "current_n_mps" in est.columns:
-            cn, ce = np.nanmean(_col(est, "current_n_mps")), np.nanmean(_col(est, "current_e_mps"))
+            cn_a, ce_a = _col(est, "current_n_mps"), _col(est, "current_e_mps")
+            ok_c = np.isfinite(cn_a) & np.isfinite(ce_a)
+            cn, ce = (float(cn_a[ok_c].mean()), float(ce_a[ok_c].mean())) if ok_c.any() else (math.nan, math.nan)
             sp = math.hypot(cn, ce)
             if np.isfinite(sp) and sp > 0.01:
                 _current_arrow(fig, ax, *xy(cn, ce), sp)

@@ -47,7 +47,7 @@ ROLE = {
     "truth": (60, 60, 60), "whatif": (148, 103, 189), "path": (255, 170, 0), "boat": (255, 90, 0),
     "closest": (40, 170, 60), "carrot": (220, 0, 200), "heading": (31, 119, 180),
     "desired": (255, 127, 14), "cog": (40, 170, 60), "recorded": (120, 120, 120),
-    "control": (214, 39, 40), "replay": (214, 39, 40), "compass": (150, 150, 150),
+    "control": (214, 39, 40), "replay": (140, 86, 75), "compass": (150, 150, 150),
     "n": (31, 119, 180), "e": (214, 39, 40),
 }
 RUN_COLORS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14), (23, 190, 207)]
@@ -266,7 +266,7 @@ class _Writer:
             psi = np.asarray(f["psi_rad"].to_numpy(), float)
             ok = np.isfinite(psi)
             if ok.any():
-                unwrapped[topic] = (t[ok], psi[ok])
+                unwrapped[id(f)] = (t[ok], psi[ok])
                 self.scalars("psi", f"psi/{label}", t[ok], np.degrees(np.unwrap(psi[ok])), name=f"psi {label}",
                              color=c)
             if label != "whatif":
@@ -276,7 +276,7 @@ class _Writer:
                         self.scalars("current", f"current/{comp}_{label}", t, f[col].to_numpy(),
                                      name=f"current {comp.upper()} {label}",
                                      color=self.color(comp if not self.multi else label, var))
-            if label == "whatif":
+            if label == "whatif" and vd.nonempty(log, "/replay/whatif/controller") is None:
                 for q, sub in (("tau_u_n", "tau_u"), ("tau_r_nm", "tau_r")):
                     if q in f.columns:
                         self.scalars(sub, f"{sub}/whatif_state", t, f[q].to_numpy(), name=f"{sub} what-if run",
@@ -301,11 +301,9 @@ class _Writer:
             if "u_d_mps" in f.columns:
                 self.scalars("u", f"u/u_d_{label}", t, f["u_d_mps"].to_numpy(), name=f"u_d {label}", color=c)
             if "psi_d_rad" in f.columns:
-                st = vd.boat_state(log) if label != "whatif" else None
-                src = ("/replay/whatif/state" if label == "whatif" else (st[0] if st else None))
                 psi_d = np.asarray(f["psi_d_rad"].to_numpy(), float)
-                if src in unwrapped:
-                    ta, pa = unwrapped[src]
+                if sf is not None and id(sf) in unwrapped:  # next to the heading of the boat it steers
+                    ta, pa = unwrapped[id(sf)]
                     _, d = vd.heading_pair(ta, pa, t, psi_d)
                 else:
                     d = np.unwrap(psi_d)
