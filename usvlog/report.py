@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import viewdata as vd
-from .errors import OutputExistsError, StorageError
+from .errors import ConfigError, OutputExistsError, StorageError
 from .frames import ssa
 from .io.atomic import atomic_path, write_text_atomic
 from .log import FieldLog, format_time
@@ -50,7 +50,10 @@ def check_report_outputs(out_dir, force: bool) -> Path:
 
 
 def _plt():
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError as err:
+        raise ConfigError("usvlog report needs matplotlib: pip install 'usvlog[report]'") from err
 
     matplotlib.use("Agg", force=True)
     import matplotlib.pyplot as plt
