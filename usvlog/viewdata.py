@@ -186,20 +186,26 @@ def recorded_tau(log: FieldLog):
 class Event:
     t_ns: int
     level: str   # "INFO" | "WARN"
-    kind: str    # "gps_rejected" | "gps_dropout" | "saturation_start" | "saturation_end" | "speed_step"
+    kind: str    # "gps_rejected" | "<sensor>_rejected" | "gps_dropout" | "saturation_start" | ... | "speed_step"
     text: str
+
+
+def rejections(log: FieldLog, sensor: str | None = "gnss"):
+    """(t_ns, nis, sensor) of measurements the estimator rejected (of one sensor, or all), or None."""
+    f = nonempty(log, "/estimate/innovations")
+    if f is None or "accepted" not in f.columns or "sensor" not in f.columns:
+        return None
+    sens = f["sensor"].astype(str).to_numpy()
+    acc = np.asarray(f["accepted"].to_numpy(), dtype=bool)
+    m = ~acc if sensor is None else (sens == sensor) & ~acc
+    nis = _col(f, "nis")
+    return _times(f)[m], (nis[m] if nis is not None else np.full(m.sum(), np.nan)), sens[m]
 
 
 def gps_rejections(log: FieldLog):
     """(t_ns, nis) of GPS fixes the estimator rejected, or None."""
-    f = nonempty(log, "/estimate/innovations")
-    if f is None or "accepted" not in f.columns or "sensor" not in f.columns:
-        return None
-    sensor = f["sensor"].astype(str).to_numpy()
-    acc = np.asarray(f["accepted"].to_numpy(), dtype=bool)
-    m = (sensor == "gnss") & ~acc
-    nis = _col(f, "nis")
-    return _times(f)[m], (nis[m] if nis is not None else np.full(m.sum(), np.nan))
+    r = rejections(log, "gnss")
+    return None if r is None else r[:2]
 
 
 def gps_dropouts(log: FieldLog) -> list[tuple[int, int]]:
@@ -254,10 +260,13 @@ def speed_steps(frame) -> list[tuple[int, float, float]]:
 def events(log: FieldLog) -> list[Event]:
     """Everything worth a line in the event log, sorted by time."""
     ev: list[Event] = []
-    rej = gps_rejections(log)
+    rej = rejections(log, None)
     if rej is not None:
-        for t, nis in zip(*rej):
-            ev.append(Event(int(t), "WARN", "gps_rejected", f"GPS fix rejected (NIS {nis:.1f})"))
+        for t, nis, s in zip(*rej):
+            if s == "gnss":
+                ev.append(Event(int(t), "WARN", "gps_rejected", f"GPS fix rejected (NIS {nis:.1f})"))
+            else:
+                ev.append(Event(int(t), "WARN", f"{s}_rejected", f"{s} measurement rejected (NIS {nis:.1f})"))
     for a, b in gps_dropouts(log):
         ev.append(Event(a, "WARN", "gps_dropout", f"GPS dropout: no fix for {(b - a) / 1e9:.1f} s"))
     for topic, label, f, _, desc in controllers(log):

@@ -226,6 +226,17 @@ class _Writer:
                 continue
             n = vd.interp(tk, sf, "n_m")
             e = vd.interp(tk, sf, "e_m")
+            if {"closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m"} <= set(f.columns):
+                # the guidance at each tick: boat -> closest point on the path -> carrot
+                cl_n, cl_e = _col(f, "closest_n_m")[k], _col(f, "closest_e_m")[k]
+                ca_n, ca_e = _col(f, "carrot_n_m")[k], _col(f, "carrot_e_m")[k]
+                strips = np.stack([np.column_stack([e, -n]), np.column_stack([cl_e, -cl_n]),
+                                   np.column_stack([ca_e, -ca_n])], axis=1)   # (ticks, 3, 2)
+                path = f"{self.prefix}/local/ctl_{label}/guidance"
+                self.rec.log(path, rr.LineStrips2D.from_fields(radii=rr.Radius.ui_points(0.75),
+                                                               colors=[self.color("carrot", "light")]), static=True)
+                self.rec.send_columns(path, indexes=cols, columns=rr.LineStrips2D.columns(strips=list(strips)))
+                self.views["local"].append(path)
             psi = vd.interp(tk, sf, "psi_rad", angle=True)
             dirs = [psi]
             colors = [self.color("heading")]
@@ -339,6 +350,10 @@ class _Writer:
         self.rec.send_columns(path, indexes=self.index_cols(t),
                               columns=rr.TextLog.columns(text=text, level=[e.level for e in ev]))
         self.views["events"].append(path)
+
+
+def _col(frame, name) -> np.ndarray:
+    return np.asarray(frame[name].to_numpy(), dtype=float)
 
 
 def _frame_of(t_ns, x):

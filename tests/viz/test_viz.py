@@ -216,3 +216,22 @@ def test_cli_view_writes_rrd_next_to_log(view_file, capsys):
     assert ud[-1] == [pytest.approx(log["/control/state"]["u_d_mps"].iloc[-1])]
     r = subprocess.run([sys.executable, "-m", "usvlog", "view", str(view_file)], capture_output=True, text=True)
     assert r.returncode == 2 and "exists" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_default_names_are_distinct(view_log):
+    from usvlog.viz import default_names
+
+    a, b, c = view_log.copy(), view_log.copy(), view_log.copy()
+    a.source, b.source, c.source = "/x/run 1.mcap", "/y/run 1.mcap", None
+    assert default_names([a, b, c]) == ["run_1", "run_1_2", "run2"]
+
+
+def test_guidance_lines_join_boat_closest_and_carrot(rrd, view_log):
+    ents, _ = rrd
+    g = ents["/runs/circle/local/ctl_control/guidance"]["rows"]
+    strip = np.array(g["LineStrips2D:strips"][-1][0])
+    ctl, truth = view_log["/control/state"], view_log["/truth/state"]
+    expect = [[truth["e_m"].iloc[-1], -truth["n_m"].iloc[-1]],
+              [ctl["closest_e_m"].iloc[-1], -ctl["closest_n_m"].iloc[-1]],
+              [ctl["carrot_e_m"].iloc[-1], -ctl["carrot_n_m"].iloc[-1]]]
+    assert strip == pytest.approx(np.array(expect), abs=1e-5)
