@@ -12,8 +12,8 @@ Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
 
 ``<ctl>`` is ``control`` (closed-loop simulation), ``replay`` (controller replayed on a
 recorded run) or ``whatif``. The local 2D view draws x = east and y = -north, so with
-the viewer's y axis pointing down north is up and east is right. Two timelines: ``time``
-(UTC) and ``elapsed`` (since each log's start, so runs recorded on different days overlay).
+the viewer's y axis pointing down north is up and east is right. Timeline ``time`` (UTC); with
+several logs also ``elapsed`` (since each log's start, so runs recorded on different days overlay).
 Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep every sample.
 """
 
@@ -104,8 +104,10 @@ class _Writer:
 
     def index_cols(self, t_ns: np.ndarray):
         t_ns = np.asarray(t_ns, dtype=np.int64)
-        return [rr.TimeColumn("time", timestamp=t_ns.astype("datetime64[ns]")),
-                rr.TimeColumn("elapsed", duration=(t_ns - self.t0).astype("timedelta64[ns]"))]
+        cols = [rr.TimeColumn("time", timestamp=t_ns.astype("datetime64[ns]"))]
+        if self.multi:  # runs recorded at different times overlay on the time since each one's start
+            cols.append(rr.TimeColumn("elapsed", duration=(t_ns - self.t0).astype("timedelta64[ns]")))
+        return cols
 
     def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color, width: float = 1.5,
                 step: bool = False) -> None:
