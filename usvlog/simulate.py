@@ -40,8 +40,11 @@ class SensorSettings:
     compass_noise_deg: float = 2.0
     compass_bias_deg: float = 0.0
     thrust_rate_hz: float = 100.0
+    truth_rate_hz: float | None = None   # rate of /truth/state (None: every integration step)
 
     def __post_init__(self):
+        if self.truth_rate_hz is not None and not self.truth_rate_hz > 0:
+            raise ConfigError(f"sensor setting truth_rate_hz = {self.truth_rate_hz} must be > 0")
         for name in ("gps_rate_hz", "compass_rate_hz", "thrust_rate_hz", "gps_bias_tau_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"sensor setting {name} = {getattr(self, name)} must be > 0")
@@ -200,12 +203,13 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     log.datum = st.datum
     log.vessel = st.vessel
 
-    # truth at every step
-    truth = {"n_m": states[:, 0], "e_m": states[:, 1], "psi_rad": ssa(states[:, 2]),
-             "u_mps": states[:, 3], "v_mps": states[:, 4], "r_radps": states[:, 5],
-             "current_n_mps": np.full(len(t), cn), "current_e_mps": np.full(len(t), ce),
-             "tau_u_n": np.asarray(tau_u, float), "tau_r_nm": np.asarray(tau_r, float)}
-    log.set("/truth/state", frame_from_columns(truth, t_ns, codec_for_topic("/truth/state")))
+    # truth at every step (or thinned to truth_rate_hz)
+    si = np.arange(len(t)) if sn.truth_rate_hz is None else _every(t, sn.truth_rate_hz, st.dt_s)
+    truth = {"n_m": states[si, 0], "e_m": states[si, 1], "psi_rad": ssa(states[si, 2]),
+             "u_mps": states[si, 3], "v_mps": states[si, 4], "r_radps": states[si, 5],
+             "current_n_mps": np.full(len(si), cn), "current_e_mps": np.full(len(si), ce),
+             "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
+    log.set("/truth/state", frame_from_columns(truth, t_ns[si], codec_for_topic("/truth/state")))
 
     # thrust commands as recorded
     thr = st.vessel.thrusters

@@ -14,7 +14,7 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "demo", "view", "report"]
+VERBS = ["simulate", "inspect", "export", "estimate", "demo", "view", "report"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+from ..errors import ConfigError
 from ..io.atomic import check_output
 from ..io.config import load_vessel
 from ..io.mcapio import write_log
@@ -19,8 +20,28 @@ def register(sub) -> None:
     p.add_argument("--vessel", default=None, help="vessel TOML (default: the paper's Section IV vessel)")
     p.add_argument("--gps-noise-m", type=float, default=None, help="GPS noise, one sigma per axis")
     p.add_argument("--compass-noise-deg", type=float, default=None, help="compass noise, one sigma")
+    p.add_argument("--gps-bias-m", type=float, default=None,
+                   help="std of a slowly wandering GPS bias (Gauss-Markov, 300 s)")
+    p.add_argument("--gps-jump", action="append", default=[], metavar="T_S:SIZE_M",
+                   help="a single-fix GPS outlier of SIZE_M metres at T_S seconds (repeatable)")
+    p.add_argument("--gps-dropout", action="append", default=[], metavar="START_S:DURATION_S",
+                   help="no GPS fixes for DURATION_S from START_S (repeatable)")
+    p.add_argument("--compass-bias-deg", type=float, default=None, help="constant compass bias")
+    p.add_argument("--truth-rate-hz", type=float, default=None,
+                   help="record /truth/state at this rate (default: every integration step)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.set_defaults(func=run)
+
+
+def _pairs(values: list[str], flag: str) -> list[tuple[float, float]]:
+    out = []
+    for v in values:
+        try:
+            a, b = v.split(":")
+            out.append((float(a), float(b)))
+        except ValueError:
+            raise ConfigError(f"{flag} {v!r}: expected two numbers as A:B") from None
+    return out
 
 
 def settings_from_args(args) -> SimSettings:
@@ -29,6 +50,14 @@ def settings_from_args(args) -> SimSettings:
         sens["gps_noise_m"] = args.gps_noise_m
     if args.compass_noise_deg is not None:
         sens["compass_noise_deg"] = args.compass_noise_deg
+    if args.compass_bias_deg is not None:
+        sens["compass_bias_deg"] = args.compass_bias_deg
+    if args.gps_bias_m is not None:
+        sens["gps_bias_sigma_m"] = args.gps_bias_m
+    if args.truth_rate_hz is not None:
+        sens["truth_rate_hz"] = args.truth_rate_hz
+    sens["gps_jumps"] = tuple(_pairs(args.gps_jump, "--gps-jump"))
+    sens["gps_dropouts"] = tuple(_pairs(args.gps_dropout, "--gps-dropout"))
     kw = dict(vessel=load_vessel(args.vessel), current_mps=args.current_mps,
               current_dir_deg=args.current_dir_deg, sensors=SensorSettings(**sens))
     if args.duration_s is not None:
