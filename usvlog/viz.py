@@ -80,6 +80,7 @@ class _Writer:
         self.rec, self.log, self.name, self.index, self.multi = rec, log, name, index, multi
         self.prefix = f"/runs/{name}"
         self.views: dict[str, list[str]] = defaultdict(list)
+        self.geo_box: list[np.ndarray] = []   # [lat_min, lon_min, lat_max, lon_max] of what went on the map
         tr = log.time_range()
         self.t0 = tr[0] if tr else 0
         self.datum = log.datum
@@ -125,7 +126,13 @@ class _Writer:
 
     def geo(self, n, e):
         lat, lon, _ = ned_to_geodetic(np.asarray(n, float), np.asarray(e, float), 0.0, datum=self.datum)
-        return np.column_stack([lat, lon])
+        return self.note_geo(np.column_stack([lat, lon]))
+
+    def note_geo(self, latlon: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(latlon).all(1)
+        if ok.any():
+            self.geo_box.append(np.r_[latlon[ok].min(0), latlon[ok].max(0)])
+        return latlon
 
     def static(self, view: str, sub: str, archetype) -> None:
         path = f"{self.prefix}/{sub}"
@@ -145,7 +152,7 @@ class _Writer:
         if g is not None and len(g[0]):
             t, lat, lon, n, e = g
             c = self.color("gps", "light")
-            self.static("map", "map/gps", rr.GeoPoints(lat_lon=np.column_stack([lat, lon]),
+            self.static("map", "map/gps", rr.GeoPoints(lat_lon=self.note_geo(np.column_stack([lat, lon])),
                                                         radii=rr.Radius.ui_points(2.0), colors=[c]))
             self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(2.0),
                                                           colors=[c]))
@@ -404,6 +411,16 @@ SERIES_VIEWS = [  # (key, title)
 ]
 
 
+def map_zoom(boxes: np.ndarray, pixels: float = 500.0) -> float:
+    """OpenStreetMap zoom level at which the boxes' extent spans about ``pixels`` pixels."""
+    lat0, lon0 = boxes[:, 0].min(), boxes[:, 1].min()
+    lat1, lon1 = boxes[:, 2].max(), boxes[:, 3].max()
+    c = math.cos(math.radians(0.5 * (lat0 + lat1)))
+    span = max((lat1 - lat0) * 111_320.0, (lon1 - lon0) * 111_320.0 * c, 20.0)   # metres
+    # at zoom z one 256-px tile spans 40 075 km cos(lat) / 2^z, i.e. 156 543 m cos(lat) / 2^z per pixel
+    return float(np.clip(math.log2(156_543.03 * c * pixels / span), 2.0, 21.0))
+
+
 def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
     views: dict[str, list[str]] = defaultdict(list)
     for w in writers:
@@ -411,7 +428,9 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
             views[k].extend(v)
     spatial: list = []
     if views["map"]:
-        spatial.append(rrb.MapView(name="Map", origin="/", contents=views["map"]))
+        boxes = [b for w in writers for b in w.geo_box]
+        zoom = map_zoom(np.array(boxes)) if boxes else None
+        spatial.append(rrb.MapView(name="Map", origin="/", contents=views["map"], zoom=zoom))
     if views["local"]:
         title = "Local NED (m), north up" + (", all runs" if len(writers) > 1 else "")
         spatial.append(rrb.Spatial2DView(name=title, origin="/", contents=views["local"]))

@@ -236,3 +236,14 @@ def test_guidance_lines_join_boat_closest_and_carrot(rrd, view_log):
               [ctl["closest_e_m"].iloc[-1], -ctl["closest_n_m"].iloc[-1]],
               [ctl["carrot_e_m"].iloc[-1], -ctl["carrot_n_m"].iloc[-1]]]
     assert strip == pytest.approx(np.array(expect), abs=1e-5)
+
+
+def test_map_zoom_fits_the_extent():
+    from usvlog.viz import map_zoom
+
+    # 1 km east-west at the equator on 500 px: 2 m/px -> 156543 / 2^z = 2 -> z = log2(78271.5)
+    box = np.array([[0.0, 0.0, 0.0, 1000.0 / 111_320.0]])
+    assert map_zoom(box) == pytest.approx(np.log2(156_543.03 / 2.0), abs=1e-9)
+    # at 60 deg latitude a pixel of a given zoom covers half the metres: one level less
+    box60 = np.array([[60.0, 0.0, 60.0, 1000.0 / (111_320.0 * 0.5)]])
+    assert map_zoom(box60) == pytest.approx(np.log2(156_543.03 / 2.0) - 1.0, abs=1e-3)
