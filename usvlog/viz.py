@@ -443,13 +443,11 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
         left.append(rrb.Tabs(*spatial, name="Tracks"))
     if views["events"]:
         left.append(rrb.TextLogView(name="Events", origin="/", contents=views["events"]))
-    series = [rrb.TimeSeriesView(name=title, origin="/", contents=views[key])
-              for key, title in SERIES_VIEWS if views[key]]
-    right: list = []
-    main = [s for s, (key, _) in zip(series, [kv for kv in SERIES_VIEWS if views[kv[0]]])
-            if key in ("u", "psi")]
-    rest = [s for s in series if s not in main]
-    right.extend(main)
+    # u and psi always in sight; the rest in tabs, the cross-track error first
+    series = {key: rrb.TimeSeriesView(name=title, origin="/", contents=views[key])
+              for key, title in SERIES_VIEWS if views[key]}
+    right = [series[k] for k in ("u", "psi") if k in series]
+    rest = [v for k, v in series.items() if k not in ("u", "psi")]
     if rest:
         right.append(rrb.Tabs(*rest, name="More series"))
     cols = []
