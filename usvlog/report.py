@@ -318,13 +318,17 @@ def _save(fig, path: Path, force: bool) -> None:
     plt.close(fig)
 
 
-def write_report(log: FieldLog, out_dir, *, baseline: FieldLog | None = None, force: bool = False,
+def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *, baseline: FieldLog | None = None,
                  axes: str = "paper") -> Path:
     """Write ``report.html`` and its PNG figures into ``out_dir``; returns the page's path.
 
-    ``axes="paper"`` draws the plane figures as the paper does (X = north to the right,
-    Y = east up); ``axes="map"`` draws them north up.
+    ``log`` may also be a pair ``[log, baseline]``. ``axes="paper"`` draws the plane figures
+    as the paper does (X = north to the right, Y = east up); ``axes="map"`` draws them north up.
     """
+    if isinstance(log, (list, tuple)):  # [log, baseline]
+        if not 1 <= len(log) <= 2:
+            raise ConfigError(f"a report takes one log and at most one baseline, got {len(log)} logs")
+        log, baseline = log[0], (log[1] if len(log) == 2 else baseline)
     ax_mode = _Axes(axes)
     out = check_report_outputs(out_dir, force)
     out.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ def _png_size(path):
 
 
 def test_report_full_log(tmp_path, view_log, excitation_log):
-    page = write_report(view_log, tmp_path / "rep", baseline=view_log)
+    page = write_report([view_log, view_log], tmp_path / "rep")  # the log and a baseline
     html = page.read_text()
     for name in FIGURES:
         png = tmp_path / "rep" / name
