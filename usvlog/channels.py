@@ -54,6 +54,14 @@ def _kind(p: dict) -> tuple[str, bool]:
     return {"number": "float", "integer": "int", "string": "str", "boolean": "bool"}.get(base, "str"), nullable
 
 
+def _num(v) -> float | None:
+    """A JSON number: NaN (and None) become null, as in :meth:`Codec.encode`."""
+    if v is None:
+        return None
+    x = float(v)
+    return None if x != x else x
+
+
 class Codec:
     """Encodes frames to JSON messages and decodes them back, for one schema."""
 
@@ -200,6 +208,40 @@ class Codec:
         props = [f.prop for f in self.fields]
         dumps = orjson.dumps
         return [dumps(dict(zip(props, row))) for row in zip(*per_field)] if props else [b"{}"] * n
+
+    def encode_row(self, row, topic: str = "") -> bytes:
+        """One row ``{column: value}`` -> one JSON message, as :meth:`encode` writes it.
+
+        For writers that produce one message at a time (the recorder). A column may be
+        left out only when its property is nullable; NaN numbers become null.
+        """
+        obj = {}
+        for f in self.fields:
+            c = f.columns[0]
+            try:
+                if f.kind == "array":
+                    obj[f.prop] = [_num(row[k]) for k in f.columns]
+                    continue
+                if c not in row and f.nullable:
+                    obj[f.prop] = None
+                    continue
+                v = row[c]
+                if f.kind == "time":
+                    sec, nsec = divmod(int(v), _NS)
+                    obj[f.prop] = {"sec": sec, "nsec": nsec}
+                elif f.kind == "float":
+                    obj[f.prop] = _num(v)
+                elif f.kind == "int":
+                    obj[f.prop] = int(v)
+                elif f.kind == "bool":
+                    obj[f.prop] = bool(v)
+                else:
+                    obj[f.prop] = str(v)
+            except KeyError as err:
+                raise InputError(f"channel {topic}: row lacks column {err.args[0]} of schema {self.name}") from None
+            except (TypeError, ValueError) as err:
+                raise InputError(f"channel {topic}: column {c} of schema {self.name}: bad value ({err})") from err
+        return orjson.dumps(obj)
 
     # -- decode --------------------------------------------------------------------
     def empty_columns(self) -> dict[str, np.ndarray]:

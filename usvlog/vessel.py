@@ -17,6 +17,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
+from numba.extending import register_jitable
 
 from .errors import ConfigError, InputError
 
@@ -202,6 +203,11 @@ def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    return vessel_from_dict(doc, source)
+
+
+def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
+    """A parsed vessel document ({name, model: {...}, thrusters: {...}}) -> :class:`Vessel`."""
     model = doc.get("model", {})
     thr = doc.get("thrusters", {})
     known_m = set(PARAM_NAMES)
@@ -249,10 +255,12 @@ def damping_matrix(p: VesselParams) -> np.ndarray:
     return np.diag([p.d11, p.d22, p.d33])
 
 
+@register_jitable
 def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
     """(u_dot, v_dot, r_dot) of eq. (3) in closed form.
 
-    Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike.
+    Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike,
+    in Python and inside numba-compiled loops (``register_jitable``).
     """
     f1 = tau_u + m * (xg * r + v) * r - d11 * u
     f2 = -m * u * r - d22 * v

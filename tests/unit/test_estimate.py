@@ -308,3 +308,64 @@ def test_to_log_round_trip(tmp_path):
     for topic in ("/estimate/state", "/estimate/innovations"):
         msg = orjson.loads(codec_for_topic(topic).encode(out[topic].iloc[:3], topic)[1])
         jsonschema.validate(msg, schema_for_topic(topic))
+
+
+def test_yaw_rate_channel_is_used():
+    log = simulate("excitation", SimSettings(duration_s=60.0), seed=11)
+    tr = log["/truth/state"].iloc[::2]                 # a 50 Hz gyro, 0.005 rad/s noise
+    rng = np.random.default_rng(0)
+    gyro = pd.DataFrame({"r_radps": tr["r_radps"].to_numpy() + rng.normal(0, 0.005, len(tr))}, index=tr.index)
+    log.set("/imu/yaw_rate", gyro)
+    plain = estimate(log)
+    with_gyro = estimate(log, EstimateSettings(yaw_rate_topic="/imu/yaw_rate", yaw_rate_noise_radps=0.005))
+    assert with_gyro.report.sensor("yaw_rate").accepted >= len(gyro) - 3
+    assert with_gyro.report.sensor("yaw_rate").mean_nis == pytest.approx(1.0, abs=0.15)
+    e0, e1 = (_errors(r.state, log["/truth/state"])["r_degps"] for r in (plain, with_gyro))
+    assert e1 < 0.5 * e0
+
+
+def test_bad_records_are_skipped_and_counted():
+    log = simulate("excitation", SimSettings(duration_s=30.0, current_mps=0.1), seed=12)
+    good = estimate(log, EstimateSettings(model="dynamic"))
+    bad = log.copy()
+    g = log["/gnss/fix"].copy()
+    g.iloc[[10, 50], g.columns.get_loc("lat_deg")] = np.nan
+    g.iloc[80, g.columns.get_loc("lon_deg")] = 400.0
+    c = log["/compass/heading"].copy()
+    c.iloc[[5, 6, 7], c.columns.get_loc("heading_rad")] = np.nan
+    th = log["/thrust/command"].copy()
+    th.iloc[[100, 101], th.columns.get_loc("thrust_left_n")] = np.nan
+    th.iloc[[100, 101], th.columns.get_loc("left")] = np.nan
+    for topic, f in (("/gnss/fix", g), ("/compass/heading", c), ("/thrust/command", th)):
+        bad.set(topic, f)
+    res = estimate(bad, EstimateSettings(model="dynamic"))
+    rep = res.report
+    assert rep.sensor("gnss").skipped == 3 and rep.sensor("gnss").accepted + rep.sensor("gnss").rejected == len(g) - 3
+    assert rep.sensor("compass").skipped == 3
+    assert rep.thrust_skipped == 2
+    assert rep.to_dict()["sensors"]["gnss"]["skipped"] == 3
+    # nothing good was lost: the estimate hardly moves
+    d = (res.state["u_mps"] - good.state["u_mps"]).abs().max()
+    assert d < 0.02
+
+
+def test_thrust_commands_go_through_the_thruster_map():
+    from dataclasses import replace as dc_replace
+
+    v = default_vessel()
+    v = dc_replace(v, thrusters=dc_replace(v.thrusters, map="quadratic"))
+    log = simulate("excitation", SimSettings(duration_s=20.0, vessel=v), seed=13)
+    th = log["/thrust/command"]
+    assert set(th["unit"]) == {"normalized"}
+    with_forces = estimate(log, EstimateSettings(model="dynamic"), v)
+    only_cmd = log.copy()
+    th2 = th.copy()
+    th2["thrust_left_n"] = np.nan
+    th2["thrust_right_n"] = np.nan
+    only_cmd.set("/thrust/command", th2)
+    from_map = estimate(only_cmd, EstimateSettings(model="dynamic"), v)
+    np.testing.assert_allclose(from_map.state["u_mps"], with_forces.state["u_mps"], atol=1e-9)
+    assert from_map.report.thrust_skipped == 0
+    # the identity map cannot turn normalized commands into forces: one-line error
+    with pytest.raises(InputError, match="/thrust/command: thrust commands in normalized need a thruster map"):
+        estimate(only_cmd, EstimateSettings(model="dynamic"), default_vessel())

@@ -14,7 +14,19 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "estimate", "demo", "view", "report"]
+VERBS = [
+    "simulate",
+    "inspect",
+    "export",
+    "estimate",
+    "gains",
+    "replay",
+    "regress",
+    "record",
+    "demo",
+    "view",
+    "report",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..estimate import EstimateSettings, estimate
 from ..io.export import export_log
 from ..io.mcapio import read_log, write_log
 from ..simulate import SimSettings, simulate
@@ -32,15 +33,61 @@ def run(args) -> int:
     stage("[2] inspect")
     log = read_log(raw)
     print(format_summary(summarize(log)))
-    stage(f"[3] export -> {out / 'csv'}")
+    est_path = out / "estimate.mcap"
+    stage(f"[3] estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
+    result = estimate(log, EstimateSettings(model="dynamic"))
+    print(result.report.format())
+    log = result.to_log(log)
+    write_log(log, est_path, force=True)
+    stage(f"[4] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
-    stage(f"[4] view -> {out / 'demo.rrd'} (open it with: rerun {out / 'demo.rrd'})")
-    from ..viz import to_rrd
-
-    to_rrd(log, out / "demo.rrd", names=["demo"], force=True)
-    stage(f"[5] report -> {out / 'report' / 'report.html'}")
-    from ..report import write_report
-
-    write_report(log, out / "report", force=True)
+    n, circle_replay = _control_stages(out, first=5)
+    _view_stages(out, n, excitation=log, circle=circle_replay)
     stage(f"done: results in {out}/")
     return 0
+
+
+def _control_stages(out: Path, first: int) -> tuple[int, Path]:
+    """Section IV closed loop, gain check, replay with a baseline what-if."""
+    from ..control.gains import check_gains
+    from ..io.config import load_scenario
+    from ..replay import replay_log, simulate_scenario
+    from .replay import format_metrics
+
+    scen = load_scenario("paper-circle")
+    circ = out / "paper-circle.mcap"
+    stage(f"[{first}] simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
+    log = simulate_scenario(scen)
+    write_log(log, circ, force=True)
+    stage(f"[{first + 1}] gains: Theorem 3.1 for the paper's gains")
+    chk = check_gains(scen.sim.vessel.params, scen.gains)
+    print(chk.verdict)
+    print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
+    rep = out / "paper-circle-replay.mcap"
+    stage(f"[{first + 2}] replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
+    res = replay_log(read_log(circ), scen, whatif_controller="baseline")
+    write_log(res.log, rep, force=True)
+    print(format_metrics(res.metrics))
+    return first + 3, rep
+
+
+def _view_stages(out: Path, first: int, *, excitation, circle: Path) -> None:
+    """Rerun recordings of both runs and the report with the paper's figures."""
+    from ..io.config import load_scenario
+    from ..replay import simulate_scenario
+    from ..report import write_report
+    from ..viz import to_rrd
+
+    rrd = out / "demo.rrd"
+    stage(f"[{first}] view: paper-circle replay (track, guidance, what-if, errors) -> {rrd} "
+          f"(open it with: rerun {rrd})")
+    replayed = read_log(circle)
+    to_rrd(replayed, rrd, names=["paper_circle"], force=True)
+    est_rrd = out / "estimate.rrd"
+    stage(f"[{first + 1}] view: excitation run with its estimate -> {est_rrd}")
+    to_rrd(excitation, est_rrd, names=["excitation"], force=True)
+    rep = out / "report"
+    stage(f"[{first + 2}] report: the paper's Fig. 1, 2, 4, 5 for paper-circle (baseline PI/PID for Fig. 2) "
+          f"-> {rep / 'report.html'}")
+    baseline = simulate_scenario(load_scenario("paper-circle"), controller="baseline")
+    write_report(replayed, rep, force=True, baseline=baseline)

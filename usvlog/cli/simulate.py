@@ -4,15 +4,21 @@ from ..errors import ConfigError
 from ..io.atomic import check_output
 from ..io.config import load_vessel
 from ..io.mcapio import write_log
-from ..simulate import SensorSettings, SimSettings, simulate
+from ..simulate import SCENARIOS, SensorSettings, SimSettings, simulate
 from .common import stage
 
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario of the paper's plant into a canonical log")
-    p.add_argument("scenario", help="built-in scenario name (excitation) or scenario TOML file")
+    p.add_argument("scenario", help="built-in open-loop scenario (excitation), a closed-loop scenario name "
+                                    "in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
+                                    "closed-loop scenario takes its settings from the file (only --duration-s, "
+                                    "--seed, --vessel and --controller override them)")
     p.add_argument("--out", required=True, help="output MCAP file")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same file)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (same seed, same file; default 0, "
+                                                          "or the closed-loop scenario's)")
+    p.add_argument("--controller", choices=["full", "baseline"], default=None,
+                   help="closed-loop scenarios: the paper's controller (9)-(10) or the PI/PID baseline")
     p.add_argument("--duration-s", type=float, default=None, help="run length in seconds")
     p.add_argument("--current-mps", type=float, default=0.0, help="water current speed")
     p.add_argument("--current-dir-deg", type=float, default=0.0,
@@ -67,9 +73,28 @@ def settings_from_args(args) -> SimSettings:
 
 def run(args) -> int:
     check_output(args.out, args.force)  # fail before the work, not after
+    if args.scenario not in SCENARIOS:
+        return run_closed_loop(args)
     settings = settings_from_args(args)
-    stage(f"simulating {args.scenario} ({settings.duration_s:.0f} s, seed {args.seed})")
-    log = simulate(args.scenario, settings, seed=args.seed)
+    seed = 0 if args.seed is None else args.seed
+    stage(f"simulating {args.scenario} ({settings.duration_s:.0f} s, seed {seed})")
+    log = simulate(args.scenario, settings, seed=seed)
+    write_log(log, args.out, force=args.force)
+    stage(f"wrote {args.out}")
+    return 0
+
+
+def run_closed_loop(args) -> int:
+    """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
+    from ..io.config import load_scenario
+    from ..replay import simulate_scenario
+
+    scen = load_scenario(args.scenario, vessel=load_vessel(args.vessel) if args.vessel else None)
+    ctl = args.controller or scen.controller
+    dur = args.duration_s or scen.sim.duration_s
+    stage(f"simulating {scen.name} closed loop ({dur:.0f} s, controller {ctl}, "
+          f"input {scen.controller_input})")
+    log = simulate_scenario(scen, controller=ctl, seed=args.seed, duration_s=args.duration_s)
     write_log(log, args.out, force=args.force)
     stage(f"wrote {args.out}")
     return 0

@@ -67,6 +67,7 @@ class Problem:
     model: int
     gates: np.ndarray       # (3,) NIS thresholds per sensor
     dropouts: tuple         # ((start_ns, duration_s), ...) GNSS gaps bridged by prediction
+    skipped: dict = field(default_factory=dict)   # sensor -> records skipped (non-finite, out of range)
 
     @property
     def nx(self) -> int:
@@ -96,11 +97,13 @@ def _channel(log: FieldLog, topic: str, required: bool = True) -> pd.DataFrame |
 
 def _col(frame: pd.DataFrame, name: str, default=np.nan) -> np.ndarray:
     if name in frame.columns:
-        return np.asarray(frame[name].to_numpy(), dtype=float)
+        return np.array(frame[name].to_numpy(), dtype=float)  # a writable copy
     return np.full(len(frame), default, dtype=float)
 
 
-def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel) -> tuple[np.ndarray, np.ndarray]:
+def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel):
+    """(tau_u, tau_r, ok): forces from thrust_*_n, else from the command through the
+    thruster map; ``ok`` marks the usable records (tau has one entry per usable one)."""
     thr = vessel.thrusters
     fl, fr = _col(frame, "thrust_left_n"), _col(frame, "thrust_right_n")
     need = ~(np.isfinite(fl) & np.isfinite(fr))
@@ -115,8 +118,9 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel) -> tuple[np.
             except ConfigError as err:
                 raise InputError(f"{_where(log)}channel {THRUST_TOPIC}: {err}") from err
     ok = np.isfinite(fl) & np.isfinite(fr)
-    fl, fr = np.where(ok, fl, 0.0), np.where(ok, fr, 0.0)
-    return thr.tau_from_forces(fl, fr)
+    # a bad record is skipped: the command before it stays in force
+    tu, tr = thr.tau_from_forces(fl[ok], fr[ok])
+    return tu, tr, ok
 
 
 def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
@@ -135,6 +139,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     datum = log.datum or Datum(lat_deg=float(lat[good][0]), lon_deg=float(lon[good][0]))
     n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
     tg = tg[good]
+    skipped = {"gnss": int((~good).sum())}
     if s.gps_noise_m is not None:
         var = s.gps_noise_m ** 2
         Rg = np.column_stack([np.full(len(tg), var), np.zeros(len(tg)), np.full(len(tg), var)])
@@ -157,6 +162,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         magnetic = np.zeros(len(comp), bool)
     psi = ssa(hd + np.where(magnetic, s.declination_rad, 0.0) - s.compass_offset_rad)[gc]
     tc = tc[gc]
+    skipped["compass"] = int((~gc).sum())
     if s.compass_noise_rad is not None:
         vc = np.full(len(tc), s.compass_noise_rad ** 2)
     else:
@@ -170,6 +176,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         ty = np.asarray(yaw.index, dtype=np.int64)
         ry = _col(yaw, "r_radps")
         gy = np.isfinite(ry)
+        skipped["yaw_rate"] = int((~gy).sum())
         vy = np.full(gy.sum(), s.yaw_rate_noise_radps ** 2)
         parts.append((ty[gy], YAW_RATE, np.column_stack([ry[gy], np.zeros(gy.sum())]),
                       np.column_stack([vy, np.zeros(len(vy)), np.zeros(len(vy))])))
@@ -190,14 +197,19 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     dts = np.diff(t_ns, prepend=t_ns[0]).astype(float) * 1e-9
 
     taus = np.zeros((len(t_ns), 2))
+    skipped["thrust"] = 0
     if thrust is not None:
-        tt = np.asarray(thrust.index, dtype=np.int64)
-        tu, tr = _thrust_tau(log, thrust, vessel)
+        tu, tr, ok = _thrust_tau(log, thrust, vessel)
+        tt = np.asarray(thrust.index, dtype=np.int64)[ok]
+        skipped["thrust"] = int((~ok).sum())
         # zero-order hold: the step ending at k uses the command in force at t[k-1]
         i = np.searchsorted(tt, t_ns[:-1], side="right") - 1
-        has = i >= 0
-        taus[1:, 0] = np.where(has, tu[np.maximum(i, 0)], 0.0)
-        taus[1:, 1] = np.where(has, tr[np.maximum(i, 0)], 0.0)
+        has = (i >= 0) & (len(tt) > 0)
+        i = np.clip(i, 0, max(len(tt) - 1, 0))
+        if not len(tt):
+            tu = tr = np.zeros(1)
+        taus[1:, 0] = np.where(has, tu[i], 0.0)
+        taus[1:, 1] = np.where(has, tr[i], 0.0)
 
     nx = state_size(s)
     x0 = np.zeros(nx)
@@ -216,7 +228,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, m_t_ns=m_t, mstep=mstep, mkind=mkind,
                    mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
                    model=DYNAMIC if s.model == "dynamic" else KINEMATIC,
-                   gates=np.asarray(gate, float), dropouts=drop)
+                   gates=np.asarray(gate, float), dropouts=drop, skipped=skipped)
 
 
 def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> np.ndarray:
@@ -251,29 +263,28 @@ class RawRun:
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X = np.zeros((N, nx))
-    PP = np.zeros((N, nx, nx))
+    X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
+    PP = np.empty((N if smoother else 1, nx, nx))
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
     ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
-                         pb.model, q, pb.gates, max_rej, X, PP, innov, acc)
-    SDf = np.sqrt(np.maximum(np.einsum("kii->ki", PP), 0.0))
-    PBf = PP[:, 2:5, 2:5].copy()
+                         pb.model, q, pb.gates, max_rej, X, PP, SDf, PBf, innov, acc)
     if smoother:
-        XS, SDs, PBs = np.zeros_like(X), np.zeros_like(X), np.zeros((N, 3, 3))
+        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
         kernels.smooth(X, PP, pb.dts, pb.taus, pb.prm, pb.model, q, XS, SDs, PBs)
     else:
-        XS, SDs, PBs = X.copy(), SDf.copy(), PBf.copy()
+        XS, SDs, PBs = X, SDf, PBf
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
 
 
 def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     """Innovation log-likelihood of the forward pass (no covariances stored)."""
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X = np.zeros((N, nx))
+    X = np.empty((N, nx))
+    one = np.empty((1, nx, nx))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR,
-                                 pb.prm, pb.model, q, pb.gates, max_rej, X, np.zeros((1, nx, nx)),
-                                 np.zeros((M, 4)), np.zeros(M, np.int8)))
+                                 pb.prm, pb.model, q, pb.gates, max_rej, X, one, one[:, 0],
+                                 np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8)))
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
@@ -330,10 +341,12 @@ class SensorReport:
     rejected: int
     forced: int        # accepted after max_consecutive_rejects rejections in a row
     mean_nis: float    # over accepted measurements (near ``dim`` for a consistent filter)
+    skipped: int = 0   # records not usable (non-finite or out of range), not counted above
 
     def to_dict(self) -> dict:
         return {"sensor": self.sensor, "dim": self.dim, "accepted": self.accepted,
-                "rejected": self.rejected, "forced": self.forced, "mean_nis": self.mean_nis}
+                "rejected": self.rejected, "forced": self.forced, "mean_nis": self.mean_nis,
+                "skipped": self.skipped}
 
 
 @dataclass(frozen=True)
@@ -345,6 +358,7 @@ class EstimateReport:
     sensors: tuple[SensorReport, ...]
     dropouts: tuple[tuple[int, float], ...]    # GNSS gaps bridged: (start t_ns, duration s)
     loglik: float
+    thrust_skipped: int
     settings: dict
     tuned: dict | None = None
 
@@ -361,7 +375,7 @@ class EstimateReport:
     def to_dict(self) -> dict:
         return {"model": self.model, "states": self.states, "steps": self.steps,
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
-                "dropouts_bridged": self.dropouts_bridged,
+                "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
                 "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned}
 
@@ -370,7 +384,10 @@ class EstimateReport:
         for r in self.sensors:
             lines.append(f"  {r.sensor:8s} accepted {r.accepted:7d}  rejected {r.rejected:5d}"
                          f"  mean NIS {r.mean_nis:6.3f} (dim {r.dim})"
-                         + (f"  forced {r.forced}" if r.forced else ""))
+                         + (f"  forced {r.forced}" if r.forced else "")
+                         + (f"  skipped {r.skipped}" if r.skipped else ""))
+        if self.thrust_skipped:
+            lines.append(f"  thrust records skipped: {self.thrust_skipped}")
         lines.append(f"  GNSS dropouts bridged: {self.dropouts_bridged}"
                      + "".join(f"\n    {format_time(a)}  {d:.1f} s" for a, d in self.dropouts))
         if self.tuned:
@@ -460,13 +477,15 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
         nis = raw.innov[sel, 2][acc]
         reps.append(SensorReport(sensor=SENSORS[k], dim=SENSOR_DIM[k], accepted=int(acc.sum()),
                                  rejected=int((~acc).sum()), forced=int((raw.accepted[sel] == 2).sum()),
-                                 mean_nis=float(nis.mean()) if len(nis) else float("nan")))
+                                 mean_nis=float(nis.mean()) if len(nis) else float("nan"),
+                                 skipped=pb.skipped.get(SENSORS[k], 0)))
     sd = settings.to_dict()
     sd["vessel"] = vessel.name if settings.model == "dynamic" else None
     if settings.model == "dynamic":
         sd["vessel_params"] = vessel.params.to_dict()
     report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
                             duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
-                            dropouts=pb.dropouts, loglik=raw.loglik, settings=sd, tuned=tuned)
+                            dropouts=pb.dropouts, loglik=raw.loglik,
+                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned)
     return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
                           settings=settings, vessel=vessel)

@@ -96,8 +96,25 @@ def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
 
 
 @njit(cache=True)
+def sparse_matmul(A, B, out):
+    """out = A B, skipping the zero entries of A (the model Jacobians have a few a row)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(B.shape[1]):
+            out[i, j] = 0.0
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[k, j]
+
+
+@njit(cache=True)
 def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
-    """One prediction over ``dt``: xo, Po (and Phi) from x, P."""
+    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P.
+
+    Po = Phi P Phi^T + Q dt is formed as P + dt (F P + P F^T) + dt^2 F P F^T over the
+    non-zero entries of the sparse F (a few per row), upper triangle mirrored."""
     nx = x.shape[0]
     process(x, tau_u, tau_r, prm, model, f, F)
     for i in range(nx):
@@ -106,23 +123,23 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
             Phi[i, j] = dt * F[i, j]
         Phi[i, i] += 1.0
     xo[2] = wrap(xo[2])
+    sparse_matmul(F, P, tmp)
+    dt2 = dt * dt
     for i in range(nx):
-        for j in range(nx):
+        for j in range(i, nx):
             acc = 0.0
             for k in range(nx):
-                acc += Phi[i, k] * P[k, j]
-            tmp[i, j] = acc
-    for i in range(nx):
-        for j in range(nx):
-            acc = 0.0
-            for k in range(nx):
-                acc += tmp[i, k] * Phi[j, k]
-            Po[i, j] = acc
+                a = F[j, k]
+                if a != 0.0:
+                    acc += tmp[i, k] * a
+            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * acc
+            Po[i, j] = v
+            Po[j, i] = v
         Po[i, i] += q[i] * dt
 
 
 @njit(cache=True)
-def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, A, tmp, P2):
+def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     """Gated measurement update in place (Joseph form).
 
     Writes [res_0, res_1, nis, log-likelihood term] into ``res``; returns True when the
@@ -136,6 +153,8 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, A, tmp, P2):
         i0, i1 = 2, 2
     else:
         i0, i1 = 5, 5
+    S01 = S10 = S11 = 0.0
+    I01 = I10 = I11 = 0.0
     y0 = z0 - x[i0]
     if kind == COMPASS:
         y0 = wrap(y0)
@@ -173,31 +192,19 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, A, tmp, P2):
         else:
             x[i] += K[i, 0] * y0
     x[2] = wrap(x[2])
-    # A = I - K H
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T, expanded for a selector H:
+    # P - K (H P) - (H P)^T K^T + K (H P H^T + R) K^T, upper triangle mirrored
     for i in range(nx):
-        for j in range(nx):
-            A[i, j] = 1.0 if i == j else 0.0
-        A[i, i0] -= K[i, 0]
-        if m == 2:
-            A[i, i1] -= K[i, 1]
-    for i in range(nx):
-        for j in range(nx):
-            acc = 0.0
-            for k in range(nx):
-                acc += A[i, k] * P[k, j]
-            tmp[i, j] = acc
-    for i in range(nx):
-        for j in range(nx):
-            acc = 0.0
-            for k in range(nx):
-                acc += tmp[i, k] * A[j, k]
-            # + K R K^T
+        for j in range(i, nx):
             if m == 2:
-                acc += (K[i, 0] * (R00 * K[j, 0] + R01 * K[j, 1])
-                        + K[i, 1] * (R01 * K[j, 0] + R11 * K[j, 1]))
+                kpk = (K[i, 0] * (S00 * K[j, 0] + S01 * K[j, 1])
+                       + K[i, 1] * (S10 * K[j, 0] + S11 * K[j, 1]))
+                v = (P[i, j] - K[i, 0] * P[i0, j] - K[i, 1] * P[i1, j]
+                     - P[i, i0] * K[j, 0] - P[i, i1] * K[j, 1] + kpk)
             else:
-                acc += K[i, 0] * R00 * K[j, 0]
-            P2[i, j] = acc
+                v = P[i, j] - K[i, 0] * P[i0, j] - P[i, i0] * K[j, 0] + K[i, 0] * S00 * K[j, 0]
+            P2[i, j] = v
+            P2[j, i] = v
     for i in range(nx):
         for j in range(nx):
             P[i, j] = P2[i, j]
@@ -221,10 +228,11 @@ class Work:
 
 @njit(cache=True)
 def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
-            X, PP, innov, accepted):
+            X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
-    Stores the posterior of every step in X[k], PP[k] (PP may have length 1: not stored),
+    Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
+    covariance block of states 2..4 in PB[k] (PP, SD, PB may have length 1: not stored),
     per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
     the log-likelihood terms.
@@ -258,7 +266,7 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
             kind = mkind[j]
             force = rej[kind] >= max_rej
             ok = update(x, P, kind, mz[j, 0], mz[j, 1], mR[j, 0], mR[j, 1], mR[j, 2],
-                        gates[kind], force, res, K, Po, tmp, P2)
+                        gates[kind], force, res, K, P2)
             for a in range(4):
                 innov[j, a] = res[a]
             ll += res[3]
@@ -275,12 +283,19 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
             for a in range(nx):
                 for b in range(nx):
                     PP[k, a, b] = P[a, b]
+        if SD.shape[0] == N:
+            for a in range(nx):
+                SD[k, a] = math.sqrt(max(P[a, a], 0.0))
+            for a in range(3):
+                for b in range(3):
+                    PB[k, a, b] = P[2 + a, 2 + b]
     return ll
 
 
 @njit(cache=True)
-def _chol_solve(L, A, B, X):
-    """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch."""
+def _chol_solve(L, inv, A, B, X):
+    """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
+    (reciprocals of the diagonal: no divisions in the loops)."""
     n = A.shape[0]
     for i in range(n):
         for j in range(i + 1):
@@ -289,19 +304,20 @@ def _chol_solve(L, A, B, X):
                 s -= L[i, k] * L[j, k]
             if i == j:
                 L[i, i] = math.sqrt(s)
+                inv[i] = 1.0 / L[i, i]
             else:
-                L[i, j] = s / L[j, j]
+                L[i, j] = s * inv[j]
     for c in range(B.shape[1]):
         for i in range(n):
             s = B[i, c]
             for k in range(i):
                 s -= L[i, k] * X[k, c]
-            X[i, c] = s / L[i, i]
+            X[i, c] = s * inv[i]
         for i in range(n - 1, -1, -1):
             s = X[i, c]
             for k in range(i + 1, n):
                 s -= L[k, i] * X[k, c]
-            X[i, c] = s / L[i, i]
+            X[i, c] = s * inv[i]
 
 
 @njit(cache=True)
@@ -319,6 +335,7 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
     B = np.zeros((nx, nx))
     Ct = np.zeros((nx, nx))
     L = np.zeros((nx, nx))
+    inv = np.zeros(nx)
     Ps = PP[N - 1].copy()
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
@@ -341,13 +358,8 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
                     Pp[a, b] = Pk[a, b]
                     Phi[a, b] = 1.0 if a == b else 0.0
         # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-        for a in range(nx):
-            for b in range(nx):
-                acc = 0.0
-                for c in range(nx):
-                    acc += Phi[a, c] * Pk[c, b]
-                B[a, b] = acc
-        _chol_solve(L, Pp, B, Ct)
+        sparse_matmul(Phi, Pk, B)
+        _chol_solve(L, inv, Pp, B, Ct)
         for a in range(nx):
             d[a] = XS[k + 1, a] - xp[a]
         d[2] = wrap(d[2])
@@ -368,11 +380,12 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
                     acc += Ct[c, a] * Pn[c, b]
                 tmp[a, b] = acc
         for a in range(nx):
-            for b in range(nx):
+            for b in range(a, nx):
                 acc = 0.0
                 for c in range(nx):
                     acc += tmp[a, c] * Ct[c, b]
                 Ps[a, b] = Pk[a, b] + acc
+                Ps[b, a] = Ps[a, b]
         for a in range(nx):
             SD[k, a] = math.sqrt(max(Ps[a, a], 0.0))
         for a in range(3):

@@ -22,8 +22,9 @@ class OnlineEKF:
 
     ``predict(dt, tau_u, tau_r)`` propagates with the applied forces (ignored by the
     kinematic model); ``update_gnss`` / ``update_heading`` apply a measurement through
-    the chi-square gate and return True when it was accepted. ``x`` is
-    [n, e, psi, u, v, r] (+ [c_n, c_e] with current states), ``P`` its covariance.
+    the chi-square gate and return True when it was accepted. ``x`` is the state of
+    :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
+    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot]. ``P`` is its covariance.
     """
 
     def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
@@ -68,7 +69,7 @@ class OnlineEKF:
         w = self._w
         force = self._rej[kind] >= self.settings.max_consecutive_rejects
         ok = kernels.update(self._x, self._P, kind, float(z0), float(z1), float(R00), float(R01),
-                            float(R11), self._gates[kind], force, w.res, w.K, w.Phi, w.tmp, w.tmp2)
+                            float(R11), self._gates[kind], force, w.res, w.K, w.tmp2)
         self.last_nis = float(w.res[2])
         self._rej[kind] = 0 if ok else self._rej[kind] + 1
         return bool(ok)

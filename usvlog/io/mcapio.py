@@ -661,3 +661,48 @@ def _read_log(path, *, topics=None, strict=False, fast=True) -> FieldLog:
             messages_recovered=n_msgs, lost_from_ns=t_max,
             lost_to_ns=int(lost[1]) if lost else None, reason=scan.reason)
     return log
+
+
+def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:
+    """Load consecutive files of one run (e.g. a rotated recording) as one :class:`FieldLog`.
+
+    Files written by the recorder carry a ``usvlog.recording`` record (run id, part
+    number): they are put in part order and must be one run with no part missing.
+    Other files are taken in the order given. Channels are concatenated; metadata
+    comes from the first file, with the datum from the first file that has one.
+    A damaged file is recovered as :func:`read_log` does; its report is kept.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("read_logs: no files given")
+    logs = [read_log(p, topics=topics) for p in paths]
+    rec = [lg.meta.get("usvlog.recording") for lg in logs]
+    if all(r is not None for r in rec):
+        runs = {r.get("run_id") for r in rec}
+        if len(runs) != 1:
+            raise InputError(f"{paths[0]}: files belong to different recordings (run ids {', '.join(sorted(map(str, runs)))})")
+        order = sorted(range(len(logs)), key=lambda i: int(rec[i].get("part", 0)))
+        parts = [int(rec[i].get("part", 0)) for i in order]
+        for a, b, i in zip(parts, parts[1:], order[1:]):
+            if b != a + 1:
+                raise InputError(f"{paths[i]}: part {b} follows part {a}; part(s) missing between them")
+        logs = [logs[i] for i in order]
+    elif any(r is not None for r in rec):
+        raise InputError(f"{paths[0]}: mixes recorder files with other files")
+    out = FieldLog(source=", ".join(str(lg.source) for lg in logs))
+    out.meta = {k: dict(v) for k, v in logs[0].meta.items()}
+    for lg in logs:
+        if lg.datum is not None:
+            out.datum = lg.datum
+            break
+    topics_all = []
+    for lg in logs:
+        topics_all += [t for t in lg.channels if t not in topics_all]
+        out.schemas.update({t: s for t, s in lg.schemas.items() if t not in out.schemas})
+    for t in topics_all:
+        frames = [lg.channels[t] for lg in logs if t in lg.channels]
+        out.channels[t] = frames[0] if len(frames) == 1 else pd.concat(frames)
+    damaged = [lg for lg in logs if lg.recovery is not None]
+    if damaged:
+        out.recovery = damaged[-1].recovery
+    return out
