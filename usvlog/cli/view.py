@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import InputError
 from ..io.atomic import check_output
 from ..io.mcapio import read_log
 from .common import stage
@@ -28,6 +29,8 @@ def run(args) -> int:
 
     out = Path(args.out) if args.out else Path(args.logs[0]).with_suffix(".rrd")
     check_output(out, args.force)  # fail before the work, not after
+    if args.name is not None and len(args.name) != len(args.logs):
+        raise InputError(f"--name given {len(args.name)} times for {len(args.logs)} logs")
     logs = []
     for path in args.logs:
         stage(f"reading {path}")
