@@ -290,6 +290,14 @@ def _rms(a):
     return float(np.sqrt(np.mean(a * a))) if len(a) else math.nan
 
 
+def fit_percent(y, y_sim) -> float:
+    """Normalised fit, 100 (1 - |y - y_sim| / |y - mean(y)|), over the samples where both are finite."""
+    y, y_sim = np.asarray(y, float), np.asarray(y_sim, float)
+    ok = np.isfinite(y) & np.isfinite(y_sim)
+    den = np.linalg.norm(y[ok] - y[ok].mean()) if ok.any() else 0.0
+    return float(100.0 * (1.0 - np.linalg.norm(y[ok] - y_sim[ok]) / den)) if den > 0 else math.nan
+
+
 def metrics(log: FieldLog) -> list[tuple[str, str, str]]:
     """[(name, value, unit)] for the report's table: only what the log supports."""
     rows: list[tuple[str, str, str]] = []
@@ -329,5 +337,8 @@ def metrics(log: FieldLog) -> list[tuple[str, str, str]]:
         for q, unit in (("u_mps", "m/s"), ("v_mps", "m/s"), ("r_radps", "rad/s")):
             y, ys = _col(fit, q), _col(fit, q.replace("_", "_sim_", 1))
             if y is not None and ys is not None:
-                rows.append((f"identification fit: RMS {q.split('_')[0]} error", f"{_rms(y - ys):.4f}", unit))
+                name = q.split("_")[0]
+                rows.append((f"identification fit: RMS {name} error", f"{_rms(y - ys):.4f}", unit))
+                rows.append((f"identification fit: {name} fit (100 (1 - |y - y_sim| / |y - mean y|))",
+                             f"{fit_percent(y, ys):.1f}", "%"))
     return rows

@@ -7,7 +7,7 @@ Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
 
     /runs/<name>/map/{gps, gps_rejected, estimate, truth, whatif, path, boat}   GeoPoints / GeoLineStrings
     /runs/<name>/local/{...same..., ctl_<ctl>/closest, ctl_<ctl>/carrot, ctl_<ctl>/arrows} 2D, x = east, y = -north
-    /runs/<name>/ts/<quantity>/<series>                                       Scalars
+    /runs/<name>/ts/<quantity>/<series>                                       Scalars (fit/: identification)
     /runs/<name>/events                                                       TextLog
 
 ``<ctl>`` is ``control`` (closed-loop simulation), ``replay`` (controller replayed on a
@@ -338,6 +338,16 @@ class _Writer:
                 self.scalars("saturation", f"saturation/{label}", t,
                              np.asarray(f["saturated"].to_numpy(), bool).astype(float),
                              name=f"saturated {label}", color=self.color(label), step=True)
+        fit = vd.nonempty(log, "/identify/fit")
+        if fit is not None:
+            t = np.asarray(fit.index.to_numpy(), dtype=np.int64)
+            for q, qs, name, scale in (("u_mps", "u_sim_mps", "u", 1.0), ("v_mps", "v_sim_mps", "v", 1.0),
+                                       ("r_radps", "r_sim_radps", "r", math.degrees(1.0))):
+                if q in fit.columns and qs in fit.columns:
+                    self.scalars(f"fit_{name}", f"fit/{name}_measured", t, _col(fit, q) * scale,
+                                 name=f"{name} measured", color=self.color("recorded", "dark"), width=1.0)
+                    self.scalars(f"fit_{name}", f"fit/{name}_model", t, _col(fit, qs) * scale,
+                                 name=f"{name} model", color=self.color("control"), width=1.5)
         inn = vd.nonempty(log, "/estimate/innovations")
         if inn is not None and "nis" in inn.columns and "sensor" in inn.columns:
             t = np.asarray(inn.index.to_numpy(), dtype=np.int64)
@@ -407,7 +417,8 @@ SERIES_VIEWS = [  # (key, title)
     ("cross_track", "Cross-track error (m)"), ("v", "Sway speed v (m/s)"), ("r", "Yaw rate r (deg/s)"),
     ("tau_u", "Surge force tau_u: replayed vs recorded (N)"), ("tau_r", "Yaw moment tau_r: replayed vs recorded (N m)"),
     ("nis", "NIS (normalised innovation squared)"), ("current", "Estimated current (m/s)"),
-    ("saturation", "Thrusters saturated (0/1)"),
+    ("saturation", "Thrusters saturated (0/1)"), ("fit_u", "Identification: u measured vs model (m/s)"),
+    ("fit_v", "Identification: v measured vs model (m/s)"), ("fit_r", "Identification: r measured vs model (deg/s)"),
 ]
 
 

@@ -60,7 +60,8 @@ def test_expected_entities_and_blueprint(rrd):
                 "local/ctl_whatif/arrows", "ts/u/estimate", "ts/u/u_d_control", "ts/psi/estimate",
                 "ts/psi/psi_d_control", "ts/v/estimate", "ts/r/estimate", "ts/tau_u/recorded",
                 "ts/tau_u/control", "ts/tau_r/recorded", "ts/cross_track/control", "ts/nis/gnss",
-                "ts/nis/compass", "ts/current/n_estimate", "ts/saturation/control", "events"):
+                "ts/nis/compass", "ts/current/n_estimate", "ts/saturation/control", "ts/fit/u_model",
+                "ts/fit/r_measured", "events"):
         assert f"{p}/{sub}" in ents, sub
     # a blueprint with the views, whose contents name entities that exist
     names = [n for e in bp.values() for row in e.get("ViewBlueprint:display_name", []) for n in row]
@@ -118,6 +119,9 @@ def test_series_values_and_timelines(rrd, view_log):
     assert ssa(np.radians(psd) - ctl["psi_d_rad"].to_numpy()) == pytest.approx(0.0, abs=1e-9)
     assert ssa(np.radians(psi) - est["psi_rad"].to_numpy()) == pytest.approx(0.0, abs=1e-9)
     assert np.abs(np.diff(psi)).max() < 20.0  # unwrapped: no 360 deg jumps
+    fit = view_log["/identify/fit"]
+    r_model = np.array(ents["/runs/circle/ts/fit/r_model"]["rows"]["Scalars:scalars"]).ravel()
+    assert r_model == pytest.approx(np.degrees(fit["r_sim_radps"].to_numpy()))
     sat = np.array(ents["/runs/circle/ts/saturation/control"]["rows"]["Scalars:scalars"]).ravel()
     assert sat == pytest.approx(ctl["saturated"].to_numpy().astype(float))
 
