@@ -1,8 +1,9 @@
 """Time ``to_rrd`` on a 1-hour log against per-row Rerun logging of the same scalars.
 
 The log: a simulated 3600 s excitation run (GPS 10 Hz, compass 20 Hz, thrust 100 Hz,
-truth 100 Hz) plus an ``/estimate/state`` channel at 100 Hz built from the truth (what
-the smoother would write). ``to_rrd`` sends everything with ``rr.send_columns``.
+truth 100 Hz) plus an ``/estimate/state`` channel and a ``/replay/controller`` channel at
+100 Hz built from the truth (the volume the smoother and the replay would write).
+``to_rrd`` sends everything with ``rr.send_columns``.
 
 The per-row baseline logs the very same time-series scalars (read back from the .rrd)
 one sample at a time, ``rec.set_time(...)`` + ``rec.log(path, rr.Scalars(x))``. It is timed
@@ -36,6 +37,18 @@ def hour_log(duration_s: float):
         est[c] = tr[c].to_numpy() + rng.normal(0, 0.01, len(tr))
         est[c + "_std"] = np.full(len(tr), 0.05)
     log.set("/estimate/state", frame_from_columns(est, tr.index.to_numpy(), codec_for_topic("/estimate/state")))
+    # a replayed controller at 100 Hz (the volume of /replay/controller; values built from the truth)
+    n = len(tr)
+    z = np.zeros(n)
+    ctl = {"theta": np.arange(n) * 0.01, "closest_n_m": tr["n_m"].to_numpy() + 1.0,
+           "closest_e_m": tr["e_m"].to_numpy(), "carrot_n_m": tr["n_m"].to_numpy() + 3.0,
+           "carrot_e_m": tr["e_m"].to_numpy() + 1.0, "psi_ref_rad": tr["psi_rad"].to_numpy(),
+           "psi_d_rad": tr["psi_rad"].to_numpy() + 0.05, "r_d_radps": z, "r_d_dot_radps2": z,
+           "u_d_mps": np.where(np.arange(n) < n // 2, 0.4, 0.6), "u_d_dot_mps2": z,
+           "u_e_mps": tr["u_mps"].to_numpy() - 0.4, "psi_e_rad": z + 0.05, "cross_track_m": z + 1.0,
+           "tau_u_n": tr["tau_u_n"].to_numpy(), "tau_r_nm": tr["tau_r_nm"].to_numpy(), "thrust_left_n": z,
+           "thrust_right_n": z, "cmd_left": z, "cmd_right": z, "saturated": np.zeros(n, bool)}
+    log.set("/replay/controller", frame_from_columns(ctl, tr.index.to_numpy(), codec_for_topic("/replay/controller")))
     return log
 
 
