@@ -168,8 +168,9 @@ def stage_replay(run: _Run) -> None:
     from .replay import replay_log
 
     cfg = dict(run.scenario.replay)
-    scen_path = run.scenario.path.parent / cfg.pop("scenario")
-    scen = load_scenario(scen_path if scen_path.exists() else cfg.get("scenario", scen_path))
+    name = cfg.pop("scenario")
+    scen_path = run.scenario.path.parent / name
+    scen = load_scenario(scen_path if scen_path.exists() else name)  # a file beside it, or a name in replay/
     gains = None
     if "gains" in cfg:
         merged = {**{f.name: getattr(scen.gains, f.name) for f in dataclasses.fields(scen.gains)}, **cfg.pop("gains")}
@@ -257,6 +258,8 @@ def _default_direction(name: str) -> str:
         return "either"                    # a parameter moving either way is a change
     if leaf.endswith("_mean_nis"):
         return "either"                    # consistency: NIS should stay near its dimension
+    if leaf in ("command_rms", "force_rms_n", "decisions_max_abs"):
+        return "either"                    # a fingerprint of the controller's decisions
     return "larger"
 
 
@@ -273,6 +276,8 @@ def _default_tol(name: str) -> tuple[float, float]:
     leaf = name.split(".", 1)[1]
     if leaf in ("decisions_max_abs",):
         return (1e-6, 0.0)                 # the same code makes the same decisions
+    if leaf in ("command_rms", "force_rms_n"):
+        return (1e-9, 1e-6)                # replayed vs recorded: any change of decisions shows
     if leaf.endswith("_rejected") or leaf in ("dropouts_bridged", "warnings"):
         return (0.0, 0.0)
     if leaf.endswith("_pct") and leaf.startswith("fit_"):

@@ -16,6 +16,7 @@ from ..errors import UsvlogError
 
 VERBS = [
     "simulate",
+    "import_",
     "inspect",
     "export",
     "estimate",

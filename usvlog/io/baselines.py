@@ -41,7 +41,7 @@ def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
     lines = [f"# {line}" for line in header.splitlines()] + ([""] if header else [])
     for name in sorted(entries):
         e = entries[name]
-        lines.append(f"[metrics.{name}]")
+        lines.append(f"[metrics.{_q(name)}]")
         lines.append(f"value = {_num(e.value)}")
         lines.append(f"worse = {_q(e.worse)}")
         lines.append(f"abs_tol = {_num(e.abs_tol)}")
