@@ -25,6 +25,8 @@ VERBS = [
     "regress",
     "record",
     "demo",
+    "view",
+    "report",
 ]
 
 

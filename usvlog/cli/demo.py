@@ -59,7 +59,8 @@ def run(args) -> int:
     write_log(log, est_path, force=True)
     step(f"export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
-    _control_stages(out, step)
+    circle_replay = _control_stages(out, step)
+    _view_stages(out, step, excitation=log, circle=circle_replay)
     stage(f"done: results in {out}/")
     return 0
 
@@ -84,7 +85,7 @@ def _import_stage(log, out: Path, step) -> None:
     print(f"import    skipped records: {dict(res.report.skipped) or 'none'}")
 
 
-def _control_stages(out: Path, step) -> None:
+def _control_stages(out: Path, step) -> Path:
     """Section IV closed loop, gain check, replay with a baseline what-if."""
     from ..control.gains import check_gains
     from ..io.config import load_scenario
@@ -105,3 +106,26 @@ def _control_stages(out: Path, step) -> None:
     res = replay_log(read_log(circ), scen, whatif_controller="baseline")
     write_log(res.log, rep, force=True)
     print(format_metrics(res.metrics))
+    return rep
+
+
+def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
+    """Rerun recordings of both runs and the report with the paper's figures."""
+    from ..io.config import load_scenario
+    from ..replay import simulate_scenario
+    from ..report import write_report
+    from ..viz import to_rrd
+
+    rrd = out / "demo.rrd"
+    step(f"view: paper-circle replay (track, guidance, what-if, errors) -> {rrd} "
+          f"(open it with: rerun {rrd})")
+    replayed = read_log(circle)
+    to_rrd(replayed, rrd, names=["paper_circle"], force=True)
+    est_rrd = out / "estimate.rrd"
+    step(f"view: excitation run with its estimate -> {est_rrd}")
+    to_rrd(excitation, est_rrd, names=["excitation"], force=True)
+    rep = out / "report"
+    step(f"report: the paper's Fig. 1, 2, 4, 5 for paper-circle (baseline PI/PID for Fig. 2) "
+          f"-> {rep / 'report.html'}")
+    baseline = simulate_scenario(load_scenario("paper-circle"), controller="baseline")
+    write_report(replayed, rep, force=True, baseline=baseline)
