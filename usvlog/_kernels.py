@@ -42,7 +42,7 @@ def walk_records(buf, start, end, top_level):
     Stops before the first record that does not fit (``complete`` False), or, at top
     level, after a Data End or Footer record (``complete`` True).
     """
-    cap = 1024
+    cap = max(1024, (end - start) // 64)
     ops = np.empty(cap, np.uint8)
     offs = np.empty(cap, np.int64)
     lens = np.empty(cap, np.int64)
@@ -164,17 +164,29 @@ _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
 @njit(cache=True)
-def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_null):
+def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_null, fcol):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
 
     Returns (kinds (n, S) int8, value starts, value ends (strings include quotes),
-    integer values, index of the first message that does not match or -1).
+    integer values, index of the first message that does not match or -1, and the
+    text of the number slots marked in ``fcol`` (slot -> column or -1) as one byte
+    buffer with n*F+1 offsets, row by row; null is written as "0").
     """
     n = len(starts)
     kinds = np.empty((n, nslots), np.int8)
     vs = np.empty((n, nslots), np.int64)
     ve = np.empty((n, nslots), np.int64)
     iv = np.zeros((n, nslots), np.int64)
+    nf = 0
+    for k in range(nslots):
+        if fcol[k] >= 0:
+            nf += 1
+    cap = 0
+    for i in range(n):
+        cap += ends[i] - starts[i]
+    fdata = np.empty(cap + n * nf, np.uint8)
+    foff = np.zeros(n * nf + 1, np.int64)
+    fp = 0
     for i in range(n):
         p = starts[i]
         end = ends[i]
@@ -182,15 +194,15 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
             a = lit_off[k]
             b = lit_off[k + 1]
             if p + (b - a) > end:
-                return kinds, vs, ve, iv, i
+                return kinds, vs, ve, iv, i, fdata, foff
             for j in range(b - a):
                 if buf[p + j] != lits[a + j]:
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
             p += b - a
             if k == nslots:
                 break
             if p >= end:
-                return kinds, vs, ve, iv, i
+                return kinds, vs, ve, iv, i, fdata, foff
             c = buf[p]
             vs[i, k] = p
             if c == 34:  # '"'
@@ -201,34 +213,34 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
                     if d == 34:
                         break
                     if d < 32:
-                        return kinds, vs, ve, iv, i
+                        return kinds, vs, ve, iv, i, fdata, foff
                     if d == 92:  # backslash
                         kind = K_STR_ESC
                         q += 1
                     q += 1
                 if q >= end:
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
                 p = q + 1
                 kinds[i, k] = kind
             elif c == 116:
                 if not _lit(buf, p, end, w_true):
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
                 p += 4
                 kinds[i, k] = K_TRUE
             elif c == 102:
                 if not _lit(buf, p, end, w_false):
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
                 p += 5
                 kinds[i, k] = K_FALSE
             elif c == 110:
                 if not _lit(buf, p, end, w_null):
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
                 p += 4
                 kinds[i, k] = K_NULL
             else:
                 q, is_int = _scan_number(buf, p, end)
                 if q < 0:
-                    return kinds, vs, ve, iv, i
+                    return kinds, vs, ve, iv, i, fdata, foff
                 if is_int:
                     neg = buf[p] == 45
                     d0 = p + 1 if neg else p
@@ -244,9 +256,19 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
                     kinds[i, k] = K_FLOAT
                 p = q
             ve[i, k] = p
+            f = fcol[k]
+            if f >= 0:
+                if kinds[i, k] == K_NULL:
+                    fdata[fp] = 48
+                    fp += 1
+                elif kinds[i, k] <= K_FLOAT or kinds[i, k] == K_INT_BIG:
+                    for j in range(vs[i, k], p):
+                        fdata[fp] = buf[j]
+                        fp += 1
+                foff[i * nf + f + 1] = fp
         if p != end:
-            return kinds, vs, ve, iv, i
-    return kinds, vs, ve, iv, -1
+            return kinds, vs, ve, iv, i, fdata, foff
+    return kinds, vs, ve, iv, -1, fdata[:fp], foff
 
 
 @njit(cache=True)

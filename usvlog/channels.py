@@ -391,14 +391,15 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     except _Mismatch:
         return None
     lit_buf, lit_off = _pack(lits)
-    kinds, vs, ve, iv, bad = K.match_template(buf, starts, ends, lit_buf, lit_off, len(paths),
-                                              K._TRUE, K._FALSE, K._NULL)
+    float_slots = [k for f, ks in plan if f.kind in ("float", "array") for k in ks]
+    fcol = np.full(len(paths), -1, dtype=np.int64)
+    fcol[float_slots] = np.arange(len(float_slots))
+    kinds, vs, ve, iv, bad, fdata, foff = K.match_template(
+        buf, starts, ends, lit_buf, lit_off, len(paths), K._TRUE, K._FALSE, K._NULL, fcol)
     if bad >= 0:
         return None
-    n = len(starts)
     try:
-        float_slots = [k for f, ks in plan if f.kind in ("float", "array") for k in ks]
-        floats = _parse_floats(buf, kinds, vs, ve, float_slots) if float_slots else {}
+        floats = _parse_floats(kinds, fdata, foff, float_slots) if float_slots else {}
         out: dict[str, np.ndarray] = {}
         for f, ks in plan:
             if f.kind in ("float", "array"):
@@ -427,33 +428,30 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     return out
 
 
-def _parse_floats(buf, kinds, vs, ve, slots: list[int]) -> dict[int, np.ndarray]:
-    """Numbers (or null -> NaN) of the given value slots, parsed with correct rounding."""
+def _parse_floats(kinds, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
+    """Numbers (null -> NaN) of the given value slots, from their text gathered row by
+    row by ``match_template``, parsed with correct rounding (as orjson does)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
     from . import _kernels as K
 
-    kk = kinds[:, slots].T.ravel()
+    kk = kinds[:, slots]
     if not np.all((kk == K.K_FLOAT) | (kk == K.K_INT) | (kk == K.K_INT_BIG) | (kk == K.K_NULL)):
         raise _Mismatch
-    a, b = vs[:, slots].T.ravel(), ve[:, slots].T.ravel()
-    null = kk == K.K_NULL
-    has_null = bool(null.any())
-    if has_null:
-        a, b = a[~null], b[~null]
-    data, offs = K.gather(buf, a, b)
-    arr = pa.Array.from_buffers(pa.string(), len(a), [None, pa.py_buffer(offs), pa.py_buffer(data)])
+    arr = pa.Array.from_buffers(pa.large_string(), len(foff) - 1, [None, pa.py_buffer(foff), pa.py_buffer(fdata)])
     try:
-        vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False)
+        vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False).reshape(kk.shape)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
         raise _Mismatch from err
-    if has_null:
-        full = np.full(len(kk), np.nan)
-        full[~null] = vals
-        vals = full
-    vals = vals.reshape(len(slots), -1)
-    return {k: vals[i].copy() for i, k in enumerate(slots)}
+    null = kk == K.K_NULL
+    out = {}
+    for i, k in enumerate(slots):
+        col = vals[:, i].copy()
+        if null[:, i].any():
+            col[null[:, i]] = np.nan
+        out[k] = col
+    return out
 
 
 def _strings(buf, kinds, vs, ve) -> np.ndarray:

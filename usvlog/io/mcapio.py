@@ -481,10 +481,13 @@ def _scan_fast(data: bytes) -> _Scan:
     ops, offs, lens, stop, complete = K.walk_records(buf, 8, len(buf), True)
     n_top = len(ops)
     defined: dict[int, int] = {}     # channel id -> ordinal of its record
-    segments: list[np.ndarray] = []  # message bytes: decompressed chunks (and the file)
-    parts = []                       # (segment, cid, seq, t, start, end, ordinal)
+    parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
 
     top_msgs = np.flatnonzero(ops == OP_MESSAGE)
+    chunk_ops = np.flatnonzero(ops == OP_CHUNK)
+    usizes = [_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
+              if lens[i] >= 24]
+    arena = _Arena(min(sum(usizes), 64 * len(data)) + (len(data) if len(top_msgs) else 0))
     if len(top_msgs):
         cid, seq, t, ps, pe, ok = K.message_fields(buf, offs[top_msgs], lens[top_msgs])
         if not ok:  # a too-short message record: the file is read up to it
@@ -493,8 +496,7 @@ def _scan_fast(data: bytes) -> _Scan:
             scan.reason = f"malformed record after byte {int(offs[first_bad])} (message record too short)"
             keep = top_msgs < first_bad
             cid, seq, t, ps, pe, top_msgs = cid[keep], seq[keep], t[keep], ps[keep], pe[keep], top_msgs[keep]
-        segments.append(buf)
-        parts.append((0, cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
+        parts.append((arena.put(buf), cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
 
     for i in np.flatnonzero(ops[:n_top] != OP_MESSAGE).tolist():
         op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
@@ -524,8 +526,7 @@ def _scan_fast(data: bytes) -> _Scan:
                             defined[pr[1]] = (i << 32) + j + 1
                         _apply(scan, pr, True)
                 if len(m):
-                    parts.append((len(segments), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
-                    segments.append(chunk)
+                    parts.append((arena.put(chunk), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
             else:
                 pr = _parse(op, mv[body:nxt])
                 if pr is not None:
@@ -548,12 +549,11 @@ def _scan_fast(data: bytes) -> _Scan:
 
     # messages -> per-channel arrays into one arena of bytes
     if parts:
-        base = np.cumsum([0] + [len(s) for s in segments])
-        scan.arena = segments[0] if len(segments) == 1 else np.concatenate(segments)
+        scan.arena = arena.buf[:arena.used]
         cid = np.concatenate([p[1] for p in parts])
         seq = np.concatenate([p[2] for p in parts])
         t = np.concatenate([p[3] for p in parts])
-        shift = np.concatenate([np.full(len(p[1]), base[p[0]], dtype=np.int64) for p in parts])
+        shift = np.concatenate([np.full(len(p[1]), p[0], dtype=np.int64) for p in parts])
         ps = np.concatenate([p[4] for p in parts]) + shift
         pe = np.concatenate([p[5] for p in parts]) + shift
         ordinal = np.concatenate([p[6] for p in parts])
@@ -566,6 +566,24 @@ def _scan_fast(data: bytes) -> _Scan:
         for ch in scan.channels.values():
             ch.t = ch.seq = ch.starts = ch.ends = np.zeros(0, dtype=np.int64)
     return scan
+
+
+class _Arena:
+    """One growing byte buffer holding every message's bytes (decompressed chunks)."""
+
+    def __init__(self, capacity: int):
+        self.buf = np.empty(max(capacity, 0), dtype=np.uint8)
+        self.used = 0
+
+    def put(self, data: np.ndarray) -> int:
+        n, at = len(data), self.used
+        if at + n > len(self.buf):
+            grown = np.empty(max(2 * len(self.buf), at + n), dtype=np.uint8)
+            grown[:at] = self.buf[:at]
+            self.buf = grown
+        self.buf[at:at + n] = data
+        self.used = at + n
+        return at
 
 
 def _decompress(comp: str, raw, usize: int) -> bytes:
