@@ -399,7 +399,7 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     if bad >= 0:
         return None
     try:
-        floats = _parse_floats(kinds, fdata, foff, float_slots) if float_slots else {}
+        floats = _parse_floats(kinds, iv, fdata, foff, float_slots) if float_slots else {}
         out: dict[str, np.ndarray] = {}
         for f, ks in plan:
             if f.kind in ("float", "array"):
@@ -428,9 +428,10 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     return out
 
 
-def _parse_floats(kinds, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
+def _parse_floats(kinds, iv, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
     """Numbers (null -> NaN) of the given value slots, from their text gathered row by
-    row by ``match_template``, parsed with correct rounding (as orjson does)."""
+    row by ``match_template``, parsed with correct rounding (as orjson does). Integers
+    come from their parsed value (orjson reads ``-0`` as the integer 0)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
@@ -444,10 +445,15 @@ def _parse_floats(kinds, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]
         vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False).reshape(kk.shape)
     except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
         raise _Mismatch from err
+    if not np.all(np.isfinite(vals)):
+        raise _Mismatch  # out of range: orjson refuses the message, so the reference path reports it
     null = kk == K.K_NULL
     out = {}
     for i, k in enumerate(slots):
         col = vals[:, i].copy()
+        ints = kk[:, i] == K.K_INT
+        if ints.any():
+            col[ints] = iv[ints, k].astype(np.float64)
         if null[:, i].any():
             col[null[:, i]] = np.nan
         out[k] = col

@@ -279,7 +279,7 @@ def _msg(i, **kw):
 
 @pytest.mark.parametrize("case", [
     "plain", "null", "exponents", "spaces", "key_order", "missing", "big_int", "escape", "extra_key",
-    "array_len", "float_in_int"])
+    "array_len", "float_in_int", "null_string"])
 def test_decode_fast_path_equals_reference(case):
     codec = Codec(SCHEMA)
     msgs = [_msg(i) for i in range(40)]
@@ -291,6 +291,9 @@ def test_decode_fast_path_equals_reference(case):
         msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":2e-310'))
         msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":-0.0'))
         msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":12345678901234567890123'))
+        msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":-0'))
+        msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":-2e-400'))
+        msgs.append(_msg(1, x=None).replace(b'"x":null', b'"x":9007199254740993'))
     elif case == "spaces":
         msgs = [json.dumps(json.loads(m), indent=1, ensure_ascii=True).encode() for m in msgs]
     elif case == "key_order":
@@ -310,6 +313,8 @@ def test_decode_fast_path_equals_reference(case):
         msgs[0] = _msg(0, v=[1, 2])
     elif case == "float_in_int":
         msgs[0] = _msg(0, n=2.0)
+    elif case == "null_string":
+        msgs[3] = _msg(3, s=None)
     buf, s, e = _spans(msgs)
     if case == "array_len":  # an array of the wrong length is an error either way
         for decode in (codec.decode_reference, codec.decode):
@@ -325,7 +330,8 @@ def test_decode_fast_path_equals_reference(case):
 
 def test_decode_errors_are_the_reference_errors():
     codec = Codec(SCHEMA)
-    for bad in (b'{"x": nan}', b"[1, 2]", b'{"stamp": 3}', _msg(1)[:-1]):
+    for bad in (b'{"x": nan}', b"[1, 2]", b'{"stamp": 3}', _msg(1)[:-1],
+                _msg(1, x=None).replace(b'"x":null', b'"x":1e400')):
         msgs = [_msg(0), bad]
         with pytest.raises(InputError):
             codec.decode_reference(msgs, "/t")
