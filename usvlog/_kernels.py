@@ -110,28 +110,26 @@ def message_fields(buf, offs, lens):
 # -----------------------------------------------------------------------------
 
 @njit(cache=True)
+def _digits(buf, q, end):
+    while q < end and 48 <= buf[q] <= 57:
+        q += 1
+    return q
+
+
+@njit(cache=True)
 def _scan_number(buf, p, end):
     """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
     q = p
     if q < end and buf[q] == 45:  # '-'
         q += 1
-    if q >= end:
+    if q >= end or not 48 <= buf[q] <= 57:
         return -1, False
-    c = buf[q]
-    if c == 48:  # '0'
-        q += 1
-    elif 49 <= c <= 57:
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
-    else:
-        return -1, False
+    q = q + 1 if buf[q] == 48 else _digits(buf, q, end)  # no leading zeros
     is_int = True
     if q < end and buf[q] == 46:  # '.'
         is_int = False
-        q += 1
-        d0 = q
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
+        d0 = q + 1
+        q = _digits(buf, d0, end)
         if q == d0:
             return -1, False
     if q < end and (buf[q] == 101 or buf[q] == 69):  # e E
@@ -140,8 +138,7 @@ def _scan_number(buf, p, end):
         if q < end and (buf[q] == 43 or buf[q] == 45):
             q += 1
         d0 = q
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
+        q = _digits(buf, d0, end)
         if q == d0:
             return -1, False
     return q, is_int
@@ -269,25 +266,6 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
         if p != end:
             return kinds, vs, ve, iv, i, fdata, foff
     return kinds, vs, ve, iv, -1, fdata[:fp], foff
-
-
-@njit(cache=True)
-def gather(buf, vs, ve):
-    """Concatenate the spans buf[vs[i]:ve[i]] -> (data uint8, int32 offsets)."""
-    n = len(vs)
-    offs = np.empty(n + 1, np.int32)
-    offs[0] = 0
-    tot = 0
-    for i in range(n):
-        tot += ve[i] - vs[i]
-        offs[i + 1] = tot
-    out = np.empty(tot, np.uint8)
-    p = 0
-    for i in range(n):
-        for j in range(vs[i], ve[i]):
-            out[p] = buf[j]
-            p += 1
-    return out, offs
 
 
 @njit(cache=True)

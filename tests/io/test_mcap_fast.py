@@ -331,7 +331,8 @@ def test_decode_fast_path_equals_reference(case):
 def test_decode_errors_are_the_reference_errors():
     codec = Codec(SCHEMA)
     for bad in (b'{"x": nan}', b"[1, 2]", b'{"stamp": 3}', _msg(1)[:-1],
-                _msg(1, x=None).replace(b'"x":null', b'"x":1e400')):
+                _msg(1, x=None).replace(b'"x":null', b'"x":1e400'),
+                _msg(1, x=None).replace(b'"x":null', b'"x":01'), _msg(1, x=None).replace(b'"x":null', b'"x":1.')):
         msgs = [_msg(0), bad]
         with pytest.raises(InputError):
             codec.decode_reference(msgs, "/t")
