@@ -161,23 +161,28 @@ _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
 @njit(cache=True)
-def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_null, fcol):
+def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fcol, icol, scol):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
 
-    Returns (kinds (n, S) int8, value starts, value ends (strings include quotes),
-    integer values, index of the first message that does not match or -1, and the
-    text of the number slots marked in ``fcol`` (slot -> column or -1) as one byte
-    buffer with n*F+1 offsets, row by row; null is written as "0").
+    ``fcol``/``icol``/``scol`` map each value slot to a column of the number, integer
+    and string outputs (or -1). Returns (kinds (n, S) int8, index of the first
+    message that does not match or -1, the text of the number slots as one byte
+    buffer with n*F+1 offsets row by row (null written as "0", "-0" as "0"), the
+    integer values (n, I), the string spans with their quotes (n, T) and whether
+    each string equals the one in the message before).
     """
     n = len(starts)
-    kinds = np.empty((n, nslots), np.int8)
-    vs = np.empty((n, nslots), np.int64)
-    ve = np.empty((n, nslots), np.int64)
-    iv = np.zeros((n, nslots), np.int64)
-    nf = 0
+    nslots = len(fcol)
+    nf, ni, ns = 0, 0, 0
     for k in range(nslots):
-        if fcol[k] >= 0:
-            nf += 1
+        nf += fcol[k] >= 0
+        ni += icol[k] >= 0
+        ns += scol[k] >= 0
+    kinds = np.empty((n, nslots), np.int8)
+    iv = np.zeros((n, ni), np.int64)
+    svs = np.zeros((n, ns), np.int64)
+    sve = np.zeros((n, ns), np.int64)
+    same = np.zeros((n, ns), np.bool_)
     cap = 0
     for i in range(n):
         cap += ends[i] - starts[i]
@@ -189,19 +194,20 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
         end = ends[i]
         for k in range(nslots + 1):
             a = lit_off[k]
-            b = lit_off[k + 1]
-            if p + (b - a) > end:
-                return kinds, vs, ve, iv, i, fdata, foff
-            for j in range(b - a):
+            m = lit_off[k + 1] - a
+            if p + m > end:
+                return kinds, i, fdata, foff, iv, svs, sve, same
+            for j in range(m):
                 if buf[p + j] != lits[a + j]:
-                    return kinds, vs, ve, iv, i, fdata, foff
-            p += b - a
+                    return kinds, i, fdata, foff, iv, svs, sve, same
+            p += m
             if k == nslots:
                 break
             if p >= end:
-                return kinds, vs, ve, iv, i, fdata, foff
+                return kinds, i, fdata, foff, iv, svs, sve, same
             c = buf[p]
-            vs[i, k] = p
+            v0 = p
+            ival = np.int64(0)
             if c == 34:  # '"'
                 q = p + 1
                 kind = K_STR
@@ -210,87 +216,78 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
                     if d == 34:
                         break
                     if d < 32:
-                        return kinds, vs, ve, iv, i, fdata, foff
+                        return kinds, i, fdata, foff, iv, svs, sve, same
                     if d == 92:  # backslash
                         kind = K_STR_ESC
                         q += 1
                     q += 1
                 if q >= end:
-                    return kinds, vs, ve, iv, i, fdata, foff
+                    return kinds, i, fdata, foff, iv, svs, sve, same
                 p = q + 1
-                kinds[i, k] = kind
             elif c == 116:
                 if not _lit(buf, p, end, w_true):
-                    return kinds, vs, ve, iv, i, fdata, foff
+                    return kinds, i, fdata, foff, iv, svs, sve, same
                 p += 4
-                kinds[i, k] = K_TRUE
+                kind = K_TRUE
             elif c == 102:
                 if not _lit(buf, p, end, w_false):
-                    return kinds, vs, ve, iv, i, fdata, foff
+                    return kinds, i, fdata, foff, iv, svs, sve, same
                 p += 5
-                kinds[i, k] = K_FALSE
+                kind = K_FALSE
             elif c == 110:
                 if not _lit(buf, p, end, w_null):
-                    return kinds, vs, ve, iv, i, fdata, foff
+                    return kinds, i, fdata, foff, iv, svs, sve, same
                 p += 4
-                kinds[i, k] = K_NULL
+                kind = K_NULL
             else:
                 q, is_int = _scan_number(buf, p, end)
                 if q < 0:
-                    return kinds, vs, ve, iv, i, fdata, foff
+                    return kinds, i, fdata, foff, iv, svs, sve, same
                 if is_int:
                     neg = buf[p] == 45
                     d0 = p + 1 if neg else p
-                    kinds[i, k] = K_INT_BIG
+                    kind = K_INT_BIG
                     if q - d0 <= 19:
-                        v = np.uint64(0)
+                        u = np.uint64(0)
                         for j in range(d0, q):
-                            v = v * np.uint64(10) + np.uint64(buf[j] - 48)
-                        if v <= np.uint64(9223372036854775807):
-                            iv[i, k] = -np.int64(v) if neg else np.int64(v)
-                            kinds[i, k] = K_INT
+                            u = u * np.uint64(10) + np.uint64(buf[j] - 48)
+                        if u <= np.uint64(9223372036854775807):
+                            ival = -np.int64(u) if neg else np.int64(u)
+                            kind = K_INT
                 else:
-                    kinds[i, k] = K_FLOAT
+                    kind = K_FLOAT
                 p = q
-            ve[i, k] = p
+            kinds[i, k] = kind
             f = fcol[k]
             if f >= 0:
-                if kinds[i, k] == K_NULL:
+                if kind == K_NULL or (kind == K_INT and ival == 0):
                     fdata[fp] = 48
                     fp += 1
-                elif kinds[i, k] <= K_FLOAT or kinds[i, k] == K_INT_BIG:
-                    for j in range(vs[i, k], p):
+                elif kind == K_FLOAT or kind == K_INT or kind == K_INT_BIG:
+                    for j in range(v0, p):
                         fdata[fp] = buf[j]
                         fp += 1
                 foff[i * nf + f + 1] = fp
+            f = icol[k]
+            if f >= 0:
+                iv[i, f] = ival
+            f = scol[k]
+            if f >= 0:
+                svs[i, f] = v0
+                sve[i, f] = p
+                if i > 0:
+                    a0 = svs[i - 1, f]
+                    m = sve[i - 1, f] - a0
+                    if m == p - v0:
+                        eq = True
+                        for j in range(m):
+                            if buf[a0 + j] != buf[v0 + j]:
+                                eq = False
+                                break
+                        same[i, f] = eq
         if p != end:
-            return kinds, vs, ve, iv, i, fdata, foff
-    return kinds, vs, ve, iv, -1, fdata[:fp], foff
-
-
-@njit(cache=True)
-def runs_of_equal_spans(buf, vs, ve):
-    """Label spans so that consecutive equal spans share a label: (labels, first index of each)."""
-    n = len(vs)
-    lab = np.empty(n, np.int64)
-    firsts = np.empty(n, np.int64)
-    m = 0
-    for i in range(n):
-        same = False
-        if i > 0:
-            a, b = vs[i - 1], vs[i]
-            la, lb = ve[i - 1] - a, ve[i] - b
-            if la == lb:
-                same = True
-                for j in range(la):
-                    if buf[a + j] != buf[b + j]:
-                        same = False
-                        break
-        if not same:
-            firsts[m] = i
-            m += 1
-        lab[i] = m - 1
-    return lab, firsts[:m]
+            return kinds, i, fdata, foff, iv, svs, sve, same
+    return kinds, -1, fdata[:fp], foff, iv, svs, sve, same
 
 
 @njit(cache=True)

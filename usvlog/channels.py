@@ -391,15 +391,23 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     except _Mismatch:
         return None
     lit_buf, lit_off = _pack(lits)
-    float_slots = [k for f, ks in plan if f.kind in ("float", "array") for k in ks]
-    fcol = np.full(len(paths), -1, dtype=np.int64)
-    fcol[float_slots] = np.arange(len(float_slots))
-    kinds, vs, ve, iv, bad, fdata, foff = K.match_template(
-        buf, starts, ends, lit_buf, lit_off, len(paths), K._TRUE, K._FALSE, K._NULL, fcol)
+
+    def columns(kinds_wanted: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
+        slots = [k for f, ks in plan if f.kind in kinds_wanted for k in ks]
+        col = np.full(len(paths), -1, dtype=np.int64)
+        col[slots] = np.arange(len(slots))
+        return slots, col
+
+    float_slots, fcol = columns(("float", "array"))
+    int_slots, icol = columns(("int", "time"))
+    str_slots, scol = columns(("str",))
+    kinds, bad, fdata, foff, iv, svs, sve, same = K.match_template(
+        buf, starts, ends, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol)
     if bad >= 0:
         return None
+    ints = {k: iv[:, j] for j, k in enumerate(int_slots)}
     try:
-        floats = _parse_floats(kinds, iv, fdata, foff, float_slots) if float_slots else {}
+        floats = _parse_floats(kinds, fdata, foff, float_slots) if float_slots else {}
         out: dict[str, np.ndarray] = {}
         for f, ks in plan:
             if f.kind in ("float", "array"):
@@ -409,9 +417,9 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
                 k = ks[0]
                 if not np.all(kinds[:, k] == K.K_INT):
                     return None
-                out[f.columns[0]] = iv[:, k].copy()
+                out[f.columns[0]] = ints[k].copy()
             elif f.kind == "time":
-                sec, nsec = iv[:, ks[0]], iv[:, ks[1]]
+                sec, nsec = ints[ks[0]], ints[ks[1]]
                 if (not np.all(kinds[:, ks] == K.K_INT) or np.abs(sec).max() >= 9_000_000_000
                         or np.abs(nsec).max() >= 10**17):
                     return None
@@ -422,16 +430,16 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
                     return None
                 out[f.columns[0]] = kk == K.K_TRUE
             else:
-                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], vs[:, ks[0]], ve[:, ks[0]])
+                j = str_slots.index(ks[0])
+                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], svs[:, j], sve[:, j], same[:, j])
     except _Mismatch:
         return None
     return out
 
 
-def _parse_floats(kinds, iv, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
+def _parse_floats(kinds, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
     """Numbers (null -> NaN) of the given value slots, from their text gathered row by
-    row by ``match_template``, parsed with correct rounding (as orjson does). Integers
-    come from their parsed value (orjson reads ``-0`` as the integer 0)."""
+    row by ``match_template``, parsed with correct rounding (as orjson does)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
@@ -451,21 +459,20 @@ def _parse_floats(kinds, iv, fdata, foff, slots: list[int]) -> dict[int, np.ndar
     out = {}
     for i, k in enumerate(slots):
         col = vals[:, i].copy()
-        ints = kk[:, i] == K.K_INT
-        if ints.any():
-            col[ints] = iv[ints, k].astype(np.float64)
         if null[:, i].any():
             col[null[:, i]] = np.nan
         out[k] = col
     return out
 
 
-def _strings(buf, kinds, vs, ve) -> np.ndarray:
+def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
+    """String values (spans with quotes); each run of equal strings is decoded once."""
     from . import _kernels as K
 
     if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
         raise _Mismatch
-    labels, firsts = K.runs_of_equal_spans(buf, vs, ve)
+    firsts = np.flatnonzero(~same)
+    labels = np.cumsum(~same) - 1
     vals = []
     try:
         for i in firsts.tolist():
