@@ -401,13 +401,22 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     float_slots, fcol = columns(("float", "array"))
     int_slots, icol = columns(("int", "time"))
     str_slots, scol = columns(("str",))
-    kinds, bad, fdata, foff, iv, svs, sve, same = K.match_template(
-        buf, starts, ends, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol)
+    def match(s, e, want_text):
+        return K.match_template(buf, s, e, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol,
+                                K._POW10, want_text)
+
+    kinds, bad, fbits, fund, iv, svs, sve, same, _, _ = match(starts, ends, False)
     if bad >= 0:
         return None
+    rows = np.flatnonzero(fund.any(axis=1)) if float_slots else []
+    if len(rows):  # numbers the compiled parser left undecided: their rows' text to pyarrow
+        text = match(starts[rows], ends[rows], True)
+        undecided = (rows, text[8], text[9])
+    else:
+        undecided = None
     ints = {k: iv[:, j] for j, k in enumerate(int_slots)}
     try:
-        floats = _parse_floats(kinds, fdata, foff, float_slots) if float_slots else {}
+        floats = _floats(kinds, fbits, undecided, float_slots) if float_slots else {}
         out: dict[str, np.ndarray] = {}
         for f, ks in plan:
             if f.kind in ("float", "array"):
@@ -437,22 +446,27 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     return out
 
 
-def _parse_floats(kinds, fdata, foff, slots: list[int]) -> dict[int, np.ndarray]:
-    """Numbers (null -> NaN) of the given value slots, from their text gathered row by
-    row by ``match_template``, parsed with correct rounding (as orjson does)."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
+def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
+    """Number columns (null -> NaN): the doubles ``match_template`` decided, and for the
+    rows with a number it could not decide (half-way cases, subnormals, more than 19
+    digits) all the row's numbers parsed by pyarrow, both with correct rounding (the
+    doubles orjson gives)."""
     from . import _kernels as K
 
     kk = kinds[:, slots]
     if not np.all((kk == K.K_FLOAT) | (kk == K.K_INT) | (kk == K.K_INT_BIG) | (kk == K.K_NULL)):
         raise _Mismatch
-    arr = pa.Array.from_buffers(pa.large_string(), len(foff) - 1, [None, pa.py_buffer(foff), pa.py_buffer(fdata)])
-    try:
-        vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False).reshape(kk.shape)
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
-        raise _Mismatch from err
+    vals = fbits.view(np.float64)
+    if undecided is not None:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+
+        rows, fdata, foff = undecided
+        arr = pa.Array.from_buffers(pa.large_string(), len(foff) - 1, [None, pa.py_buffer(foff), pa.py_buffer(fdata)])
+        try:
+            vals[rows] = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False).reshape(len(rows), -1)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
+            raise _Mismatch from err
     if not np.all(np.isfinite(vals)):
         raise _Mismatch  # out of range: orjson refuses the message, so the reference path reports it
     null = kk == K.K_NULL

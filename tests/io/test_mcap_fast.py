@@ -353,6 +353,22 @@ def test_random_numbers_parse_exactly():
     # written with Python's float repr instead of orjson's
     msgs = [('{"x":%r}' % v).encode() for v in x.tolist()]
     assert codec.decode(msgs)["x"].tobytes() == x.tobytes()
+    # decimal texts that are not shortest forms: rounding from 1 to 25 digits, half-way
+    # cases, the edges of the exponent range, subnormals; truth is Python's float()
+    y = np.frombuffer(rng.bytes(8 * 20000), dtype=np.float64)
+    y = y[np.isfinite(y)]
+    texts = ["%.*e" % (int(d), v) for d, v in zip(rng.integers(0, 25, len(y)), y.tolist())]
+    texts += ["9007199254740993", "9007199254740995", "1e23", "8.98846567431158e307", "2.2250738585072011e-308",
+              "4.9406564584124654e-324", "1.7976931348623157e308", "0.1", "1E-5", "123456789012345678901",
+              "1.00000000000000011102230246251565404236316680908203125", "7.4109846876186982e-323",
+              "-0.000000000000000000000000000000000000000000001", "1e-342", "1e-343", "9e307"]
+    msgs = [b'{"x":' + t.encode() + b"}" for t in texts]
+    want = np.array([float(t) for t in texts])
+    got = codec.decode(msgs)["x"]
+    assert got.tobytes() == want.tobytes()
+    buf, s, e = _spans(msgs)
+    fast = _decode_layout(codec, buf, s, e)
+    assert fast is not None and fast["x"].tobytes() == want.tobytes()
 
 
 def test_encode_packed_equals_reference():
