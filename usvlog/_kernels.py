@@ -79,7 +79,8 @@ def walk_records(buf, start, end, top_level):
 
 @njit(cache=True)
 def message_fields(buf, offs, lens):
-    """(channel id, sequence, log time, payload start, payload end) of message records."""
+    """(channel id, sequence, log time, payload start, payload end) of message records, and
+    False if one is malformed (shorter than its header, or a log time past int64)."""
     n = len(offs)
     cid = np.empty(n, np.int64)
     seq = np.empty(n, np.int64)
@@ -99,7 +100,11 @@ def message_fields(buf, offs, lens):
             continue
         cid[i] = np.int64(buf[b]) | (np.int64(buf[b + 1]) << 8)
         seq[i] = _u32(buf, b + 2)
-        t[i] = np.int64(_u64(buf, b + 6))
+        tu = _u64(buf, b + 6)
+        if tu > np.uint64(0x7FFFFFFFFFFFFFFF):  # not an int64 time: a malformed record
+            ok = False
+            cid[i] = -1
+        t[i] = np.int64(tu & np.uint64(0x7FFFFFFFFFFFFFFF))
         ps[i] = b + 22
         pe[i] = b + lens[i]
     return cid, seq, t, ps, pe, ok

@@ -8,6 +8,7 @@ and the stdlib ``json`` module (the values our decoder must produce).
 import io
 import json
 import math
+import os
 
 import numpy as np
 import orjson
@@ -24,6 +25,7 @@ from usvlog.io.mcapio import _read_log, _write_log_reference, encode_file, read_
 from usvlog.log import FieldLog
 
 T0 = 1_780_000_000 * 10**9
+TRIALS = int(os.environ.get("USVLOG_FUZZ_TRIALS", "25"))
 
 
 def tricky_log(n: int = 700) -> FieldLog:
@@ -382,3 +384,31 @@ def test_encode_packed_equals_reference():
                           "flag": [True, False], "s": ["", "ü"], "v_0": [np.nan, 1.0], "v_1": [2.0, 3.0],
                           "v_2": [0.1, -0.0]})
     assert codec.encode(frame) == codec.encode_reference(frame)
+
+
+@pytest.mark.parametrize("compression,chunked", [(CompressionType.LZ4, True), (CompressionType.NONE, True),
+                                                 (CompressionType.NONE, False)])
+def test_damaged_bytes_read_the_same_both_ways(tmp_path, compression, chunked):
+    """Random damage anywhere in a file: the fast reader and the reference reader give
+    the same frames and the same report, or the same error."""
+    data = _plain_writer_file(compression, chunked)
+    rng = np.random.default_rng(7)
+    p = tmp_path / "damaged.mcap"
+    for trial in range(TRIALS):
+        d = bytearray(data)
+        for _ in range(int(rng.integers(1, 4))):
+            at = int(rng.integers(8, len(d)))
+            d[at:at + int(rng.integers(1, 9))] = rng.bytes(8)[: int(rng.integers(1, 9))]
+        if trial % 3 == 0:
+            d = d[: int(rng.integers(9, len(d)))]
+        p.write_bytes(bytes(d))
+        outcomes = []
+        for fast in (True, False):
+            try:
+                outcomes.append(_read_log(p, fast=fast))
+            except InputError as err:
+                outcomes.append(type(err))
+        if isinstance(outcomes[0], FieldLog) and isinstance(outcomes[1], FieldLog):
+            assert_logs_equal(outcomes[0], outcomes[1])
+        else:
+            assert outcomes[0] == outcomes[1]

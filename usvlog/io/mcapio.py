@@ -394,21 +394,26 @@ def _chunk_header(buf, body: int, end: int):
     return t0, t1, usize, comp, buf[p + 8:p + 8 + rlen]
 
 
+_PAST_CHUNK = "a record runs past the end of the chunk"
+_BAD_MESSAGE = "a message record is too short or its log time past int64"
+
+
 def _chunk_records(data) -> list[tuple[int, int, int]]:
     """(op, body start, body end) of every record in a decompressed chunk; a chunk
-    whose records do not fit it exactly, or holds a too-short message, is corrupt."""
+    whose records do not fit it exactly, or holds a bad message record, is corrupt."""
     out, off, end = [], 0, len(data)
     while off < end:
         if off + 9 > end:
-            raise _CorruptChunk("ends inside a record header")
+            raise _CorruptChunk(_PAST_CHUNK)
         op, length = _REC.unpack_from(data, off)
         nxt = off + 9 + length
         if nxt > end:
-            raise _CorruptChunk("a record runs past the end of the chunk")
-        if op == OP_MESSAGE and length < 22:
-            raise _CorruptChunk("a message record is too short")
+            raise _CorruptChunk(_PAST_CHUNK)
         out.append((op, off + 9, nxt))
         off = nxt
+    for op, b, e in out:
+        if op == OP_MESSAGE and (e - b < 22 or _U64.unpack_from(data, b + 6)[0] >= 1 << 63):
+            raise _CorruptChunk(_BAD_MESSAGE)
     return out
 
 
@@ -425,8 +430,8 @@ def _scan_reference(data: bytes) -> _Scan:
             break
         try:
             if op == OP_MESSAGE:
-                if length < 22:
-                    raise struct.error("message record too short")
+                if length < 22 or _U64.unpack_from(buf, body + 6)[0] >= 1 << 63:
+                    raise struct.error("bad message record")
                 _add_message(scan, buf, body, nxt)
             elif op == OP_CHUNK:
                 t0, t1, usize, comp, raw = _chunk_header(buf, body, nxt)
@@ -462,6 +467,8 @@ def _scan_reference(data: bytes) -> _Scan:
 
 def _add_message(scan: _Scan, buf, body: int, nxt: int) -> None:
     cid, seq, log_time, _pub = _MSG.unpack_from(buf, body)
+    if log_time >= 1 << 63:
+        raise struct.error("message log time past int64")
     ch = scan.channels.get(cid)
     if ch is not None:
         ch.times.append(log_time)
@@ -493,7 +500,7 @@ def _scan_fast(data: bytes) -> _Scan:
         if not ok:  # a too-short message record: the file is read up to it
             first_bad = int(top_msgs[np.flatnonzero(cid < 0)[0]])
             n_top, complete = first_bad, False
-            scan.reason = f"malformed record after byte {int(offs[first_bad])} (message record too short)"
+            scan.reason = f"malformed record after byte {int(offs[first_bad])} (bad message record)"
             keep = top_msgs < first_bad
             cid, seq, t, ps, pe, top_msgs = cid[keep], seq[keep], t[keep], ps[keep], pe[keep], top_msgs[keep]
         parts.append((arena.put(buf), cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
@@ -508,14 +515,14 @@ def _scan_fast(data: bytes) -> _Scan:
                     chunk = np.frombuffer(_decompress(comp, raw, usize), dtype=np.uint8)
                     cops, coffs, clens, _cstop, ccomplete = K.walk_records(chunk, 0, len(chunk), False)
                     if not ccomplete:
-                        raise _CorruptChunk("a record runs past the end of the chunk")
-                    cmv = memoryview(chunk)
-                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
-                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
+                        raise _CorruptChunk(_PAST_CHUNK)
                     m = np.flatnonzero(cops == OP_MESSAGE)
                     cid, seq, t, ps, pe, ok = K.message_fields(chunk, coffs[m], clens[m])
                     if not ok:
-                        raise _CorruptChunk("a message record is too short")
+                        raise _CorruptChunk(_BAD_MESSAGE)
+                    cmv = memoryview(chunk)
+                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
+                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
                 except _CorruptChunk:
                     raise
                 except Exception as err:  # corrupt chunk: keep what came before
@@ -649,9 +656,11 @@ def _read_log(path, *, topics=None, strict=False, fast=True) -> FieldLog:
             continue  # not a canonical channel: left alone
         try:
             schema = json.loads(sdata) if sdata else {"title": sname, "properties": {}}
-        except json.JSONDecodeError as err:
-            raise InputError(f"{p} channel {ch.topic}: schema {sname} is not valid JSON") from err
-        codec = codec_for_schema(schema)
+            if not isinstance(schema, dict):
+                raise TypeError("not an object")
+            codec = codec_for_schema(schema)
+        except (ValueError, TypeError, AttributeError) as err:
+            raise InputError(f"{p} channel {ch.topic}: schema {sname} is not a usable JSON Schema ({err})") from err
         if scan.arena is None:
             t = np.asarray(ch.times, dtype=np.int64)
             seq = np.asarray(ch.seqs, dtype=np.int64)
