@@ -5,9 +5,16 @@ truncated file keeps them), then zstd chunks of JSON messages in log-time order,
 then the usual summary (indexes, statistics). Each message's ``sequence`` is its
 row number in the channel's frame so reading restores the frame's row order.
 
-Reading walks the records itself (``_walk``) rather than through the mcap
-library's per-record objects: it stops at the first incomplete record of a file
-cut short, keeps every complete chunk, and reports what was lost.
+Writing builds the message and index records with compiled loops
+(``usvlog._kernels``) and gives the same bytes as the mcap library's ``Writer``
+(``_write_log_reference``, kept to test against).
+
+Reading walks the records itself rather than through the mcap library's
+per-record objects: it stops at the first incomplete record of a file cut short
+(or the first corrupt chunk), keeps every complete chunk, and reports what was
+lost. ``_scan_fast`` walks records and messages into arrays with compiled loops;
+``_scan_reference`` is the plain one-record-at-a-time reading, kept as the
+reference the tests compare it with.
 """
 
 from __future__ import annotations
@@ -18,8 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-
 from .. import __version__
 from ..channels import (MESSAGE_ENCODING, SCHEMA_ENCODING, Codec, auto_schema, codec_for_schema,
                         codec_for_topic, frame_from_columns, schema_for_topic)
