@@ -241,6 +241,14 @@ def test_files_from_the_plain_mcap_writer(tmp_path, compression, chunked):
     assert a["n"].iloc[1] == -3 and a["x"].iloc[-1] == -199 * 1.1e200
     lib = library_messages(data)
     assert len(lib) == len(a) + len(fast["/b"])
+    # every value equals the stdlib json reading of the library's messages (in sequence order)
+    for topic in ("/a", "/b"):
+        msgs = sorted((seq, t, json.loads(d)) for top, t, seq, d in lib if top == topic)
+        frame = fast[topic]
+        assert frame.index.tolist() == [t for _, t, _ in msgs]
+        for c in ("x", "name", "n", "flag"):
+            want = [np.nan if o[c] is None else o[c] for _, _, o in msgs]
+            assert frame[c].tolist() == want or np.array_equal(frame[c].to_numpy(), want, equal_nan=True)
     # truncated versions too
     for cut in (0.45, 0.8):
         p.write_bytes(data[: int(cut * len(data))])
