@@ -212,7 +212,8 @@ class _VP:
         if key == self._key:
             return
         theta, cur = self.unpack(p)
-        if theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]:   # Theorem 3.1 condition 1 violated
+        if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] < 0)
+                or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]):   # outside the model's domain
             self._key, self._r = key, np.full(self.prob.n_res, 1e3)
             self._J = np.zeros((self.prob.n_res, len(p)))
             return
@@ -258,8 +259,8 @@ def _bounds(free_mask, n_cur):
 
 
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
-                     currents0=None, segment_s=60.0, warm_segment_s=15.0, reweight=True,
-                     max_nfev=60, verbose=0) -> OutputErrorResult:
+                     currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
+                     max_nfev=60, verbose=0, warm_span_s=None) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -280,6 +281,16 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         lo, hi = _bounds(free, len(p0) - int(free.sum()))
         p0 = np.clip(p0, lo + 1e-9, hi)
         last = si == len(stages) - 1
+        if not last:
+            # keep the warm-up stage near the start: short segments leave slow modes weak
+            th_lo = np.where(theta > 0, theta / 3, -1.0)
+            th_hi = np.where(theta > 0, theta * 3, 1.0)
+            th_lo[5], th_hi[5] = -abs(theta[5]) - 0.3, abs(theta[5]) + 0.3
+            nf = int(free.sum())
+            lo = lo.copy()
+            hi = hi.copy()
+            lo[:nf], hi[:nf] = th_lo[free], th_hi[free]
+            p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
         sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
                             ftol=1e-10 if last else 1e-6, xtol=1e-10 if last else 1e-6,
                             gtol=1e-10 if last else 1e-6, max_nfev=max_nfev, verbose=verbose)
@@ -296,17 +307,6 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
 
         def x0_fn(run, t, _p=x0_prev, _theta=theta.copy(), _cur=cur.copy()):  # noqa: E731
             return _state_at(_p[0], _p[1], _theta, _cur, run, t)
-    if reweight:
-        # final solve with each sensor weighted by its own residual scatter
-        prob.set_sensor_scale(*sensor_scale)
-        vp = _VP(prob, theta, free, fit_current, vp.x0s, cur)
-        p0 = vp.pack(theta, cur)
-        lo, hi = _bounds(free, len(p0) - int(free.sum()))
-        sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
-                            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev, verbose=verbose)
-        nfev += vp.nfev
-        theta, cur = vp.unpack(sol.x)
-        vp._eval(sol.x)
     r, G = vp._r, vp._J
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
@@ -351,3 +351,56 @@ class _SingleSeg:
               np.asarray(theta, float), np.asarray(cur, float)[None, :], np.array([float(self.t)]),
               np.array([0, 1], np.int64), MAX_DT, False, out_x, out_S)
         return out_x, out_S
+
+
+def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
+    """Free run of the model from state ``x0`` at ``t0`` (s, on the run's thrust grid) through
+    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0)."""
+    times = np.asarray(times, float)
+    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
+    out_x = np.full((len(times), 6), np.nan)
+    out_S = np.zeros((1, 6, NS))
+    ok = (times >= run.t_thrust[i0] - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
+    tt = np.ascontiguousarray(times[ok])
+    ox = np.zeros((len(tt), 6))
+    shoot(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
+          np.asarray(x0, float)[None, :], np.asarray(theta, float), np.asarray(current, float)[None, :],
+          tt, np.array([0, len(tt)], np.int64), MAX_DT, False, ox, out_S)
+    out_x[ok] = ox
+    return out_x
+
+
+def predict_segments(runs: list[RunData], segment_s: float, x0s, theta, currents, run_index: int, times):
+    """States of the fitted multiple-shooting model (each segment from its own fitted initial
+    state) at ``times`` of one run."""
+    prob = Problem(runs, segment_s)
+    segs = np.flatnonzero(prob.seg_run == run_index)
+    off = sum(len(r.t_thrust) for r in runs[:run_index])
+    run = runs[run_index]
+    times = np.asarray(times, float)
+    out = np.full((len(times), 6), np.nan)
+    for k in segs:
+        a, b = prob.seg_i0[k] - off, prob.seg_i1[k] - off
+        last = k == segs[-1]
+        sel = (times >= run.t_thrust[a]) & ((times < run.t_thrust[b]) | (last & (times <= run.t_thrust[b])))
+        if sel.any():
+            out[sel] = simulate_run(run, theta, currents[run_index], x0s[k], run.t_thrust[a], times[sel])
+    return out
+
+
+def fit_initial_state(run: RunData, theta, x0_guess, t0: float, t1: float, *, fit_current=True,
+                      current0=(0.0, 0.0)):
+    """Initial state at ``t0`` (and a constant current) of a run with the parameters held
+    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current)."""
+    w = run.window(t0, t1)
+    free = np.zeros(6, bool)
+    prob = Problem([w], 1e12)
+    cur = np.asarray(current0, float)[None, :]
+    x0s = np.asarray(x0_guess, float)[None, :]
+    if not fit_current:
+        _, _, x0s, _ = _inner(prob, theta, cur, x0s)
+        return x0s[0], cur[0]
+    vp = _VP(prob, theta, free, True, x0s, cur)
+    sol = least_squares(vp.fun, cur.ravel(), jac=vp.jac, method="lm", xtol=1e-8, ftol=1e-8, max_nfev=50)
+    vp._eval(sol.x)
+    return vp.x0s[0], sol.x.reshape(2)
