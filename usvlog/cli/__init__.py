@@ -14,7 +14,7 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "demo"]
+VERBS = ["simulate", "inspect", "export", "identify", "demo"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -141,7 +141,7 @@ class Identifier:
             theta0 = self._start(ee, vessel)
             oe = fit_output_error(runs, theta0, lambda i, t: kin[i].at(t), free_mask=free,
                                   fit_current=self.current, segment_s=self.segment_s,
-                                  warm_segment_s=self.warm_segment_s)
+                                  warm_segment_s=self.warm_segment_s, warm_span_s=900.0)
             self.oe_ = oe
             theta = oe.theta
             names = list(oe.names)
@@ -304,9 +304,9 @@ class Identifier:
                 "r": fit_percent(c["r_radps"], c["r_sim_radps"]),
                 "track": fit_percent(np.stack([c["n_m"], c["e_m"]], 1), np.stack([c["n_sim_m"], c["e_sim_m"]], 1))}
 
-    def to_dict(self) -> dict:
+    def to_dict(self, validation: Validation | None = None) -> dict:
         self._check_fitted()
-        val = self.validation_
+        val = validation if validation is not None else self.validation_
         d = {"method": self.method,
              "params": self.params_.to_dict(),
              "stderr": dict(self.stderr_),

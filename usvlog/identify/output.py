@@ -272,15 +272,20 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     nfev = 0
     stages = [warm_segment_s, segment_s] if warm_segment_s and warm_segment_s < segment_s else [segment_s]
     sensor_scale = (1.0, 1.0)
+    x0_kin = x0_fn
     for si, seg_s in enumerate(stages):
-        prob = Problem(runs, seg_s)
+        last = si == len(stages) - 1
+        runs_s = runs
+        if not last and warm_span_s:
+            # the warm-up only needs to get close: fit it on the first warm_span_s of each run
+            runs_s = [r.window(r.t_thrust[0], r.t_thrust[0] + warm_span_s) for r in runs]
+        prob = Problem(runs_s, seg_s)
         prob.set_sensor_scale(*sensor_scale)
         x0s = prob.initial_states(x0_fn)
         vp = _VP(prob, theta, free, fit_current, x0s, cur)
         p0 = vp.pack(theta, cur)
         lo, hi = _bounds(free, len(p0) - int(free.sum()))
         p0 = np.clip(p0, lo + 1e-9, hi)
-        last = si == len(stages) - 1
         if not last:
             # keep the warm-up stage near the start: short segments leave slow modes weak
             th_lo = np.where(theta > 0, theta / 3, -1.0)
@@ -305,7 +310,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         # capture initial states for the next stage
         x0_prev = (prob, vp.x0s.copy())
 
-        def x0_fn(run, t, _p=x0_prev, _theta=theta.copy(), _cur=cur.copy()):  # noqa: E731
+        def x0_fn(run, t, _p=x0_prev, _theta=theta.copy(), _cur=cur.copy()):
+            if t > _p[0].runs[run].t_thrust[-1] - 1.0:
+                return x0_kin(run, t)
             return _state_at(_p[0], _p[1], _theta, _cur, run, t)
     r, G = vp._r, vp._J
     n_res = len(r)

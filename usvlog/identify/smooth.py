@@ -53,7 +53,7 @@ def _odd(n):
     return n if n % 2 else n + 1
 
 
-def savgol_states(run: RunData, *, pos_window_s=4.0, psi_window_s=2.0) -> KinStates:
+def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinStates:
     """Local cubic fits to GNSS positions and unwrapped compass heading on a 10 Hz grid."""
     t0 = max(run.t_gps[0], run.t_compass[0])
     t1 = min(run.t_gps[-1], run.t_compass[-1])
