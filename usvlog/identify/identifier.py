@@ -65,6 +65,16 @@ def _ee_inputs(run: RunData, ks: KinStates, current=(0.0, 0.0)):
     return smooth_like(ks.t, nu, EE_ACC_S), derivative(ks.t, nu, EE_ACC_S), tu, tr
 
 
+def _excitation_warnings(kin: list[KinStates], force: bool = False) -> list[str]:
+    r_rms = math.sqrt(np.mean(np.concatenate([k.r for k in kin]) ** 2))
+    psi_span = max(float(np.ptp(k.psi)) for k in kin)
+    if force or r_rms < math.radians(2.0) or psi_span < math.radians(30.0):
+        return [f"yaw barely excited (yaw rate rms {math.degrees(r_rms):.2f} deg/s, heading span "
+                f"{math.degrees(psi_span):.0f} deg): Iz, d33, d22 and xg are not determined; "
+                f"add a zig-zag run"]
+    return []
+
+
 class Identifier:
     """Identify m, Iz, d11, d22, d33, xg of eq. (3) from field logs.
 
@@ -159,8 +169,8 @@ class Identifier:
         try:
             self.params_ = VesselParams(**{k: float(v) for k, v in zip(PARAM_NAMES, theta)})
         except ConfigError as err:
-            raise InputError(f"identification gave physically impossible parameters ({err}); "
-                             f"the runs do not excite the model enough") from err
+            hint = "; ".join(_excitation_warnings(kin)) or "the runs do not excite the model enough"
+            raise InputError(f"identification gave physically impossible parameters ({err}): {hint}") from err
         self.theta_ = np.asarray(theta, float)
         self.stderr_ = {k: float(s) for k, s in zip(PARAM_NAMES, se)}
         self.ci95_ = {k: (float(v - Z95 * s), float(v + Z95 * s)) for k, v, s in zip(PARAM_NAMES, theta, se)}
@@ -195,15 +205,9 @@ class Identifier:
 
     # ------------------------------------------------------------------------------
     def _verdict(self, vessel, runs, kin) -> list[str]:
-        out = []
         p = self.params_
-        r_rms = math.sqrt(np.mean(np.concatenate([k.r for k in kin]) ** 2))
-        psi_span = max(float(np.ptp(k.psi)) for k in kin)
         rel = {k: self.stderr_[k] / abs(getattr(p, k)) if getattr(p, k) else np.inf for k in PARAM_NAMES}
-        if r_rms < math.radians(2.0) or psi_span < math.radians(30.0) or rel["Iz"] > 0.2 or rel["d33"] > 0.2:
-            out.append(f"yaw barely excited (yaw rate rms {math.degrees(r_rms):.2f} deg/s, heading span "
-                       f"{math.degrees(psi_span):.0f} deg): Iz, d33, d22 and xg are not determined; "
-                       f"add a zig-zag run")
+        out = _excitation_warnings(kin, force=rel["Iz"] > 0.2 or rel["d33"] > 0.2)
         for k in PARAM_NAMES:
             if k in self.fix:
                 continue
