@@ -34,5 +34,26 @@ def run(args) -> int:
     print(format_summary(summarize(log)))
     stage(f"[3] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    stage("[4] identify: output error on the simulated run (true vs identified)")
+    identify_stage(log, out)
     stage(f"done: results in {out}/")
     return 0
+
+
+def identify_stage(log, out: Path) -> None:
+    from ..identify import Identifier
+    from ..vessel import PARAM_NAMES
+
+    idf = Identifier("output-error").fit([log])
+    (out / "identified.toml").write_text(idf.to_vessel().to_toml())
+    true = log.vessel.params.to_dict()
+    ee = idf.equation_error_.to_dict()
+    print("parameter      true  identified   +-stderr   error %   (equation error)")
+    for k in PARAM_NAMES:
+        v = getattr(idf.params_, k)
+        print(f"  {k:<5} {true[k]:9.4g} {v:11.5g} {idf.stderr_[k]:10.2g} {100 * (v / true[k] - 1):+8.2f}"
+              f"   ({ee[k]:.4g})")
+    cn, ce = idf.current_[0]
+    print(f"  current north {cn:+.3f} east {ce:+.3f} m/s (true +0.100 +0.173)")
+    for v in idf.verdict_:
+        print(f"  - {v}")
