@@ -54,6 +54,14 @@ def _kind(p: dict) -> tuple[str, bool]:
     return {"number": "float", "integer": "int", "string": "str", "boolean": "bool"}.get(base, "str"), nullable
 
 
+def _num(v) -> float | None:
+    """A JSON number: NaN (and None) become null, as in :meth:`Codec.encode`."""
+    if v is None:
+        return None
+    x = float(v)
+    return None if x != x else x
+
+
 class Codec:
     """Encodes frames to JSON messages and decodes them back, for one schema."""
 
@@ -86,9 +94,95 @@ class Codec:
     # -- encode --------------------------------------------------------------------
     def encode(self, frame: pd.DataFrame, topic: str = "") -> list[bytes]:
         """Frame -> one JSON message (bytes) per row."""
+        data, offs = self.encode_packed(frame, topic)
+        b = data.tobytes()
+        o = offs.tolist()
+        return [b[o[i]:o[i + 1]] for i in range(len(o) - 1)]
+
+    def encode_packed(self, frame: pd.DataFrame, topic: str = "") -> tuple[np.ndarray, np.ndarray]:
+        """Frame -> (all messages' bytes as uint8, int64 offsets of the n+1 message bounds).
+
+        The same bytes as :meth:`encode_reference`: each column is formatted by one
+        ``orjson.dumps`` call and the messages are assembled around a fixed layout.
+        """
+        self._check_columns(frame, topic)
+        n = len(frame)
+        if n == 0:
+            return np.zeros(0, dtype=np.uint8), np.zeros(1, dtype=np.int64)
+        lits: list[bytes] = [b"{"]
+        blobs: list[bytes] = []
+        spans: list[tuple[int, np.ndarray, np.ndarray]] = []  # (blob index, starts, ends)
+
+        def slot(values: list | None = None, strings: list[str] | None = None) -> None:
+            if strings is not None:
+                codes, uniq = pd.factorize(np.array(strings, dtype=object))
+                dumped = [orjson.dumps(u) for u in uniq]
+                lens = np.fromiter((len(d) for d in dumped), dtype=np.int64, count=len(dumped))
+                ends = np.cumsum(lens)
+                blob = b"".join(dumped)
+                spans.append((len(blobs), (ends - lens)[codes], ends[codes]))
+            else:
+                blob = orjson.dumps(values)
+                commas = np.flatnonzero(np.frombuffer(blob, dtype=np.uint8) == 44)
+                starts = np.empty(n, dtype=np.int64)
+                ends = np.empty(n, dtype=np.int64)
+                starts[0] = 1
+                starts[1:] = commas + 1
+                ends[:-1] = commas
+                ends[-1] = len(blob) - 1
+                spans.append((len(blobs), starts, ends))
+            blobs.append(blob)
+            lits.append(b"")
+
+        for i, f in enumerate(self.fields):
+            lits[-1] += (b"," if i else b"") + orjson.dumps(f.prop) + b":"
+            col = frame[f.columns[0]]
+            if f.kind == "time":
+                t = np.asarray(col.to_numpy(), dtype=np.int64)
+                sec, nsec = np.divmod(t, _NS)
+                lits[-1] += b'{"sec":'
+                slot(sec.tolist())
+                lits[-1] += b',"nsec":'
+                slot(nsec.tolist())
+                lits[-1] += b"}"
+            elif f.kind == "array":
+                lits[-1] += b"["
+                for j, c in enumerate(f.columns):
+                    if j:
+                        lits[-1] += b","
+                    slot(np.asarray(frame[c].to_numpy(), dtype=float).tolist())
+                lits[-1] += b"]"
+            elif f.kind == "float":
+                slot(np.asarray(col.to_numpy(), dtype=float).tolist())
+            elif f.kind == "int":
+                slot(np.asarray(col.to_numpy(), dtype=np.int64).tolist())
+            elif f.kind == "bool":
+                slot(np.asarray(col.to_numpy(), dtype=bool).tolist())
+            else:
+                slot(strings=[str(x) for x in col.tolist()])
+        lits[-1] += b"}"
+        if not blobs:
+            return (np.frombuffer(b"{}" * n, dtype=np.uint8).copy(),
+                    np.arange(n + 1, dtype=np.int64) * 2)
+        from ._kernels import assemble
+
+        base = np.cumsum([0] + [len(b) for b in blobs])
+        vs = np.empty((n, len(spans)), dtype=np.int64)
+        ve = np.empty((n, len(spans)), dtype=np.int64)
+        for k, (bi, st, en) in enumerate(spans):
+            vs[:, k] = st + base[bi]
+            ve[:, k] = en + base[bi]
+        lit_buf, lit_off = _pack(lits)
+        return assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve)
+
+    def _check_columns(self, frame: pd.DataFrame, topic: str) -> None:
         missing = [c for c in self.columns if c not in frame.columns]
         if missing:
             raise InputError(f"channel {topic}: frame lacks column(s) {', '.join(missing)} of schema {self.name}")
+
+    def encode_reference(self, frame: pd.DataFrame, topic: str = "") -> list[bytes]:
+        """Frame -> one JSON message per row, one ``orjson.dumps`` per row (the reference)."""
+        self._check_columns(frame, topic)
         n = len(frame)
         per_field = []
         for f in self.fields:
@@ -115,9 +209,73 @@ class Codec:
         dumps = orjson.dumps
         return [dumps(dict(zip(props, row))) for row in zip(*per_field)] if props else [b"{}"] * n
 
+    def encode_row(self, row, topic: str = "") -> bytes:
+        """One row ``{column: value}`` -> one JSON message, as :meth:`encode` writes it.
+
+        For writers that produce one message at a time (the recorder). A column may be
+        left out only when its property is nullable; NaN numbers become null.
+        """
+        obj = {}
+        for f in self.fields:
+            c = f.columns[0]
+            try:
+                if f.kind == "array":
+                    obj[f.prop] = [_num(row[k]) for k in f.columns]
+                    continue
+                if c not in row and f.nullable:
+                    obj[f.prop] = None
+                    continue
+                v = row[c]
+                if f.kind == "time":
+                    sec, nsec = divmod(int(v), _NS)
+                    obj[f.prop] = {"sec": sec, "nsec": nsec}
+                elif f.kind == "float":
+                    obj[f.prop] = _num(v)
+                elif f.kind == "int":
+                    obj[f.prop] = int(v)
+                elif f.kind == "bool":
+                    obj[f.prop] = bool(v)
+                else:
+                    obj[f.prop] = str(v)
+            except KeyError as err:
+                raise InputError(f"channel {topic}: row lacks column {err.args[0]} of schema {self.name}") from None
+            except (TypeError, ValueError) as err:
+                raise InputError(f"channel {topic}: column {c} of schema {self.name}: bad value ({err})") from err
+        return orjson.dumps(obj)
+
     # -- decode --------------------------------------------------------------------
+    def empty_columns(self) -> dict[str, np.ndarray]:
+        return {c: np.zeros(0, dtype=d) if d != "str" else np.array([], dtype=object)
+                for c, d in self.dtypes().items()}
+
     def decode(self, payloads: list[bytes] | list[memoryview], topic: str = "") -> dict[str, np.ndarray]:
         """JSON messages -> {column: array}. Missing/null numbers become NaN."""
+        if not payloads:
+            return self.empty_columns()
+        lens = np.fromiter((len(p) for p in payloads), dtype=np.int64, count=len(payloads))
+        ends = np.cumsum(lens)
+        buf = np.frombuffer(b"".join(payloads), dtype=np.uint8)
+        return self.decode_spans(buf, ends - lens, ends, topic)
+
+    def decode_spans(self, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                     topic: str = "") -> dict[str, np.ndarray]:
+        """Messages buf[starts[i]:ends[i]] (uint8 array) -> {column: array}.
+
+        Fast path: when every message has the first message's layout (same keys in
+        the same order, values differing only), the values are located by one
+        compiled scan and converted column by column. Anything else goes through
+        :meth:`decode_reference`, which gives the same result.
+        """
+        if len(starts) == 0:
+            return self.empty_columns()
+        out = _decode_layout(self, buf, np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64))
+        if out is not None:
+            return out
+        b = buf.tobytes() if isinstance(buf, np.ndarray) else bytes(buf)
+        return self.decode_reference([b[s:e] for s, e in zip(starts.tolist(), ends.tolist())], topic)
+
+    def decode_reference(self, payloads: list[bytes] | list[memoryview], topic: str = "") -> dict[str, np.ndarray]:
+        """JSON messages -> {column: array} through ``orjson.loads`` (the reference)."""
         if not payloads:
             return {c: np.zeros(0, dtype=d) if d != "str" else np.array([], dtype=object)
                     for c, d in self.dtypes().items()}
@@ -161,6 +319,201 @@ class Codec:
             except (KeyError, TypeError, ValueError) as err:
                 raise InputError(f"channel {topic}: field {p!r} missing or malformed ({err!r})") from err
         return out
+
+
+# -----------------------------------------------------------------------------
+# fast decoding of messages that share one layout
+# -----------------------------------------------------------------------------
+
+def _pack(pieces: list[bytes]) -> tuple[np.ndarray, np.ndarray]:
+    offs = np.zeros(len(pieces) + 1, dtype=np.int64)
+    offs[1:] = np.cumsum([len(p) for p in pieces])
+    return np.frombuffer(b"".join(pieces), dtype=np.uint8).copy(), offs
+
+
+_WS = b" \t\r\n"
+
+
+def _layout(msg: bytes) -> tuple[list[bytes], list[tuple]] | None:
+    """Split one JSON object message into the literal text between its scalar values
+    and the path of each value (keys and array indexes), or None if it is not valid
+    JSON, not an object, or repeats a key."""
+    try:
+        orjson.loads(msg)
+    except orjson.JSONDecodeError:
+        return None
+    if not msg.startswith(b"{"):
+        return None
+    lits: list[bytes] = []
+    paths: list[tuple] = []
+    stack: list[list] = []  # [is_object, current key or index]
+    lit_start = 0
+    expect_key = False
+    i, n = 0, len(msg)
+    while i < n:
+        c = msg[i]
+        if c in _WS:
+            i += 1
+        elif c == 0x7B:  # {
+            stack.append([True, None])
+            expect_key = True
+            i += 1
+        elif c == 0x5B:  # [
+            stack.append([False, 0])
+            expect_key = False
+            i += 1
+        elif c in (0x7D, 0x5D):  # } ]
+            stack.pop()
+            i += 1
+        elif c == 0x3A:  # :
+            expect_key = False
+            i += 1
+        elif c == 0x2C:  # ,
+            top = stack[-1]
+            if top[0]:
+                expect_key = True
+            else:
+                top[1] += 1
+            i += 1
+        else:
+            if c == 0x22:  # "
+                j = i + 1
+                while msg[j] != 0x22:
+                    j += 2 if msg[j] == 0x5C else 1
+                j += 1
+                if expect_key:
+                    stack[-1][1] = orjson.loads(msg[i:j])
+                    i = j
+                    continue
+            else:
+                j = i
+                while j < n and msg[j] not in b",]} \t\r\n":
+                    j += 1
+            lits.append(msg[lit_start:i])
+            paths.append(tuple(e[1] for e in stack))
+            lit_start = i = j
+    lits.append(msg[lit_start:])
+    if len(set(paths)) != len(paths):
+        return None
+    return lits, paths
+
+
+class _Mismatch(Exception):
+    pass
+
+
+def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                   ) -> dict[str, np.ndarray] | None:
+    """The fast path of :meth:`Codec.decode_spans`; None when it does not apply."""
+    from . import _kernels as K
+
+    layout = _layout(buf[starts[0]:ends[0]].tobytes())
+    if layout is None:
+        return None
+    lits, paths = layout
+    slot = {p: k for k, p in enumerate(paths)}
+
+    def need(*path) -> int:
+        k = slot.get(path)
+        if k is None:
+            raise _Mismatch
+        return k
+
+    try:
+        plan = []
+        for f in codec.fields:
+            if f.kind == "time":
+                plan.append((f, [need(f.prop, "sec"), need(f.prop, "nsec")]))
+            elif f.kind == "array":
+                if (f.prop, len(f.columns)) in slot:
+                    raise _Mismatch
+                plan.append((f, [need(f.prop, j) for j in range(len(f.columns))]))
+            else:
+                plan.append((f, [need(f.prop)]))
+    except _Mismatch:
+        return None
+    lit_buf, lit_off = _pack(lits)
+    kinds, vs, ve, iv, bad = K.match_template(buf, starts, ends, lit_buf, lit_off, len(paths),
+                                              K._TRUE, K._FALSE, K._NULL)
+    if bad >= 0:
+        return None
+    n = len(starts)
+    try:
+        float_slots = [k for f, ks in plan if f.kind in ("float", "array") for k in ks]
+        floats = _parse_floats(buf, kinds, vs, ve, float_slots) if float_slots else {}
+        out: dict[str, np.ndarray] = {}
+        for f, ks in plan:
+            if f.kind in ("float", "array"):
+                for c, k in zip(f.columns, ks):
+                    out[c] = floats[k]
+            elif f.kind == "int":
+                k = ks[0]
+                if not np.all(kinds[:, k] == K.K_INT):
+                    return None
+                out[f.columns[0]] = iv[:, k].copy()
+            elif f.kind == "time":
+                sec, nsec = iv[:, ks[0]], iv[:, ks[1]]
+                if (not np.all(kinds[:, ks] == K.K_INT) or np.abs(sec).max() >= 9_000_000_000
+                        or np.abs(nsec).max() >= 10**17):
+                    return None
+                out[f.columns[0]] = sec * _NS + nsec
+            elif f.kind == "bool":
+                kk = kinds[:, ks[0]]
+                if not np.all((kk == K.K_TRUE) | (kk == K.K_FALSE)):
+                    return None
+                out[f.columns[0]] = kk == K.K_TRUE
+            else:
+                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], vs[:, ks[0]], ve[:, ks[0]])
+    except _Mismatch:
+        return None
+    return out
+
+
+def _parse_floats(buf, kinds, vs, ve, slots: list[int]) -> dict[int, np.ndarray]:
+    """Numbers (or null -> NaN) of the given value slots, parsed with correct rounding."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from . import _kernels as K
+
+    kk = kinds[:, slots].T.ravel()
+    if not np.all((kk == K.K_FLOAT) | (kk == K.K_INT) | (kk == K.K_INT_BIG) | (kk == K.K_NULL)):
+        raise _Mismatch
+    a, b = vs[:, slots].T.ravel(), ve[:, slots].T.ravel()
+    null = kk == K.K_NULL
+    has_null = bool(null.any())
+    if has_null:
+        a, b = a[~null], b[~null]
+    data, offs = K.gather(buf, a, b)
+    arr = pa.Array.from_buffers(pa.string(), len(a), [None, pa.py_buffer(offs), pa.py_buffer(data)])
+    try:
+        vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
+        raise _Mismatch from err
+    if has_null:
+        full = np.full(len(kk), np.nan)
+        full[~null] = vals
+        vals = full
+    vals = vals.reshape(len(slots), -1)
+    return {k: vals[i].copy() for i, k in enumerate(slots)}
+
+
+def _strings(buf, kinds, vs, ve) -> np.ndarray:
+    from . import _kernels as K
+
+    if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
+        raise _Mismatch
+    labels, firsts = K.runs_of_equal_spans(buf, vs, ve)
+    vals = []
+    try:
+        for i in firsts.tolist():
+            s = buf[vs[i]:ve[i]].tobytes()
+            vals.append(s[1:-1].decode("utf-8") if kinds[i] == K.K_STR else orjson.loads(s))
+    except (UnicodeDecodeError, orjson.JSONDecodeError) as err:
+        raise _Mismatch from err
+    uniq = np.empty(len(vals), dtype=object)
+    uniq[:] = vals
+    return uniq[labels]
 
 
 # -----------------------------------------------------------------------------

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
+from numba.extending import register_jitable
 
 from .channels import codec_for_topic, frame_from_columns
 from .errors import ConfigError
@@ -40,8 +41,11 @@ class SensorSettings:
     compass_noise_deg: float = 2.0
     compass_bias_deg: float = 0.0
     thrust_rate_hz: float = 100.0
+    truth_rate_hz: float | None = None   # rate of /truth/state (None: every integration step)
 
     def __post_init__(self):
+        if self.truth_rate_hz is not None and not self.truth_rate_hz > 0:
+            raise ConfigError(f"sensor setting truth_rate_hz = {self.truth_rate_hz} must be > 0")
         for name in ("gps_rate_hz", "compass_rate_hz", "thrust_rate_hz", "gps_bias_tau_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"sensor setting {name} = {getattr(self, name)} must be > 0")
@@ -101,25 +105,35 @@ def start_ns(iso: str) -> int:
 # plant integration
 # -----------------------------------------------------------------------------
 
+@register_jitable
+def _plant_rhs(n, e, psi, u, v, r, tau_u, tau_r, prm, cn, ce):
+    c, s = math.cos(psi), math.sin(psi)
+    ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+    return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
+
+
+@register_jitable
 def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
-    """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path)."""
-    m, Iz, d11, d22, d33, xg = prm
+    """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path).
 
-    def f(n, e, psi, u, v, r):
-        c, s = math.cos(psi), math.sin(psi)
-        ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg)
-        return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
-
-    x = state
-    k1 = f(*x)
+    Plain Python, and also callable from numba-compiled loops (``register_jitable``).
+    """
+    x0, x1, x2, x3, x4, x5 = state
+    k1 = _plant_rhs(x0, x1, x2, x3, x4, x5, tau_u, tau_r, prm, cn, ce)
     if not rk4:
-        return tuple(a + dt * b for a, b in zip(x, k1))
+        return (x0 + dt * k1[0], x1 + dt * k1[1], x2 + dt * k1[2], x3 + dt * k1[3], x4 + dt * k1[4],
+                x5 + dt * k1[5])
     h = 0.5 * dt
-    k2 = f(*(a + h * b for a, b in zip(x, k1)))
-    k3 = f(*(a + h * b for a, b in zip(x, k2)))
-    k4 = f(*(a + dt * b for a, b in zip(x, k3)))
+    k2 = _plant_rhs(x0 + h * k1[0], x1 + h * k1[1], x2 + h * k1[2], x3 + h * k1[3], x4 + h * k1[4],
+                    x5 + h * k1[5], tau_u, tau_r, prm, cn, ce)
+    k3 = _plant_rhs(x0 + h * k2[0], x1 + h * k2[1], x2 + h * k2[2], x3 + h * k2[3], x4 + h * k2[4],
+                    x5 + h * k2[5], tau_u, tau_r, prm, cn, ce)
+    k4 = _plant_rhs(x0 + dt * k3[0], x1 + dt * k3[1], x2 + dt * k3[2], x3 + dt * k3[3], x4 + dt * k3[4],
+                    x5 + dt * k3[5], tau_u, tau_r, prm, cn, ce)
     w = dt / 6.0
-    return tuple(a + w * (b1 + 2 * b2 + 2 * b3 + b4) for a, b1, b2, b3, b4 in zip(x, k1, k2, k3, k4))
+    return (x0 + w * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]), x1 + w * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
+            x2 + w * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]), x3 + w * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3]),
+            x4 + w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]), x5 + w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]))
 
 
 def _multisine(t: np.ndarray, freqs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -177,42 +191,24 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
 # sensors -> field log
 # -----------------------------------------------------------------------------
 
+# Sensor resolution (decimal places) of the recorded values: 1e-8 deg (~1 mm), 1 mm,
+# 1e-4 rad (0.006 deg), 1 mN, 1e-4 of full command. Far below the noise, and it keeps
+# logs small (short decimals compress well).
+_QUANTUM = {"latlon": 8, "alt": 3, "heading": 4, "thrust": 3, "normalized": 4}
+
+
 def _every(t: np.ndarray, rate_hz: float, dt: float) -> np.ndarray:
     step = max(1, int(round(1.0 / (rate_hz * dt))))
     return np.arange(0, len(t), step)
 
 
-def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u: np.ndarray,
-                       tau_r: np.ndarray, rng: np.random.Generator, *, producer: str,
-                       scenario: str, seed: int, extra_settings: dict | None = None) -> FieldLog:
-    """Turn a simulated trajectory (states at times t, thrust held over each step) into a log."""
-    t0 = start_ns(st.start_utc)
-    t_ns = t0 + np.round(t * 1e9).astype(np.int64)
+def draw_sensor_noise(st: SimSettings, t: np.ndarray, rng: np.random.Generator) -> dict:
+    """Every random sensor error of a run (they do not depend on the states), in draw order.
+
+    GPS: white noise, wandering bias, jumps (sample index, dn, de), dropouts (a keep mask);
+    compass: white noise (rad). Indices are plant steps at which each sensor samples.
+    """
     sn = st.sensors
-    cn, ce = st.current_ne
-    log = FieldLog()
-    log.datum = st.datum
-    log.vessel = st.vessel
-
-    # truth at every step
-    truth = {"n_m": states[:, 0], "e_m": states[:, 1], "psi_rad": ssa(states[:, 2]),
-             "u_mps": states[:, 3], "v_mps": states[:, 4], "r_radps": states[:, 5],
-             "current_n_mps": np.full(len(t), cn), "current_e_mps": np.full(len(t), ce),
-             "tau_u_n": np.asarray(tau_u, float), "tau_r_nm": np.asarray(tau_r, float)}
-    log.set("/truth/state", frame_from_columns(truth, t_ns, codec_for_topic("/truth/state")))
-
-    # thrust commands as recorded
-    thr = st.vessel.thrusters
-    ti = _every(t, sn.thrust_rate_hz, st.dt_s)
-    fl, fr = thr.forces_from_tau(np.asarray(tau_u)[ti], np.asarray(tau_r)[ti])
-    unit = "newton" if thr.map == "identity" else "normalized"
-    cmd_l = thr.force_to_command(fl, unit)
-    cmd_r = thr.force_to_command(fr, unit)
-    thrust = {"stamp_ns": t_ns[ti], "left": np.asarray(cmd_l, float), "right": np.asarray(cmd_r, float),
-              "unit": np.array([unit] * len(ti), dtype=object), "thrust_left_n": fl, "thrust_right_n": fr}
-    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], codec_for_topic("/thrust/command")))
-
-    # GPS
     gi = _every(t, sn.gps_rate_hz, st.dt_s)
     tg = t[gi]
     noise = rng.normal(0.0, 1.0, (len(gi), 2)) * sn.gps_noise_m
@@ -224,21 +220,74 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
         for k in range(len(gi)):
             b = a * b + w[k]
             bias[k] = b
-    pn = states[gi, 0] + noise[:, 0] + bias[:, 0]
-    pe = states[gi, 1] + noise[:, 1] + bias[:, 1]
     keep = np.ones(len(gi), bool)
     for (start, dur) in sn.gps_dropouts:
         keep &= ~((tg >= start) & (tg < start + dur))
+    jumps = []
     for (tj, size) in sn.gps_jumps:
         k = int(np.argmin(np.abs(tg - tj)))
         ang = rng.uniform(0, 2 * np.pi)
-        pn[k] += size * math.cos(ang)
-        pe[k] += size * math.sin(ang)
+        jumps.append((k, size * math.cos(ang), size * math.sin(ang)))
+    ci = _every(t, sn.compass_rate_hz, st.dt_s)
+    std = math.radians(sn.compass_noise_deg)
+    return {"gps_index": gi, "gps_noise": noise, "gps_bias": bias, "gps_keep": keep, "gps_jumps": jumps,
+            "compass_index": ci, "compass_noise": rng.normal(0.0, 1.0, len(ci)) * std}
+
+
+def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u: np.ndarray,
+                       tau_r: np.ndarray, rng: np.random.Generator, *, producer: str,
+                       scenario: str, seed: int, extra_settings: dict | None = None,
+                       noise: dict | None = None) -> FieldLog:
+    """Turn a simulated trajectory (states at times t, thrust held over each step) into a log.
+
+    ``noise``: sensor noise drawn beforehand by :func:`draw_sensor_noise` (a closed loop
+    whose estimator must see the very measurements the log records); None draws it here.
+    """
+    t0 = start_ns(st.start_utc)
+    t_ns = t0 + np.round(t * 1e9).astype(np.int64)
+    sn = st.sensors
+    cn, ce = st.current_ne
+    log = FieldLog()
+    log.datum = st.datum
+    log.vessel = st.vessel
+
+    # truth at every step (or thinned to truth_rate_hz)
+    si = np.arange(len(t)) if sn.truth_rate_hz is None else _every(t, sn.truth_rate_hz, st.dt_s)
+    truth = {"n_m": states[si, 0], "e_m": states[si, 1], "psi_rad": ssa(states[si, 2]),
+             "u_mps": states[si, 3], "v_mps": states[si, 4], "r_radps": states[si, 5],
+             "current_n_mps": np.full(len(si), cn), "current_e_mps": np.full(len(si), ce),
+             "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
+    log.set("/truth/state", frame_from_columns(truth, t_ns[si], codec_for_topic("/truth/state")))
+
+    # thrust commands as recorded
+    thr = st.vessel.thrusters
+    ti = _every(t, sn.thrust_rate_hz, st.dt_s)
+    fl, fr = thr.forces_from_tau(np.asarray(tau_u)[ti], np.asarray(tau_r)[ti])
+    unit = "newton" if thr.map == "identity" else "normalized"
+    cmd_l = thr.force_to_command(fl, unit)
+    cmd_r = thr.force_to_command(fr, unit)
+    q = _QUANTUM["thrust"] if unit == "newton" else _QUANTUM["normalized"]
+    thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
+              "right": np.round(np.asarray(cmd_r, float), q), "unit": np.array([unit] * len(ti), dtype=object),
+              "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
+    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], codec_for_topic("/thrust/command")))
+
+    # GPS
+    if noise is None:
+        noise = draw_sensor_noise(st, t, rng)
+    gi = noise["gps_index"]
+    pn = states[gi, 0] + noise["gps_noise"][:, 0] + noise["gps_bias"][:, 0]
+    pe = states[gi, 1] + noise["gps_noise"][:, 1] + noise["gps_bias"][:, 1]
+    keep = noise["gps_keep"]
+    for k, dn, de in noise["gps_jumps"]:
+        pn[k] += dn
+        pe[k] += de
     lat, lon, alt = ned_to_geodetic(pn, pe, np.zeros_like(pn), datum=st.datum)
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
     gps = {"stamp_ns": t_ns[gi], "frame_id": np.array(["gnss"] * len(gi), dtype=object),
-           "lat_deg": lat, "lon_deg": lon, "alt_m": alt,
+           "lat_deg": np.round(lat, _QUANTUM["latlon"]), "lon_deg": np.round(lon, _QUANTUM["latlon"]),
+           "alt_m": np.round(alt, _QUANTUM["alt"]),
            "cov_ee_m2": z + var, "cov_en_m2": z, "cov_eu_m2": z, "cov_ne_m2": z, "cov_nn_m2": z + var,
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
@@ -246,10 +295,10 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     log.set("/gnss/fix", frame_from_columns(gps, t_ns[gi][keep], codec_for_topic("/gnss/fix")))
 
     # compass
-    ci = _every(t, sn.compass_rate_hz, st.dt_s)
+    ci = noise["compass_index"]
     std = math.radians(sn.compass_noise_deg)
-    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + rng.normal(0.0, 1.0, len(ci)) * std)
-    comp = {"stamp_ns": t_ns[ci], "heading_rad": hd, "reference": np.array(["true"] * len(ci), dtype=object),
+    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
+    comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]), "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
     log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], codec_for_topic("/compass/heading")))
 
@@ -321,5 +370,6 @@ def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) 
     return fn(settings or SimSettings(), seed)
 
 
-__all__ = ["SensorSettings", "SimSettings", "excitation_run", "turns_run", "straight_run", "field_log_from_run", "plant_step",
+__all__ = ["SensorSettings", "SimSettings", "excitation_run", "turns_run", "straight_run",
+           "field_log_from_run", "draw_sensor_noise", "plant_step",
            "simulate", "start_ns", "SCENARIOS", "replace", "pd"]

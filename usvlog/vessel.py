@@ -17,6 +17,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
+from numba.extending import register_jitable
 
 from .errors import ConfigError, InputError
 
@@ -202,6 +203,11 @@ def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{source}: not valid TOML: {err}") from err
+    return vessel_from_dict(doc, source)
+
+
+def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
+    """A parsed vessel document ({name, model: {...}, thrusters: {...}}) -> :class:`Vessel`."""
     model = doc.get("model", {})
     thr = doc.get("thrusters", {})
     known_m = set(PARAM_NAMES)
@@ -249,10 +255,12 @@ def damping_matrix(p: VesselParams) -> np.ndarray:
     return np.diag([p.d11, p.d22, p.d33])
 
 
+@register_jitable
 def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
     """(u_dot, v_dot, r_dot) of eq. (3) in closed form.
 
-    Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike.
+    Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike,
+    in Python and inside numba-compiled loops (``register_jitable``).
     """
     f1 = tau_u + m * (xg * r + v) * r - d11 * u
     f2 = -m * u * r - d22 * v
@@ -269,21 +277,29 @@ def nu_dot(nu, tau_u, tau_r, p: VesselParams):
     return np.stack(np.broadcast_arrays(ud, vd, rd), -1)
 
 
+def nu_dot_jacobian_terms(u, v, r, m, Iz, d11, d22, d33, xg):
+    """The nine entries of d(nu_dot)/d(nu), row-major, in closed form.
+
+    Plain arithmetic like :func:`nu_dot_terms`, so compiled inner loops (numba) and
+    arrays share it; :func:`nu_dot_jacobian` stacks it.
+    """
+    det = m * Iz - (m * xg) * (m * xg)
+    # partials of f1, f2, f3 of nu_dot_terms w.r.t. (u, v, r)
+    a1, a2, a3 = -d11 + 0.0 * u, m * r, m * v + 2.0 * m * xg * r
+    b1, b2, b3 = -m * r, -d22 + 0.0 * u, -m * u
+    c1, c2, c3 = -m * xg * r, 0.0 * u, -m * xg * u - d33
+    return (a1 / m, a2 / m, a3 / m,
+            (Iz * b1 - m * xg * c1) / det, (Iz * b2 - m * xg * c2) / det, (Iz * b3 - m * xg * c3) / det,
+            (m * c1 - m * xg * b1) / det, (m * c2 - m * xg * b2) / det, (m * c3 - m * xg * b3) / det)
+
+
 def nu_dot_jacobian(nu, p: VesselParams):
     """d(nu_dot)/d(nu), shape (..., 3, 3); tau enters linearly (see :func:`nu_dot_tau_matrix`)."""
     nu = np.asarray(nu, float)
-    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
-    m, xg, Iz = p.m, p.xg, p.Iz
-    det = m * Iz - (m * xg) ** 2
-    z = np.zeros_like(u)
-    # partials of f1, f2, f3 w.r.t. (u, v, r)
-    f1 = np.stack([z - p.d11, m * r, m * v + 2 * m * xg * r], -1)
-    f2 = np.stack([-m * r, z - p.d22, -m * u], -1)
-    f3 = np.stack([-m * xg * r, z, -m * xg * u - p.d33], -1)
-    row_u = f1 / m
-    row_v = (Iz * f2 - m * xg * f3) / det
-    row_r = (m * f3 - m * xg * f2) / det
-    return np.stack([row_u, row_v, row_r], -2)
+    t = nu_dot_jacobian_terms(nu[..., 0], nu[..., 1], nu[..., 2],
+                              p.m, p.Iz, p.d11, p.d22, p.d33, p.xg)
+    t = np.broadcast_arrays(*t)
+    return np.stack([np.stack(t[0:3], -1), np.stack(t[3:6], -1), np.stack(t[6:9], -1)], -2)
 
 
 def nu_dot_tau_matrix(p: VesselParams) -> np.ndarray:

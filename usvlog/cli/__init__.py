@@ -14,7 +14,17 @@ import sys
 from .. import __version__
 from ..errors import UsvlogError
 
-VERBS = ["simulate", "inspect", "export", "identify", "demo"]
+VERBS = [
+    "simulate",
+    "inspect",
+    "export",
+    "estimate",
+    "identify",
+    "gains",
+    "replay",
+    "record",
+    "demo",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..estimate import EstimateSettings, estimate
 from ..io.export import export_log
 from ..io.mcapio import read_log, write_log
 from ..simulate import SimSettings, simulate
@@ -32,10 +33,17 @@ def run(args) -> int:
     stage("[2] inspect")
     log = read_log(raw)
     print(format_summary(summarize(log)))
-    stage(f"[3] export -> {out / 'csv'}")
+    est_path = out / "estimate.mcap"
+    stage(f"[3] estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
+    result = estimate(log, EstimateSettings(model="dynamic"))
+    print(result.report.format())
+    log = result.to_log(log)
+    write_log(log, est_path, force=True)
+    stage(f"[4] export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
-    stage("[4] identify: output error on the simulated run (true vs identified)")
+    stage("[5] identify: output error on the simulated run (true vs identified)")
     identify_stage(log, out)
+    _control_stages(out, first=6)
     stage(f"done: results in {out}/")
     return 0
 
@@ -57,3 +65,26 @@ def identify_stage(log, out: Path) -> None:
     print(f"  current north {cn:+.3f} east {ce:+.3f} m/s (true +0.100 +0.173)")
     for v in idf.verdict_:
         print(f"  - {v}")
+
+
+def _control_stages(out: Path, first: int) -> None:
+    """Section IV closed loop, gain check, replay with a baseline what-if."""
+    from ..control.gains import check_gains
+    from ..io.config import load_scenario
+    from ..replay import replay_log, simulate_scenario
+    from .replay import format_metrics
+
+    scen = load_scenario("paper-circle")
+    circ = out / "paper-circle.mcap"
+    stage(f"[{first}] simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
+    log = simulate_scenario(scen)
+    write_log(log, circ, force=True)
+    stage(f"[{first + 1}] gains: Theorem 3.1 for the paper's gains")
+    chk = check_gains(scen.sim.vessel.params, scen.gains)
+    print(chk.verdict)
+    print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
+    rep = out / "paper-circle-replay.mcap"
+    stage(f"[{first + 2}] replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
+    res = replay_log(read_log(circ), scen, whatif_controller="baseline")
+    write_log(res.log, rep, force=True)
+    print(format_metrics(res.metrics))

@@ -120,7 +120,8 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
         lin["d22"] = fix["d22"]
         se_d22 = 0.0
     else:
-        lin["d22"] = float(vv @ a2 / max(vv @ vv, 1e-300))
+        # least squares under d22 >= 0 (one unknown: the clamped solution is the constrained one)
+        lin["d22"] = max(float(vv @ a2 / max(vv @ vv, 1e-300)), 0.0)
         r2 = a2 - lin["d22"] * vv
         se_d22 = float(np.sqrt((r2 @ r2) / max(n - 1, 1) / max(vv @ vv, 1e-300)))
     r2 = a2 - lin["d22"] * vv

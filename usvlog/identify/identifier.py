@@ -21,7 +21,7 @@ from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust
 METHODS = ("output-error", "equation-error", "filter-error")
 Z95 = 1.959963984540054
 # equation-error smoothing (s): positions, heading, accelerations (thrust filtered alike)
-EE_POS_S, EE_PSI_S, EE_ACC_S = 16.0, 6.0, 16.0
+EE_POS_S, EE_PSI_S, EE_ACC_S = 16.0, 6.0, 6.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -121,7 +121,7 @@ class Identifier:
         held = []
         for log in logs:
             run = run_data(log, vessel)
-            ks = kinematic_states(log, run)
+            ks = kinematic_states(log, run, vessel)
             if self.holdout > 0:
                 t_cut = run.t_thrust[0] + (1 - self.holdout) * run.duration_s
                 held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf)))
@@ -240,8 +240,11 @@ class Identifier:
                     out.append(f"{s} residuals {v:.1f} times their stated noise: model mismatch or "
                                f"sensor trouble")
         else:
-            out.append("equation error is biased by measurement noise (inertia terms typically "
-                       "20-100% low): use output-error for numbers to rely on")
+            out.append("equation error is biased by measurement noise in its regressors (inertia "
+                       "terms and d22 typically tens of percent off): use output-error for numbers "
+                       "to rely on")
+            if p.d22 == 0.0 and "d22" not in self.fix:
+                out.append("d22 at its bound 0: not determined by equation error")
         if not self.current and self.method == "output-error":
             out.append("current not fitted: a real current biases d11 and d22")
         return out
@@ -260,7 +263,7 @@ class Identifier:
         """Free run of the identified model from ``log``'s thrust (a run it was not fitted on)."""
         self._check_fitted()
         run = run_data(log, self.vessel_in_)
-        return self._validate_run(run, kinematic_states(log, run), init_window_s=init_window_s)
+        return self._validate_run(run, kinematic_states(log, run, self.vessel_in_), init_window_s=init_window_s)
 
     def _validate_run(self, run: RunData, ks: KinStates, init_window_s: float = 60.0) -> Validation:
         t0 = max(run.t_thrust[0], ks.t[0])

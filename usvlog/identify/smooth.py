@@ -71,13 +71,13 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
                      r=savgol_filter(psi, wh, deriv=1, delta=GRID_DT, **kw), source="savgol")
 
 
-def kinematic_states(log, run: RunData) -> KinStates:
+def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
     """Smoothed over-ground states of a run (the estimator's kinematic smoother if available)."""
     try:
         from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
     except ImportError:
         return savgol_states(run)
-    st = estimate(log, EstimateSettings(model="kinematic")).state
+    st = estimate(log, EstimateSettings(model="kinematic", output_step_s=GRID_DT), vessel).state
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))

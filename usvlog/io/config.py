@@ -33,3 +33,54 @@ def load_vessel(path=None) -> Vessel:
     if path is None:
         return default_vessel()
     return vessel_from_toml(read_text(path), source=str(path))
+
+
+def scenario_path(name_or_path) -> Path:
+    """A scenario file path, or a name resolved to ``replay/<name>.toml`` of the package."""
+    from ..resources import replay_dir
+
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists() or "/" in str(name_or_path):
+        return p
+    cand = replay_dir() / f"{name_or_path}.toml"
+    if not cand.exists():
+        have = ", ".join(sorted(q.stem for q in replay_dir().glob("*.toml"))) or "none"
+        raise StorageError(f"no scenario {name_or_path!r} (file or name in replay/: {have})")
+    return cand
+
+
+def load_scenario(name_or_path, *, vessel=None):
+    """Read a closed-loop scenario TOML (``[vessel] file = ...`` is relative to the scenario)."""
+    from ..replay import scenario_from_dict
+
+    path = scenario_path(name_or_path)
+    doc = read_toml(path)
+    vdoc = doc.get("vessel")
+    if vessel is None and isinstance(vdoc, dict) and "file" in vdoc:
+        extra = set(vdoc) - {"file"}
+        if extra:
+            raise ConfigError(f"{path}: [vessel] file = ... cannot be combined with {', '.join(sorted(extra))}")
+        vessel = load_vessel(path.parent / vdoc["file"])
+    return scenario_from_dict(doc, source=str(path), vessel=vessel)
+
+
+def load_gains(path):
+    """``[gains]`` + ``[guidance]`` from a gains file or a scenario file."""
+    from ..control.gains import gains_from_dict
+
+    return gains_from_dict(read_toml(path), source=str(path))
+
+
+def load_vessel_or_scenario_vessel(path) -> Vessel:
+    """A vessel file, or the ``[vessel]`` of a scenario file."""
+    from ..vessel import vessel_from_dict
+
+    doc = read_toml(path)
+    if "model" in doc or "thrusters" in doc:
+        return vessel_from_toml(read_text(path), source=str(path))
+    v = doc.get("vessel")
+    if isinstance(v, dict):
+        if "file" in v:
+            return load_vessel(Path(path).parent / v["file"])
+        return vessel_from_dict(v, source=f"{path} [vessel]")
+    raise ConfigError(f"{path}: neither a vessel file ([model]) nor a scenario with [vessel]")

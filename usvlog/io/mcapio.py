@@ -65,48 +65,244 @@ def encode_log(log: FieldLog) -> list[tuple[str, dict, np.ndarray, list[bytes]]]
     return out
 
 
+def _compression(compression: str) -> str:
+    if compression not in ("zstd", "lz4", "none"):
+        raise InputError(f"unknown compression {compression!r} (zstd, lz4 or none)")
+    return compression
+
+
 def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
               compression: str = "zstd") -> None:
-    """Write ``log`` as a canonical MCAP file, atomically."""
+    """Write ``log`` as a canonical MCAP file, atomically.
+
+    The file is the one the mcap library's ``Writer`` writes for the same messages
+    (byte for byte; ``_write_log_reference`` does it that way and the tests compare),
+    but the message and index records are built by compiled loops.
+    """
+    _compression(compression)
+    data = encode_file(log, chunk_size=chunk_size, compression=compression)
+    with atomic_path(path, force=force) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+
+
+def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, dict, Codec]]]:
+    """(mcap Schema records, Channel records, both in registration order, and
+    [(topic, schema, codec)] in channel-id order)."""
+    from mcap.records import Channel, Schema
+
+    schemas, channels, both, out, ids = [], [], [], [], {}
+    for topic in log.topics:
+        schema, codec = _codec_for(log, topic)
+        sname = schema.get("title", topic)
+        sdata = json.dumps(schema, sort_keys=False).encode()
+        key = (sname, sdata)
+        if key not in ids:
+            ids[key] = len(schemas) + 1
+            schemas.append(Schema(id=ids[key], name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            both.append(schemas[-1])
+        channels.append(Channel(id=len(channels) + 1, topic=topic, message_encoding=MESSAGE_ENCODING,
+                                schema_id=ids[key], metadata={}))
+        both.append(channels[-1])
+        out.append((topic, schema, codec))
+    return schemas, channels, both, out
+
+
+def encode_file(log: FieldLog, *, chunk_size: int = 1 << 20, compression: str = "zstd") -> bytes:
+    """The bytes of the canonical MCAP file of ``log`` (see :func:`write_log`)."""
+    import zlib
+
+    from mcap.data_stream import RecordBuilder
+    from mcap.opcode import Opcode
+    from mcap.records import (Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex,
+                              Statistics, SummaryOffset)
+
+    from .. import _kernels as K
+
+    comp = _compression(compression)
+    schemas, channels, registered, encs = _schema_records(log)
+
+    # payloads of every channel in one buffer; messages in (time, channel, row) order
+    bufs, ts, cids, rows, starts, ends = [], [], [], [], [], []
+    base = 0
+    for ci, (topic, _schema, codec) in enumerate(encs):
+        frame = log.channels[topic]
+        t = np.asarray(frame.index, dtype=np.int64)
+        if len(t) and t.min() < 0:
+            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+        data, offs = codec.encode_packed(frame, topic)
+        bufs.append(data)
+        ts.append(t)
+        cids.append(np.full(len(t), ci + 1, dtype=np.int64))
+        rows.append(np.arange(len(t), dtype=np.int64))
+        starts.append(offs[:-1] + base)
+        ends.append(offs[1:] + base)
+        base += len(data)
+    cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dtype=dt))
+    t_all, c_all, r_all = cat(ts, np.int64), cat(cids, np.int64), cat(rows, np.int64)
+    order = np.lexsort((r_all, c_all, t_all))
+    t_all, c_all, r_all = t_all[order], c_all[order], r_all[order]
+    payload = cat(bufs, np.uint8)
+    recs, rec_offs = K.message_records(payload, cat(starts, np.int64)[order], cat(ends, np.int64)[order],
+                                       c_all, r_all, t_all)
+
+    out = bytearray(MAGIC)
+    rb = RecordBuilder()
+
+    def emit() -> int:
+        """Append what the record builder holds; returns the offset it starts at."""
+        at = len(out)
+        out.extend(rb.end())
+        return at
+
+    Header(profile="", library=f"usvlog {__version__}").write(rb)
+    emit()
+    meta_index = []
+    for name in sorted(log.meta):
+        Metadata(name=name, metadata={str(k): str(v) for k, v in log.meta[name].items()}).write(rb)
+        at = emit()
+        meta_index.append(MetadataIndex(offset=at, length=len(out) - at, name=name))
+
+    # schema and channel records open the first chunk, as the mcap Writer puts them
+    for r in registered:
+        r.write(rb)
+    prefix = rb.end()
+    chunk_indexes = []
+    n = len(t_all)
+    bounds = K.chunk_bounds(rec_offs, int(chunk_size), len(prefix)).tolist() if n else []
+    a = 0
+    for b in bounds:
+        head = prefix if a == 0 else b""
+        body = memoryview(recs)[rec_offs[a]:rec_offs[b]]
+        chunk_data = head + body.tobytes() if head else body.tobytes()
+        if comp == "zstd":
+            import zstandard
+
+            packed, cname = zstandard.compress(chunk_data), "zstd"
+        elif comp == "lz4":
+            import lz4.frame
+
+            packed, cname = lz4.frame.compress(chunk_data), "lz4"
+        else:
+            packed, cname = chunk_data, ""
+        tc = t_all[a:b]
+        t0, t1 = int(tc.min()), int(tc.max())
+        Chunk(compression=cname, data=packed, message_start_time=t0, message_end_time=t1,
+              uncompressed_crc=zlib.crc32(chunk_data), uncompressed_size=len(chunk_data)).write(rb)
+        chunk_at = emit()
+        chunk_len = len(out) - chunk_at
+        # one Message Index record per channel, in order of the channel's first message
+        cc = c_all[a:b]
+        uniq, first = np.unique(cc, return_index=True)
+        index_at = len(out)
+        offsets = {}
+        in_chunk = rec_offs[a:b] - rec_offs[a] + len(head)
+        for cid in uniq[np.argsort(first)].tolist():
+            sel = cc == cid
+            entries = np.empty((int(sel.sum()), 2), dtype="<u8")
+            entries[:, 0] = tc[sel]
+            entries[:, 1] = in_chunk[sel]
+            offsets[cid] = len(out)
+            out.extend(_REC.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes))
+            out.extend(struct.pack("<HI", cid, entries.nbytes))
+            out.extend(entries.tobytes())
+        chunk_indexes.append(ChunkIndex(
+            message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_at,
+            chunk_length=chunk_len, message_index_offsets=offsets,
+            message_index_length=len(out) - index_at, compression=cname,
+            compressed_size=len(packed), uncompressed_size=len(chunk_data)))
+        a = b
+
+    DataEnd(0).write(rb)
+    emit()
+
+    # summary: the same groups, in the same order, as the mcap Writer
+    summary_start = len(out)
+    sb = RecordBuilder()
+    groups = []
+
+    def group(opcode, records) -> None:
+        g0 = sb.count
+        for r in records:
+            r.write(sb)
+        groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + g0,
+                                    group_length=sb.count - g0))
+
+    if n:
+        _, first = np.unique(c_all, return_index=True)
+        chan_order = c_all[np.sort(first)].tolist()
+        counts = np.bincount(c_all)
+        per_channel = {cid: int(counts[cid]) for cid in chan_order}
+    else:
+        per_channel = {}
+    stats = Statistics(attachment_count=0, channel_count=len(channels), channel_message_counts=per_channel,
+                       chunk_count=len(chunk_indexes), message_count=n, metadata_count=len(meta_index),
+                       message_start_time=int(t_all.min()) if n else 0,
+                       message_end_time=int(t_all.max()) if n else 0, schema_count=len(schemas))
+    group(Opcode.SCHEMA, schemas)
+    group(Opcode.CHANNEL, channels)
+    group(Opcode.STATISTICS, [stats])
+    group(Opcode.CHUNK_INDEX, chunk_indexes)
+    group(Opcode.ATTACHMENT_INDEX, [])
+    group(Opcode.METADATA_INDEX, meta_index)
+    summary_offset_start = summary_start + sb.count
+    for g in groups:
+        g.write(sb)
+    summary = sb.end()
+    crc = zlib.crc32(summary)
+    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+    out.extend(summary)
+    Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc).write(rb)
+    emit()
+    out.extend(MAGIC)
+    return bytes(out)
+
+
+def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
+                         compression: str = "zstd") -> None:
+    """Write ``log`` through the mcap library's Writer, one ``add_message`` per message
+    (the reference :func:`write_log` is tested against)."""
     from mcap.writer import CompressionType, Writer
 
-    comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}[compression]
-    encoded = encode_log(log)
+    comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE}[_compression(compression)]
+    _schemas, _channels, registered, encs = _schema_records(log)
+    encoded = []
+    for topic, _schema, codec in encs:
+        frame = log.channels[topic]
+        t = np.asarray(frame.index, dtype=np.int64)
+        if len(t) and t.min() < 0:
+            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+        encoded.append((t, codec.encode_reference(frame, topic)))
     with atomic_path(path, force=force) as tmp:
         with open(tmp, "wb") as fh:
             w = Writer(fh, chunk_size=chunk_size, compression=comp)
             w.start(profile="", library=f"usvlog {__version__}")
             for name in sorted(log.meta):
                 w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
-            schema_ids: dict[str, int] = {}
-            chan_ids, times, rows, chans = [], [], [], []
-            for ci, (topic, schema, t, payloads) in enumerate(encoded):
-                sname = schema.get("title", topic)
-                sdata = json.dumps(schema, sort_keys=False).encode()
-                key = sname + "\0" + sdata.decode()
-                if key not in schema_ids:
-                    schema_ids[key] = w.register_schema(name=sname, encoding=SCHEMA_ENCODING, data=sdata)
-                cid = w.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
-                                         schema_id=schema_ids[key])
-                chan_ids.append(cid)
-                times.append(t)
-                rows.append(np.arange(len(t)))
-                chans.append(np.full(len(t), ci))
-            if times:
-                t_all = np.concatenate(times)
-                c_all = np.concatenate(chans)
-                r_all = np.concatenate(rows)
+            for r in registered:
+                if hasattr(r, "topic"):
+                    w.register_channel(topic=r.topic, message_encoding=r.message_encoding, schema_id=r.schema_id)
+                else:
+                    w.register_schema(name=r.name, encoding=r.encoding, data=r.data)
+            if encoded:
+                t_all = np.concatenate([t for t, _ in encoded])
+                c_all = np.concatenate([np.full(len(t), i) for i, (t, _) in enumerate(encoded)])
+                r_all = np.concatenate([np.arange(len(t)) for t, _ in encoded])
                 order = np.lexsort((r_all, c_all, t_all))
-                add = w.add_message
                 for t_i, c_i, r_i in zip(t_all[order].tolist(), c_all[order].tolist(), r_all[order].tolist()):
-                    add(channel_id=chan_ids[c_i], log_time=t_i, data=encoded[c_i][3][r_i],
-                        publish_time=t_i, sequence=r_i)
+                    w.add_message(channel_id=c_i + 1, log_time=t_i, data=encoded[c_i][1][r_i],
+                                  publish_time=t_i, sequence=r_i)
             w.finish()
 
 
 # -----------------------------------------------------------------------------
 # reading
 # -----------------------------------------------------------------------------
+
+class _CorruptChunk(Exception):
+    pass
+
 
 @dataclass
 class _Channel:
@@ -116,6 +312,11 @@ class _Channel:
     times: list = field(default_factory=list)
     seqs: list = field(default_factory=list)
     payloads: list = field(default_factory=list)
+    # fast scan: message arrays instead of the lists above
+    t: np.ndarray | None = None
+    seq: np.ndarray | None = None
+    starts: np.ndarray | None = None
+    ends: np.ndarray | None = None
 
 
 @dataclass
@@ -124,14 +325,17 @@ class _Scan:
     channels: dict = field(default_factory=dict)    # id -> _Channel
     metadata: dict = field(default_factory=dict)
     end_offset: int = 8                             # end of the last complete top-level record
-    complete: bool = False                          # footer reached
+    complete: bool = False                          # Data End or Footer reached
     reason: str = ""
     lost_chunk_range: tuple[int, int] | None = None
+    arena: np.ndarray | None = None                 # fast scan: every message's bytes
 
 
 def _string(buf, off):
     n = _U32.unpack_from(buf, off)[0]
     off += 4
+    if off + n > len(buf):
+        raise struct.error("string runs past the end of its record")
     return bytes(buf[off:off + n]).decode("utf-8"), off + n
 
 
@@ -147,62 +351,221 @@ def _map(buf, off):
     return out, end
 
 
-def _records(scan: _Scan, buf, start: int, end: int, in_chunk: bool):
-    """Walk records in buf[start:end]; messages are appended to scan.channels."""
-    off = start
-    channels = scan.channels
-    unpack_rec, unpack_msg = _REC.unpack_from, _MSG.unpack_from
-    while off + 9 <= end:
-        op, length = unpack_rec(buf, off)
-        body = off + 9
-        nxt = body + length
+def _parse(op: int, rec) -> tuple | None:
+    """A schema, channel or metadata record's fields (rec = the record's body), else None.
+
+    Raises struct.error / UnicodeDecodeError on a malformed record."""
+    if op == OP_SCHEMA:
+        sid = _U16.unpack_from(rec, 0)[0]
+        name, p = _string(rec, 2)
+        enc, p = _string(rec, p)
+        n = _U32.unpack_from(rec, p)[0]
+        if p + 4 + n > len(rec):
+            raise struct.error("schema data runs past the end of its record")
+        return (op, sid, name, enc, bytes(rec[p + 4:p + 4 + n]))
+    if op == OP_CHANNEL:
+        cid, sid = struct.unpack_from("<HH", rec, 0)
+        topic, p = _string(rec, 4)
+        enc, p = _string(rec, p)
+        return (op, cid, sid, topic, enc)
+    if op == OP_METADATA:
+        name, p = _string(rec, 0)
+        return (op, name, _map(rec, p)[0])
+    return None
+
+
+def _apply(scan: _Scan, parsed: tuple, in_chunk: bool) -> None:
+    op = parsed[0]
+    if op == OP_SCHEMA:
+        scan.schemas[parsed[1]] = parsed[2:]
+    elif op == OP_CHANNEL:
+        if parsed[1] not in scan.channels:
+            scan.channels[parsed[1]] = _Channel(parsed[3], parsed[2], parsed[4])
+    elif op == OP_METADATA and not in_chunk:
+        scan.metadata[parsed[1]] = parsed[2]
+
+
+def _chunk_header(buf, body: int, end: int):
+    t0, t1, usize, _crc = _CHUNK.unpack_from(buf, body)
+    comp, p = _string(buf, body + 28)
+    rlen = _U64.unpack_from(buf, p)[0]
+    if p + 8 + rlen > end:
+        raise struct.error("chunk data runs past the end of its record")
+    return t0, t1, usize, comp, buf[p + 8:p + 8 + rlen]
+
+
+def _chunk_records(data) -> list[tuple[int, int, int]]:
+    """(op, body start, body end) of every record in a decompressed chunk; a chunk
+    whose records do not fit it exactly, or holds a too-short message, is corrupt."""
+    out, off, end = [], 0, len(data)
+    while off < end:
+        if off + 9 > end:
+            raise _CorruptChunk("ends inside a record header")
+        op, length = _REC.unpack_from(data, off)
+        nxt = off + 9 + length
         if nxt > end:
-            return off, False
-        if op == OP_MESSAGE:
-            cid, seq, log_time, _pub = unpack_msg(buf, body)
-            ch = channels.get(cid)
-            if ch is not None:
-                ch.times.append(log_time)
-                ch.seqs.append(seq)
-                ch.payloads.append(buf[body + 22:nxt])
-        elif op == OP_CHUNK:
-            t0, t1, usize, _crc = _CHUNK.unpack_from(buf, body)
-            comp, p = _string(buf, body + 28)
-            rlen = _U64.unpack_from(buf, p)[0]
-            raw = buf[p + 8:p + 8 + rlen]
-            try:
-                data = _decompress(comp, raw, usize)
-            except Exception as err:  # corrupt chunk: keep what came before
-                scan.reason = f"chunk at byte {off} is corrupt ({err})"
-                scan.lost_chunk_range = (t0, t1)
-                return off, False
-            _records(scan, memoryview(data), 0, len(data), True)
-        elif op == OP_SCHEMA:
-            sid = _U16.unpack_from(buf, body)[0]
-            name, p = _string(buf, body + 2)
-            enc, p = _string(buf, p)
-            n = _U32.unpack_from(buf, p)[0]
-            scan.schemas[sid] = (name, enc, bytes(buf[p + 4:p + 4 + n]))
-        elif op == OP_CHANNEL:
-            cid, sid = struct.unpack_from("<HH", buf, body)
-            topic, p = _string(buf, body + 4)
-            enc, p = _string(buf, p)
-            if cid not in channels:
-                channels[cid] = _Channel(topic, sid, enc)
-        elif op == OP_METADATA and not in_chunk:
-            name, p = _string(buf, body)
-            scan.metadata[name], _ = _map(buf, p)
-        elif op in (OP_FOOTER,) and not in_chunk:
-            scan.complete = True
-            return nxt, True
-        elif op == OP_DATA_END and not in_chunk:
+            raise _CorruptChunk("a record runs past the end of the chunk")
+        if op == OP_MESSAGE and length < 22:
+            raise _CorruptChunk("a message record is too short")
+        out.append((op, off + 9, nxt))
+        off = nxt
+    return out
+
+
+def _scan_reference(data: bytes) -> _Scan:
+    """The plain reading of the records (one Python step per record), kept as the
+    reference the fast scan is tested against."""
+    scan = _Scan()
+    buf = memoryview(data)
+    end, off = len(data), 8
+    while off + 9 <= end:
+        op, length = _REC.unpack_from(buf, off)
+        body, nxt = off + 9, off + 9 + length
+        if nxt > end:
+            break
+        try:
+            if op == OP_MESSAGE:
+                if length < 22:
+                    raise struct.error("message record too short")
+                _add_message(scan, buf, body, nxt)
+            elif op == OP_CHUNK:
+                t0, t1, usize, comp, raw = _chunk_header(buf, body, nxt)
+                try:
+                    chunk = memoryview(_decompress(comp, raw, usize))
+                    recs = _chunk_records(chunk)
+                    parsed = [(o, b, e, _parse(o, chunk[b:e])) for o, b, e in recs]
+                except Exception as err:  # corrupt chunk: keep what came before
+                    raise _CorruptChunk(err) from err
+                for o, b, e, pr in parsed:
+                    if o == OP_MESSAGE:
+                        _add_message(scan, chunk, b, e)
+                    elif pr is not None:
+                        _apply(scan, pr, True)
+            else:
+                pr = _parse(op, buf[body:nxt])
+                if pr is not None:
+                    _apply(scan, pr, False)
+        except _CorruptChunk as err:
+            scan.reason = f"chunk at byte {off} is corrupt ({err})"
+            scan.lost_chunk_range = (t0, t1)
+            return scan
+        except (struct.error, UnicodeDecodeError, IndexError) as err:
+            scan.reason = f"malformed record after byte {off} ({err})"
+            return scan
+        if op in (OP_FOOTER, OP_DATA_END):
             # the data section is complete; the summary is not needed for reading
             scan.complete = True
-            return nxt, True
-        off = nxt
-        if not in_chunk:
-            scan.end_offset = off
-    return off, off == end
+            return scan
+        off = scan.end_offset = nxt
+    return scan
+
+
+def _add_message(scan: _Scan, buf, body: int, nxt: int) -> None:
+    cid, seq, log_time, _pub = _MSG.unpack_from(buf, body)
+    ch = scan.channels.get(cid)
+    if ch is not None:
+        ch.times.append(log_time)
+        ch.seqs.append(seq)
+        ch.payloads.append(bytes(buf[body + 22:nxt]))
+
+
+def _scan_fast(data: bytes) -> _Scan:
+    """The same reading as :func:`_scan_reference`, with the per-message work done by
+    compiled loops: records are walked into arrays, and a message is kept when its
+    channel was defined before it (compared by record ordinals)."""
+    from .. import _kernels as K
+
+    scan = _Scan()
+    buf = np.frombuffer(data, dtype=np.uint8)
+    mv = memoryview(data)
+    ops, offs, lens, stop, complete = K.walk_records(buf, 8, len(buf), True)
+    n_top = len(ops)
+    defined: dict[int, int] = {}     # channel id -> ordinal of its record
+    segments: list[np.ndarray] = []  # message bytes: decompressed chunks (and the file)
+    parts = []                       # (segment, cid, seq, t, start, end, ordinal)
+
+    top_msgs = np.flatnonzero(ops == OP_MESSAGE)
+    if len(top_msgs):
+        cid, seq, t, ps, pe, ok = K.message_fields(buf, offs[top_msgs], lens[top_msgs])
+        if not ok:  # a too-short message record: the file is read up to it
+            first_bad = int(top_msgs[np.flatnonzero(cid < 0)[0]])
+            n_top, complete = first_bad, False
+            scan.reason = f"malformed record after byte {int(offs[first_bad])} (message record too short)"
+            keep = top_msgs < first_bad
+            cid, seq, t, ps, pe, top_msgs = cid[keep], seq[keep], t[keep], ps[keep], pe[keep], top_msgs[keep]
+        segments.append(buf)
+        parts.append((0, cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
+
+    for i in np.flatnonzero(ops[:n_top] != OP_MESSAGE).tolist():
+        op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
+        body, nxt = off + 9, off + 9 + ln
+        try:
+            if op == OP_CHUNK:
+                t0, t1, usize, comp, raw = _chunk_header(mv, body, nxt)
+                try:
+                    chunk = np.frombuffer(_decompress(comp, raw, usize), dtype=np.uint8)
+                    cops, coffs, clens, _cstop, ccomplete = K.walk_records(chunk, 0, len(chunk), False)
+                    if not ccomplete:
+                        raise _CorruptChunk("a record runs past the end of the chunk")
+                    cmv = memoryview(chunk)
+                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
+                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
+                    m = np.flatnonzero(cops == OP_MESSAGE)
+                    cid, seq, t, ps, pe, ok = K.message_fields(chunk, coffs[m], clens[m])
+                    if not ok:
+                        raise _CorruptChunk("a message record is too short")
+                except _CorruptChunk:
+                    raise
+                except Exception as err:  # corrupt chunk: keep what came before
+                    raise _CorruptChunk(err) from err
+                for j, pr in parsed:
+                    if pr is not None:
+                        if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
+                            defined[pr[1]] = (i << 32) + j + 1
+                        _apply(scan, pr, True)
+                if len(m):
+                    parts.append((len(segments), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
+                    segments.append(chunk)
+            else:
+                pr = _parse(op, mv[body:nxt])
+                if pr is not None:
+                    if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
+                        defined[pr[1]] = i << 32
+                    _apply(scan, pr, False)
+        except _CorruptChunk as err:
+            scan.reason = f"chunk at byte {off} is corrupt ({err})"
+            scan.lost_chunk_range = (t0, t1)
+            n_top, complete = i, False
+            break
+        except (struct.error, UnicodeDecodeError, IndexError) as err:
+            scan.reason = f"malformed record after byte {off} ({err})"
+            n_top, complete = i, False
+            break
+
+    scan.complete = bool(complete)
+    if not complete:
+        scan.end_offset = int(offs[n_top]) if n_top < len(ops) else int(stop)
+
+    # messages -> per-channel arrays into one arena of bytes
+    if parts:
+        base = np.cumsum([0] + [len(s) for s in segments])
+        scan.arena = segments[0] if len(segments) == 1 else np.concatenate(segments)
+        cid = np.concatenate([p[1] for p in parts])
+        seq = np.concatenate([p[2] for p in parts])
+        t = np.concatenate([p[3] for p in parts])
+        shift = np.concatenate([np.full(len(p[1]), base[p[0]], dtype=np.int64) for p in parts])
+        ps = np.concatenate([p[4] for p in parts]) + shift
+        pe = np.concatenate([p[5] for p in parts]) + shift
+        ordinal = np.concatenate([p[6] for p in parts])
+        limit = np.int64(n_top) << 32   # messages after the point where reading stopped are lost
+        for c, ch in scan.channels.items():
+            sel = np.flatnonzero((cid == c) & (ordinal > defined.get(c, -1)) & (ordinal < limit))
+            ch.t, ch.seq, ch.starts, ch.ends = t[sel], seq[sel], ps[sel], pe[sel]
+    else:
+        scan.arena = np.zeros(0, dtype=np.uint8)
+        for ch in scan.channels.values():
+            ch.t = ch.seq = ch.starts = ch.ends = np.zeros(0, dtype=np.int64)
+    return scan
 
 
 def _decompress(comp: str, raw, usize: int) -> bytes:
@@ -219,8 +582,7 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
     raise ValueError(f"unsupported compression {comp!r}")
 
 
-def scan_file(path) -> tuple[_Scan, int]:
-    p = Path(path)
+def _read_bytes(p: Path) -> bytes:
     try:
         data = p.read_bytes()
     except FileNotFoundError as err:
@@ -229,12 +591,12 @@ def scan_file(path) -> tuple[_Scan, int]:
         raise StorageError(f"{p}: cannot read ({err.strerror})") from err
     if len(data) < 8 or data[:8] != MAGIC:
         raise FormatError(f"{p}: not an MCAP file (bad magic bytes)")
-    scan = _Scan()
-    buf = memoryview(data)
-    try:
-        _records(scan, buf, 8, len(data), False)
-    except (struct.error, UnicodeDecodeError, IndexError) as err:
-        scan.reason = f"malformed record after byte {scan.end_offset} ({err})"
+    return data
+
+
+def scan_file(path, *, fast: bool = True) -> tuple[_Scan, int]:
+    data = _read_bytes(Path(path))
+    scan = _scan_fast(data) if fast else _scan_reference(data)
     if not scan.complete and not scan.reason:
         scan.reason = "file ends inside a record (cut short)"
         off = scan.end_offset
@@ -250,8 +612,12 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
     A file cut short loads with every complete chunk; ``log.recovery`` says what was
     lost. ``strict=True`` raises instead.
     """
+    return _read_log(path, topics=topics, strict=strict, fast=True)
+
+
+def _read_log(path, *, topics=None, strict=False, fast=True) -> FieldLog:
     p = Path(path)
-    scan, size = scan_file(p)
+    scan, size = scan_file(p, fast=fast)
     log = FieldLog(source=str(p))
     log.meta = dict(scan.metadata)
     n_msgs = 0
@@ -268,12 +634,17 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
         except json.JSONDecodeError as err:
             raise InputError(f"{p} channel {ch.topic}: schema {sname} is not valid JSON") from err
         codec = codec_for_schema(schema)
-        t = np.asarray(ch.times, dtype=np.int64)
-        seq = np.asarray(ch.seqs, dtype=np.int64)
+        if scan.arena is None:
+            t = np.asarray(ch.times, dtype=np.int64)
+            seq = np.asarray(ch.seqs, dtype=np.int64)
+        else:
+            t, seq = ch.t, ch.seq
         order = np.argsort(seq, kind="stable")
-        payloads = [ch.payloads[i] for i in order] if not np.all(order[:-1] < order[1:]) else ch.payloads
         try:
-            cols = codec.decode(payloads, ch.topic)
+            if scan.arena is None:
+                cols = codec.decode_reference([ch.payloads[i] for i in order.tolist()], ch.topic)
+            else:
+                cols = codec.decode_spans(scan.arena, ch.starts[order], ch.ends[order], ch.topic)
         except InputError as err:
             raise InputError(f"{p} {err}") from err
         log.channels[ch.topic] = frame_from_columns(cols, t[order], codec)
@@ -290,3 +661,48 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
             messages_recovered=n_msgs, lost_from_ns=t_max,
             lost_to_ns=int(lost[1]) if lost else None, reason=scan.reason)
     return log
+
+
+def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:
+    """Load consecutive files of one run (e.g. a rotated recording) as one :class:`FieldLog`.
+
+    Files written by the recorder carry a ``usvlog.recording`` record (run id, part
+    number): they are put in part order and must be one run with no part missing.
+    Other files are taken in the order given. Channels are concatenated; metadata
+    comes from the first file, with the datum from the first file that has one.
+    A damaged file is recovered as :func:`read_log` does; its report is kept.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("read_logs: no files given")
+    logs = [read_log(p, topics=topics) for p in paths]
+    rec = [lg.meta.get("usvlog.recording") for lg in logs]
+    if all(r is not None for r in rec):
+        runs = {r.get("run_id") for r in rec}
+        if len(runs) != 1:
+            raise InputError(f"{paths[0]}: files belong to different recordings (run ids {', '.join(sorted(map(str, runs)))})")
+        order = sorted(range(len(logs)), key=lambda i: int(rec[i].get("part", 0)))
+        parts = [int(rec[i].get("part", 0)) for i in order]
+        for a, b, i in zip(parts, parts[1:], order[1:]):
+            if b != a + 1:
+                raise InputError(f"{paths[i]}: part {b} follows part {a}; part(s) missing between them")
+        logs = [logs[i] for i in order]
+    elif any(r is not None for r in rec):
+        raise InputError(f"{paths[0]}: mixes recorder files with other files")
+    out = FieldLog(source=", ".join(str(lg.source) for lg in logs))
+    out.meta = {k: dict(v) for k, v in logs[0].meta.items()}
+    for lg in logs:
+        if lg.datum is not None:
+            out.datum = lg.datum
+            break
+    topics_all = []
+    for lg in logs:
+        topics_all += [t for t in lg.channels if t not in topics_all]
+        out.schemas.update({t: s for t, s in lg.schemas.items() if t not in out.schemas})
+    for t in topics_all:
+        frames = [lg.channels[t] for lg in logs if t in lg.channels]
+        out.channels[t] = frames[0] if len(frames) == 1 else pd.concat(frames)
+    damaged = [lg for lg in logs if lg.recovery is not None]
+    if damaged:
+        out.recovery = damaged[-1].recovery
+    return out

@@ -1,0 +1,79 @@
+"""Time the estimator on a simulated run (default 1 hour at 100 Hz): the plain per-step
+filterpy loop (+ numpy RTS smoother) against the compiled fast path, side by side.
+
+    python benchmarks/bench_estimate.py [--duration-s 3600] [--model kinematic|dynamic]
+                                        [--reference-s SECONDS]
+
+``--reference-s`` times the filterpy loop on the first SECONDS only and scales its time
+to the whole run (the loop's cost is linear in the number of steps).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from usvlog.estimate import EstimateSettings, build_problem  # noqa: E402
+from usvlog.estimate.core import process_noise, run_fast, run_reference_path  # noqa: E402
+from usvlog.simulate import SimSettings, simulate  # noqa: E402
+from usvlog.vessel import default_vessel  # noqa: E402
+
+
+def head(pb, k):
+    """The first k steps of a problem."""
+    sel = pb.mstep < k
+    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                   m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel], mz=pb.mz[sel],
+                   mR=pb.mR[sel])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--model", default="dynamic", choices=["kinematic", "dynamic"])
+    ap.add_argument("--reference-s", type=float, default=None)
+    args = ap.parse_args()
+
+    t = time.perf_counter()
+    log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2), seed=1)
+    print(f"simulated {args.duration_s:.0f} s in {time.perf_counter() - t:.1f} s")
+    s = EstimateSettings(model=args.model)
+    pb = build_problem(log, s, default_vessel())
+    q = process_noise(s)
+    n = len(pb.dts)
+    run_fast(head(pb, 1000), q, s.max_consecutive_rejects, True)   # compile / load the cache
+
+    t, c = time.perf_counter(), time.process_time()
+    fast = run_fast(pb, q, s.max_consecutive_rejects, True)
+    t_fast, c_fast = time.perf_counter() - t, time.process_time() - c
+
+    k = n if args.reference_s is None else min(n, int(args.reference_s / s.output_step_s))
+    t, c = time.perf_counter(), time.process_time()
+    ref = run_reference_path(head(pb, k), q, s.max_consecutive_rejects, True)
+    t_ref, c_ref = (time.perf_counter() - t) * n / k, (time.process_time() - c) * n / k
+
+    real = (pb.t_ns[-1] - pb.t_ns[0]) * 1e-9
+    print(f"model {args.model}, {pb.nx} states, {n} steps, {len(pb.mstep)} measurements, {real:.0f} s of data")
+    print("(wall time; CPU time of this process in brackets: the machine may be shared)")
+    print(f"filterpy loop + numpy RTS : {t_ref:8.2f} s [{c_ref:7.2f} s]"
+          f"{' (scaled from %d steps)' % k if k < n else ''}"
+          f"  ({real / t_ref:6.0f}x [{real / c_ref:6.0f}x] real time)")
+    print(f"compiled fast path        : {t_fast:8.2f} s [{c_fast:7.2f} s]"
+          f"  ({real / t_fast:6.0f}x [{real / c_fast:6.0f}x] real time)")
+    print(f"speed-up                  : {t_ref / t_fast:8.1f}x [{c_ref / c_fast:6.1f}x]")
+    if k == n:
+        d = max(float(np.max(np.abs(fast.XS - ref.XS))), float(np.max(np.abs(fast.X - ref.X))))
+    else:  # compare the forward pass on the common head
+        d = float(np.max(np.abs(fast.X[:k] - ref.X)))
+    print(f"max |fast - filterpy|     : {d:.2e}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,75 @@
+import json
+
+import numpy as np
+import pytest
+
+from usvlog.cli import main
+from usvlog.io.mcapio import read_log, write_log
+from usvlog.simulate import SimSettings, simulate
+
+
+@pytest.fixture(scope="module")
+def current_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("est") / "run.mcap"
+    write_log(simulate("excitation", SimSettings(duration_s=60.0, current_mps=0.2), seed=2), path)
+    return path
+
+
+def test_estimate_dynamic_json(current_file, tmp_path, capsys):
+    out = tmp_path / "est.mcap"
+    assert main(["estimate", str(current_file), "--out", str(out), "--model", "dynamic", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["model"] == "dynamic" and rep["states"] == 8
+    assert rep["sensors"]["gnss"]["accepted"] + rep["sensors"]["gnss"]["rejected"] == 600
+    assert rep["sensors"]["compass"]["accepted"] + rep["sensors"]["compass"]["rejected"] == 1200
+    assert 1.5 < rep["sensors"]["gnss"]["mean_nis"] < 2.5
+    log = read_log(out)
+    assert {"/estimate/state", "/estimate/innovations", "/gnss/fix", "/truth/state"} <= set(log.topics)
+    st, tr = log["/estimate/state"], log["/truth/state"]
+    t = tr.reindex(st.index)
+    assert np.sqrt(np.mean((st["current_n_mps"] - t["current_n_mps"]).iloc[3000:] ** 2)) < 0.02
+    assert log.provenance[-1]["producer"] == "usvlog estimate"
+    # the output exists: refused without --force, one line, exit 2
+    assert main(["estimate", str(current_file), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exists" in err[0]
+
+
+def test_estimate_kinematic_text_and_no_current(current_file, tmp_path, capsys):
+    out = tmp_path / "k.mcap"
+    assert main(["estimate", str(current_file), "--out", str(out), "--tune"]) == 0
+    text = capsys.readouterr().out
+    assert "gnss" in text and "mean NIS" in text and "tuned process noise" in text
+    assert read_log(out)["/estimate/state"]["current_n_mps"].isna().all()
+    assert main(["estimate", str(current_file), "--out", str(out), "--current", "--force"]) == 2
+    assert "kinematic model cannot estimate a current" in capsys.readouterr().err
+
+
+def test_estimate_missing_channel_one_line(tmp_path, capsys):
+    log = simulate("excitation", SimSettings(duration_s=5.0), seed=1)
+    del log.channels["/gnss/fix"]
+    src = tmp_path / "nogps.mcap"
+    write_log(log, src)
+    assert main(["estimate", str(src), "--out", str(tmp_path / "o.mcap")]) == 2
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if "error" in ln]
+    assert len(err) == 1 and "nogps.mcap" in err[0] and "/gnss/fix" in err[0]
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_estimate_vessel_file_is_used(current_file, tmp_path, capsys):
+    from usvlog.vessel import default_vessel
+
+    v = default_vessel().with_params(m=40.0)
+    toml = tmp_path / "boat.toml"
+    toml.write_text(v.to_toml().replace('name = "paper-section-iv"', 'name = "heavier"'))
+    out = tmp_path / "v.mcap"
+    assert main(["estimate", str(current_file), "--out", str(out), "--model", "dynamic",
+                 "--vessel", str(toml), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["settings"]["vessel"] == "heavier" and rep["settings"]["vessel_params"]["m"] == 40.0
+    # a wrong mass makes the model worse at explaining the data than the log's own vessel
+    assert main(["estimate", str(current_file), "--out", str(tmp_path / "w.mcap"), "--model", "dynamic",
+                 "--json"]) == 0
+    own = json.loads(capsys.readouterr().out)
+    assert own["settings"]["vessel"] == "paper-section-iv"
+    assert own["loglik"] > rep["loglik"]

@@ -1,0 +1,138 @@
+"""NMEA sentence parsing, time-of-day placement, clock offset estimation, single-row encoding."""
+
+import datetime as dt
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from usvlog.channels import codec_for_topic, frame_from_columns, registered_topics
+from usvlog.nmea import NmeaError, checksum, parse_sentence, resolve_time_of_day, with_checksum
+from usvlog.timesync import OffsetEstimator
+
+
+def test_checksum_of_a_published_sentence():
+    # NMEA 0183 reference example (checksum *47 is printed in the standard's examples)
+    assert checksum("GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,") == "47"
+
+
+def test_gga_values_and_quality():
+    s = parse_sentence(with_checksum("GPGGA,123519.50,4807.038,S,01131.000,W,2,08,0.9,545.4,M,46.9,M,,"))
+    assert s.kind == "GGA" and s.has_fix
+    assert s.lat_deg == pytest.approx(-(48 + 7.038 / 60), abs=1e-12)
+    assert s.lon_deg == pytest.approx(-(11 + 31.0 / 60), abs=1e-12)
+    assert s.alt_m == pytest.approx(545.4 + 46.9)          # ellipsoid = MSL + geoid separation
+    assert (s.fix_quality, s.satellites, s.hdop) == (2, 8, 0.9)
+    assert s.time_of_day_ns == ((12 * 60 + 35) * 60 + 19) * 10**9 + 500_000_000
+    assert s.gps_time_ns is None                            # GGA has no date
+    nofix = parse_sentence(with_checksum("GPGGA,123520,,,,,0,00,,,M,,M,,"))
+    assert not nofix.has_fix and nofix.fix_quality == 0 and nofix.lat_deg is None
+
+
+def test_rmc_zda_dates_and_gll():
+    r = parse_sentence(with_checksum("GPRMC,235959.90,A,5954.000,N,01042.000,E,1.0,90.0,311224,,"))
+    assert r.date == dt.date(2024, 12, 31) and r.has_fix
+    midnight = int(dt.datetime(2024, 12, 31, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    assert r.gps_time_ns == midnight + 86_399 * 10**9 + 900_000_000
+    void = parse_sentence(with_checksum("GPRMC,000000,V,,,,,,,010125,,"))
+    assert not void.has_fix and void.date == dt.date(2025, 1, 1)
+    z = parse_sentence(with_checksum("GPZDA,201530.00,04,07,2002,00,00"))
+    assert z.gps_time_ns == int(dt.datetime(2002, 7, 4, 20, 15, 30, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    g = parse_sentence(with_checksum("GPGLL,4916.45,N,12311.12,W,225444,A,"))
+    assert g.has_fix and g.lat_deg == pytest.approx(49 + 16.45 / 60) and g.lon_deg == pytest.approx(-(123 + 11.12 / 60))
+
+
+def test_headings_true_magnetic_and_hdg_corrections():
+    t = parse_sentence(with_checksum("HEHDT,274.07,T"))
+    assert t.reference == "true" and t.heading_rad == pytest.approx(math.radians(274.07 - 360.0))
+    m = parse_sentence(with_checksum("HCHDM,10.5,M"))
+    assert m.reference == "magnetic" and m.heading_rad == pytest.approx(math.radians(10.5))
+    # sensor 98.3, deviation 1.5 E, variation 12.6 W: true = 98.3 + 1.5 - 12.6
+    h = parse_sentence(with_checksum("HCHDG,98.3,1.5,E,12.6,W"))
+    assert h.reference == "true" and h.heading_rad == pytest.approx(math.radians(98.3 + 1.5 - 12.6))
+    hm = parse_sentence(with_checksum("HCHDG,359.0,2.0,E,,"))
+    assert hm.reference == "magnetic" and hm.heading_rad == pytest.approx(math.radians(1.0))
+
+
+@pytest.mark.parametrize("text, reason", [
+    ("$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*48", "checksum"),
+    ("$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,", "checksum missing"),
+    ("GPGGA,123519,4807.038,N", "does not start"),
+    (with_checksum("GPGGA,12a519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"), "time"),
+    (with_checksum("GPGGA,123519,9907.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"), "out of range"),
+    (with_checksum("GPGGA,123519,4807.038,Q,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"), "hemisphere"),
+    (with_checksum("HEHDT,abc,T"), "heading"),
+    (with_checksum("HEHDT,400.0,T"), "out of range"),
+    ("$GP\x00\x01garbage", "checksum missing"),
+])
+def test_malformed_sentences_raise_with_a_reason(text, reason):
+    with pytest.raises(NmeaError, match=reason):
+        parse_sentence(text)
+
+
+def test_unknown_sentence_type_with_good_checksum_is_not_garbage():
+    s = parse_sentence(with_checksum("GPXYZ,1,2,3"))
+    assert s.kind == "XYZ" and not s.has_fix and s.heading_rad is None
+
+
+def test_time_of_day_lands_on_the_nearest_day():
+    day = 20_000 * 86_400 * 10**9
+    tod = (23 * 3600 + 59 * 60 + 59) * 10**9
+    # received just after midnight: the fix is from the day before
+    assert resolve_time_of_day(tod, day + 86_400 * 10**9 + 2 * 10**9) == day + tod
+    # received just before midnight: same day; early time of day received late: next day
+    assert resolve_time_of_day(tod, day + tod + 10**8) == day + tod
+    assert resolve_time_of_day(10**9, day + 86_399 * 10**9) == day + 86_400 * 10**9 + 10**9
+
+
+def test_offset_estimator_median_ignores_latency_bursts():
+    rng = np.random.default_rng(0)
+    est = OffsetEstimator(window=500)
+    true_off = 250_000_000
+    sensor = np.arange(1000) * 100_000_000 + 10**18
+    recv = sensor + true_off + rng.normal(0, 1e6, 1000).astype(np.int64)
+    recv[::10] += 2_000_000_000                  # 10% of messages arrive 2 s late
+    for r, s in zip(recv, sensor):
+        est.add(int(r), int(s))
+    e = est.estimate()
+    assert e.samples == 500 and abs(e.offset_ns - true_off) < 1_000_000
+    assert e.mad_ns < 2_000_000
+
+
+def _row_frame(topic, rng):
+    codec = codec_for_topic(topic)
+    cols = {}
+    for c, d in codec.dtypes().items():
+        if d == "str":
+            cols[c] = np.array(["true"], dtype=object)
+        elif d is np.bool_:
+            cols[c] = np.array([True])
+        elif d is np.int64:
+            cols[c] = np.array([int(rng.integers(0, 2**62))])
+        else:
+            cols[c] = np.array([rng.normal()])
+    return codec, frame_from_columns(cols, np.array([5], dtype=np.int64), codec)
+
+
+@pytest.mark.parametrize("topic", sorted(registered_topics()))
+def test_encode_row_matches_frame_encoding(topic):
+    codec, frame = _row_frame(topic, np.random.default_rng(1))
+    row = {c: frame[c].iloc[0] for c in frame.columns}
+    assert codec.encode_row(row, topic) == codec.encode(frame, topic)[0]
+    # a NaN number becomes null either way; decoding gives NaN back
+    fcols = [c for c, d in codec.dtypes().items() if d is np.float64]
+    if fcols:
+        row[fcols[0]] = math.nan
+        back = codec.decode([codec.encode_row(row, topic)], topic)
+        assert math.isnan(back[fcols[0]][0])
+
+
+def test_encode_row_names_missing_column():
+    codec = codec_for_topic("/thrust/command")
+    with pytest.raises(ValueError, match="/thrust/command.*left"):
+        codec.encode_row({"stamp_ns": 1, "right": 1.0, "unit": "newton"}, "/thrust/command")
+    # nullable columns may be left out
+    obj = codec.decode([codec.encode_row({"stamp_ns": 1, "left": 2.0, "right": 1.0, "unit": "newton"})])
+    assert math.isnan(obj["thrust_left_n"][0]) and obj["left"][0] == 2.0
+    assert isinstance(pd.Series(obj["left"]).iloc[0], float)

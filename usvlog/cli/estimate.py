@@ -1,0 +1,46 @@
+"""``usvlog estimate``: EKF + RTS smoother over a canonical log."""
+
+from __future__ import annotations
+
+from ..estimate import EstimateSettings, estimate
+from ..io.atomic import check_output
+from ..io.config import load_vessel
+from ..io.mcapio import read_log, write_log
+from .common import print_json, stage
+
+
+def register(sub) -> None:
+    p = sub.add_parser("estimate", help="estimate the state (EKF + RTS smoother) and add it to the log")
+    p.add_argument("log", help="canonical MCAP log")
+    p.add_argument("--out", required=True, help="output MCAP (every input channel plus /estimate/*)")
+    p.add_argument("--model", choices=["kinematic", "dynamic"], default="kinematic",
+                   help="kinematic (no vessel parameters) or dynamic (the paper's model, recorded thrust)")
+    p.add_argument("--vessel", default=None,
+                   help="vessel TOML for the dynamic model (default: the log's own vessel, else built-in)")
+    p.add_argument("--current", action="store_true", default=None,
+                   help="estimate the water current (default with --model dynamic)")
+    p.add_argument("--no-current", dest="current", action="store_false", help="no current states")
+    p.add_argument("--tune", action="store_true",
+                   help="pick process noise by maximising the innovation likelihood")
+    p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate")
+    p.add_argument("--no-smoother", action="store_true", help="forward filter only")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--json", action="store_true", help="print the report as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    check_output(args.out, args.force)
+    settings = EstimateSettings(model=args.model, current=args.current, tune=args.tune,
+                                gate_probability=args.gate, smoother=not args.no_smoother)
+    log = read_log(args.log)
+    vessel = load_vessel(args.vessel) if args.vessel else None
+    stage(f"estimating {args.log} ({args.model} model{', tuning' if args.tune else ''})")
+    result = estimate(log, settings, vessel)
+    write_log(result.to_log(log), args.out, force=args.force)
+    stage(f"wrote {args.out}")
+    if args.json:
+        print_json(result.report.to_dict())
+    else:
+        print(result.report.format())
+    return 0

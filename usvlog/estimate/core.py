@@ -1,0 +1,491 @@
+"""Offline state estimation of one run: inputs from a FieldLog, the forward EKF, the
+extended RTS smoother, innovation gating, process-noise tuning, results."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize
+from scipy.stats import chi2
+
+from ..channels import codec_for_topic, frame_from_columns
+from ..errors import ConfigError, InputError
+from ..frames import Datum, geodetic_to_ned, ssa
+from ..log import FieldLog, format_time
+from ..vessel import Vessel, default_vessel
+from . import kernels
+from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, SENSOR_DIM, SENSORS, YAW_RATE
+from .settings import EstimateSettings
+
+STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
+STATE_TOPIC = "/estimate/state"
+INNOVATION_TOPIC = "/estimate/innovations"
+GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thrust/command"
+
+# initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
+_P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
+_P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations / current
+
+
+def state_size(settings: EstimateSettings) -> int:
+    """9 for the kinematic model (n, e, psi, v_n, v_e, r, a_n, a_e, r_dot), 6 or 8
+    (with the current) for the dynamic one."""
+    if settings.model == "kinematic":
+        return 9
+    return 8 if settings.use_current else 6
+
+
+def initial_covariance(settings: EstimateSettings) -> np.ndarray:
+    nx = state_size(settings)
+    sig = (_P0_SIGMA + _P0_EXTRA[settings.model])[:nx]
+    return np.diag(np.square(sig))
+
+
+# -----------------------------------------------------------------------------
+# inputs
+# -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Problem:
+    """Everything the filter loops need, as arrays (shared by both paths)."""
+
+    t_ns: np.ndarray        # (N,) step times
+    is_grid: np.ndarray     # (N,) bool: an output time
+    dts: np.ndarray         # (N,) s since the previous step (0 for the first)
+    taus: np.ndarray        # (N, 2) tau_u, tau_r held over the step that ends at k
+    m_t_ns: np.ndarray      # (M,) measurement times
+    mstep: np.ndarray       # (M,) step index of each measurement
+    mkind: np.ndarray       # (M,) GNSS / COMPASS / YAW_RATE
+    mz: np.ndarray          # (M, 2)
+    mR: np.ndarray          # (M, 3) R00, R01, R11
+    x0: np.ndarray
+    P0: np.ndarray
+    prm: np.ndarray         # vessel parameters m, Iz, d11, d22, d33, xg
+    model: int
+    gates: np.ndarray       # (3,) NIS thresholds per sensor
+    dropouts: tuple         # ((start_ns, duration_s), ...) GNSS gaps bridged by prediction
+    skipped: dict = field(default_factory=dict)   # sensor -> records skipped (non-finite, out of range)
+
+    @property
+    def nx(self) -> int:
+        return len(self.x0)
+
+
+def _where(log: FieldLog) -> str:
+    return f"{log.source}: " if log.source else ""
+
+
+def _channel(log: FieldLog, topic: str, required: bool = True) -> pd.DataFrame | None:
+    frame = log.get(topic)
+    if frame is None or len(frame) == 0:
+        if required:
+            have = ", ".join(log.topics) or "none"
+            raise InputError(f"{_where(log)}channel {topic} is missing or empty "
+                             f"(the estimator needs it; channels: {have})")
+        return None
+    t = np.asarray(frame.index, dtype=np.int64)
+    back = np.flatnonzero(np.diff(t) < 0)
+    if len(back):
+        i = int(back[0]) + 1
+        raise InputError(f"{_where(log)}channel {topic}: time goes backwards at message {i} "
+                         f"({format_time(int(t[i]))} after {format_time(int(t[i - 1]))})")
+    return frame
+
+
+def _col(frame: pd.DataFrame, name: str, default=np.nan) -> np.ndarray:
+    if name in frame.columns:
+        return np.array(frame[name].to_numpy(), dtype=float)  # a writable copy
+    return np.full(len(frame), default, dtype=float)
+
+
+def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel):
+    """(tau_u, tau_r, ok): forces from thrust_*_n, else from the command through the
+    thruster map; ``ok`` marks the usable records (tau has one entry per usable one)."""
+    thr = vessel.thrusters
+    fl, fr = _col(frame, "thrust_left_n"), _col(frame, "thrust_right_n")
+    need = ~(np.isfinite(fl) & np.isfinite(fr))
+    if need.any():
+        units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "newton")
+        left, right = _col(frame, "left"), _col(frame, "right")
+        for unit in np.unique(units[need]):
+            sel = need & (units == unit)
+            try:
+                fl[sel] = thr.command_to_force(left[sel], unit)
+                fr[sel] = thr.command_to_force(right[sel], unit)
+            except ConfigError as err:
+                raise InputError(f"{_where(log)}channel {THRUST_TOPIC}: {err}") from err
+    ok = np.isfinite(fl) & np.isfinite(fr)
+    # a bad record is skipped: the command before it stays in force
+    tu, tr = thr.tau_from_forces(fl[ok], fr[ok])
+    return tu, tr, ok
+
+
+def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
+    s = settings
+    gps = _channel(log, GNSS_TOPIC)
+    comp = _channel(log, COMPASS_TOPIC)
+    thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
+    yaw = _channel(log, s.yaw_rate_topic) if s.yaw_rate_topic else None
+
+    # GNSS -> NED about the datum
+    tg = np.asarray(gps.index, dtype=np.int64)
+    lat, lon = _col(gps, "lat_deg"), _col(gps, "lon_deg")
+    good = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
+    if not good.any():
+        raise InputError(f"{_where(log)}channel {GNSS_TOPIC}: no valid fix")
+    datum = log.datum or Datum(lat_deg=float(lat[good][0]), lon_deg=float(lon[good][0]))
+    n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
+    tg = tg[good]
+    skipped = {"gnss": int((~good).sum())}
+    if s.gps_noise_m is not None:
+        var = s.gps_noise_m ** 2
+        Rg = np.column_stack([np.full(len(tg), var), np.zeros(len(tg)), np.full(len(tg), var)])
+    else:
+        nn, ne, ee = (_col(gps, c)[good] for c in ("cov_nn_m2", "cov_ne_m2", "cov_ee_m2"))
+        ok = np.isfinite(nn) & np.isfinite(ee) & (nn > 0) & (ee > 0)
+        ne = np.where(np.isfinite(ne) & ok, ne, 0.0)
+        fb = s.gps_fallback_m ** 2
+        Rg = np.column_stack([np.where(ok, nn, fb), ne, np.where(ok, ee, fb)])
+
+    # compass -> true heading of the hull
+    tc = np.asarray(comp.index, dtype=np.int64)
+    hd = _col(comp, "heading_rad")
+    gc = np.isfinite(hd)
+    if not gc.any():
+        raise InputError(f"{_where(log)}channel {COMPASS_TOPIC}: no valid heading")
+    if "reference" in comp.columns:
+        magnetic = comp["reference"].astype(str).to_numpy() == "magnetic"
+    else:
+        magnetic = np.zeros(len(comp), bool)
+    psi = ssa(hd + np.where(magnetic, s.declination_rad, 0.0) - s.compass_offset_rad)[gc]
+    tc = tc[gc]
+    skipped["compass"] = int((~gc).sum())
+    if s.compass_noise_rad is not None:
+        vc = np.full(len(tc), s.compass_noise_rad ** 2)
+    else:
+        sd = _col(comp, "std_rad")[gc]
+        vc = np.where(np.isfinite(sd) & (sd > 0), sd, s.compass_fallback_rad) ** 2
+
+    parts = [(tg, GNSS, np.column_stack([n, e]), Rg),
+             (tc, COMPASS, np.column_stack([psi, np.zeros(len(tc))]),
+              np.column_stack([vc, np.zeros(len(tc)), np.zeros(len(tc))]))]
+    if yaw is not None:
+        ty = np.asarray(yaw.index, dtype=np.int64)
+        ry = _col(yaw, "r_radps")
+        gy = np.isfinite(ry)
+        skipped["yaw_rate"] = int((~gy).sum())
+        vy = np.full(gy.sum(), s.yaw_rate_noise_radps ** 2)
+        parts.append((ty[gy], YAW_RATE, np.column_stack([ry[gy], np.zeros(gy.sum())]),
+                      np.column_stack([vy, np.zeros(len(vy)), np.zeros(len(vy))])))
+    m_t = np.concatenate([p[0] for p in parts])
+    mkind = np.concatenate([np.full(len(p[0]), p[1], np.int64) for p in parts])
+    mz = np.concatenate([p[2] for p in parts])
+    mR = np.concatenate([p[3] for p in parts])
+    order = np.lexsort((mkind, m_t))
+    m_t, mkind, mz, mR = m_t[order], mkind[order], mz[order], mR[order]
+
+    # step grid: the output grid plus every measurement time
+    t_start, t_end = int(m_t[0]), int(m_t[-1])
+    step_ns = int(round(s.output_step_s * 1e9))
+    grid = t_start + step_ns * np.arange((t_end - t_start) // step_ns + 1, dtype=np.int64)
+    t_ns = np.union1d(grid, m_t)
+    is_grid = np.isin(t_ns, grid)
+    mstep = np.searchsorted(t_ns, m_t)
+    dts = np.diff(t_ns, prepend=t_ns[0]).astype(float) * 1e-9
+
+    taus = np.zeros((len(t_ns), 2))
+    skipped["thrust"] = 0
+    if thrust is not None:
+        tu, tr, ok = _thrust_tau(log, thrust, vessel)
+        tt = np.asarray(thrust.index, dtype=np.int64)[ok]
+        skipped["thrust"] = int((~ok).sum())
+        # zero-order hold: the step ending at k uses the command in force at t[k-1]
+        i = np.searchsorted(tt, t_ns[:-1], side="right") - 1
+        has = (i >= 0) & (len(tt) > 0)
+        i = np.clip(i, 0, max(len(tt) - 1, 0))
+        if not len(tt):
+            tu = tr = np.zeros(1)
+        taus[1:, 0] = np.where(has, tu[i], 0.0)
+        taus[1:, 1] = np.where(has, tr[i], 0.0)
+
+    nx = state_size(s)
+    x0 = np.zeros(nx)
+    x0[0], x0[1], x0[2] = n[0], e[0], psi[0]
+    P0 = initial_covariance(s)
+    gate = chi2.ppf(s.gate_probability, [SENSOR_DIM[k] for k in range(3)]) if s.gate_probability < 1 \
+        else np.full(3, np.inf)
+
+    # GNSS gaps bridged by prediction: longer than 5 typical intervals and 1 s
+    dtg = np.diff(tg)
+    drop = ()
+    if len(dtg):
+        thr = max(5 * float(np.median(dtg)), 1e9)
+        gi = np.flatnonzero(dtg > thr)
+        drop = tuple((int(tg[i]), float(dtg[i]) * 1e-9) for i in gi)
+    return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, m_t_ns=m_t, mstep=mstep, mkind=mkind,
+                   mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
+                   model=DYNAMIC if s.model == "dynamic" else KINEMATIC,
+                   gates=np.asarray(gate, float), dropouts=drop, skipped=skipped)
+
+
+def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> np.ndarray:
+    """Diagonal of the continuous process-noise intensity for the state layout: on the
+    accelerations (kinematic) or on u, v, r and the current (dynamic)."""
+    nx = state_size(settings)
+    q = np.zeros(nx)
+    i = 6 if settings.model == "kinematic" else 3
+    q[i] = q[i + 1] = settings.q_uv_value if q_uv is None else q_uv
+    q[i + 2] = settings.q_r_value if q_r is None else q_r
+    if settings.model == "dynamic" and nx == 8:
+        q[6] = q[7] = settings.q_current if q_c is None else q_c
+    return q
+
+
+# -----------------------------------------------------------------------------
+# running the filter
+# -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RawRun:
+    X: np.ndarray          # forward posteriors (N, nx)
+    SDf: np.ndarray        # their one-sigma
+    PBf: np.ndarray        # their covariance block of states 2..4 (N, 3, 3)
+    XS: np.ndarray         # smoothed (N, nx)
+    SDs: np.ndarray
+    PBs: np.ndarray
+    innov: np.ndarray      # (M, 4)
+    accepted: np.ndarray   # (M,) 0/1/2
+    loglik: float
+
+
+def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+    N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
+    X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
+    PP = np.empty((N if smoother else 1, nx, nx))
+    innov = np.zeros((M, 4))
+    acc = np.zeros(M, np.int8)
+    ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
+                         pb.model, q, pb.gates, max_rej, X, PP, SDf, PBf, innov, acc)
+    if smoother:
+        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
+        kernels.smooth(X, PP, pb.dts, pb.taus, pb.prm, pb.model, q, XS, SDs, PBs)
+    else:
+        XS, SDs, PBs = X, SDf, PBf
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
+
+
+def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
+    """Innovation log-likelihood of the forward pass (no covariances stored)."""
+    N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
+    X = np.empty((N, nx))
+    one = np.empty((1, nx, nx))
+    return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR,
+                                 pb.prm, pb.model, q, pb.gates, max_rej, X, one, one[:, 0],
+                                 np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8)))
+
+
+def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+    from ..vessel import VesselParams
+    from .reference import run_reference
+
+    params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
+    out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
+                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)
+    return RawRun(*out[:8], float(out[8]))
+
+
+def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
+    """q_uv, q_r (and q_current) maximising the forward innovation likelihood.
+
+    Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps."""
+    if len(pb.dts) > max_steps:
+        k = max_steps
+        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                      m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
+                      mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
+    else:
+        sub = pb
+    nx = pb.nx
+    start = [math.log10(settings.q_uv_value), math.log10(settings.q_r_value)]
+    if settings.model == "dynamic" and nx == 8:
+        start.append(math.log10(settings.q_current))
+
+    def cost(z):
+        z = np.clip(z, -12, 2)
+        q = process_noise(settings, *(10.0 ** z))
+        return -forward_loglik(sub, q, settings.max_consecutive_rejects)
+
+    res = minimize(cost, np.array(start), method="Nelder-Mead",
+                   options={"xatol": 0.05, "fatol": 0.5, "maxfev": 120})
+    z = np.clip(res.x, -12, 2)
+    out = {"q_uv": float(10 ** z[0]), "q_r": float(10 ** z[1])}
+    if len(z) == 3:
+        out["q_current"] = float(10 ** z[2])
+    out["loglik"] = float(-res.fun)
+    out["evaluations"] = int(res.nfev)
+    return out
+
+
+# -----------------------------------------------------------------------------
+# results
+# -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SensorReport:
+    sensor: str
+    dim: int
+    accepted: int
+    rejected: int
+    forced: int        # accepted after max_consecutive_rejects rejections in a row
+    mean_nis: float    # over accepted measurements (near ``dim`` for a consistent filter)
+    skipped: int = 0   # records not usable (non-finite or out of range), not counted above
+
+    def to_dict(self) -> dict:
+        return {"sensor": self.sensor, "dim": self.dim, "accepted": self.accepted,
+                "rejected": self.rejected, "forced": self.forced, "mean_nis": self.mean_nis,
+                "skipped": self.skipped}
+
+
+@dataclass(frozen=True)
+class EstimateReport:
+    model: str
+    states: int
+    steps: int
+    duration_s: float
+    sensors: tuple[SensorReport, ...]
+    dropouts: tuple[tuple[int, float], ...]    # GNSS gaps bridged: (start t_ns, duration s)
+    loglik: float
+    thrust_skipped: int
+    settings: dict
+    tuned: dict | None = None
+
+    @property
+    def dropouts_bridged(self) -> int:
+        return len(self.dropouts)
+
+    def sensor(self, name: str) -> SensorReport:
+        for r in self.sensors:
+            if r.sensor == name:
+                return r
+        raise KeyError(name)
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "states": self.states, "steps": self.steps,
+                "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
+                "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
+                "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
+                "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned}
+
+    def format(self) -> str:
+        lines = [f"estimate ({self.model}, {self.states} states): {self.steps} steps over {self.duration_s:.1f} s"]
+        for r in self.sensors:
+            lines.append(f"  {r.sensor:8s} accepted {r.accepted:7d}  rejected {r.rejected:5d}"
+                         f"  mean NIS {r.mean_nis:6.3f} (dim {r.dim})"
+                         + (f"  forced {r.forced}" if r.forced else "")
+                         + (f"  skipped {r.skipped}" if r.skipped else ""))
+        if self.thrust_skipped:
+            lines.append(f"  thrust records skipped: {self.thrust_skipped}")
+        lines.append(f"  GNSS dropouts bridged: {self.dropouts_bridged}"
+                     + "".join(f"\n    {format_time(a)}  {d:.1f} s" for a, d in self.dropouts))
+        if self.tuned:
+            lines.append("  tuned process noise: " + ", ".join(
+                f"{k} {v:.3g}" for k, v in self.tuned.items() if k.startswith("q_")))
+        return "\n".join(lines)
+
+
+def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray,
+                 model: int) -> pd.DataFrame:
+    n_out = 8 if (model == DYNAMIC and X.shape[1] == 8) else 6
+    if model == KINEMATIC:  # NED velocity -> over-ground body velocity
+        X, SD = X[:, :6].copy(), SD[:, :6].copy()
+        X[:, 3], X[:, 4], SD[:, 3], SD[:, 4] = kernels.body_velocity(X[:, 2], X[:, 3], X[:, 4], PB)
+    cols = {}
+    for i, c in enumerate(STATE_COLUMNS):
+        cols[c] = X[:, i].copy() if i < n_out else np.full(len(X), np.nan)
+    for i, c in enumerate(STATE_COLUMNS):
+        cols[c + "_std"] = SD[:, i].copy() if i < n_out else np.full(len(X), np.nan)
+    return frame_from_columns(cols, t_ns, codec_for_topic(STATE_TOPIC))
+
+
+@dataclass(frozen=True)
+class EstimateResult:
+    """State estimate of a run.
+
+    ``state``: smoothed (or forward, with the smoother off) state on the output grid,
+    indexed by ``t_ns``; ``forward``: the forward filter alone, same columns;
+    ``innovations``: one row per measurement; ``report``: counts and consistency.
+    For the kinematic model u, v are body velocities over ground; for the dynamic model
+    they are the model's nu, relative to the water when current states are estimated.
+    """
+
+    state: pd.DataFrame
+    forward: pd.DataFrame
+    innovations: pd.DataFrame
+    report: EstimateReport
+    settings: EstimateSettings
+    vessel: Vessel | None = None
+
+    def to_dataframe(self) -> pd.DataFrame:
+        return self.state
+
+    def to_log(self, log: FieldLog) -> FieldLog:
+        """A copy of ``log`` plus /estimate/state, /estimate/innovations and provenance."""
+        out = log.copy()
+        out.set(STATE_TOPIC, self.state)
+        out.set(INNOVATION_TOPIC, self.innovations)
+        out.add_provenance(producer="usvlog estimate", source=log.source or "",
+                           settings=self.report.settings,
+                           vessel=self.vessel.name if self.vessel else "",
+                           report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
+        return out
+
+
+def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
+             vessel: Vessel | None = None) -> EstimateResult:
+    """Estimate the state of a run (forward EKF, then the extended RTS smoother).
+
+    ``vessel`` (dynamic model): defaults to the log's own vessel, else the built-in one.
+    """
+    if vessel is None:
+        vessel = log.vessel or default_vessel()
+    pb = build_problem(log, settings, vessel)
+    tuned = None
+    if settings.tune:
+        tuned = tune_process_noise(pb, settings)
+        settings = replace(settings, q_uv=tuned["q_uv"], q_r=tuned["q_r"],
+                           q_current=tuned.get("q_current", settings.q_current), tune=False)
+    q = process_noise(settings)
+    runner = run_fast if settings.fast else run_reference_path
+    raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
+    g = pb.is_grid
+    state = _state_frame(raw.XS[g], raw.SDs[g], raw.PBs[g], pb.t_ns[g], pb.model)
+    forward = _state_frame(raw.X[g], raw.SDf[g], raw.PBf[g], pb.t_ns[g], pb.model)
+    innov = frame_from_columns(
+        {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
+         "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
+         "accepted": raw.accepted > 0},
+        pb.m_t_ns, codec_for_topic(INNOVATION_TOPIC))
+    reps = []
+    for k in range(3):
+        sel = pb.mkind == k
+        if not sel.any():
+            continue
+        acc = raw.accepted[sel] > 0
+        nis = raw.innov[sel, 2][acc]
+        reps.append(SensorReport(sensor=SENSORS[k], dim=SENSOR_DIM[k], accepted=int(acc.sum()),
+                                 rejected=int((~acc).sum()), forced=int((raw.accepted[sel] == 2).sum()),
+                                 mean_nis=float(nis.mean()) if len(nis) else float("nan"),
+                                 skipped=pb.skipped.get(SENSORS[k], 0)))
+    sd = settings.to_dict()
+    sd["vessel"] = vessel.name if settings.model == "dynamic" else None
+    if settings.model == "dynamic":
+        sd["vessel_params"] = vessel.params.to_dict()
+    report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
+                            duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
+                            dropouts=pb.dropouts, loglik=raw.loglik,
+                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned)
+    return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
+                          settings=settings, vessel=vessel)

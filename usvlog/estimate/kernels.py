@@ -1,0 +1,393 @@
+"""Compiled (numba) kernels of the EKF and the extended RTS smoother.
+
+One implementation of the process model, the prediction, the gated measurement update,
+the forward pass and the smoother; the offline fast path and :class:`OnlineEKF` both run
+these. The dynamics come from :mod:`usvlog.vessel` (``nu_dot_terms`` and
+``nu_dot_jacobian_terms`` are plain arithmetic, compiled here as they are); the
+filterpy reference path (:mod:`.reference`) uses ``plant_rhs``/``plant_jacobian`` and
+a test holds both to each other and to finite differences.
+
+State, dynamic model: x = [n, e, psi, u, v, r] (+ [c_n, c_e] water current, NED), with
+nu = [u, v, r] relative to the water. Kinematic model: x = [n, e, psi, v_n, v_e, r, a_n,
+a_e, r_dot], over-ground velocity in NED driven by random-walk accelerations (over
+ground, a boat's velocity turns far more smoothly in NED than its body-frame sway does
+in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Discretisation: Euler
+step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity and
+current states (the kinematic accelerations carry the noise). Measurements select state entries (GNSS: n, e; compass: psi, with the
+residual wrapped; yaw rate: r).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..vessel import nu_dot_jacobian_terms, nu_dot_terms
+
+KINEMATIC, DYNAMIC = 0, 1
+GNSS, COMPASS, YAW_RATE = 0, 1, 2
+SENSORS = ("gnss", "compass", "yaw_rate")
+SENSOR_DIM = (2, 1, 1)
+
+_nu_dot = njit(cache=True)(nu_dot_terms)
+_nu_jac = njit(cache=True)(nu_dot_jacobian_terms)
+
+_TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True)
+def wrap(a):
+    """ssa() for one float: [-pi, pi)."""
+    return (a + math.pi) % _TWO_PI - math.pi
+
+
+@njit(cache=True)
+def process(x, tau_u, tau_r, prm, model, f, F):
+    """x_dot = f(x, tau) and F = df/dx into ``f``, ``F`` (eqs. (1)+(3), current in NED)."""
+    nx = x.shape[0]
+    for i in range(nx):
+        f[i] = 0.0
+        for j in range(nx):
+            F[i, j] = 0.0
+    if model == KINEMATIC:
+        # [n, e, psi, v_n, v_e, r] driven by random-walk accelerations [a_n, a_e, r_dot]
+        for i in range(6):
+            f[i] = x[3 + i]
+            F[i, 3 + i] = 1.0
+        return
+    psi, u, v, r = x[2], x[3], x[4], x[5]
+    c, s = math.cos(psi), math.sin(psi)
+    f[0] = c * u - s * v
+    f[1] = s * u + c * v
+    f[2] = r
+    F[0, 2] = -s * u - c * v
+    F[1, 2] = c * u - s * v
+    F[0, 3], F[0, 4] = c, -s
+    F[1, 3], F[1, 4] = s, c
+    F[2, 5] = 1.0
+    if nx == 8:  # water current, NED
+        f[0] += x[6]
+        f[1] += x[7]
+        F[0, 6] = 1.0
+        F[1, 7] = 1.0
+    if model == DYNAMIC:
+        ud, vd, rd = _nu_dot(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+        f[3], f[4], f[5] = ud, vd, rd
+        J = _nu_jac(u, v, r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+        for i in range(3):
+            for j in range(3):
+                F[3 + i, 3 + j] = J[3 * i + j]
+
+
+def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
+    """Over-ground body velocities u, v from NED velocity and heading (arrays), and, given
+    the (..., 3, 3) covariance of (psi, v_n, v_e), their one-sigma (first order)."""
+    c, s = np.cos(psi), np.sin(psi)
+    u, v = c * vn + s * ve, -s * vn + c * ve
+    if P_psi_vn_ve is None:
+        return u, v
+    Ju = np.stack([v, c, s], -1)            # du/d(psi, vn, ve)
+    Jv = np.stack([-u, -s, c], -1)
+    su = np.einsum("...i,...ij,...j->...", Ju, P_psi_vn_ve, Ju)
+    sv = np.einsum("...i,...ij,...j->...", Jv, P_psi_vn_ve, Jv)
+    return u, v, np.sqrt(np.maximum(su, 0.0)), np.sqrt(np.maximum(sv, 0.0))
+
+
+@njit(cache=True)
+def sparse_matmul(A, B, out):
+    """out = A B, skipping the zero entries of A (the model Jacobians have a few a row)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(B.shape[1]):
+            out[i, j] = 0.0
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            if a != 0.0:
+                for j in range(B.shape[1]):
+                    out[i, j] += a * B[k, j]
+
+
+@njit(cache=True)
+def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
+    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P.
+
+    Po = Phi P Phi^T + Q dt is formed as P + dt (F P + P F^T) + dt^2 F P F^T over the
+    non-zero entries of the sparse F (a few per row), upper triangle mirrored."""
+    nx = x.shape[0]
+    process(x, tau_u, tau_r, prm, model, f, F)
+    for i in range(nx):
+        xo[i] = x[i] + dt * f[i]
+        for j in range(nx):
+            Phi[i, j] = dt * F[i, j]
+        Phi[i, i] += 1.0
+    xo[2] = wrap(xo[2])
+    sparse_matmul(F, P, tmp)
+    dt2 = dt * dt
+    for i in range(nx):
+        for j in range(i, nx):
+            acc = 0.0
+            for k in range(nx):
+                a = F[j, k]
+                if a != 0.0:
+                    acc += tmp[i, k] * a
+            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * acc
+            Po[i, j] = v
+            Po[j, i] = v
+        Po[i, i] += q[i] * dt
+
+
+@njit(cache=True)
+def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
+    """Gated measurement update in place (Joseph form).
+
+    Writes [res_0, res_1, nis, log-likelihood term] into ``res``; returns True when the
+    measurement was applied (NIS within ``gate`` or ``force``).
+    """
+    nx = x.shape[0]
+    m = 2 if kind == GNSS else 1
+    if kind == GNSS:
+        i0, i1 = 0, 1
+    elif kind == COMPASS:
+        i0, i1 = 2, 2
+    else:
+        i0, i1 = 5, 5
+    S01 = S10 = S11 = 0.0
+    I01 = I10 = I11 = 0.0
+    y0 = z0 - x[i0]
+    if kind == COMPASS:
+        y0 = wrap(y0)
+    if m == 2:
+        y1 = z1 - x[i1]
+        S00 = P[i0, i0] + R00
+        S01 = P[i0, i1] + R01
+        S10 = P[i1, i0] + R01
+        S11 = P[i1, i1] + R11
+        det = S00 * S11 - S01 * S10
+        I00, I01, I10, I11 = S11 / det, -S01 / det, -S10 / det, S00 / det
+        nis = y0 * (I00 * y0 + I01 * y1) + y1 * (I10 * y0 + I11 * y1)
+        logdet = math.log(det)
+    else:
+        y1 = math.nan
+        S00 = P[i0, i0] + R00
+        I00 = 1.0 / S00
+        nis = y0 * y0 * I00
+        logdet = math.log(S00)
+    res[0], res[1], res[2] = y0, y1, nis
+    res[3] = -0.5 * (min(nis, gate) + logdet + m * math.log(_TWO_PI))
+    if nis > gate and not force:
+        return False
+    # K = P H^T S^-1
+    for i in range(nx):
+        if m == 2:
+            K[i, 0] = P[i, i0] * I00 + P[i, i1] * I10
+            K[i, 1] = P[i, i0] * I01 + P[i, i1] * I11
+        else:
+            K[i, 0] = P[i, i0] * I00
+            K[i, 1] = 0.0
+    for i in range(nx):
+        if m == 2:
+            x[i] += K[i, 0] * y0 + K[i, 1] * y1
+        else:
+            x[i] += K[i, 0] * y0
+    x[2] = wrap(x[2])
+    # Joseph form (I - K H) P (I - K H)^T + K R K^T, expanded for a selector H:
+    # P - K (H P) - (H P)^T K^T + K (H P H^T + R) K^T, upper triangle mirrored
+    for i in range(nx):
+        for j in range(i, nx):
+            if m == 2:
+                kpk = (K[i, 0] * (S00 * K[j, 0] + S01 * K[j, 1])
+                       + K[i, 1] * (S10 * K[j, 0] + S11 * K[j, 1]))
+                v = (P[i, j] - K[i, 0] * P[i0, j] - K[i, 1] * P[i1, j]
+                     - P[i, i0] * K[j, 0] - P[i, i1] * K[j, 1] + kpk)
+            else:
+                v = P[i, j] - K[i, 0] * P[i0, j] - P[i, i0] * K[j, 0] + K[i, 0] * S00 * K[j, 0]
+            P2[i, j] = v
+            P2[j, i] = v
+    for i in range(nx):
+        for j in range(nx):
+            P[i, j] = P2[i, j]
+    return True
+
+
+class Work:
+    """Scratch arrays for one state dimension (allocated once)."""
+
+    def __init__(self, nx: int):
+        self.f = np.zeros(nx)
+        self.F = np.zeros((nx, nx))
+        self.Phi = np.zeros((nx, nx))
+        self.tmp = np.zeros((nx, nx))
+        self.tmp2 = np.zeros((nx, nx))
+        self.K = np.zeros((nx, 2))
+        self.xo = np.zeros(nx)
+        self.Po = np.zeros((nx, nx))
+        self.res = np.zeros(4)
+
+
+@njit(cache=True)
+def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
+            X, PP, SD, PB, innov, accepted):
+    """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
+
+    Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
+    covariance block of states 2..4 in PB[k] (PP, SD, PB may have length 1: not stored),
+    per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
+    (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
+    the log-likelihood terms.
+    """
+    nx = x0.shape[0]
+    N = dts.shape[0]
+    M = mstep.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    xo = np.zeros(nx)
+    Po = np.zeros((nx, nx))
+    Phi = np.zeros((nx, nx))
+    f = np.zeros(nx)
+    F = np.zeros((nx, nx))
+    tmp = np.zeros((nx, nx))
+    P2 = np.zeros((nx, nx))
+    K = np.zeros((nx, 2))
+    res = np.zeros(4)
+    store = PP.shape[0] == N
+    rej = np.zeros(3, np.int64)
+    ll = 0.0
+    j = 0
+    for k in range(N):
+        if k > 0 and dts[k] > 0.0:
+            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, xo, Po, Phi, f, F, tmp)
+            for a in range(nx):
+                x[a] = xo[a]
+                for b in range(nx):
+                    P[a, b] = Po[a, b]
+        while j < M and mstep[j] == k:
+            kind = mkind[j]
+            force = rej[kind] >= max_rej
+            ok = update(x, P, kind, mz[j, 0], mz[j, 1], mR[j, 0], mR[j, 1], mR[j, 2],
+                        gates[kind], force, res, K, P2)
+            for a in range(4):
+                innov[j, a] = res[a]
+            ll += res[3]
+            if ok:
+                accepted[j] = 2 if force else 1
+                rej[kind] = 0
+            else:
+                accepted[j] = 0
+                rej[kind] += 1
+            j += 1
+        for a in range(nx):
+            X[k, a] = x[a]
+        if store:
+            for a in range(nx):
+                for b in range(nx):
+                    PP[k, a, b] = P[a, b]
+        if SD.shape[0] == N:
+            for a in range(nx):
+                SD[k, a] = math.sqrt(max(P[a, a], 0.0))
+            for a in range(3):
+                for b in range(3):
+                    PB[k, a, b] = P[2 + a, 2 + b]
+    return ll
+
+
+@njit(cache=True)
+def _chol_solve(L, inv, A, B, X):
+    """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
+    (reciprocals of the diagonal: no divisions in the loops)."""
+    n = A.shape[0]
+    for i in range(n):
+        for j in range(i + 1):
+            s = A[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                L[i, i] = math.sqrt(s)
+                inv[i] = 1.0 / L[i, i]
+            else:
+                L[i, j] = s * inv[j]
+    for c in range(B.shape[1]):
+        for i in range(n):
+            s = B[i, c]
+            for k in range(i):
+                s -= L[i, k] * X[k, c]
+            X[i, c] = s * inv[i]
+        for i in range(n - 1, -1, -1):
+            s = X[i, c]
+            for k in range(i + 1, n):
+                s -= L[k, i] * X[k, c]
+            X[i, c] = s * inv[i]
+
+
+@njit(cache=True)
+def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
+    """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
+    with the same prediction as the forward pass. Writes the smoothed states in XS,
+    their one-sigma in SD and the covariance block of states 2..4 in PB."""
+    N, nx = X.shape
+    xp = np.zeros(nx)
+    Pp = np.zeros((nx, nx))
+    Phi = np.zeros((nx, nx))
+    f = np.zeros(nx)
+    F = np.zeros((nx, nx))
+    tmp = np.zeros((nx, nx))
+    B = np.zeros((nx, nx))
+    Ct = np.zeros((nx, nx))
+    L = np.zeros((nx, nx))
+    inv = np.zeros(nx)
+    Ps = PP[N - 1].copy()
+    Pn = np.zeros((nx, nx))
+    d = np.zeros(nx)
+    for a in range(nx):
+        XS[N - 1, a] = X[N - 1, a]
+        SD[N - 1, a] = math.sqrt(max(Ps[a, a], 0.0))
+    for a in range(3):
+        for b in range(3):
+            PB[N - 1, a, b] = Ps[2 + a, 2 + b]
+    for k in range(N - 2, -1, -1):
+        Pk = PP[k]
+        xk = X[k]
+        if dts[k + 1] > 0.0:
+            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q,
+                    xp, Pp, Phi, f, F, tmp)
+        else:
+            for a in range(nx):
+                xp[a] = xk[a]
+                for b in range(nx):
+                    Pp[a, b] = Pk[a, b]
+                    Phi[a, b] = 1.0 if a == b else 0.0
+        # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
+        sparse_matmul(Phi, Pk, B)
+        _chol_solve(L, inv, Pp, B, Ct)
+        for a in range(nx):
+            d[a] = XS[k + 1, a] - xp[a]
+        d[2] = wrap(d[2])
+        for a in range(nx):
+            acc = 0.0
+            for c in range(nx):
+                acc += Ct[c, a] * d[c]
+            XS[k, a] = xk[a] + acc
+        XS[k, 2] = wrap(XS[k, 2])
+        # Ps_k = Pk + C (Ps - Pp) C^T
+        for a in range(nx):
+            for b in range(nx):
+                Pn[a, b] = Ps[a, b] - Pp[a, b]
+        for a in range(nx):
+            for b in range(nx):
+                acc = 0.0
+                for c in range(nx):
+                    acc += Ct[c, a] * Pn[c, b]
+                tmp[a, b] = acc
+        for a in range(nx):
+            for b in range(a, nx):
+                acc = 0.0
+                for c in range(nx):
+                    acc += tmp[a, c] * Ct[c, b]
+                Ps[a, b] = Pk[a, b] + acc
+                Ps[b, a] = Ps[a, b]
+        for a in range(nx):
+            SD[k, a] = math.sqrt(max(Ps[a, a], 0.0))
+        for a in range(3):
+            for b in range(3):
+                PB[k, a, b] = Ps[2 + a, 2 + b]

@@ -1,0 +1,84 @@
+"""An online EKF for closed-loop simulation ("controller on EKF estimates at 100 Hz").
+
+Runs the same compiled prediction and gated update as the offline estimator
+(:mod:`.kernels`), one call at a time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ConfigError
+from ..vessel import Vessel
+from . import kernels
+from .core import initial_covariance, process_noise, state_size
+from .settings import EstimateSettings
+
+
+class OnlineEKF:
+    """Recursive EKF on the vessel model (dynamic by default) or the kinematic model.
+
+    ``predict(dt, tau_u, tau_r)`` propagates with the applied forces (ignored by the
+    kinematic model); ``update_gnss`` / ``update_heading`` apply a measurement through
+    the chi-square gate and return True when it was accepted. ``x`` is the state of
+    :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
+    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot]. ``P`` is its covariance.
+    """
+
+    def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
+                 x0=None, P0=None):
+        self.settings = settings or EstimateSettings(model="dynamic")
+        s = self.settings
+        self.vessel = vessel
+        self.nx = state_size(s)
+        self._model = kernels.DYNAMIC if s.model == "dynamic" else kernels.KINEMATIC
+        self._prm = vessel.params.as_array()
+        self._q = process_noise(s)
+        self._x = np.zeros(self.nx) if x0 is None else np.array(x0, float).copy()
+        if self._x.shape != (self.nx,):
+            raise ConfigError(f"OnlineEKF: x0 must have {self.nx} entries")
+        self._P = initial_covariance(s) if P0 is None else np.array(P0, float).copy()
+        from scipy.stats import chi2
+
+        self._gates = np.array([chi2.ppf(s.gate_probability, d) if s.gate_probability < 1 else math.inf
+                                for d in kernels.SENSOR_DIM])
+        self._rej = [0, 0, 0]
+        self._w = kernels.Work(self.nx)
+        self.last_nis = math.nan
+
+    @property
+    def x(self) -> np.ndarray:
+        return self._x.copy()
+
+    @property
+    def P(self) -> np.ndarray:
+        return self._P.copy()
+
+    def predict(self, dt: float, tau_u: float = 0.0, tau_r: float = 0.0) -> None:
+        if not dt > 0:
+            return
+        w = self._w
+        kernels.predict(self._x, self._P, float(tau_u), float(tau_r), float(dt), self._prm, self._model,
+                        self._q, w.xo, w.Po, w.Phi, w.f, w.F, w.tmp)
+        self._x[:] = w.xo
+        self._P[:] = w.Po
+
+    def _update(self, kind, z0, z1, R00, R01, R11) -> bool:
+        w = self._w
+        force = self._rej[kind] >= self.settings.max_consecutive_rejects
+        ok = kernels.update(self._x, self._P, kind, float(z0), float(z1), float(R00), float(R01),
+                            float(R11), self._gates[kind], force, w.res, w.K, w.tmp2)
+        self.last_nis = float(w.res[2])
+        self._rej[kind] = 0 if ok else self._rej[kind] + 1
+        return bool(ok)
+
+    def update_gnss(self, n_m: float, e_m: float, var_m2: float) -> bool:
+        return self._update(kernels.GNSS, n_m, e_m, var_m2, 0.0, var_m2)
+
+    def update_heading(self, psi_rad: float, var_rad2: float) -> bool:
+        return self._update(kernels.COMPASS, psi_rad, 0.0, var_rad2, 0.0, 0.0)
+
+    def update_yaw_rate(self, r_radps: float, var: float) -> bool:
+        return self._update(kernels.YAW_RATE, r_radps, 0.0, var, 0.0, 0.0)

@@ -1,0 +1,56 @@
+"""Read and write baseline files (TOML) of accepted regression metrics."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from ..baseline import BaselineEntry
+from ..errors import ConfigError
+from .atomic import write_text_atomic
+from .config import read_toml
+
+
+def read_baseline(path) -> dict[str, BaselineEntry]:
+    p = Path(path)
+    if not p.exists():
+        return {}
+    doc = read_toml(p)
+    metrics = doc.get("metrics", {})
+    if not isinstance(metrics, dict):
+        raise ConfigError(f"{p}: [metrics] must be a table of metric tables")
+    try:
+        return {k: BaselineEntry.from_dict(k, v) for k, v in metrics.items()}
+    except ConfigError as err:
+        raise ConfigError(f"{p}: {err}") from err
+
+
+def _num(v: float) -> str:
+    if math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    if math.isnan(v):
+        return "nan"
+    return repr(float(v))
+
+
+def _q(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
+    lines = [f"# {line}" for line in header.splitlines()] + ([""] if header else [])
+    for name in sorted(entries):
+        e = entries[name]
+        lines.append(f"[metrics.{name}]")
+        lines.append(f"value = {_num(e.value)}")
+        lines.append(f"worse = {_q(e.worse)}")
+        lines.append(f"abs_tol = {_num(e.abs_tol)}")
+        lines.append(f"rel_tol = {_num(e.rel_tol)}")
+        if e.description:
+            lines.append(f"description = {_q(e.description)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_baseline(path, entries: dict[str, BaselineEntry], header: str = "") -> None:
+    write_text_atomic(path, format_baseline(entries, header), force=True)
