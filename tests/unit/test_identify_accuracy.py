@@ -100,3 +100,18 @@ def test_fixed_mass_is_kept_and_thrust_map_guess_reported(excitation_log):
     idf = Identifier("equation-error", fix={"m": 33.0}).fit([log], guess)
     assert idf.params_.m == 33.0 and idf.stderr_["m"] == 0.0
     assert any("thruster map is only a guess" in v for v in idf.verdict_)
+
+
+def test_two_runs_fitted_jointly_each_with_its_own_current():
+    sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
+    a = simulate("excitation", SimSettings(duration_s=180.0, current_mps=0.2, current_dir_deg=CUR_DIR,
+                                           sensors=sens), seed=31)
+    b = simulate("turns", SimSettings(duration_s=180.0, current_mps=0.1, current_dir_deg=200.0,
+                                      sensors=sens), seed=32)
+    idf = Identifier("output-error", segment_s=180.0).fit([a, b])
+    err = _errors(idf)
+    assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
+    ca, cb = np.array(idf.current_[0]), np.array(idf.current_[1])
+    ta = 0.2 * np.array([np.cos(np.radians(CUR_DIR)), np.sin(np.radians(CUR_DIR))])
+    tb = 0.1 * np.array([np.cos(np.radians(200.0)), np.sin(np.radians(200.0))])
+    assert np.abs(ca - ta).max() < 0.01 and np.abs(cb - tb).max() < 0.01, (ca, cb)
