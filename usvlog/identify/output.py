@@ -147,7 +147,7 @@ class Problem:
         return x0
 
 
-def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-8):
+def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     """Solve each segment's initial state (Gauss-Newton, per-segment step halving);
     return residuals, sensitivity rows, initial states and the per-segment normal matrices."""
     x0s = x0s.copy()
@@ -176,6 +176,9 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-8):
             return r, J, x0s, JtJ
         Jtr = prob.seg_sum(Jx * r[:, None])
         step = -np.linalg.solve(JtJ, Jtr[:, :, None])[:, :, 0]
+        # Gauss-Newton's predicted decrease of r.r is -Jtr.step: stop when it is negligible
+        if -np.sum(Jtr * step) <= 1e-2 * tol * np.sum(seg_cost):
+            return r, J, x0s, JtJ
         seg_cost_prev = seg_cost
         x0s = x0s + step
     return r, J, x0s, JtJ
@@ -297,8 +300,8 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             lo[:nf], hi[:nf] = th_lo[free], th_hi[free]
             p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
         sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
-                            ftol=1e-10 if last else 1e-6, xtol=1e-10 if last else 1e-6,
-                            gtol=1e-10 if last else 1e-6, max_nfev=max_nfev, verbose=verbose)
+                            ftol=1e-8 if last else 1e-6, xtol=1e-8 if last else 1e-6,
+                            gtol=1e-8 if last else 1e-6, max_nfev=max_nfev, verbose=verbose)
         nfev += vp.nfev
         theta, cur = vp.unpack(sol.x)
         vp._eval(sol.x)

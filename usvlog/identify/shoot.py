@@ -2,7 +2,8 @@
 
 The dynamics are :func:`usvlog.vessel.nu_dot_terms` itself, compiled by numba (no
 second copy of the model); its derivatives with respect to (u, v, r) and to the six
-parameters are taken by complex step, exact to rounding. Kinematics are eq. (1) plus a
+parameters are M^-1 (dF - dM nu_dot) with F = tau - C(nu) nu - D nu (eqs. (4)-(6)),
+checked against finite differences of the whole simulation in the tests. Kinematics are eq. (1) plus a
 constant current, as in :func:`usvlog.simulate.plant_step`.
 
 Sensitivity columns: 0-5 the segment's initial state (n, e, psi, u, v, r), 6-11 the
@@ -19,7 +20,6 @@ import numpy as np
 from ..vessel import nu_dot_terms
 
 NS = 14
-_CS = 1e-30  # complex step
 
 _nd = numba.njit(cache=True)(nu_dot_terms)
 
@@ -40,13 +40,16 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
         return
     a02 = -s * u - c * v
     a12 = c * u - s * v
-    h = 1j * _CS
-    bu = _nd(u + h, v + 0j, r + 0j, tu, tr, m, Iz, d11, d22, d33, xg)
-    bv = _nd(u + 0j, v + h, r + 0j, tu, tr, m, Iz, d11, d22, d33, xg)
-    br = _nd(u + 0j, v + 0j, r + h, tu, tr, m, Iz, d11, d22, d33, xg)
-    A00, A01, A02 = bu[0].imag / _CS, bv[0].imag / _CS, br[0].imag / _CS
-    A10, A11, A12 = bu[1].imag / _CS, bv[1].imag / _CS, br[1].imag / _CS
-    A20, A21, A22 = bu[2].imag / _CS, bv[2].imag / _CS, br[2].imag / _CS
+    # d(nu_dot)/d(nu) and d(nu_dot)/d(theta) = M^-1 (dF - dM nu_dot), F = tau - C(nu) nu - D nu
+    mx = m * xg
+    det = m * Iz - mx * mx
+    i00, i11, i12, i22 = 1.0 / m, Iz / det, -mx / det, m / det
+    g00, g01, g02 = -d11, m * r, 2.0 * mx * r + m * v
+    g10, g11, g12 = -m * r, -d22, -m * u
+    g20, g21, g22 = -mx * r, 0.0, -mx * u - d33
+    A00, A01, A02 = i00 * g00, i00 * g01, i00 * g02
+    A10, A11, A12 = i11 * g10 + i12 * g20, i11 * g11 + i12 * g21, i11 * g12 + i12 * g22
+    A20, A21, A22 = i12 * g10 + i22 * g20, i12 * g11 + i22 * g21, i12 * g12 + i22 * g22
     for k in range(NS):
         s2, s3, s4, s5 = S[2, k], S[3, k], S[4, k], S[5, k]
         Sd[0, k] = a02 * s2 + c * s3 - s * s4
@@ -55,47 +58,49 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
         Sd[3, k] = A00 * s3 + A01 * s4 + A02 * s5
         Sd[4, k] = A10 * s3 + A11 * s4 + A12 * s5
         Sd[5, k] = A20 * s3 + A21 * s4 + A22 * s5
+    ud, vd, rd = a[0], a[1], a[2]
     for j in range(6):
-        p0 = m + (h if j == 0 else 0j)
-        p1 = Iz + (h if j == 1 else 0j)
-        p2 = d11 + (h if j == 2 else 0j)
-        p3 = d22 + (h if j == 3 else 0j)
-        p4 = d33 + (h if j == 4 else 0j)
-        p5 = xg + (h if j == 5 else 0j)
-        b = _nd(u + 0j, v + 0j, r + 0j, tu, tr, p0, p1, p2, p3, p4, p5)
-        Sd[3, 6 + j] += b[0].imag / _CS
-        Sd[4, 6 + j] += b[1].imag / _CS
-        Sd[5, 6 + j] += b[2].imag / _CS
+        if j == 0:      # m (with xg held: m xg moves too)
+            q0, q1, q2 = xg * r * r + v * r - ud, -u * r - vd - xg * rd, -xg * u * r - xg * vd
+        elif j == 1:    # Iz
+            q0, q1, q2 = 0.0, 0.0, -rd
+        elif j == 2:    # d11
+            q0, q1, q2 = -u, 0.0, 0.0
+        elif j == 3:    # d22
+            q0, q1, q2 = 0.0, -v, 0.0
+        elif j == 4:    # d33
+            q0, q1, q2 = 0.0, 0.0, -r
+        else:           # xg
+            q0, q1, q2 = m * r * r, -m * rd, -m * u * r - m * vd
+        Sd[3, 6 + j] += i00 * q0
+        Sd[4, 6 + j] += i11 * q1 + i12 * q2
+        Sd[5, 6 + j] += i12 * q1 + i22 * q2
     Sd[0, 12] += 1.0
     Sd[1, 13] += 1.0
 
 
 @numba.njit(cache=True)
+def _trial(x, S, h, k, K, sens, xt, St):
+    """xt = x + h k (and St = S + h K): the state an RK4 stage is evaluated at."""
+    for i in range(6):
+        xt[i] = x[i] + h * k[i]
+    if sens:
+        for i in range(6):
+            for c in range(NS):
+                St[i, c] = S[i, c] + h * K[i, c]
+
+
+@numba.njit(cache=True)
 def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
-    """One RK4 step of state and sensitivities; ``w6`` (9, 6) and ``W6`` (9, 6, NS) are scratch."""
+    """One RK4 step of state and sensitivities; ``w6`` (5, 6) and ``W6`` (5, 6, NS) are scratch."""
     k1, k2, k3, k4, xt = w6[0], w6[1], w6[2], w6[3], w6[4]
     K1, K2, K3, K4, St = W6[0], W6[1], W6[2], W6[3], W6[4]
     _deriv(x, S, tu, tr, prm, cn, ce, k1, K1, sens)
-    for i in range(6):
-        xt[i] = x[i] + 0.5 * dt * k1[i]
-    if sens:
-        for i in range(6):
-            for k in range(NS):
-                St[i, k] = S[i, k] + 0.5 * dt * K1[i, k]
+    _trial(x, S, 0.5 * dt, k1, K1, sens, xt, St)
     _deriv(xt, St, tu, tr, prm, cn, ce, k2, K2, sens)
-    for i in range(6):
-        xt[i] = x[i] + 0.5 * dt * k2[i]
-    if sens:
-        for i in range(6):
-            for k in range(NS):
-                St[i, k] = S[i, k] + 0.5 * dt * K2[i, k]
+    _trial(x, S, 0.5 * dt, k2, K2, sens, xt, St)
     _deriv(xt, St, tu, tr, prm, cn, ce, k3, K3, sens)
-    for i in range(6):
-        xt[i] = x[i] + dt * k3[i]
-    if sens:
-        for i in range(6):
-            for k in range(NS):
-                St[i, k] = S[i, k] + dt * K3[i, k]
+    _trial(x, S, dt, k3, K3, sens, xt, St)
     _deriv(xt, St, tu, tr, prm, cn, ce, k4, K4, sens)
     w = dt / 6.0
     for i in range(6):
