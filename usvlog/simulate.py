@@ -311,7 +311,54 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     return log
 
 
-SCENARIOS = {"excitation": excitation_run}
+def _open_loop(settings: SimSettings, seed: int, tau_of_t, scenario: str) -> FieldLog:
+    """Integrate the plant through thrust ``tau_of_t(t) -> (tau_u, tau_r)`` (realised by the
+    thrusters: forces saturated) and sample the sensors."""
+    rng = np.random.default_rng(seed)
+    st = settings
+    n = st.n_steps
+    t = np.arange(n) * st.dt_s
+    tu_cmd, tr_cmd = tau_of_t(t, rng)
+    thr = st.vessel.thrusters
+    fl, fr = thr.forces_from_tau(tu_cmd, tr_cmd)
+    fl, fr = thr.saturate(fl), thr.saturate(fr)
+    tau_u, tau_r = thr.tau_from_forces(fl, fr)
+    prm = tuple(st.vessel.params.as_array().tolist())
+    cn, ce = st.current_ne
+    rk4 = st.integrator == "rk4"
+    x = (*map(float, st.eta0), *map(float, st.nu0))
+    states = np.empty((n, 6))
+    for k in range(n):
+        states[k] = x
+        x = plant_step(x, float(tau_u[k]), float(tau_r[k]), prm, st.dt_s, cn, ce, rk4)
+    return field_log_from_run(st, t, states, tau_u, tau_r, rng, producer=f"usvlog simulate {scenario}",
+                              scenario=scenario, seed=seed)
+
+
+def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
+    """Open-loop steps in surge thrust and turning circles both ways (a different manoeuvre
+    from ``excitation``, for validation): every 40 s a new surge thrust (1.5-4.5 N) and a new
+    yaw moment (0, +-0.4 or +-0.9 N m), held."""
+    def tau(t, rng):
+        k = (t // 40.0).astype(int)
+        nseg = int(k.max()) + 1
+        tu = rng.uniform(1.5, 4.5, nseg)
+        tr = rng.choice([-0.9, -0.4, 0.0, 0.4, 0.9], nseg)
+        return tu[k], tr[k]
+    return _open_loop(settings, seed, tau, "turns")
+
+
+def straight_run(settings: SimSettings, seed: int = 0) -> FieldLog:
+    """Straight line: steps in surge thrust with equal thrusters, no yaw moment at all
+    (the yaw dynamics are not excited: identification must say so)."""
+    def tau(t, rng):
+        k = (t // 30.0).astype(int)
+        tu = rng.uniform(1.5, 4.5, int(k.max()) + 1)
+        return tu[k], np.zeros_like(t)
+    return _open_loop(settings, seed, tau, "straight")
+
+
+SCENARIOS = {"excitation": excitation_run, "turns": turns_run, "straight": straight_run}
 
 
 def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) -> FieldLog:
@@ -323,6 +370,6 @@ def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) 
     return fn(settings or SimSettings(), seed)
 
 
-__all__ = ["SensorSettings", "SimSettings", "excitation_run", "field_log_from_run", "draw_sensor_noise",
-           "plant_step",
+__all__ = ["SensorSettings", "SimSettings", "excitation_run", "turns_run", "straight_run",
+           "field_log_from_run", "draw_sensor_noise", "plant_step",
            "simulate", "start_ns", "SCENARIOS", "replace", "pd"]

@@ -20,6 +20,7 @@ VERBS = [
     "inspect",
     "export",
     "estimate",
+    "identify",
     "gains",
     "replay",
     "regress",

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..estimate import EstimateSettings, estimate
 from ..frames import ssa
+from ..io.atomic import write_text_atomic
 from ..io.export import export_log
 from ..io.importers import import_file
 from ..io.mergedcsv import write_merged_csv
@@ -59,6 +60,8 @@ def run(args) -> int:
     write_log(log, est_path, force=True)
     step(f"export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    step("identify: output error on the simulated run (true vs identified)")
+    identify_stage(read_log(raw), out)
     circle_replay = _control_stages(out, step)
     _view_stages(out, step, excitation=log, circle=circle_replay)
     stage(f"done: results in {out}/")
@@ -83,6 +86,25 @@ def _import_stage(log, out: Path, step) -> None:
         print(f"import    {topic:<18} {col:<12} {len(b):>7} of {len(a):>7} samples, same times: {same_t}, "
               f"max |diff| {err:.3g}")
     print(f"import    skipped records: {dict(res.report.skipped) or 'none'}")
+
+
+def identify_stage(log, out: Path) -> None:
+    from ..identify import Identifier
+    from ..vessel import PARAM_NAMES
+
+    idf = Identifier("output-error").fit([log])
+    write_text_atomic(out / "identified.toml", idf.to_vessel().to_toml(), force=True)
+    true = log.vessel.params.to_dict()
+    ee = idf.equation_error_.to_dict()
+    print("parameter      true  identified   +-stderr   error %   (equation error)")
+    for k in PARAM_NAMES:
+        v = getattr(idf.params_, k)
+        print(f"  {k:<5} {true[k]:9.4g} {v:11.5g} {idf.stderr_[k]:10.2g} {100 * (v / true[k] - 1):+8.2f}"
+              f"   ({ee[k]:.4g})")
+    cn, ce = idf.current_[0]
+    print(f"  current north {cn:+.3f} east {ce:+.3f} m/s (true +0.100 +0.173)")
+    for v in idf.verdict_:
+        print(f"  - {v}")
 
 
 def _control_stages(out: Path, step) -> Path:

@@ -1,0 +1,39 @@
+"""Identification speed on a 1-hour log: equation error and output error (prints figures).
+
+    python benchmarks/bench_identify.py [--duration-s 3600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from usvlog.identify import Identifier
+from usvlog.simulate import SimSettings, simulate
+from usvlog.vessel import PARAM_NAMES, VesselParams
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--seed", type=int, default=7)
+    args = ap.parse_args()
+    t = time.perf_counter()
+    log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0),
+                   seed=args.seed)
+    print(f"simulated {args.duration_s:.0f} s log in {time.perf_counter() - t:.1f} s")
+    Identifier("output-error").fit([simulate("excitation", SimSettings(duration_s=120.0), seed=1)])  # JIT warm-up
+    true = VesselParams().as_array()
+    for method in ("equation-error", "output-error"):
+        t = time.perf_counter()
+        idf = Identifier(method).fit([log])
+        dt = time.perf_counter() - t
+        err = 100 * (idf.theta_ / true - 1)
+        print(f"{method:15s} {dt:6.2f} s   errors %: "
+              + ", ".join(f"{k} {e:+.2f}" for k, e in zip(PARAM_NAMES, err)))
+
+
+if __name__ == "__main__":
+    main()

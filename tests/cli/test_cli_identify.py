@@ -1,0 +1,43 @@
+import json
+
+import numpy as np
+import pytest
+
+from usvlog.cli import main
+from usvlog.io.config import load_vessel
+from usvlog.io.mcapio import read_log
+from usvlog.vessel import PARAM_NAMES
+
+
+def test_identify_equation_error_writes_vessel_json_and_fit_channel(excitation_file, tmp_path, capsys):
+    out, fit = tmp_path / "p.toml", tmp_path / "fit.mcap"
+    rc = main(["identify", str(excitation_file), "--method", "equation-error", "--fix", "m=33.0",
+               "--holdout", "0.3", "--out", str(out), "--out-log", str(fit), "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["method"] == "equation-error"
+    assert set(d["params"]) == set(PARAM_NAMES) == set(d["stderr"]) == set(d["ci95"])
+    assert set(d["fit_percent"]) >= {"u", "v", "r"}
+    assert d["params"]["m"] == 33.0 and d["fit_percent_on"] == "validation"
+    v = load_vessel(out)   # drops into the other verbs
+    assert v.params.to_dict() == pytest.approx(d["params"])
+    log = read_log(fit)
+    f = log["/identify/fit"]
+    assert {"u_mps", "u_sim_mps", "v_mps", "v_sim_mps", "r_radps", "r_sim_radps", "n_m", "n_sim_m",
+            "e_m", "e_sim_m", "psi_rad", "psi_sim_rad"} <= set(f.columns)
+    # the smoothed measured track follows the truth
+    tr = log["/truth/state"]
+    n_true = np.interp(f.index.to_numpy(), tr.index.to_numpy(), tr["n_m"].to_numpy())
+    assert np.sqrt(np.mean((f["n_m"].to_numpy() - n_true) ** 2)) < 1.0
+
+
+def test_identify_refuses_existing_output_filter_error_and_bad_fix(excitation_file, tmp_path, capsys):
+    out = tmp_path / "p.toml"
+    out.write_text("x")
+    assert main(["identify", str(excitation_file), "--out", str(out)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main(["identify", str(excitation_file), "--method", "filter-error", "--out", str(tmp_path / "q.toml")]) == 2
+    assert "not implemented" in capsys.readouterr().err
+    assert main(["identify", str(excitation_file), "--fix", "mass=3", "--out", str(tmp_path / "q.toml")]) == 2
+    assert "--fix" in capsys.readouterr().err
+    assert out.read_text() == "x"

@@ -1,0 +1,103 @@
+"""Identification's model pieces against the paper's equations and the simulator."""
+
+import numpy as np
+import pytest
+
+from usvlog.identify.data import run_data
+from usvlog.identify.equation import LIN_NAMES, fit_equation_error, regressors
+from usvlog.identify.output import Problem, simulate_run
+from usvlog.simulate import SimSettings, simulate
+from usvlog.vessel import VesselParams, nu_dot
+
+P = VesselParams(m=28.0, Iz=7.5, d11=4.0, d22=9.0, d33=2.5, xg=-0.15)
+
+
+def _lin(p):
+    return np.array([p.m, p.m * p.xg, p.Iz, p.d11, p.d22, p.d33])
+
+
+def test_three_equations_match_nu_dot():
+    """A(nu, nu_dot) @ (m, m xg, Iz, d11, d22, d33) = (tau_u, 0, tau_r) exactly when nu_dot is eq. (3)."""
+    rng = np.random.default_rng(0)
+    nu = rng.normal(0, [1.0, 0.3, 0.4], (500, 3))
+    tu, tr = rng.normal(0, 5, 500), rng.normal(0, 1, 500)
+    nd = nu_dot(nu, tu, tr, P)
+    lhs = regressors(nu, nd) @ _lin(P)
+    np.testing.assert_allclose(lhs[0], tu, atol=1e-12)
+    np.testing.assert_allclose(lhs[1], 0.0, atol=1e-12)
+    np.testing.assert_allclose(lhs[2], tr, atol=1e-12)
+    # and they are not satisfied by other parameters
+    other = _lin(VesselParams(m=30.0, Iz=7.5, d11=4.0, d22=9.0, d33=2.5, xg=-0.15))
+    assert np.abs(regressors(nu, nd) @ other - np.stack([tu, 0 * tu, tr])).max() > 0.1
+    assert LIN_NAMES == ("m", "mxg", "Iz", "d11", "d22", "d33")
+
+
+@pytest.mark.parametrize("fix", [{}, {"m": 28.0}, {"xg": -0.15}, {"m": 28.0, "xg": -0.15, "d22": 9.0}])
+def test_equation_error_exact_on_noise_free_states(fix):
+    rng = np.random.default_rng(1)
+    nu = rng.normal(0, [1.0, 0.3, 0.4], (800, 3))
+    tu, tr = rng.normal(0, 5, 800), rng.normal(0, 1, 800)
+    res = fit_equation_error(nu, nu_dot(nu, tu, tr, P), tu, tr, fix=fix)
+    np.testing.assert_allclose(res.theta, P.as_array(), rtol=1e-9, atol=1e-12)
+    assert res.valid
+
+
+def test_equation_error_on_truth_of_a_simulated_run():
+    log = simulate("excitation", SimSettings(duration_s=120.0, current_mps=0.2), seed=2)
+    tr = log["/truth/state"]
+    nu = tr[["u_mps", "v_mps", "r_radps"]].to_numpy()
+    tu, trr = tr["tau_u_n"].to_numpy(), tr["tau_r_nm"].to_numpy()
+    # central differences of the logged truth (thrust held over each step)
+    t = tr.index.to_numpy() / 1e9
+    nd = np.diff(nu, axis=0) / np.diff(t)[:, None]
+    mid = 0.5 * (nu[1:] + nu[:-1])
+    res = fit_equation_error(mid, nd, tu[:-1], trr[:-1])
+    np.testing.assert_allclose(res.theta, VesselParams().as_array(), rtol=2e-3)
+
+
+def test_shooting_reproduces_the_simulator_exactly():
+    log = simulate("excitation", SimSettings(duration_s=60.0, current_mps=0.2, current_dir_deg=40.0), seed=4)
+    run = run_data(log)
+    tr = log["/truth/state"]
+    X = tr[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()
+    t = (tr.index.to_numpy() - run.t0_ns) / 1e9
+    cur = np.array([0.2 * np.cos(np.radians(40.0)), 0.2 * np.sin(np.radians(40.0))])
+    sim = simulate_run(run, VesselParams().as_array(), cur, X[0], 0.0, t[::7])
+    sim[:, 2] = (sim[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    # the log records thrust to 1 mN, the only difference from the simulator's own thrust
+    np.testing.assert_allclose(sim, X[::7], atol=5e-3)
+    wrong = simulate_run(run, VesselParams(m=34.0).as_array(), cur, X[0], 0.0, t[::7])
+    assert np.abs(wrong[:, :2] - X[::7, :2]).max() > 0.1
+
+
+def test_sensitivities_match_finite_differences():
+    log = simulate("excitation", SimSettings(duration_s=60.0, current_mps=0.1), seed=6)
+    run = run_data(log)
+    prob = Problem([run], 20.0)
+    tr = log["/truth/state"]
+    X = tr[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()
+    tt = (tr.index.to_numpy() - run.t0_ns) / 1e9
+    x0s = prob.initial_states(lambda i, t: X[np.searchsorted(tt, t - 1e-9)])
+    th = np.array([31.0, 9.0, 5.5, 4.0, 6.0, 0.12])
+    cur = np.array([[0.05, -0.08]])
+    ox, oS = prob.simulate(th, cur, x0s)
+    for col in range(14):
+        h = 1e-6 * (1 + (abs(th[col - 6]) if 6 <= col < 12 else 1.0))
+        x2, t2, c2 = x0s.copy(), th.copy(), cur.copy()
+        if col < 6:
+            x2[:, col] += h
+        elif col < 12:
+            t2[col - 6] += h
+        else:
+            c2[0, col - 12] += h
+        xp, _ = prob.simulate(t2, c2, x2, sens=False)
+        if col < 6:
+            x2[:, col] -= 2 * h
+        elif col < 12:
+            t2[col - 6] -= 2 * h
+        else:
+            c2[0, col - 12] -= 2 * h
+        xm, _ = prob.simulate(t2, c2, x2, sens=False)
+        fd = (xp - xm) / (2 * h)
+        scale = max(np.abs(fd).max(), 1e-3)
+        assert np.abs(fd - oS[:, :, col]).max() < 1e-5 * scale, col

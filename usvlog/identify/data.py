@@ -1,0 +1,127 @@
+"""Arrays an identification needs, taken from one field log.
+
+Thrust -> forces through the vessel's thruster map and geometry (the logged
+``thrust_left_n``/``thrust_right_n`` when present), GPS fixes -> local NED about the
+log's datum, compass headings; all times in seconds from the run's first thrust sample.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import InputError
+from ..frames import Datum, geodetic_to_ned, ssa
+from ..log import FieldLog
+from ..vessel import Vessel, default_vessel
+
+DEFAULT_GPS_SIGMA_M = 1.5
+DEFAULT_COMPASS_SIGMA_RAD = math.radians(2.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class RunData:
+    """One run as arrays (times in s from ``t0_ns``)."""
+
+    t0_ns: int
+    t_thrust: np.ndarray      # grid the model is integrated on (thrust held over each step)
+    tau_u: np.ndarray
+    tau_r: np.ndarray
+    t_gps: np.ndarray
+    n_gps: np.ndarray
+    e_gps: np.ndarray
+    sigma_gps: np.ndarray      # one sigma per fix and axis, m
+    t_compass: np.ndarray
+    psi_compass: np.ndarray
+    sigma_compass: np.ndarray  # rad
+    thrust_source: str = "newton"   # "logged newtons" or the map used
+    source: str = ""
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_thrust[-1] - self.t_thrust[0])
+
+    def window(self, t_lo: float, t_hi: float) -> "RunData":
+        """The part of the run in [t_lo, t_hi] (s), same time origin."""
+        k = (self.t_thrust >= t_lo) & (self.t_thrust <= t_hi)
+        g = (self.t_gps >= t_lo) & (self.t_gps <= t_hi)
+        c = (self.t_compass >= t_lo) & (self.t_compass <= t_hi)
+        return replace(self, t_thrust=self.t_thrust[k], tau_u=self.tau_u[k], tau_r=self.tau_r[k],
+                       t_gps=self.t_gps[g], n_gps=self.n_gps[g], e_gps=self.e_gps[g],
+                       sigma_gps=self.sigma_gps[g], t_compass=self.t_compass[c],
+                       psi_compass=self.psi_compass[c], sigma_compass=self.sigma_compass[c])
+
+
+def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(t_ns, f_left, f_right, how): per-thruster forces in newtons."""
+    src = log.source or "log"
+    fr = log["/thrust/command"]
+    t_ns = np.asarray(fr.index, dtype=np.int64)
+    if "thrust_left_n" in fr and "thrust_right_n" in fr:
+        fl = np.asarray(fr["thrust_left_n"].to_numpy(), float)
+        frr = np.asarray(fr["thrust_right_n"].to_numpy(), float)
+        if np.isfinite(fl).all() and np.isfinite(frr).all():
+            return t_ns, fl, frr, "logged newtons"
+    units = fr["unit"].astype(str).to_numpy() if "unit" in fr else np.array(["newton"] * len(fr))
+    fl = np.empty(len(fr))
+    frr = np.empty(len(fr))
+    for unit in np.unique(units):
+        k = units == unit
+        fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy()[k], unit)
+        frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy()[k], unit)
+    bad = ~(np.isfinite(fl) & np.isfinite(frr))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{src} /thrust/command: non-finite thrust at row {i}")
+    how = "newton" if set(np.unique(units)) == {"newton"} else f"{vessel.thrusters.map} map"
+    return t_ns, fl, frr, how
+
+
+def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
+    """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass)."""
+    vessel = vessel or log.vessel or default_vessel()
+    src = log.source or "log"
+    t_ns, fl, frr, how = thrust_forces(log, vessel)
+    if len(t_ns) < 10:
+        raise InputError(f"{src} /thrust/command: only {len(t_ns)} samples")
+    order = np.argsort(t_ns, kind="stable")
+    t_ns, fl, frr = t_ns[order], fl[order], frr[order]
+    keep = np.concatenate([[True], np.diff(t_ns) > 0])
+    t_ns, fl, frr = t_ns[keep], fl[keep], frr[keep]
+    tau_u, tau_r = vessel.thrusters.tau_from_forces(fl, frr)
+    t0 = int(t_ns[0])
+
+    g = log["/gnss/fix"]
+    tg = np.asarray(g.index, dtype=np.int64)
+    lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    datum = log.datum
+    if datum is None:
+        if not ok.any():
+            raise InputError(f"{src} /gnss/fix: no valid fix")
+        datum = Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0]))
+    n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=datum)
+    sig = np.full(len(g), DEFAULT_GPS_SIGMA_M)
+    if "cov_nn_m2" in g and "cov_ee_m2" in g:
+        var = 0.5 * (g["cov_nn_m2"].to_numpy(float) + g["cov_ee_m2"].to_numpy(float))
+        good = np.isfinite(var) & (var > 0)
+        if "cov_type" in g:
+            good &= g["cov_type"].to_numpy() != 0
+        sig[good] = np.sqrt(var[good])
+    ok &= (tg >= t_ns[0]) & (tg <= t_ns[-1])
+
+    c = log["/compass/heading"]
+    tc = np.asarray(c.index, dtype=np.int64)
+    hd = c["heading_rad"].to_numpy(float)
+    sc = c["std_rad"].to_numpy(float) if "std_rad" in c else np.full(len(c), np.nan)
+    sc = np.where(np.isfinite(sc) & (sc > 0), sc, DEFAULT_COMPASS_SIGMA_RAD)
+    okc = np.isfinite(hd) & (tc >= t_ns[0]) & (tc <= t_ns[-1])
+    if ok.sum() < 10 or okc.sum() < 10:
+        raise InputError(f"{src}: too few GNSS fixes ({int(ok.sum())}) or compass headings "
+                         f"({int(okc.sum())}) inside the thrust record")
+    return RunData(t0_ns=t0, t_thrust=(t_ns - t0) / 1e9, tau_u=np.asarray(tau_u, float),
+                   tau_r=np.asarray(tau_r, float), t_gps=(tg[ok] - t0) / 1e9, n_gps=n[ok], e_gps=e[ok],
+                   sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
+                   sigma_compass=sc[okc], thrust_source=how, source=src)

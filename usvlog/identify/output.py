@@ -1,0 +1,416 @@
+"""Output-error identification by multiple shooting.
+
+The model (eqs. (1)+(3), constant current per run) is integrated from the recorded
+thrust over segments of ``segment_s`` seconds, each from its own free initial state, and
+fitted to the raw measurements: GPS north/east and compass heading (ssa residual), each
+weighted by its noise. The segment initial states are nuisance parameters eliminated by
+variable projection: for given model parameters and currents each segment's initial state
+is solved by Gauss-Newton, and :func:`scipy.optimize.least_squares` sees the projected
+Jacobian (so its normal matrix is the marginal information of the parameters of interest;
+standard errors come from it scaled by the residual variance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..frames import ssa
+from ..vessel import PARAM_NAMES
+from .data import RunData
+from .shoot import NS, shoot
+
+MAX_DT = 0.05
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutputErrorResult:
+    theta: np.ndarray          # all six model parameters (fixed ones included)
+    free: tuple[str, ...]      # names of fitted model parameters
+    currents: np.ndarray       # (n_runs, 2) north, east m/s (zeros when not fitted)
+    cov: np.ndarray            # covariance of [free params, currents (if fitted)]
+    names: tuple[str, ...]     # names of the covariance's rows
+    cond: float                # condition number of the column-scaled projected Jacobian
+    sigma2: float              # residual variance factor (1 when the noise model is right)
+    rms: dict                  # whitened-residual RMS per sensor
+    n_residuals: int
+    x0s: np.ndarray            # per-segment initial states
+    nfev: int
+
+
+class Problem:
+    """Runs cut into segments, measurements ordered by segment, residual rows indexed."""
+
+    def __init__(self, runs: list[RunData], segment_s: float):
+        tg, tu, tr = [], [], []
+        seg_i0, seg_i1, seg_run = [], [], []
+        m_t, m_kind, m_val, m_sig, m_seg = [], [], [], [], []
+        off = 0
+        for ri, run in enumerate(runs):
+            t = run.t_thrust
+            n = len(t)
+            edges = [0]
+            tcut = t[0] + segment_s
+            while tcut < t[-1] - 0.5 * segment_s:
+                edges.append(int(np.searchsorted(t, tcut)))
+                tcut += segment_s
+            edges.append(n - 1)
+            edges = sorted(set(edges))
+            for a, b in zip(edges[:-1], edges[1:]):
+                ta, tb = t[a], t[b]
+                g = (run.t_gps >= ta) & ((run.t_gps < tb) | ((b == n - 1) & (run.t_gps <= tb)))
+                c = (run.t_compass >= ta) & ((run.t_compass < tb) | ((b == n - 1) & (run.t_compass <= tb)))
+                k = len(seg_i0)
+                seg_i0.append(off + a)
+                seg_i1.append(off + b)
+                seg_run.append(ri)
+                # measurement times relative to the concatenated grid
+                for kind, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
+                                            run.sigma_gps[g]),
+                                           (1, run.t_compass[c], np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
+                                            run.sigma_compass[c])):
+                    m_t.append(tt)
+                    m_kind.append(np.full(len(tt), kind))
+                    m_val.append(val)
+                    m_sig.append(sig)
+                    m_seg.append(np.full(len(tt), k))
+            tg.append(t)
+            tu.append(run.tau_u)
+            tr.append(run.tau_r)
+            off += n
+        self.runs = runs
+        self.n_runs = len(runs)
+        self.tg = np.concatenate(tg)
+        self.tau_u = np.concatenate(tu)
+        self.tau_r = np.concatenate(tr)
+        self.seg_i0 = np.array(seg_i0, np.int64)
+        self.seg_i1 = np.array(seg_i1, np.int64)
+        self.seg_run = np.array(seg_run, np.int64)
+        t = np.concatenate(m_t)
+        kind = np.concatenate(m_kind)
+        val = np.concatenate(m_val)
+        sig = np.concatenate(m_sig)
+        seg = np.concatenate(m_seg)
+        order = np.lexsort((t, seg))
+        self.meas_t, self.kind, self.val, self.sig, self.meas_seg = t[order], kind[order], val[order], sig[order], seg[order]
+        self.meas_ptr = np.searchsorted(self.meas_seg, np.arange(len(seg_i0) + 1)).astype(np.int64)
+        self.n_seg = len(seg_i0)
+        gi = np.flatnonzero(self.kind == 0)
+        ci = np.flatnonzero(self.kind == 1)
+        # residual rows: (measurement index, state row)
+        r_meas = np.concatenate([gi, gi, ci])
+        r_state = np.concatenate([np.zeros(len(gi), int), np.ones(len(gi), int), np.full(len(ci), 2)])
+        r_seg = self.meas_seg[r_meas]
+        o = np.argsort(r_seg, kind="stable")
+        self.r_meas, self.r_state, self.r_seg = r_meas[o], r_state[o], r_seg[o]
+        self.r_sensor = np.where(self.r_state == 2, 1, 0)   # 0 gps, 1 compass
+        self.r_val = np.where(self.r_state == 1, self.val[self.r_meas, 1], self.val[self.r_meas, 0])
+        self.r_sig0 = self.sig[self.r_meas]
+        self.r_w = 1.0 / self.r_sig0
+        self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
+        self.n_res = len(self.r_meas)
+
+    def set_sensor_scale(self, scale_gps: float, scale_compass: float) -> None:
+        self.r_w = 1.0 / (self.r_sig0 * np.where(self.r_sensor == 0, scale_gps, scale_compass))
+
+    def simulate(self, theta, currents, x0s, sens=True):
+        seg_cur = np.ascontiguousarray(currents[self.seg_run], float)
+        nm = len(self.meas_t)
+        out_x = np.zeros((nm, 6))
+        out_S = np.zeros((nm, 6, NS)) if sens else np.zeros((1, 6, NS))
+        shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, np.ascontiguousarray(x0s, float),
+              np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, MAX_DT, sens, out_x, out_S)
+        return out_x, out_S
+
+    def residuals(self, out_x):
+        sim = out_x[self.r_meas, self.r_state]
+        d = self.r_val - sim
+        d = np.where(self.r_state == 2, ssa(d), d)
+        return d * self.r_w
+
+    def jac_rows(self, out_S):
+        """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
+        return -out_S[self.r_meas, self.r_state, :] * self.r_w[:, None]
+
+    def seg_sum(self, a):
+        return np.add.reduceat(a, self.r_start[:-1], axis=0)
+
+    def initial_states(self, states_fn):
+        """x0 per segment from a function t (per run, s) -> states (n, 6)."""
+        x0 = np.zeros((self.n_seg, 6))
+        for k in range(self.n_seg):
+            run = self.seg_run[k]
+            i0 = self.seg_i0[k] - sum(len(r.t_thrust) for r in self.runs[:run])
+            x0[k] = states_fn(run, self.runs[run].t_thrust[i0])
+        return x0
+
+
+def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
+    """Solve each segment's initial state (Gauss-Newton, per-segment step halving);
+    return residuals, sensitivity rows, initial states and the per-segment normal matrices."""
+    x0s = x0s.copy()
+    seg_cost_prev = None
+    step = np.zeros_like(x0s)
+    for it in range(max_iter + 1):
+        out_x, out_S = prob.simulate(theta, currents, x0s)
+        r = prob.residuals(out_x)
+        r = np.where(np.isfinite(r), r, 1e6)
+        seg_cost = prob.seg_sum(r * r)
+        if seg_cost_prev is not None:
+            worse = seg_cost > seg_cost_prev * (1 + 1e-12)
+            if worse.any() and it < max_iter:
+                x0s[worse] -= 0.5 * step[worse]
+                step[worse] *= 0.5
+                step[~worse] = 0.0
+                if np.abs(step[worse]).max() > 1e-10:
+                    continue
+        J = prob.jac_rows(out_S)
+        J = np.where(np.isfinite(J), J, 0.0)
+        Jx = J[:, :6]
+        JtJ = prob.seg_sum(Jx[:, :, None] * Jx[:, None, :])
+        JtJ += (1e-9 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)
+        if it == max_iter or (seg_cost_prev is not None and
+                              np.sum(seg_cost_prev) - np.sum(seg_cost) <= tol * np.sum(seg_cost)):
+            return r, J, x0s, JtJ
+        Jtr = prob.seg_sum(Jx * r[:, None])
+        step = -np.linalg.solve(JtJ, Jtr[:, :, None])[:, :, 0]
+        # Gauss-Newton's predicted decrease of r.r is -Jtr.step: stop when it is negligible
+        if -np.sum(Jtr * step) <= 1e-2 * tol * np.sum(seg_cost):
+            return r, J, x0s, JtJ
+        seg_cost_prev = seg_cost
+        x0s = x0s + step
+    return r, J, x0s, JtJ
+
+
+class _VP:
+    """Variable-projection objective over [free model params, currents per run]."""
+
+    def __init__(self, prob: Problem, theta0, free_mask, fit_current, x0s, currents0):
+        self.prob = prob
+        self.theta0 = np.asarray(theta0, float)
+        self.free = np.asarray(free_mask, bool)
+        self.fit_current = fit_current
+        self.x0s = x0s.copy()
+        self.currents0 = np.asarray(currents0, float)
+        self._key = None
+        self.nfev = 0
+
+    def unpack(self, p):
+        theta = self.theta0.copy()
+        nf = int(self.free.sum())
+        theta[self.free] = p[:nf]
+        cur = p[nf:].reshape(-1, 2) if self.fit_current else self.currents0
+        return theta, cur
+
+    def pack(self, theta, cur):
+        p = list(np.asarray(theta)[self.free])
+        if self.fit_current:
+            p += list(np.asarray(cur).ravel())
+        return np.array(p, float)
+
+    def _eval(self, p):
+        key = p.tobytes()
+        if key == self._key:
+            return
+        theta, cur = self.unpack(p)
+        if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] < 0)
+                or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]):   # outside the model's domain
+            self._key, self._r = key, np.full(self.prob.n_res, 1e3)
+            self._J = np.zeros((self.prob.n_res, len(p)))
+            return
+        r, J, x0s, JtJ = _inner(self.prob, theta, cur, self.x0s)
+        self.nfev += 1
+        if np.all(np.isfinite(r)):
+            self.x0s = x0s
+        prob = self.prob
+        # global Jacobian columns
+        cols = [J[:, 6:12][:, self.free]]
+        if self.fit_current:
+            C = np.zeros((prob.n_res, 2 * prob.n_runs))
+            run = prob.seg_run[prob.r_seg]
+            for ri in range(prob.n_runs):
+                k = run == ri
+                C[k, 2 * ri:2 * ri + 2] = J[k, 12:14]
+            cols.append(C)
+        G = np.concatenate(cols, 1)
+        # project out the segment initial states
+        Jx = J[:, :6]
+        JtG = prob.seg_sum(Jx[:, :, None] * G[:, None, :])
+        coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P)
+        Gp = G.copy()
+        for k in range(prob.n_seg):
+            a, b = prob.r_start[k], prob.r_start[k + 1]
+            Gp[a:b] -= Jx[a:b] @ coef[k]
+        self._key, self._r, self._J = key, r, Gp
+
+    def fun(self, p):
+        self._eval(p)
+        r = self._r
+        return np.where(np.isfinite(r), r, 1e6)
+
+    def jac(self, p):
+        self._eval(p)
+        return self._J
+
+
+def _bounds(free_mask, n_cur):
+    lo = np.array([1e-3, 1e-4, 0.0, 0.0, 0.0, -np.inf])[free_mask]
+    hi = np.full(len(lo), np.inf)
+    return (np.concatenate([lo, np.full(n_cur, -np.inf)]), np.concatenate([hi, np.full(n_cur, np.inf)]))
+
+
+def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
+                     currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
+                     max_nfev=60, verbose=0, warm_span_s=None) -> OutputErrorResult:
+    """Fit the model parameters (and per-run currents) to GPS and compass by output error.
+
+    ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
+    initial-state guesses (n, e, psi, u, v, r) for segment starts.
+    """
+    free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
+    cur = np.zeros((len(runs), 2)) if currents0 is None else np.asarray(currents0, float)
+    theta = np.asarray(theta0, float).copy()
+    nfev = 0
+    stages = [warm_segment_s, segment_s] if warm_segment_s and warm_segment_s < segment_s else [segment_s]
+    sensor_scale = (1.0, 1.0)
+    x0_kin = x0_fn
+    for si, seg_s in enumerate(stages):
+        last = si == len(stages) - 1
+        runs_s = runs
+        if not last and warm_span_s:
+            # the warm-up only needs to get close: fit it on the first warm_span_s of each run
+            runs_s = [r.window(r.t_thrust[0], r.t_thrust[0] + warm_span_s) for r in runs]
+        prob = Problem(runs_s, seg_s)
+        prob.set_sensor_scale(*sensor_scale)
+        x0s = prob.initial_states(x0_fn)
+        vp = _VP(prob, theta, free, fit_current, x0s, cur)
+        p0 = vp.pack(theta, cur)
+        lo, hi = _bounds(free, len(p0) - int(free.sum()))
+        p0 = np.clip(p0, lo + 1e-9, hi)
+        if not last:
+            # keep the warm-up stage near the start: short segments leave slow modes weak
+            th_lo = np.where(theta > 0, theta / 3, -1.0)
+            th_hi = np.where(theta > 0, theta * 3, 1.0)
+            th_lo[5], th_hi[5] = -abs(theta[5]) - 0.3, abs(theta[5]) + 0.3
+            nf = int(free.sum())
+            lo = lo.copy()
+            hi = hi.copy()
+            lo[:nf], hi[:nf] = th_lo[free], th_hi[free]
+            p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
+        sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
+                            ftol=1e-8 if last else 1e-6, xtol=1e-8 if last else 1e-6,
+                            gtol=1e-8 if last else 1e-6, max_nfev=max_nfev, verbose=verbose)
+        nfev += vp.nfev
+        theta, cur = vp.unpack(sol.x)
+        vp._eval(sol.x)
+        r = vp._r
+        rms = {"gps": float(np.sqrt(np.mean(r[prob.r_sensor == 0] ** 2))),
+               "compass": float(np.sqrt(np.mean(r[prob.r_sensor == 1] ** 2)))}
+        if reweight:
+            sensor_scale = (sensor_scale[0] * rms["gps"], sensor_scale[1] * rms["compass"])
+        # capture initial states for the next stage
+        x0_prev = (prob, vp.x0s.copy())
+
+        def x0_fn(run, t, _p=x0_prev, _theta=theta.copy(), _cur=cur.copy()):
+            if t > _p[0].runs[run].t_thrust[-1] - 1.0:
+                return x0_kin(run, t)
+            return _state_at(_p[0], _p[1], _theta, _cur, run, t)
+    r, G = vp._r, vp._J
+    n_res = len(r)
+    n_par = G.shape[1] + 6 * prob.n_seg
+    sigma2 = float(r @ r) / max(n_res - n_par, 1)
+    colnorm = np.linalg.norm(G, axis=0)
+    colnorm[colnorm == 0] = 1.0
+    Gs = G / colnorm
+    cond = float(np.linalg.cond(Gs))
+    cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm)
+    names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
+    if fit_current:
+        names += tuple(f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e"))
+    rms = {"gps": float(np.sqrt(np.mean(r[prob.r_sensor == 0] ** 2))),
+           "compass": float(np.sqrt(np.mean(r[prob.r_sensor == 1] ** 2)))}
+    return OutputErrorResult(theta=theta, free=tuple(n for n, f in zip(PARAM_NAMES, free) if f),
+                             currents=np.asarray(cur, float) if fit_current else np.zeros((len(runs), 2)),
+                             cov=cov, names=names, cond=cond, sigma2=sigma2, rms=rms, n_residuals=n_res,
+                             x0s=vp.x0s, nfev=nfev)
+
+
+def _state_at(prob: Problem, x0s, theta, cur, run, t):
+    """State of the fitted multiple-shooting model at time t of a run (simulated from its segment)."""
+    off = sum(len(r.t_thrust) for r in prob.runs[:run])
+    segs = np.flatnonzero(prob.seg_run == run)
+    t_start = prob.tg[prob.seg_i0[segs]]
+    k = segs[max(int(np.searchsorted(t_start, t + 1e-9)) - 1, 0)]
+    sub = _SingleSeg(prob, k, t)
+    out_x, _ = sub.run(theta, cur[run], x0s[k])
+    return out_x[0]
+
+
+class _SingleSeg:
+    def __init__(self, prob, k, t):
+        self.prob, self.k, self.t = prob, k, t
+
+    def run(self, theta, cur, x0):
+        p = self.prob
+        i0, i1 = p.seg_i0[self.k], p.seg_i1[self.k]
+        out_x = np.zeros((1, 6))
+        out_S = np.zeros((1, 6, NS))
+        shoot(p.tg, p.tau_u, p.tau_r, np.array([i0]), np.array([i1]), x0[None, :].astype(float),
+              np.asarray(theta, float), np.asarray(cur, float)[None, :], np.array([float(self.t)]),
+              np.array([0, 1], np.int64), MAX_DT, False, out_x, out_S)
+        return out_x, out_S
+
+
+def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
+    """Free run of the model from state ``x0`` at ``t0`` (s, on the run's thrust grid) through
+    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0)."""
+    times = np.asarray(times, float)
+    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
+    out_x = np.full((len(times), 6), np.nan)
+    out_S = np.zeros((1, 6, NS))
+    ok = (times >= run.t_thrust[i0] - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
+    tt = np.ascontiguousarray(times[ok])
+    ox = np.zeros((len(tt), 6))
+    shoot(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
+          np.asarray(x0, float)[None, :], np.asarray(theta, float), np.asarray(current, float)[None, :],
+          tt, np.array([0, len(tt)], np.int64), MAX_DT, False, ox, out_S)
+    out_x[ok] = ox
+    return out_x
+
+
+def predict_segments(runs: list[RunData], segment_s: float, x0s, theta, currents, run_index: int, times):
+    """States of the fitted multiple-shooting model (each segment from its own fitted initial
+    state) at ``times`` of one run."""
+    prob = Problem(runs, segment_s)
+    segs = np.flatnonzero(prob.seg_run == run_index)
+    off = sum(len(r.t_thrust) for r in runs[:run_index])
+    run = runs[run_index]
+    times = np.asarray(times, float)
+    out = np.full((len(times), 6), np.nan)
+    for k in segs:
+        a, b = prob.seg_i0[k] - off, prob.seg_i1[k] - off
+        last = k == segs[-1]
+        sel = (times >= run.t_thrust[a]) & ((times < run.t_thrust[b]) | (last & (times <= run.t_thrust[b])))
+        if sel.any():
+            out[sel] = simulate_run(run, theta, currents[run_index], x0s[k], run.t_thrust[a], times[sel])
+    return out
+
+
+def fit_initial_state(run: RunData, theta, x0_guess, t0: float, t1: float, *, fit_current=True,
+                      current0=(0.0, 0.0)):
+    """Initial state at ``t0`` (and a constant current) of a run with the parameters held
+    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current)."""
+    w = run.window(t0, t1)
+    free = np.zeros(6, bool)
+    prob = Problem([w], 1e12)
+    cur = np.asarray(current0, float)[None, :]
+    x0s = np.asarray(x0_guess, float)[None, :]
+    if not fit_current:
+        _, _, x0s, _ = _inner(prob, theta, cur, x0s)
+        return x0s[0], cur[0]
+    vp = _VP(prob, theta, free, True, x0s, cur)
+    sol = least_squares(vp.fun, cur.ravel(), jac=vp.jac, method="lm", xtol=1e-8, ftol=1e-8, max_nfev=50)
+    vp._eval(sol.x)
+    return vp.x0s[0], sol.x.reshape(2)

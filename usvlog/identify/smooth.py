@@ -1,0 +1,128 @@
+"""Smoothed kinematic states of a run: the one place identification asks for them.
+
+Uses the estimation package's kinematic smoother when it is installed
+(``usvlog.estimate``); otherwise a local polynomial (Savitzky-Golay) smoother of the
+GNSS positions and compass heading on a uniform grid. Either way the result is the
+over-ground motion: positions, heading, ground velocity in NED and yaw rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from ..frames import ssa
+from .data import RunData
+
+GRID_DT = 0.1
+
+
+@dataclass(frozen=True, kw_only=True)
+class KinStates:
+    t: np.ndarray       # s from the run's t0, uniform grid
+    n: np.ndarray
+    e: np.ndarray
+    psi: np.ndarray     # unwrapped
+    vn: np.ndarray      # ground velocity, NED
+    ve: np.ndarray
+    r: np.ndarray
+    source: str
+
+    def nu(self, current=(0.0, 0.0)):
+        """Body velocities relative to the water for a constant current (N, 3)."""
+        c, s = np.cos(self.psi), np.sin(self.psi)
+        wn, we = self.vn - current[0], self.ve - current[1]
+        return np.stack([c * wn + s * we, -s * wn + c * we, self.r], -1)
+
+    def at(self, t, current=(0.0, 0.0)):
+        """Interpolated state (n, e, psi, u, v, r) at time(s) t."""
+        nu = self.nu(current)
+        cols = [self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]]
+        return np.stack([np.interp(t, self.t, c) for c in cols], -1)
+
+    def window(self, t_lo, t_hi) -> "KinStates":
+        k = (self.t >= t_lo) & (self.t <= t_hi)
+        return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
+                         ve=self.ve[k], r=self.r[k], source=self.source)
+
+
+def _odd(n):
+    n = max(int(n), 5)
+    return n if n % 2 else n + 1
+
+
+def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinStates:
+    """Local cubic fits to GNSS positions and unwrapped compass heading on a 10 Hz grid."""
+    t0 = max(run.t_gps[0], run.t_compass[0])
+    t1 = min(run.t_gps[-1], run.t_compass[-1])
+    t = np.arange(t0, t1 + 1e-9, GRID_DT)
+    n = np.interp(t, run.t_gps, run.n_gps)
+    e = np.interp(t, run.t_gps, run.e_gps)
+    psi = np.interp(t, run.t_compass, np.unwrap(run.psi_compass))
+    wp, wh = _odd(pos_window_s / GRID_DT), _odd(psi_window_s / GRID_DT)
+    wp, wh = min(wp, _odd(len(t) - 2)), min(wh, _odd(len(t) - 2))
+    kw = dict(polyorder=3, mode="interp")
+    return KinStates(t=t, n=savgol_filter(n, wp, **kw), e=savgol_filter(e, wp, **kw),
+                     psi=savgol_filter(psi, wh, **kw),
+                     vn=savgol_filter(n, wp, deriv=1, delta=GRID_DT, **kw),
+                     ve=savgol_filter(e, wp, deriv=1, delta=GRID_DT, **kw),
+                     r=savgol_filter(psi, wh, deriv=1, delta=GRID_DT, **kw), source="savgol")
+
+
+def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
+    """Smoothed over-ground states of a run (the estimator's kinematic smoother if available)."""
+    try:
+        from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
+    except ImportError:
+        return savgol_states(run)
+    st = estimate(log, EstimateSettings(model="kinematic", output_step_s=GRID_DT), vessel).state
+    ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
+    t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)
+    psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))
+    u = np.interp(t, ts, st["u_mps"].to_numpy(float))
+    v = np.interp(t, ts, st["v_mps"].to_numpy(float))
+    c, s = np.cos(psi), np.sin(psi)
+    vn, ve = c * u - s * v, s * u + c * v
+    for col, arr in (("current_n_mps", "vn"), ("current_e_mps", "ve")):
+        if col in st and np.isfinite(st[col].to_numpy(float)).all():
+            add = np.interp(t, ts, st[col].to_numpy(float))
+            vn, ve = (vn + add, ve) if arr == "vn" else (vn, ve + add)
+    return KinStates(t=t, n=np.interp(t, ts, st["n_m"].to_numpy(float)),
+                     e=np.interp(t, ts, st["e_m"].to_numpy(float)), psi=psi, vn=vn, ve=ve,
+                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate")
+
+
+def derivative(t, y, window_s=2.0):
+    """Smoothed time derivative on a uniform grid (Savitzky-Golay, cubic)."""
+    dt = float(np.median(np.diff(t)))
+    w = min(_odd(window_s / dt), _odd(len(t) - 2))
+    return savgol_filter(y, w, polyorder=3, deriv=1, delta=dt, axis=0, mode="interp")
+
+
+def smooth_like(t, y, window_s=2.0):
+    """The same local cubic smoothing without the derivative (to treat thrust like the states)."""
+    dt = float(np.median(np.diff(t)))
+    w = min(_odd(window_s / dt), _odd(len(t) - 2))
+    return savgol_filter(y, w, polyorder=3, axis=0, mode="interp")
+
+
+def thrust_on_grid(run: RunData, t):
+    """Thrust held over its samples, averaged over each grid interval centred on t."""
+    out = []
+    for tau in (run.tau_u, run.tau_r):
+        # cumulative integral of the zero-order-hold signal
+        dt = np.diff(run.t_thrust)
+        cum = np.concatenate([[0.0], np.cumsum(tau[:-1] * dt)])
+
+        def integral(x):
+            i = np.clip(np.searchsorted(run.t_thrust, x, side="right") - 1, 0, len(run.t_thrust) - 1)
+            return cum[i] + tau[i] * (x - run.t_thrust[i])
+        h = 0.5 * GRID_DT
+        out.append((integral(t + h) - integral(t - h)) / (2 * h))
+    return out[0], out[1]
+
+
+__all__ = ["KinStates", "kinematic_states", "savgol_states", "derivative", "smooth_like",
+           "thrust_on_grid", "ssa"]
