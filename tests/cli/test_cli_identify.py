@@ -36,8 +36,8 @@ def test_identify_refuses_existing_output_filter_error_and_bad_fix(excitation_fi
     out.write_text("x")
     assert main(["identify", str(excitation_file), "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
-    assert main(["identify", str(excitation_file), "--method", "filter-error", "--out", str(tmp_path / "q.toml")]) == 2
-    assert "not implemented" in capsys.readouterr().err
+    assert main(["identify", str(excitation_file), "--holdout", "0.95", "--out", str(tmp_path / "q.toml")]) == 2
+    assert "holdout" in capsys.readouterr().err
     assert main(["identify", str(excitation_file), "--fix", "mass=3", "--out", str(tmp_path / "q.toml")]) == 2
     assert "--fix" in capsys.readouterr().err
     assert out.read_text() == "x"

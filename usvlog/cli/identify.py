@@ -22,7 +22,8 @@ def register(sub) -> None:
     p.add_argument("--vessel", default=None, help="vessel TOML: thruster map and geometry, start values "
                                                   "(default: the vessel stored in the first log)")
     p.add_argument("--method", choices=METHODS, default="output-error",
-                   help="output-error (accurate, default), equation-error (fast, biased)")
+                   help="output-error (accurate, default), equation-error (fast, biased), filter-error "
+                        "(dynamic EKF likelihood; slower)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validate", default=None, metavar="LOG", help="validate on this log (not fitted)")
     g.add_argument("--holdout", type=float, default=0.0, help="hold out this last fraction of each log")
