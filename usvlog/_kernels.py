@@ -42,7 +42,7 @@ def walk_records(buf, start, end, top_level):
     Stops before the first record that does not fit (``complete`` False), or, at top
     level, after a Data End or Footer record (``complete`` True).
     """
-    cap = 1024
+    cap = max(1024, (end - start) // 64)
     ops = np.empty(cap, np.uint8)
     offs = np.empty(cap, np.int64)
     lens = np.empty(cap, np.int64)
@@ -79,7 +79,8 @@ def walk_records(buf, start, end, top_level):
 
 @njit(cache=True)
 def message_fields(buf, offs, lens):
-    """(channel id, sequence, log time, payload start, payload end) of message records."""
+    """(channel id, sequence, log time, payload start, payload end) of message records, and
+    False if one is malformed (shorter than its header, or a log time past int64)."""
     n = len(offs)
     cid = np.empty(n, np.int64)
     seq = np.empty(n, np.int64)
@@ -99,7 +100,11 @@ def message_fields(buf, offs, lens):
             continue
         cid[i] = np.int64(buf[b]) | (np.int64(buf[b + 1]) << 8)
         seq[i] = _u32(buf, b + 2)
-        t[i] = np.int64(_u64(buf, b + 6))
+        tu = _u64(buf, b + 6)
+        if tu > np.uint64(0x7FFFFFFFFFFFFFFF):  # not an int64 time: a malformed record
+            ok = False
+            cid[i] = -1
+        t[i] = np.int64(tu & np.uint64(0x7FFFFFFFFFFFFFFF))
         ps[i] = b + 22
         pe[i] = b + lens[i]
     return cid, seq, t, ps, pe, ok
@@ -110,28 +115,26 @@ def message_fields(buf, offs, lens):
 # -----------------------------------------------------------------------------
 
 @njit(cache=True)
+def _digits(buf, q, end):
+    while q < end and 48 <= buf[q] <= 57:
+        q += 1
+    return q
+
+
+@njit(cache=True)
 def _scan_number(buf, p, end):
     """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
     q = p
     if q < end and buf[q] == 45:  # '-'
         q += 1
-    if q >= end:
+    if q >= end or not 48 <= buf[q] <= 57:
         return -1, False
-    c = buf[q]
-    if c == 48:  # '0'
-        q += 1
-    elif 49 <= c <= 57:
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
-    else:
-        return -1, False
+    q = q + 1 if buf[q] == 48 else _digits(buf, q, end)  # no leading zeros
     is_int = True
     if q < end and buf[q] == 46:  # '.'
         is_int = False
-        q += 1
-        d0 = q
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
+        d0 = q + 1
+        q = _digits(buf, d0, end)
         if q == d0:
             return -1, False
     if q < end and (buf[q] == 101 or buf[q] == 69):  # e E
@@ -140,8 +143,7 @@ def _scan_number(buf, p, end):
         if q < end and (buf[q] == 43 or buf[q] == 45):
             q += 1
         d0 = q
-        while q < end and 48 <= buf[q] <= 57:
-            q += 1
+        q = _digits(buf, d0, end)
         if q == d0:
             return -1, False
     return q, is_int
@@ -158,41 +160,212 @@ def _lit(buf, p, end, word):
     return True
 
 
+# -----------------------------------------------------------------------------
+# decimal -> double with correct rounding (Eisel-Lemire, as in Go's strconv and
+# fast_float); the rare inputs it cannot decide are left to the caller
+# -----------------------------------------------------------------------------
+
+_Q_MIN, _Q_MAX = -342, 308
+
+
+def _powers_of_ten() -> np.ndarray:
+    """(hi, lo) 64-bit halves of the 128-bit mantissa of 10**q, rounded down."""
+    out = np.empty((_Q_MAX - _Q_MIN + 1, 2), dtype=np.uint64)
+    for i, q in enumerate(range(_Q_MIN, _Q_MAX + 1)):
+        if q >= 0:
+            v = 10 ** q
+            b = v.bit_length()
+            m = v << (128 - b) if b <= 128 else v >> (b - 128)
+        else:
+            d = 10 ** -q
+            m = (1 << (d.bit_length() + 127)) // d
+        assert 1 << 127 <= m < 1 << 128
+        out[i, 0] = m >> 64
+        out[i, 1] = m & ((1 << 64) - 1)
+    return out
+
+
+_POW10 = _powers_of_ten()
+_M32 = np.uint64(0xFFFFFFFF)
+_U = np.uint64
+
+
+@njit(cache=True)
+def _mul64(a, b):
+    """Full 128-bit product of two uint64: (hi, lo)."""
+    a_lo, a_hi = a & _M32, a >> _U(32)
+    b_lo, b_hi = b & _M32, b >> _U(32)
+    p0 = a_lo * b_lo
+    p1 = a_lo * b_hi
+    p2 = a_hi * b_lo
+    p3 = a_hi * b_hi
+    mid = (p0 >> _U(32)) + (p1 & _M32) + (p2 & _M32)
+    lo = (p0 & _M32) | (mid << _U(32))
+    hi = p3 + (p1 >> _U(32)) + (p2 >> _U(32)) + (mid >> _U(32))
+    return hi, lo
+
+
+@njit(cache=True)
+def _clz64(x):
+    n = 0
+    if x <= _U(0x00000000FFFFFFFF):
+        n += 32
+        x <<= _U(32)
+    if x <= _U(0x0000FFFFFFFFFFFF):
+        n += 16
+        x <<= _U(16)
+    if x <= _U(0x00FFFFFFFFFFFFFF):
+        n += 8
+        x <<= _U(8)
+    if x <= _U(0x0FFFFFFFFFFFFFFF):
+        n += 4
+        x <<= _U(4)
+    if x <= _U(0x3FFFFFFFFFFFFFFF):
+        n += 2
+        x <<= _U(2)
+    if x <= _U(0x7FFFFFFFFFFFFFFF):
+        n += 1
+    return n
+
+
+@njit(cache=True)
+def _eisel_lemire(man, q, neg, pow10):
+    """The bits of the double nearest man * 10**q, and whether that was decided."""
+    sign = _U(0x8000000000000000) if neg else _U(0)
+    if man == _U(0):
+        return sign, True
+    if q < _Q_MIN or q > _Q_MAX:
+        return _U(0), False
+    clz = _clz64(man)
+    man = man << _U(clz)
+    ret_exp2 = np.int64((217706 * q) >> 16) + 64 + 1023 - clz
+    hi_t = pow10[q - _Q_MIN, 0]
+    lo_t = pow10[q - _Q_MIN, 1]
+    x_hi, x_lo = _mul64(man, hi_t)
+    if (x_hi & _U(0x1FF)) == _U(0x1FF) and x_lo + man < man:
+        y_hi, y_lo = _mul64(man, lo_t)
+        m_hi, m_lo = x_hi, x_lo + y_hi
+        if m_lo < x_lo:
+            m_hi += _U(1)
+        if (m_hi & _U(0x1FF)) == _U(0x1FF) and m_lo + _U(1) == _U(0) and y_lo + man < man:
+            return _U(0), False
+        x_hi, x_lo = m_hi, m_lo
+    msb = x_hi >> _U(63)
+    mant = x_hi >> (msb + _U(9))
+    ret_exp2 -= 1 - np.int64(msb)
+    if x_lo == _U(0) and (x_hi & _U(0x1FF)) == _U(0) and (mant & _U(3)) == _U(1):
+        return _U(0), False  # exactly half-way: not decided here
+    mant += mant & _U(1)
+    mant >>= _U(1)
+    if (mant >> _U(53)) > _U(0):
+        mant >>= _U(1)
+        ret_exp2 += 1
+    if ret_exp2 < 1 or ret_exp2 >= 0x7FF:
+        return _U(0), False  # subnormal or out of range
+    return sign | (_U(ret_exp2) << _U(52)) | (mant & _U(0x000FFFFFFFFFFFFF)), True
+
+
+@njit(cache=True)
+def _decimal_bits(buf, p, q, pow10):
+    """A JSON number's text buf[p:q] (already checked) -> (double bits, decided)."""
+    neg = buf[p] == 45
+    if neg:
+        p += 1
+    man = _U(0)
+    nd = 0          # significant digits taken
+    exp10 = 0
+    seen_point = False
+    while p < q:
+        c = buf[p]
+        if c == 46:
+            seen_point = True
+        elif 48 <= c <= 57:
+            if nd == 0 and c == 48:
+                if seen_point:
+                    exp10 -= 1
+            else:
+                if nd == 19:
+                    return _U(0), False
+                man = man * _U(10) + _U(c - 48)
+                nd += 1
+                if seen_point:
+                    exp10 -= 1
+        else:
+            break  # e or E
+        p += 1
+    if p < q:
+        p += 1
+        eneg = False
+        if buf[p] == 43 or buf[p] == 45:
+            eneg = buf[p] == 45
+            p += 1
+        e = 0
+        while p < q:
+            if e < 100000:
+                e = e * 10 + np.int64(buf[p] - 48)
+            p += 1
+        exp10 += -e if eneg else e
+    return _eisel_lemire(man, exp10, neg, pow10)
+
+
 _TRUE = np.frombuffer(b"true", np.uint8).copy()
 _FALSE = np.frombuffer(b"false", np.uint8).copy()
 _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
 @njit(cache=True)
-def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_null):
+def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fcol, icol, scol, pow10,
+                   want_text):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
 
-    Returns (kinds (n, S) int8, value starts, value ends (strings include quotes),
-    integer values, index of the first message that does not match or -1).
+    ``fcol``/``icol``/``scol`` map each value slot to a column of the number, integer
+    and string outputs (or -1). Returns (kinds (n, S) int8, index of the first
+    message that does not match or -1, the numbers as double bits (n, F) (null as
+    0), which numbers were not decided here (n, F), the integer values (n, I), the
+    string spans with their quotes (n, T), whether each string equals the one in the
+    message before, and, with ``want_text``, the numbers' text instead of their bits:
+    bytes + n*F+1 offsets row by row, null and -0 written as "0").
     """
     n = len(starts)
+    nslots = len(fcol)
+    nf, ni, ns = 0, 0, 0
+    for k in range(nslots):
+        nf += fcol[k] >= 0
+        ni += icol[k] >= 0
+        ns += scol[k] >= 0
     kinds = np.empty((n, nslots), np.int8)
-    vs = np.empty((n, nslots), np.int64)
-    ve = np.empty((n, nslots), np.int64)
-    iv = np.zeros((n, nslots), np.int64)
+    iv = np.zeros((n, ni), np.int64)
+    svs = np.zeros((n, ns), np.int64)
+    sve = np.zeros((n, ns), np.int64)
+    same = np.zeros((n, ns), np.bool_)
+    fbits = np.zeros((n, nf), np.uint64)
+    fund = np.zeros((n, nf), np.bool_)
+    cap = 0
+    if want_text:
+        for i in range(n):
+            cap += ends[i] - starts[i]
+    fdata = np.empty(cap + (n * nf if want_text else 0), np.uint8)
+    foff = np.zeros(n * nf + 1 if want_text else 1, np.int64)
+    fp = 0
     for i in range(n):
         p = starts[i]
         end = ends[i]
         for k in range(nslots + 1):
             a = lit_off[k]
-            b = lit_off[k + 1]
-            if p + (b - a) > end:
-                return kinds, vs, ve, iv, i
-            for j in range(b - a):
+            m = lit_off[k + 1] - a
+            if p + m > end:
+                return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
+            for j in range(m):
                 if buf[p + j] != lits[a + j]:
-                    return kinds, vs, ve, iv, i
-            p += b - a
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
+            p += m
             if k == nslots:
                 break
             if p >= end:
-                return kinds, vs, ve, iv, i
+                return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
             c = buf[p]
-            vs[i, k] = p
+            v0 = p
+            ival = np.int64(0)
             if c == 34:  # '"'
                 q = p + 1
                 kind = K_STR
@@ -201,96 +374,83 @@ def match_template(buf, starts, ends, lits, lit_off, nslots, w_true, w_false, w_
                     if d == 34:
                         break
                     if d < 32:
-                        return kinds, vs, ve, iv, i
+                        return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                     if d == 92:  # backslash
                         kind = K_STR_ESC
                         q += 1
                     q += 1
                 if q >= end:
-                    return kinds, vs, ve, iv, i
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 p = q + 1
-                kinds[i, k] = kind
             elif c == 116:
                 if not _lit(buf, p, end, w_true):
-                    return kinds, vs, ve, iv, i
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 p += 4
-                kinds[i, k] = K_TRUE
+                kind = K_TRUE
             elif c == 102:
                 if not _lit(buf, p, end, w_false):
-                    return kinds, vs, ve, iv, i
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 p += 5
-                kinds[i, k] = K_FALSE
+                kind = K_FALSE
             elif c == 110:
                 if not _lit(buf, p, end, w_null):
-                    return kinds, vs, ve, iv, i
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 p += 4
-                kinds[i, k] = K_NULL
+                kind = K_NULL
             else:
                 q, is_int = _scan_number(buf, p, end)
                 if q < 0:
-                    return kinds, vs, ve, iv, i
+                    return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 if is_int:
                     neg = buf[p] == 45
                     d0 = p + 1 if neg else p
-                    kinds[i, k] = K_INT_BIG
+                    kind = K_INT_BIG
                     if q - d0 <= 19:
-                        v = np.uint64(0)
+                        u = np.uint64(0)
                         for j in range(d0, q):
-                            v = v * np.uint64(10) + np.uint64(buf[j] - 48)
-                        if v <= np.uint64(9223372036854775807):
-                            iv[i, k] = -np.int64(v) if neg else np.int64(v)
-                            kinds[i, k] = K_INT
+                            u = u * np.uint64(10) + np.uint64(buf[j] - 48)
+                        if u <= np.uint64(9223372036854775807):
+                            ival = -np.int64(u) if neg else np.int64(u)
+                            kind = K_INT
                 else:
-                    kinds[i, k] = K_FLOAT
+                    kind = K_FLOAT
                 p = q
-            ve[i, k] = p
+            kinds[i, k] = kind
+            f = fcol[k]
+            if f >= 0:
+                if want_text:
+                    if kind == K_NULL or (kind == K_INT and ival == 0):
+                        fdata[fp] = 48  # orjson reads -0 as the integer 0
+                        fp += 1
+                    elif kind == K_FLOAT or kind == K_INT or kind == K_INT_BIG:
+                        for j in range(v0, p):
+                            fdata[fp] = buf[j]
+                            fp += 1
+                    foff[i * nf + f + 1] = fp
+                elif kind == K_FLOAT or kind == K_INT_BIG or (kind == K_INT and ival != 0):
+                    bits, ok = _decimal_bits(buf, v0, p, pow10)
+                    fbits[i, f] = bits
+                    fund[i, f] = not ok
+            f = icol[k]
+            if f >= 0:
+                iv[i, f] = ival
+            f = scol[k]
+            if f >= 0:
+                svs[i, f] = v0
+                sve[i, f] = p
+                if i > 0:
+                    a0 = svs[i - 1, f]
+                    m = sve[i - 1, f] - a0
+                    if m == p - v0:
+                        eq = True
+                        for j in range(m):
+                            if buf[a0 + j] != buf[v0 + j]:
+                                eq = False
+                                break
+                        same[i, f] = eq
         if p != end:
-            return kinds, vs, ve, iv, i
-    return kinds, vs, ve, iv, -1
-
-
-@njit(cache=True)
-def gather(buf, vs, ve):
-    """Concatenate the spans buf[vs[i]:ve[i]] -> (data uint8, int32 offsets)."""
-    n = len(vs)
-    offs = np.empty(n + 1, np.int32)
-    offs[0] = 0
-    tot = 0
-    for i in range(n):
-        tot += ve[i] - vs[i]
-        offs[i + 1] = tot
-    out = np.empty(tot, np.uint8)
-    p = 0
-    for i in range(n):
-        for j in range(vs[i], ve[i]):
-            out[p] = buf[j]
-            p += 1
-    return out, offs
-
-
-@njit(cache=True)
-def runs_of_equal_spans(buf, vs, ve):
-    """Label spans so that consecutive equal spans share a label: (labels, first index of each)."""
-    n = len(vs)
-    lab = np.empty(n, np.int64)
-    firsts = np.empty(n, np.int64)
-    m = 0
-    for i in range(n):
-        same = False
-        if i > 0:
-            a, b = vs[i - 1], vs[i]
-            la, lb = ve[i - 1] - a, ve[i] - b
-            if la == lb:
-                same = True
-                for j in range(la):
-                    if buf[a + j] != buf[b + j]:
-                        same = False
-                        break
-        if not same:
-            firsts[m] = i
-            m += 1
-        lab[i] = m - 1
-    return lab, firsts[:m]
+            return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
+    return kinds, -1, fbits, fund, iv, svs, sve, same, fdata[:fp], foff
 
 
 @njit(cache=True)

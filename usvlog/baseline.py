@@ -117,8 +117,8 @@ def updated_baseline(metrics: dict[str, float], old: dict[str, BaselineEntry],
             new[name] = BaselineEntry(value=float(v), worse=e.worse, abs_tol=e.abs_tol, rel_tol=e.rel_tol,
                                       description=e.description)
         else:
-            worse = (default_worse or {}).get(name, "larger")
-            a, r = (default_tol or {}).get(name, (0.0, 0.05))
+            worse = "larger" if default_worse is None else default_worse.get(name, "larger")
+            a, r = (0.0, 0.05) if default_tol is None else default_tol.get(name, (0.0, 0.05))
             new[name] = BaselineEntry(value=float(v), worse=worse, abs_tol=a, rel_tol=r)
     return new
 

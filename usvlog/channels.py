@@ -433,14 +433,32 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     except _Mismatch:
         return None
     lit_buf, lit_off = _pack(lits)
-    kinds, vs, ve, iv, bad = K.match_template(buf, starts, ends, lit_buf, lit_off, len(paths),
-                                              K._TRUE, K._FALSE, K._NULL)
+
+    def columns(kinds_wanted: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
+        slots = [k for f, ks in plan if f.kind in kinds_wanted for k in ks]
+        col = np.full(len(paths), -1, dtype=np.int64)
+        col[slots] = np.arange(len(slots))
+        return slots, col
+
+    float_slots, fcol = columns(("float", "array"))
+    int_slots, icol = columns(("int", "time"))
+    str_slots, scol = columns(("str",))
+    def match(s, e, want_text):
+        return K.match_template(buf, s, e, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol,
+                                K._POW10, want_text)
+
+    kinds, bad, fbits, fund, iv, svs, sve, same, _, _ = match(starts, ends, False)
     if bad >= 0:
         return None
-    n = len(starts)
+    rows = np.flatnonzero(fund.any(axis=1)) if float_slots else []
+    if len(rows):  # numbers the compiled parser left undecided: their rows' text to pyarrow
+        text = match(starts[rows], ends[rows], True)
+        undecided = (rows, text[8], text[9])
+    else:
+        undecided = None
+    ints = {k: iv[:, j] for j, k in enumerate(int_slots)}
     try:
-        float_slots = [k for f, ks in plan if f.kind in ("float", "array") for k in ks]
-        floats = _parse_floats(buf, kinds, vs, ve, float_slots) if float_slots else {}
+        floats = _floats(kinds, fbits, undecided, float_slots) if float_slots else {}
         out: dict[str, np.ndarray] = {}
         for f, ks in plan:
             if f.kind in ("float", "array"):
@@ -450,9 +468,9 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
                 k = ks[0]
                 if not np.all(kinds[:, k] == K.K_INT):
                     return None
-                out[f.columns[0]] = iv[:, k].copy()
+                out[f.columns[0]] = ints[k].copy()
             elif f.kind == "time":
-                sec, nsec = iv[:, ks[0]], iv[:, ks[1]]
+                sec, nsec = ints[ks[0]], ints[ks[1]]
                 if (not np.all(kinds[:, ks] == K.K_INT) or np.abs(sec).max() >= 9_000_000_000
                         or np.abs(nsec).max() >= 10**17):
                     return None
@@ -463,47 +481,54 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
                     return None
                 out[f.columns[0]] = kk == K.K_TRUE
             else:
-                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], vs[:, ks[0]], ve[:, ks[0]])
+                j = str_slots.index(ks[0])
+                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], svs[:, j], sve[:, j], same[:, j])
     except _Mismatch:
         return None
     return out
 
 
-def _parse_floats(buf, kinds, vs, ve, slots: list[int]) -> dict[int, np.ndarray]:
-    """Numbers (or null -> NaN) of the given value slots, parsed with correct rounding."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
+def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
+    """Number columns (null -> NaN): the doubles ``match_template`` decided, and for the
+    rows with a number it could not decide (half-way cases, subnormals, more than 19
+    digits) all the row's numbers parsed by pyarrow, both with correct rounding (the
+    doubles orjson gives)."""
     from . import _kernels as K
 
-    kk = kinds[:, slots].T.ravel()
+    kk = kinds[:, slots]
     if not np.all((kk == K.K_FLOAT) | (kk == K.K_INT) | (kk == K.K_INT_BIG) | (kk == K.K_NULL)):
         raise _Mismatch
-    a, b = vs[:, slots].T.ravel(), ve[:, slots].T.ravel()
+    vals = fbits.view(np.float64)
+    if undecided is not None:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+
+        rows, fdata, foff = undecided
+        arr = pa.Array.from_buffers(pa.large_string(), len(foff) - 1, [None, pa.py_buffer(foff), pa.py_buffer(fdata)])
+        try:
+            vals[rows] = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False).reshape(len(rows), -1)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
+            raise _Mismatch from err
+    if not np.all(np.isfinite(vals)):
+        raise _Mismatch  # out of range: orjson refuses the message, so the reference path reports it
     null = kk == K.K_NULL
-    has_null = bool(null.any())
-    if has_null:
-        a, b = a[~null], b[~null]
-    data, offs = K.gather(buf, a, b)
-    arr = pa.Array.from_buffers(pa.string(), len(a), [None, pa.py_buffer(offs), pa.py_buffer(data)])
-    try:
-        vals = pc.cast(arr, pa.float64()).to_numpy(zero_copy_only=False)
-    except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
-        raise _Mismatch from err
-    if has_null:
-        full = np.full(len(kk), np.nan)
-        full[~null] = vals
-        vals = full
-    vals = vals.reshape(len(slots), -1)
-    return {k: vals[i].copy() for i, k in enumerate(slots)}
+    out = {}
+    for i, k in enumerate(slots):
+        col = vals[:, i].copy()
+        if null[:, i].any():
+            col[null[:, i]] = np.nan
+        out[k] = col
+    return out
 
 
-def _strings(buf, kinds, vs, ve) -> np.ndarray:
+def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
+    """String values (spans with quotes); each run of equal strings is decoded once."""
     from . import _kernels as K
 
     if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
         raise _Mismatch
-    labels, firsts = K.runs_of_equal_spans(buf, vs, ve)
+    firsts = np.flatnonzero(~same)
+    labels = np.cumsum(~same) - 1
     vals = []
     try:
         for i in firsts.tolist():

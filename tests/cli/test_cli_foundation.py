@@ -67,3 +67,5 @@ def test_demo_runs(tmp_path):
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "demo" / "excitation.mcap").exists()
     assert "/gnss/fix" in r.stdout
+    assert (tmp_path / "demo" / "demo.rrd").stat().st_size > 10_000
+    assert (tmp_path / "demo" / "report" / "report.html").exists()

@@ -129,3 +129,13 @@ def test_unregistered_channel_round_trips_with_generated_schema(tmp_path):
     write_log(log, p)
     back = read_log(p)
     pd.testing.assert_frame_equal(back["/my/sensor"], log["/my/sensor"], check_exact=True)
+
+
+def test_outputs_get_the_usual_file_mode(tmp_path, excitation_log):
+    p = tmp_path / "mode.mcap"
+    old = os.umask(0o022)
+    try:
+        write_log(excitation_log, p)
+    finally:
+        os.umask(old)
+    assert (p.stat().st_mode & 0o777) == 0o644

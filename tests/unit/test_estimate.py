@@ -357,6 +357,13 @@ def test_thrust_commands_go_through_the_thruster_map():
     log = simulate("excitation", SimSettings(duration_s=20.0, vessel=v), seed=13)
     th = log["/thrust/command"]
     assert set(th["unit"]) == {"normalized"}
+    # recorded forces are rounded to 1 mN and commands to 1e-4: give the log the forces the
+    # quadratic map (F = forward_n c|c|, reverse_n c|c| below zero) makes of the commands
+    exact = th.copy()
+    for side in ("left", "right"):
+        c = th[side].to_numpy()
+        exact[f"thrust_{side}_n"] = np.where(c >= 0, 20.0, 12.0) * c * np.abs(c)
+    log.set("/thrust/command", exact)
     with_forces = estimate(log, EstimateSettings(model="dynamic"), v)
     only_cmd = log.copy()
     th2 = th.copy()

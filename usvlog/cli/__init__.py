@@ -16,14 +16,18 @@ from ..errors import UsvlogError
 
 VERBS = [
     "simulate",
+    "import_",
     "inspect",
     "export",
     "estimate",
     "identify",
     "gains",
     "replay",
+    "regress",
     "record",
     "demo",
+    "view",
+    "report",
 ]
 
 

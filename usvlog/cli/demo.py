@@ -7,8 +7,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from ..estimate import EstimateSettings, estimate
+from ..frames import ssa
+from ..io.atomic import write_text_atomic
 from ..io.export import export_log
+from ..io.importers import import_file
+from ..io.mergedcsv import write_merged_csv
 from ..io.mcapio import read_log, write_log
 from ..simulate import SimSettings, simulate
 from ..summary import format_summary, summarize
@@ -23,29 +29,63 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+class _Stages:
+    """Numbers the demo's stages as they run."""
+
+    def __init__(self):
+        self.n = 0
+
+    def __call__(self, msg: str) -> None:
+        self.n += 1
+        stage(f"[{self.n}] {msg}")
+
+
 def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    step = _Stages()
     raw = out / "excitation.mcap"
-    stage(f"[1] simulate: excitation run, {args.duration_s:.0f} s, 0.2 m/s current -> {raw}")
+    step(f"simulate: excitation run, {args.duration_s:.0f} s, 0.2 m/s current -> {raw}")
     settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)
     write_log(simulate("excitation", settings, seed=args.seed), raw, force=True)
-    stage("[2] inspect")
+    step("inspect")
     log = read_log(raw)
     print(format_summary(summarize(log)))
+    _import_stage(log, out, step)
     est_path = out / "estimate.mcap"
-    stage(f"[3] estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
+    step(f"estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
     result = estimate(log, EstimateSettings(model="dynamic"))
     print(result.report.format())
     log = result.to_log(log)
     write_log(log, est_path, force=True)
-    stage(f"[4] export -> {out / 'csv'}")
+    step(f"export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
-    stage("[5] identify: output error on the simulated run (true vs identified)")
-    identify_stage(log, out)
-    _control_stages(out, first=6)
+    step("identify: output error on the simulated run (true vs identified)")
+    identify_stage(read_log(raw), out)
+    circle_replay = _control_stages(out, step)
+    _view_stages(out, step, excitation=log, circle=circle_replay)
     stage(f"done: results in {out}/")
     return 0
+
+
+def _import_stage(log, out: Path, step) -> None:
+    """The run as one merged logger CSV, imported again: the same samples come back."""
+    merged = out / "merged.csv"
+    imported = out / "imported.mcap"
+    step(f"import: the run as one merged logger CSV {merged} -> usvlog import -> {imported}")
+    write_merged_csv(log, merged, force=True)
+    thrust_unit = str(log["/thrust/command"]["unit"].iloc[0])
+    res = import_file(merged, vessel=log.vessel, thrust_unit=thrust_unit, out=imported, force=True)
+    back = read_log(imported)
+    for topic, col in (("/gnss/fix", "lat_deg"), ("/gnss/fix", "lon_deg"), ("/compass/heading", "heading_rad"),
+                       ("/thrust/command", "left")):
+        a, b = log[topic], back[topic]
+        same_t = len(a) == len(b) and bool((a.index == b.index).all())
+        err = float(np.max(np.abs(ssa(b[col].to_numpy() - a[col].to_numpy())) if col == "heading_rad" else
+                           np.abs(b[col].to_numpy() - a[col].to_numpy()))) if same_t else float("nan")
+        print(f"import    {topic:<18} {col:<12} {len(b):>7} of {len(a):>7} samples, same times: {same_t}, "
+              f"max |diff| {err:.3g}")
+    print(f"import    skipped records: {dict(res.report.skipped) or 'none'}")
 
 
 def identify_stage(log, out: Path) -> None:
@@ -53,7 +93,7 @@ def identify_stage(log, out: Path) -> None:
     from ..vessel import PARAM_NAMES
 
     idf = Identifier("output-error").fit([log])
-    (out / "identified.toml").write_text(idf.to_vessel().to_toml())
+    write_text_atomic(out / "identified.toml", idf.to_vessel().to_toml(), force=True)
     true = log.vessel.params.to_dict()
     ee = idf.equation_error_.to_dict()
     print("parameter      true  identified   +-stderr   error %   (equation error)")
@@ -67,7 +107,7 @@ def identify_stage(log, out: Path) -> None:
         print(f"  - {v}")
 
 
-def _control_stages(out: Path, first: int) -> None:
+def _control_stages(out: Path, step) -> Path:
     """Section IV closed loop, gain check, replay with a baseline what-if."""
     from ..control.gains import check_gains
     from ..io.config import load_scenario
@@ -76,15 +116,38 @@ def _control_stages(out: Path, first: int) -> None:
 
     scen = load_scenario("paper-circle")
     circ = out / "paper-circle.mcap"
-    stage(f"[{first}] simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
+    step(f"simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
     log = simulate_scenario(scen)
     write_log(log, circ, force=True)
-    stage(f"[{first + 1}] gains: Theorem 3.1 for the paper's gains")
+    step(f"gains: Theorem 3.1 for the paper's gains")
     chk = check_gains(scen.sim.vessel.params, scen.gains)
     print(chk.verdict)
     print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
     rep = out / "paper-circle-replay.mcap"
-    stage(f"[{first + 2}] replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
+    step(f"replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
     res = replay_log(read_log(circ), scen, whatif_controller="baseline")
     write_log(res.log, rep, force=True)
     print(format_metrics(res.metrics))
+    return rep
+
+
+def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
+    """Rerun recordings of both runs and the report with the paper's figures."""
+    from ..io.config import load_scenario
+    from ..replay import simulate_scenario
+    from ..report import write_report
+    from ..viz import to_rrd
+
+    rrd = out / "demo.rrd"
+    step(f"view: paper-circle replay (track, guidance, what-if, errors) -> {rrd} "
+          f"(open it with: rerun {rrd})")
+    replayed = read_log(circle)
+    to_rrd(replayed, rrd, names=["paper_circle"], force=True)
+    est_rrd = out / "estimate.rrd"
+    step(f"view: excitation run with its estimate -> {est_rrd}")
+    to_rrd(excitation, est_rrd, names=["excitation"], force=True)
+    rep = out / "report"
+    step(f"report: the paper's Fig. 1, 2, 4, 5 for paper-circle (baseline PI/PID for Fig. 2) "
+          f"-> {rep / 'report.html'}")
+    baseline = simulate_scenario(load_scenario("paper-circle"), controller="baseline")
+    write_report(replayed, rep, force=True, baseline=baseline)

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+from dataclasses import replace as dc_replace
+
 from ..errors import ConfigError
 from ..io.atomic import check_output
 from ..io.config import load_vessel
@@ -13,7 +15,7 @@ def register(sub) -> None:
     p.add_argument("scenario", help="built-in open-loop scenario (excitation), a closed-loop scenario name "
                                     "in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
                                     "closed-loop scenario takes its settings from the file (only --duration-s, "
-                                    "--seed, --vessel and --controller override them)")
+                                    "--seed, --vessel, --controller and --truth-rate-hz override them)")
     p.add_argument("--out", required=True, help="output MCAP file")
     p.add_argument("--seed", type=int, default=None, help="random seed (same seed, same file; default 0, "
                                                           "or the closed-loop scenario's)")
@@ -90,6 +92,9 @@ def run_closed_loop(args) -> int:
     from ..replay import simulate_scenario
 
     scen = load_scenario(args.scenario, vessel=load_vessel(args.vessel) if args.vessel else None)
+    if args.truth_rate_hz is not None:
+        sens = dc_replace(scen.sim.sensors, truth_rate_hz=args.truth_rate_hz)
+        scen = dc_replace(scen, sim=dc_replace(scen.sim, sensors=sens))
     ctl = args.controller or scen.controller
     dur = args.duration_s or scen.sim.duration_s
     stage(f"simulating {scen.name} closed loop ({dur:.0f} s, controller {ctl}, "

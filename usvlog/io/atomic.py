@@ -19,6 +19,12 @@ def check_output(path, force: bool) -> Path:
     return p
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path, *, force: bool = False):
     """Yield a temporary path; on success it replaces ``path`` atomically.
@@ -40,6 +46,7 @@ def atomic_path(path, *, force: bool = False):
         try:
             with open(tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
+            os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual mode
             if p.exists() and not force:  # appeared meanwhile
                 raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
             os.replace(tmp, p)

@@ -41,7 +41,7 @@ def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
     lines = [f"# {line}" for line in header.splitlines()] + ([""] if header else [])
     for name in sorted(entries):
         e = entries[name]
-        lines.append(f"[metrics.{name}]")
+        lines.append(f"[metrics.{_q(name)}]")
         lines.append(f"value = {_num(e.value)}")
         lines.append(f"worse = {_q(e.worse)}")
         lines.append(f"abs_tol = {_num(e.abs_tol)}")
@@ -54,3 +54,31 @@ def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
 
 def write_baseline(path, entries: dict[str, BaselineEntry], header: str = "") -> None:
     write_text_atomic(path, format_baseline(entries, header), force=True)
+
+
+def is_regress_scenario(path) -> bool:
+    """A TOML file with a [dataset] section is a regression scenario."""
+    try:
+        return "dataset" in read_toml(path)
+    except ConfigError:
+        return True  # let loading report the error
+
+
+def find_regress_scenarios(paths) -> list[Path]:
+    """Scenario files named, or every regression scenario in the directories named."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += [f for f in sorted(p.glob("*.toml")) if is_regress_scenario(f)]
+        elif p.exists():
+            out.append(p)
+        else:
+            raise ConfigError(f"{p}: no such scenario file or directory")
+    return out
+
+
+def load_regress_scenario(path):
+    from ..regress import regress_scenario_from_dict
+
+    p = Path(path).resolve()
+    return regress_scenario_from_dict(read_toml(p), p)

@@ -5,9 +5,16 @@ truncated file keeps them), then zstd chunks of JSON messages in log-time order,
 then the usual summary (indexes, statistics). Each message's ``sequence`` is its
 row number in the channel's frame so reading restores the frame's row order.
 
-Reading walks the records itself (``_walk``) rather than through the mcap
-library's per-record objects: it stops at the first incomplete record of a file
-cut short, keeps every complete chunk, and reports what was lost.
+Writing builds the message and index records with compiled loops
+(``usvlog._kernels``) and gives the same bytes as the mcap library's ``Writer``
+(``_write_log_reference``, kept to test against).
+
+Reading walks the records itself rather than through the mcap library's
+per-record objects: it stops at the first incomplete record of a file cut short
+(or the first corrupt chunk), keeps every complete chunk, and reports what was
+lost. ``_scan_fast`` walks records and messages into arrays with compiled loops;
+``_scan_reference`` is the plain one-record-at-a-time reading, kept as the
+reference the tests compare it with.
 """
 
 from __future__ import annotations
@@ -18,8 +25,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
-
 from .. import __version__
 from ..channels import (MESSAGE_ENCODING, SCHEMA_ENCODING, Codec, auto_schema, codec_for_schema,
                         codec_for_topic, frame_from_columns, schema_for_topic)
@@ -394,21 +399,26 @@ def _chunk_header(buf, body: int, end: int):
     return t0, t1, usize, comp, buf[p + 8:p + 8 + rlen]
 
 
+_PAST_CHUNK = "a record runs past the end of the chunk"
+_BAD_MESSAGE = "a message record is too short or its log time past int64"
+
+
 def _chunk_records(data) -> list[tuple[int, int, int]]:
     """(op, body start, body end) of every record in a decompressed chunk; a chunk
-    whose records do not fit it exactly, or holds a too-short message, is corrupt."""
+    whose records do not fit it exactly, or holds a bad message record, is corrupt."""
     out, off, end = [], 0, len(data)
     while off < end:
         if off + 9 > end:
-            raise _CorruptChunk("ends inside a record header")
+            raise _CorruptChunk(_PAST_CHUNK)
         op, length = _REC.unpack_from(data, off)
         nxt = off + 9 + length
         if nxt > end:
-            raise _CorruptChunk("a record runs past the end of the chunk")
-        if op == OP_MESSAGE and length < 22:
-            raise _CorruptChunk("a message record is too short")
+            raise _CorruptChunk(_PAST_CHUNK)
         out.append((op, off + 9, nxt))
         off = nxt
+    for op, b, e in out:
+        if op == OP_MESSAGE and (e - b < 22 or _U64.unpack_from(data, b + 6)[0] >= 1 << 63):
+            raise _CorruptChunk(_BAD_MESSAGE)
     return out
 
 
@@ -425,8 +435,8 @@ def _scan_reference(data: bytes) -> _Scan:
             break
         try:
             if op == OP_MESSAGE:
-                if length < 22:
-                    raise struct.error("message record too short")
+                if length < 22 or _U64.unpack_from(buf, body + 6)[0] >= 1 << 63:
+                    raise struct.error("bad message record")
                 _add_message(scan, buf, body, nxt)
             elif op == OP_CHUNK:
                 t0, t1, usize, comp, raw = _chunk_header(buf, body, nxt)
@@ -462,6 +472,8 @@ def _scan_reference(data: bytes) -> _Scan:
 
 def _add_message(scan: _Scan, buf, body: int, nxt: int) -> None:
     cid, seq, log_time, _pub = _MSG.unpack_from(buf, body)
+    if log_time >= 1 << 63:
+        raise struct.error("message log time past int64")
     ch = scan.channels.get(cid)
     if ch is not None:
         ch.times.append(log_time)
@@ -481,20 +493,22 @@ def _scan_fast(data: bytes) -> _Scan:
     ops, offs, lens, stop, complete = K.walk_records(buf, 8, len(buf), True)
     n_top = len(ops)
     defined: dict[int, int] = {}     # channel id -> ordinal of its record
-    segments: list[np.ndarray] = []  # message bytes: decompressed chunks (and the file)
-    parts = []                       # (segment, cid, seq, t, start, end, ordinal)
+    parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
 
     top_msgs = np.flatnonzero(ops == OP_MESSAGE)
+    chunk_ops = np.flatnonzero(ops == OP_CHUNK)
+    usizes = [_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
+              if lens[i] >= 24]
+    arena = _Arena(min(sum(usizes), 64 * len(data)) + (len(data) if len(top_msgs) else 0))
     if len(top_msgs):
         cid, seq, t, ps, pe, ok = K.message_fields(buf, offs[top_msgs], lens[top_msgs])
         if not ok:  # a too-short message record: the file is read up to it
             first_bad = int(top_msgs[np.flatnonzero(cid < 0)[0]])
             n_top, complete = first_bad, False
-            scan.reason = f"malformed record after byte {int(offs[first_bad])} (message record too short)"
+            scan.reason = f"malformed record after byte {int(offs[first_bad])} (bad message record)"
             keep = top_msgs < first_bad
             cid, seq, t, ps, pe, top_msgs = cid[keep], seq[keep], t[keep], ps[keep], pe[keep], top_msgs[keep]
-        segments.append(buf)
-        parts.append((0, cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
+        parts.append((arena.put(buf), cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
 
     for i in np.flatnonzero(ops[:n_top] != OP_MESSAGE).tolist():
         op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
@@ -506,14 +520,14 @@ def _scan_fast(data: bytes) -> _Scan:
                     chunk = np.frombuffer(_decompress(comp, raw, usize), dtype=np.uint8)
                     cops, coffs, clens, _cstop, ccomplete = K.walk_records(chunk, 0, len(chunk), False)
                     if not ccomplete:
-                        raise _CorruptChunk("a record runs past the end of the chunk")
-                    cmv = memoryview(chunk)
-                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
-                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
+                        raise _CorruptChunk(_PAST_CHUNK)
                     m = np.flatnonzero(cops == OP_MESSAGE)
                     cid, seq, t, ps, pe, ok = K.message_fields(chunk, coffs[m], clens[m])
                     if not ok:
-                        raise _CorruptChunk("a message record is too short")
+                        raise _CorruptChunk(_BAD_MESSAGE)
+                    cmv = memoryview(chunk)
+                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
+                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
                 except _CorruptChunk:
                     raise
                 except Exception as err:  # corrupt chunk: keep what came before
@@ -524,8 +538,7 @@ def _scan_fast(data: bytes) -> _Scan:
                             defined[pr[1]] = (i << 32) + j + 1
                         _apply(scan, pr, True)
                 if len(m):
-                    parts.append((len(segments), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
-                    segments.append(chunk)
+                    parts.append((arena.put(chunk), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
             else:
                 pr = _parse(op, mv[body:nxt])
                 if pr is not None:
@@ -548,12 +561,11 @@ def _scan_fast(data: bytes) -> _Scan:
 
     # messages -> per-channel arrays into one arena of bytes
     if parts:
-        base = np.cumsum([0] + [len(s) for s in segments])
-        scan.arena = segments[0] if len(segments) == 1 else np.concatenate(segments)
+        scan.arena = arena.buf[:arena.used]
         cid = np.concatenate([p[1] for p in parts])
         seq = np.concatenate([p[2] for p in parts])
         t = np.concatenate([p[3] for p in parts])
-        shift = np.concatenate([np.full(len(p[1]), base[p[0]], dtype=np.int64) for p in parts])
+        shift = np.concatenate([np.full(len(p[1]), p[0], dtype=np.int64) for p in parts])
         ps = np.concatenate([p[4] for p in parts]) + shift
         pe = np.concatenate([p[5] for p in parts]) + shift
         ordinal = np.concatenate([p[6] for p in parts])
@@ -566,6 +578,24 @@ def _scan_fast(data: bytes) -> _Scan:
         for ch in scan.channels.values():
             ch.t = ch.seq = ch.starts = ch.ends = np.zeros(0, dtype=np.int64)
     return scan
+
+
+class _Arena:
+    """One growing byte buffer holding every message's bytes (decompressed chunks)."""
+
+    def __init__(self, capacity: int):
+        self.buf = np.empty(max(capacity, 0), dtype=np.uint8)
+        self.used = 0
+
+    def put(self, data: np.ndarray) -> int:
+        n, at = len(data), self.used
+        if at + n > len(self.buf):
+            grown = np.empty(max(2 * len(self.buf), at + n), dtype=np.uint8)
+            grown[:at] = self.buf[:at]
+            self.buf = grown
+        self.buf[at:at + n] = data
+        self.used = at + n
+        return at
 
 
 def _decompress(comp: str, raw, usize: int) -> bytes:
@@ -631,9 +661,11 @@ def _read_log(path, *, topics=None, strict=False, fast=True) -> FieldLog:
             continue  # not a canonical channel: left alone
         try:
             schema = json.loads(sdata) if sdata else {"title": sname, "properties": {}}
-        except json.JSONDecodeError as err:
-            raise InputError(f"{p} channel {ch.topic}: schema {sname} is not valid JSON") from err
-        codec = codec_for_schema(schema)
+            if not isinstance(schema, dict):
+                raise TypeError("not an object")
+            codec = codec_for_schema(schema)
+        except (ValueError, TypeError, AttributeError) as err:
+            raise InputError(f"{p} channel {ch.topic}: schema {sname} is not a usable JSON Schema ({err})") from err
         if scan.arena is None:
             t = np.asarray(ch.times, dtype=np.int64)
             seq = np.asarray(ch.seqs, dtype=np.int64)

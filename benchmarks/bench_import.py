@@ -1,0 +1,141 @@
+"""Import speed and memory: CSV rows/s and NMEA lines/s, peak RSS at 1x and 10x the file size.
+
+Each measurement runs in its own Python process (peak RSS = that process's ru_maxrss),
+so the sizes do not share memory. Two figures per file:
+
+* ``parse``: reading + mapping + validating into canonical frames (the importer itself);
+* ``to mcap``: the same, streamed into an MCAP file (JSON encoding + mcap writer included),
+  as ``usvlog import`` does.
+
+Records/s is given per wall-clock second and per CPU second of the process (the second
+is the fairer figure on a machine shared with other work).
+
+Run:  python benchmarks/bench_import.py [--rows 300000] [--lines 100000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+T0_S = 1_714_557_600.0
+
+
+def make_csv(path: Path, rows: int) -> None:
+    """100 Hz merged-logger rows: thrust every row, heading every 5th, lat/lon every 10th."""
+    with open(path, "w") as fh:
+        fh.write("time,lat,lon,heading,left,right\n")
+        step = 100_000
+        for a in range(0, rows, step):
+            k = np.arange(a, min(rows, a + step))
+            t = T0_S + 0.01 * k
+            lat = np.char.mod("%.8f", 59.1 + 1e-7 * k)
+            lon = np.char.mod("%.8f", 10.2 + 1e-7 * k)
+            hd = np.char.mod("%.3f", (0.01 * k) % 360)
+            lat = np.where(k % 10 == 0, lat, "")
+            lon = np.where(k % 10 == 0, lon, "")
+            hd = np.where(k % 5 == 0, hd, "")
+            left = np.char.mod("%d", 1500 + k % 300)
+            right = np.char.mod("%d", 1500 - k % 300)
+            tt = np.char.mod("%.2f", t)
+            lines = [",".join(r) for r in zip(tt, lat, lon, hd, left, right)]
+            fh.write("\n".join(lines) + "\n")
+
+
+def _cs(body: str) -> str:
+    c = 0
+    for ch in body:
+        c ^= ord(ch)
+    return f"${body}*{c:02X}"
+
+
+def make_nmea(path: Path, lines: int) -> None:
+    """10 Hz GGA + 20 Hz HDT with an epoch-seconds prefix (4 lines per 0.1 s: GGA, RMC, 2x HDT)."""
+    with open(path, "w") as fh:
+        out = []
+        for i in range(lines // 4):
+            t = T0_S + 0.1 * i
+            s = int(t) % 86400
+            hms = f"{s // 3600:02d}{s // 60 % 60:02d}{s % 60:02d}.{int(round((t % 1) * 100)) % 100:02d}"
+            lat = f"5906.{i % 10000:04d}000"
+            out.append(f"{t:.2f} " + _cs(f"GPGGA,{hms},{lat},N,01012.0000000,E,1,10,0.8,5.0,M,20.0,M,,"))
+            out.append(f"{t:.2f} " + _cs(f"GPRMC,{hms},A,{lat},N,01012.0000000,E,3.9,90.0,010524,,,A"))
+            out.append(f"{t + 0.02:.2f} " + _cs(f"HEHDT,{(i * 0.1) % 360:.2f},T"))
+            out.append(f"{t + 0.07:.2f} " + _cs(f"HEHDT,{(i * 0.1 + 0.05) % 360:.2f},T"))
+            if len(out) >= 40_000:
+                fh.write("\n".join(out) + "\n")
+                out = []
+        if out:
+            fh.write("\n".join(out) + "\n")
+
+
+CHILD = textwrap.dedent("""
+    import json, resource, sys, time
+    sys.path.insert(0, {root!r})
+    from usvlog.io.importers import import_file, ImportOptions, ImportReport
+    from usvlog.io.importers.core import Assembler
+    import importlib
+    src, mode, out = sys.argv[1], sys.argv[2], sys.argv[3]
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    if mode == "parse":
+        from usvlog.io.importers import detect_format, _MODULES
+        fmt = detect_format(src)
+        mod = importlib.import_module("usvlog.io.importers." + _MODULES[fmt])
+        rep = ImportReport()
+        asm = Assembler(rep)
+        n_out = 0
+        for batch in mod.read(__import__("pathlib").Path(src), ImportOptions(), rep, fmt=fmt):
+            n_out += sum(len(f) for f in asm.process(batch).values())
+        records = rep.records
+    else:
+        res = import_file(src, out=out, force=True)
+        records = res.report.records
+        n_out = sum(res.report.counts.values())
+    dt = time.perf_counter() - t0
+    cpu = time.process_time() - c0
+    print(json.dumps({{"records": records, "samples": n_out, "seconds": dt, "cpu_seconds": cpu,
+                      "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}}))
+""").format(root=str(ROOT))
+
+
+def measure(src: Path, mode: str, out: Path) -> dict:
+    r = subprocess.run([sys.executable, "-c", CHILD, str(src), mode, str(out)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(r.stderr)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=300_000, help="CSV rows of the 1x file")
+    ap.add_argument("--lines", type=int, default=100_000, help="NMEA lines of the 1x file")
+    ap.add_argument("--skip-mcap", action="store_true", help="only the parse figures")
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="usvlog-bench-") as d:
+        d = Path(d)
+        print(f"{'file':<20} {'MB':>6} {'records':>9} {'mode':>8} {'wall s':>7} {'records/s':>10} "
+              f"{'CPU s':>7} {'rec/CPU-s':>10} {'peak RSS MB':>12}")
+        for kind, n, make in (("csv", args.rows, make_csv), ("nmea", args.lines, make_nmea)):
+            for scale in (1, 10):
+                src = d / f"{kind}_{scale}x.{kind}"
+                make(src, n * scale)
+                mb = src.stat().st_size / 1e6
+                for mode in ("parse",) + (() if args.skip_mcap else ("to mcap",)):
+                    m = measure(src, "parse" if mode == "parse" else "mcap", d / "out.mcap")
+                    print(f"{src.name:<20} {mb:>6.1f} {m['records']:>9} {mode:>8} {m['seconds']:>7.2f} "
+                          f"{m['records'] / m['seconds']:>10,.0f} {m['cpu_seconds']:>7.2f} "
+                          f"{m['records'] / m['cpu_seconds']:>10,.0f} {m['peak_rss_mb']:>12.0f}", flush=True)
+                src.unlink()
+
+
+if __name__ == "__main__":
+    main()

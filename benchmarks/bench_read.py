@@ -1,0 +1,86 @@
+"""Read speed: usvlog.read_log vs the mcap library's own loop, on a 1-hour log.
+
+    python benchmarks/bench_read.py
+
+The library loop is ``make_reader(f).iter_messages()`` + ``orjson.loads`` per message
+(nothing else: no columns, no frames). Best of 3 each; ours is timed after one warm-up
+load (numba compiles its loops once and caches them on disk).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import orjson
+
+from _log import hour_file
+
+
+def best_of(fn, n=3):
+    best = float("inf")
+    for _ in range(n):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def mcap_loop(path):
+    from mcap.reader import make_reader
+
+    n = 0
+    with open(path, "rb") as fh:
+        for _schema, _channel, message in make_reader(fh).iter_messages():
+            orjson.loads(message.data)
+            n += 1
+    return n
+
+
+PEAK = """
+import resource, sys
+sys.path.insert(0, sys.argv[1])
+from usvlog.io.mcapio import read_log
+import numba, pyarrow.compute
+if sys.argv[3] == "load":
+    log = read_log(sys.argv[2])
+try:  # this process's own high-water mark (ru_maxrss may carry the parent's peak over exec)
+    hwm = [l for l in open("/proc/self/status") if l.startswith("VmHWM")][0].split()[1]
+except OSError:
+    hwm = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(hwm)
+"""
+
+
+def peak_rss_mb(path, load: bool) -> float:
+    """Peak resident memory of a fresh process that imports usvlog (and loads ``path``)."""
+    from _log import ROOT
+
+    out = subprocess.run([sys.executable, "-c", PEAK, str(ROOT), str(path), "load" if load else "-"],
+                         check=True, capture_output=True, text=True).stdout
+    return int(out.split()[-1]) / 1024
+
+
+def main() -> None:
+    from usvlog.io.mcapio import read_log
+
+    path = hour_file()
+    base, peak = peak_rss_mb(path, False), peak_rss_mb(path, True)
+    size_mb = path.stat().st_size / 1e6
+    read_log(path)  # warm-up (compiles or loads the cached compiled loops)
+    t_ours, log = best_of(lambda: read_log(path))
+    n = sum(len(f) for f in log.channels.values())
+    t_lib, n_lib = best_of(lambda: mcap_loop(path))
+    assert n == n_lib, (n, n_lib)
+    print(f"file: {path.name}, {size_mb:.1f} MB, {n} messages "
+          + ", ".join(f"{t} {len(f)}" for t, f in log.channels.items()))
+    print(f"mcap iter_messages + orjson.loads: {t_lib:7.3f} s  {n / t_lib:12,.0f} msg/s")
+    print(f"usvlog read_log (to frames):       {t_ours:7.3f} s  {n / t_ours:12,.0f} msg/s")
+    print(f"speed-up: {t_lib / t_ours:.1f}x (target >= 5x)")
+    print(f"peak RSS (VmHWM/ru_maxrss) of a fresh process loading the log: {peak:.0f} MB "
+          f"({base:.0f} MB after imports alone, so {peak - base:.0f} MB for the load)")
+
+
+if __name__ == "__main__":
+    main()

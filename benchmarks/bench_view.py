@@ -1,0 +1,116 @@
+"""Time ``to_rrd`` on a 1-hour log against per-row Rerun logging of the same scalars.
+
+The log: a simulated 3600 s excitation run (GPS 10 Hz, compass 20 Hz, thrust 100 Hz,
+truth 100 Hz) plus an ``/estimate/state`` channel and a ``/replay/controller`` channel at
+100 Hz built from the truth (the volume the smoother and the replay would write).
+``to_rrd`` sends everything with ``rr.send_columns``.
+
+The per-row baseline logs the very same time-series scalars (read back from the .rrd)
+one sample at a time, ``rec.set_time(...)`` + ``rec.log(path, rr.Scalars(x))``. It is timed
+on a 1/20 slice of every series and scaled by 20 (the cost is linear in the rows), so the
+benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
+
+from usvlog.channels import codec_for_topic, frame_from_columns
+from usvlog.simulate import SimSettings, simulate
+from usvlog.viz import to_rrd
+
+
+def hour_log(duration_s: float):
+    log = simulate("excitation", SimSettings(duration_s=duration_s, current_mps=0.2, current_dir_deg=60.0), seed=1)
+    tr = log["/truth/state"]
+    rng = np.random.default_rng(0)
+    est = {"t": (tr.index.to_numpy() - tr.index[0]) / 1e9}
+    for c in ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"):
+        est[c] = tr[c].to_numpy() + rng.normal(0, 0.01, len(tr))
+        est[c + "_std"] = np.full(len(tr), 0.05)
+    log.set("/estimate/state", frame_from_columns(est, tr.index.to_numpy(), codec_for_topic("/estimate/state")))
+    # a replayed controller at 100 Hz (the volume of /replay/controller; values built from the truth)
+    n = len(tr)
+    z = np.zeros(n)
+    ctl = {"theta": np.arange(n) * 0.01, "closest_n_m": tr["n_m"].to_numpy() + 1.0,
+           "closest_e_m": tr["e_m"].to_numpy(), "carrot_n_m": tr["n_m"].to_numpy() + 3.0,
+           "carrot_e_m": tr["e_m"].to_numpy() + 1.0, "psi_ref_rad": tr["psi_rad"].to_numpy(),
+           "psi_d_rad": tr["psi_rad"].to_numpy() + 0.05, "r_d_radps": z, "r_d_dot_radps2": z,
+           "u_d_mps": np.where(np.arange(n) < n // 2, 0.4, 0.6), "u_d_dot_mps2": z,
+           "u_e_mps": tr["u_mps"].to_numpy() - 0.4, "psi_e_rad": z + 0.05, "cross_track_m": z + 1.0,
+           "tau_u_n": tr["tau_u_n"].to_numpy(), "tau_r_nm": tr["tau_r_nm"].to_numpy(), "thrust_left_n": z,
+           "thrust_right_n": z, "cmd_left": z, "cmd_right": z, "saturated": np.zeros(n, bool)}
+    log.set("/replay/controller", frame_from_columns(ctl, tr.index.to_numpy(), codec_for_topic("/replay/controller")))
+    return log
+
+
+def series_of(rrd: Path):
+    from rerun.chunk import RrdReader
+
+    out: dict[str, tuple[list, list]] = {}
+    for c in RrdReader(rrd).stream().to_chunks():
+        if c.is_static or "/ts/" not in c.entity_path:
+            continue
+        rb = c.to_record_batch()
+        t = rb.column("time").cast("int64").to_numpy()
+        y = np.concatenate(rb.column("Scalars:scalars").to_numpy(zero_copy_only=False))
+        ts, ys = out.setdefault(c.entity_path, ([], []))
+        ts.append(t)
+        ys.append(y)
+    return {k: (np.concatenate(v[0]), np.concatenate(v[1])) for k, v in out.items()}
+
+
+def per_row(series, path: Path, fraction: int) -> tuple[float, int]:
+    import rerun as rr
+
+    rec = rr.RecordingStream("usvlog-bench", recording_id="per-row", send_properties=False)
+    rec.save(path)
+    n = 0
+    t0 = time.perf_counter()
+    for ent, (t, y) in series.items():
+        k = len(t) // fraction
+        for tt, yy in zip(t[:k].tolist(), y[:k].tolist()):
+            rec.set_time("time", timestamp=np.datetime64(tt, "ns"))
+            rec.log(ent, rr.Scalars(yy))
+        n += k
+    rec.flush()
+    rec.disconnect()
+    return time.perf_counter() - t0, n
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration-s", type=float, default=3600.0)
+    ap.add_argument("--fraction", type=int, default=20, help="per-row logging is timed on 1/fraction of the rows")
+    args = ap.parse_args()
+    t = time.perf_counter()
+    log = hour_log(args.duration_s)
+    print(f"built a {args.duration_s:.0f} s log in {time.perf_counter() - t:.1f} s: "
+          + ", ".join(f"{k} {len(v)}" for k, v in log.channels.items()))
+    with tempfile.TemporaryDirectory() as d:
+        out = Path(d) / "hour.rrd"
+        t = time.perf_counter()
+        to_rrd(log, out)
+        cols = time.perf_counter() - t
+        series = series_of(out)
+        n_scalars = sum(len(v[0]) for v in series.values())
+        print(f"to_rrd (send_columns): {cols:.2f} s for the whole log "
+              f"({n_scalars:,} time-series scalars in {len(series)} series, plus tracks, overlays, events; "
+              f"{out.stat().st_size / 1e6:.1f} MB)")
+        secs, n = per_row(series, Path(d) / "rows.rrd", args.fraction)
+        scaled = secs * n_scalars / max(n, 1)
+        print(f"per-row (set_time + log per sample): {secs:.2f} s for {n:,} scalars (1/{args.fraction}), "
+              f"scaled to all {n_scalars:,}: {scaled:.1f} s")
+        print(f"to_rrd is {scaled / cols:.0f}x faster than per-row logging of the time series alone")
+
+
+if __name__ == "__main__":
+    main()

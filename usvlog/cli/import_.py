@@ -1,0 +1,61 @@
+"""``usvlog import``: a field log (CSV, NMEA, ROS bag, .bin, .ulg) -> canonical MCAP log."""
+
+from __future__ import annotations
+
+from ..io.config import load_vessel
+from ..io.importers import FORMATS, import_file, parse_pairs
+from .common import print_json, stage
+
+
+def register(sub) -> None:
+    p = sub.add_parser("import", help="import a field log (CSV, NMEA, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg)")
+    p.add_argument("src", help="field log file (or ROS 2 bag directory)")
+    p.add_argument("--out", required=True, help="output MCAP file")
+    p.add_argument("--format", default="auto", choices=("auto",) + FORMATS,
+                   help="input format (default: detected from the content)")
+    p.add_argument("--vessel", default=None, help="vessel TOML (thruster map for non-newton commands)")
+    p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
+                   help="CSV: map a role (time_s, time_ns, time_iso, lat_deg, lon_deg, alt_m, heading_deg, "
+                        "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
+                        "course_deg) to a column; repeatable")
+    p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
+                   help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
+                        "to a topic and field path; repeatable")
+    p.add_argument("--thrust-unit", choices=("newton", "normalized", "pwm_us"), default=None,
+                   help="unit of recorded thruster commands (default: guessed from the values)")
+    p.add_argument("--start-utc", default=None, metavar="ISO",
+                   help="start time for relative time columns / line stamps, e.g. 2024-05-01T10:00:00Z")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--json", action="store_true", help="print the import report as JSON")
+    p.set_defaults(func=run)
+
+
+def _print_mapping(report) -> None:
+    stage(f"importing {report.source} as {report.format}")
+    guessed = {k.split(" ", 1)[-1] for k in report.guesses if k.startswith(("column ", "topic "))}
+    for role, src in report.mapping.items():
+        stage(f"  {role:<16} <- {src}" + ("   (guessed)" if role in guessed else ""))
+
+
+def run(args) -> int:
+    vessel = load_vessel(args.vessel) if args.vessel else None
+    res = import_file(args.src, args.format, vessel=vessel, columns=parse_pairs(args.column, "--column"),
+                      topics=parse_pairs(args.topic, "--topic"), thrust_unit=args.thrust_unit,
+                      start_utc=args.start_utc, out=args.out, force=args.force, on_mapping=_print_mapping)
+    r = res.report
+    if args.json:
+        print_json(res.to_dict())
+        return 0
+    for k, v in r.guesses.items():
+        if not k.startswith(("column ", "topic ")):
+            print(f"guessed   {k} = {v}")
+    for note in r.notes:
+        print(f"note      {note}")
+    for topic, n in sorted(r.counts.items()):
+        print(f"wrote     {topic:<20} {n:>9} samples")
+    if r.skipped:
+        print("skipped   " + ", ".join(f"{k} {v}" for k, v in sorted(r.skipped.items())))
+        for k, w in r.first_bad.items():
+            print(f"  first {k}: {w}")
+    print(f"output    {res.out}")
+    return 0

@@ -1,0 +1,47 @@
+"""``usvlog view``: logs -> a Rerun .rrd (blueprint inside); optionally open or serve it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import InputError
+from ..io.atomic import check_output
+from ..io.mcapio import read_log
+from .common import stage
+
+
+def register(sub) -> None:
+    p = sub.add_parser("view", help="visualise logs in Rerun: write an .rrd, optionally open or serve it")
+    p.add_argument("logs", nargs="+", metavar="LOG", help="canonical MCAP log(s); several are overlaid")
+    p.add_argument("--out", default=None, help="output .rrd (default: <first log>.rrd next to it)")
+    p.add_argument("--name", action="append", default=None,
+                   help="name of each log in the viewer (repeat; default: the file names)")
+    p.add_argument("--spawn", action="store_true", help="open the native Rerun viewer on the result")
+    p.add_argument("--serve", action="store_true", help="serve the result to a browser viewer (blocks)")
+    p.add_argument("--host", default="127.0.0.1", help="address --serve binds (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=None, help="web viewer HTTP port for --serve (default 9090)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .. import viz  # rerun is imported only when a verb needs it
+
+    out = Path(args.out) if args.out else Path(args.logs[0]).with_suffix(".rrd")
+    check_output(out, args.force)  # fail before the work, not after
+    if args.name is not None and len(args.name) != len(args.logs):
+        raise InputError(f"--name given {len(args.name)} times for {len(args.logs)} logs")
+    logs = []
+    for path in args.logs:
+        stage(f"reading {path}")
+        logs.append(read_log(path))
+    stage(f"writing {out}")
+    viz.to_rrd(logs, out, names=args.name, force=args.force)
+    print(out)
+    if args.spawn:
+        stage("opening the Rerun viewer")
+        viz.spawn_viewer(out)
+    if args.serve:
+        stage(f"serving {out} on {args.host} (Ctrl-C to stop)")
+        return viz.serve(out, host=args.host, port=args.port)
+    return 0

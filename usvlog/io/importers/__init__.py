@@ -1,0 +1,235 @@
+"""Import field logs (CSV, NMEA 0183, ROS 1/2 bags, ArduPilot .bin, PX4 .ulg) into canonical logs.
+
+``import_file(src)`` detects the format from the file's content, reads it in chunks,
+maps its columns/topics/messages to the canonical channels (``/gnss/fix``,
+``/compass/heading``, ``/thrust/command``, ``/imu/yaw_rate``, ``/gnss/velocity``),
+skips and counts bad records, and either returns a :class:`usvlog.FieldLog` or (with
+``out=``) streams it into an MCAP file written atomically. Every import records its
+provenance (source name, size, sha256, format, settings, skipped counts, guesses).
+
+One module per format; each has ``read(path, options, report) -> iterator of batches``
+(see :mod:`usvlog.io.importers.core` for the batch layout).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ...errors import ConfigError, FormatError, InputError, StorageError, UsvlogError
+from ...frames import Datum
+from ...log import FieldLog
+from ...vessel import Vessel
+from ..atomic import atomic_path, check_output
+from .core import THRUST_UNITS, Assembler, ImportReport
+from .sink import McapSink, MemorySink
+
+FORMATS = ("csv", "nmea", "ros1", "ros2", "dataflash", "ulog")
+_MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
+            "dataflash": "dataflash", "ulog": "ulog"}
+CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad",
+             "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
+TOPIC_ROLES = ("gnss", "heading", "yaw_rate", "thrust_left", "thrust_right", "speed_mps")
+
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+DATAFLASH_MAGIC = b"\xa3\x95\x80"
+ROS1_MAGIC = b"#ROSBAG V2.0"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass(frozen=True, kw_only=True)
+class ImportOptions:
+    """Settings of one import (recorded in the log's provenance)."""
+
+    columns: dict = field(default_factory=dict)   # CSV role -> header
+    topics: dict = field(default_factory=dict)    # bag role -> "/topic[.field.path]"
+    thrust_unit: str | None = None                # None: guessed from the values
+    start_utc_ns: int | None = None               # for relative time columns
+    chunk_rows: int = 50_000
+
+    def __post_init__(self):
+        if self.thrust_unit is not None and self.thrust_unit not in THRUST_UNITS:
+            raise ConfigError(f"thrust unit {self.thrust_unit!r} is not one of {', '.join(THRUST_UNITS)}")
+        for role in self.columns:
+            if role not in CSV_ROLES:
+                raise ConfigError(f"unknown column role {role!r} (roles: {', '.join(CSV_ROLES)})")
+        for role in self.topics:
+            if role not in TOPIC_ROLES:
+                raise ConfigError(f"unknown topic role {role!r} (roles: {', '.join(TOPIC_ROLES)})")
+        if self.chunk_rows < 1:
+            raise ConfigError("chunk_rows must be >= 1")
+
+    def to_dict(self) -> dict:
+        return {"columns": dict(self.columns), "topics": dict(self.topics), "thrust_unit": self.thrust_unit,
+                "start_utc_ns": self.start_utc_ns}
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    """The imported log (None when streamed to ``out``), the report, the output path."""
+
+    log: FieldLog | None
+    report: ImportReport
+    out: Path | None = None
+
+    def to_dict(self) -> dict:
+        d = self.report.to_dict()
+        d["out"] = str(self.out) if self.out else None
+        return d
+
+
+def parse_pairs(items, what: str) -> dict:
+    """``["ROLE=VALUE", ...]`` -> {role: value} (for --column / --topic)."""
+    out = {}
+    for it in items or []:
+        role, sep, val = str(it).partition("=")
+        if not sep or not role.strip() or not val.strip():
+            raise ConfigError(f"{what} {it!r} is not ROLE=VALUE")
+        out[role.strip()] = val.strip()
+    return out
+
+
+def parse_start_utc(text: str | None) -> int | None:
+    if text is None:
+        return None
+    import pandas as pd
+
+    try:
+        ts = pd.Timestamp(text)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"start time {text!r} is not an ISO 8601 time") from err
+    if ts is pd.NaT:
+        raise ConfigError(f"start time {text!r} is not an ISO 8601 time")
+    ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
+    return int(ts.as_unit("ns").value)
+
+
+def detect_format(path) -> str:
+    """Format of ``path`` from its content (magic bytes, first lines), not its name."""
+    p = Path(path)
+    if p.is_dir():
+        if (p / "metadata.yaml").exists() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
+            return "ros2"
+        raise FormatError(f"{p}: a directory that is not a ROS 2 bag (no metadata.yaml)")
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(65536)
+    except FileNotFoundError as err:
+        raise StorageError(f"{p}: no such file") from err
+    except OSError as err:
+        raise StorageError(f"{p}: cannot read ({err.strerror})") from err
+    if not head:
+        raise InputError(f"{p}: empty file")
+    if head.startswith(ROS1_MAGIC):
+        return "ros1"
+    if head.startswith(SQLITE_MAGIC):
+        return "ros2"
+    if head.startswith(MCAP_MAGIC):
+        if b"usvlog" in head[:256]:
+            raise FormatError(f"{p}: already a usvlog canonical log (nothing to import)")
+        return "ros2"
+    if head.startswith(ULOG_MAGIC):
+        return "ulog"
+    if head.startswith(DATAFLASH_MAGIC):
+        return "dataflash"
+    from .nmea import looks_like_nmea
+    from .csvlog import looks_like_csv
+
+    text = head.decode("utf-8", errors="replace")
+    if looks_like_nmea(text):
+        return "nmea"
+    if looks_like_csv(text):
+        return "csv"
+    raise FormatError(f"{p}: unknown format (not CSV, NMEA, ROS bag, DataFlash or ULog); "
+                      "give --format if it is one of them")
+
+
+def file_identity(path) -> dict:
+    """Size and sha256 of a file (or of every file of a bag directory, in name order)."""
+    p = Path(path)
+    files = sorted(x for x in p.rglob("*") if x.is_file()) if p.is_dir() else [p]
+    h = hashlib.sha256()
+    size = 0
+    for f in files:
+        with open(f, "rb") as fh:
+            while buf := fh.read(1 << 20):
+                h.update(buf)
+                size += len(buf)
+    return {"size": size, "sha256": h.hexdigest()}
+
+
+def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
+                topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
+                datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
+                on_mapping=None) -> ImportResult:
+    """Import one field log.
+
+    ``fmt``: ``auto`` (from the content) or one of :data:`FORMATS`. ``columns`` maps CSV
+    roles to headers, ``topics`` maps bag roles to ``/topic[.field.path]``; what is not
+    given is guessed and the guesses are in the report. With ``out`` the log is streamed
+    into that MCAP file (atomically, refusing to overwrite unless ``force``) and
+    ``result.log`` is None. ``on_mapping(report)`` is called once the mapping is known,
+    before the bulk of the work (the CLI prints it there).
+    """
+    p = Path(src)
+    if not p.exists():
+        raise StorageError(f"{p}: no such file")
+    if fmt not in ("auto",) + FORMATS:
+        raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
+    start_ns = start_utc if isinstance(start_utc, int) or start_utc is None else parse_start_utc(start_utc)
+    opts = ImportOptions(columns=dict(columns or {}), topics=dict(topics or {}), thrust_unit=thrust_unit,
+                         start_utc_ns=start_ns, chunk_rows=chunk_rows)
+    if out is not None:
+        check_output(out, force)
+    if p.is_file() and p.stat().st_size == 0:
+        raise InputError(f"{p}: empty file")
+    if fmt == "auto":
+        fmt = detect_format(p)
+    report = ImportReport(source=p.name, format=fmt)
+    ident = file_identity(p)
+    asm = Assembler(report, vessel=vessel, datum=datum)
+    module = importlib.import_module(f".{_MODULES[fmt]}", __name__)
+
+    def run(sink):
+        try:
+            for batch in module.read(p, opts, report, fmt=fmt, on_mapping=on_mapping):
+                sink.write(asm.process(batch))
+        except UsvlogError:
+            raise
+        except (MemoryError, KeyboardInterrupt):
+            raise
+        except Exception as err:  # a third-party parser choking on a damaged or foreign file
+            raise FormatError(f"{p}: not a readable {fmt} file ({type(err).__name__}: {err})") from err
+        if sum(report.counts.values()) == 0:
+            sk = ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())) or "none"
+            first = "; first: " + next(iter(report.first_bad.values())) if report.first_bad else ""
+            raise InputError(f"{p}: nothing imported as {fmt} ({report.records} records read, skipped: {sk}{first})")
+        meta = FieldLog()
+        if asm.datum is not None:
+            meta.datum = asm.datum
+        if vessel is not None:
+            meta.vessel = vessel
+        meta.add_provenance(producer="usvlog import", source=p.name, settings=opts.to_dict(), format=fmt,
+                            size=str(ident["size"]), sha256=ident["sha256"],
+                            skipped=dict(sorted(report.skipped.items())), guesses=report.guesses,
+                            mapping=report.mapping, records=str(report.records))
+        return meta.meta
+
+    if out is None:
+        sink = MemorySink()
+        meta = run(sink)
+        log = sink.finish(meta)
+        log.source = str(p)
+        return ImportResult(log, report, None)
+    with atomic_path(out, force=force) as tmp:
+        with open(tmp, "wb") as fh:
+            sink = McapSink(fh)
+            sink.finish(run(sink))
+    return ImportResult(None, report, Path(out))
+
+
+__all__ = ["FORMATS", "CSV_ROLES", "TOPIC_ROLES", "ImportOptions", "ImportReport", "ImportResult",
+           "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc"]

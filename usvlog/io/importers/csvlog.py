@@ -1,0 +1,275 @@
+"""CSV logs: one header row, columns mapped to roles, read in chunks.
+
+Rows from merged loggers often fill only some columns: an empty cell means "no
+sample of that stream at this time", never zero. A GNSS fix needs both latitude and
+longitude in the row, a thrust sample both commands. Malformed rows (wrong field
+count), unparseable cells and bad times are skipped and counted.
+
+Time: ``time_ns`` (ns since the epoch), ``time_s`` (seconds; since the epoch when the
+values are > 1e8, else relative and shifted by ``--start-utc``) or ``time_iso``
+(ISO 8601 text). Roles are guessed from obvious headers when not given.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from collections.abc import Iterator
+
+import numpy as np
+import pandas as pd
+
+from ...errors import InputError
+from .core import guess_thrust_unit
+
+# role -> normalized header names that mean it
+GUESSES: dict[str, tuple[str, ...]] = {
+    "time_ns": ("t_ns", "time_ns", "timestamp_ns", "stamp_ns", "log_time_ns"),
+    "time_s": ("time_s", "t_s", "time", "t", "timestamp", "seconds", "sec", "elapsed_s", "time_sec",
+               "timestamp_s", "unix_time", "epoch_s"),
+    "time_iso": ("utc", "datetime", "date_time", "time_utc", "iso_time"),
+    "lat_deg": ("lat_deg", "lat", "latitude", "latitude_deg", "gps_lat", "gnss_lat"),
+    "lon_deg": ("lon_deg", "lon", "lng", "long", "longitude", "longitude_deg", "gps_lon", "gnss_lon"),
+    "alt_m": ("alt_m", "alt", "altitude", "altitude_m", "gps_alt"),
+    "heading_deg": ("heading_deg", "heading", "hdg", "compass", "compass_deg", "yaw_deg", "heading_true_deg"),
+    "heading_rad": ("heading_rad", "yaw_rad", "psi_rad", "psi"),
+    "thrust_left": ("thrust_left", "left", "left_thrust", "thrust_left_n", "port", "motor_left", "thr_left",
+                    "cmd_left", "left_cmd", "pwm_left", "left_pwm", "thruster_left", "left_n"),
+    "thrust_right": ("thrust_right", "right", "right_thrust", "thrust_right_n", "starboard", "stbd",
+                     "motor_right", "thr_right", "cmd_right", "right_cmd", "pwm_right", "right_pwm",
+                     "thruster_right", "right_n"),
+    "yaw_rate_degps": ("yaw_rate_degps", "yaw_rate", "gyro_z", "r_degps", "yaw_rate_deg_s", "rot_degps"),
+    "yaw_rate_radps": ("yaw_rate_radps", "r_radps", "gyro_z_radps"),
+    "speed_mps": ("speed_mps", "speed", "sog", "sog_mps", "ground_speed"),
+    "course_deg": ("course_deg", "course", "cog", "cog_deg"),
+}
+_VALUE_ROLES = ("lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad", "thrust_left", "thrust_right",
+                "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
+_NAN_TEXT = {"nan", "NaN", "NAN", "-nan", "+nan", "n/a", "NA", "null", "None"}
+
+
+def normalize_header(h: str) -> str:
+    s = re.sub(r"[^0-9a-z]+", "_", str(h).strip().lower())
+    return s.strip("_")
+
+
+def looks_like_csv(text: str) -> bool:
+    lines = [ln for ln in text.splitlines()[:20] if ln.strip()]
+    if len(lines) < 1:
+        return False
+    sep = sniff_sep(lines[0])
+    if sep is None:
+        return False
+    n = lines[0].count(sep)
+    if n < 1:
+        return False
+    body = lines[1:-1] if len(lines) > 2 else lines[1:]  # the last line may be cut mid-way
+    return all(ln.count(sep) <= n for ln in body) and any(c.isalpha() for c in lines[0])
+
+
+def sniff_sep(header_line: str) -> str | None:
+    counts = {s: header_line.count(s) for s in (",", ";", "\t")}
+    sep, n = max(counts.items(), key=lambda kv: kv[1])
+    return sep if n > 0 else None
+
+
+def guess_mapping(headers: list[str], given: dict) -> tuple[dict, dict]:
+    """(mapping role -> header, guesses role -> header) from the given roles and the headers."""
+    norm = {normalize_header(h): h for h in headers}
+    mapping = dict(given)
+    guessed = {}
+    used = set(given.values())
+    for role, names in GUESSES.items():
+        if role in mapping:
+            continue
+        if role.startswith("time") and any(r.startswith("time") for r in mapping):
+            continue
+        for nm in names:
+            h = norm.get(nm)
+            if h is not None and h not in used:
+                mapping[role] = guessed[role] = h
+                used.add(h)
+                break
+    if "heading_rad" in mapping and "heading_deg" in mapping and "heading_deg" in guessed:
+        del mapping["heading_deg"], guessed["heading_deg"]
+    if "yaw_rate_radps" in mapping and "yaw_rate_degps" in guessed:
+        del mapping["yaw_rate_degps"], guessed["yaw_rate_degps"]
+    return mapping, guessed
+
+
+def _numeric(col: pd.Series, role: str, header: str, line0: int, report) -> tuple[np.ndarray, np.ndarray]:
+    """(values, present) of one chunk column; unparseable non-empty cells are counted and absent."""
+    dt = col.dtype
+    if pd.api.types.is_numeric_dtype(dt) and not pd.api.types.is_bool_dtype(dt):
+        v = col.to_numpy(dtype=float, na_value=np.nan)
+        return v, ~np.isnan(v)
+    s = col.astype("str")
+    s = s.where(col.notna(), "")
+    text = s.str.strip()
+    v = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+    empty = (text == "").to_numpy()
+    nan_text = text.isin(_NAN_TEXT).to_numpy()
+    bad = np.isnan(v) & ~empty & ~nan_text
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        report.skip("csv_bad_value", int(bad.sum()),
+                    where=f"line {line0 + i}: column {header!r} value {text.iloc[i][:40]!r}")
+    return v, ~empty & ~bad
+
+
+def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str, line0: int,
+           state: dict) -> np.ndarray:
+    """Record times in ns (int64); rows with no usable time get -1."""
+    if kind == "time_iso" or (kind == "time_s" and not pd.api.types.is_numeric_dtype(col.dtype)
+                              and state.get("iso", None) is not False):
+        num = pd.to_numeric(col, errors="coerce") if kind == "time_s" else None
+        if num is not None and num.notna().sum() >= max(1, int(0.5 * col.notna().sum())):
+            state["iso"] = False
+            return _times(num, "time_s", start_ns, report, header, line0, state)
+        state["iso"] = True
+        ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
+        naive = ts.dt.tz_localize(None).dt.as_unit("ns")
+        arr = naive.to_numpy(dtype="datetime64[ns]").view(np.int64)
+        return np.where(naive.isna().to_numpy() | (arr < 0), -1, arr).astype(np.int64)
+    if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype):
+        t = col.to_numpy(dtype=np.int64)
+        return np.where(t >= 0, t, -1)
+    v, present = _numeric(col, kind, header, line0, report) if not pd.api.types.is_numeric_dtype(col.dtype) \
+        else (col.to_numpy(dtype=float, na_value=np.nan), col.notna().to_numpy())
+    if kind == "time_ns":
+        t = np.where(present & np.isfinite(v), v, -1.0)
+        return t.astype(np.int64)
+    if "relative" not in state:
+        fin = v[np.isfinite(v)]
+        if len(fin):
+            state["relative"] = bool(np.median(fin) < 1e8)
+            if state["relative"] and start_ns is None:
+                report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
+                report.note(f"time column {header!r} is relative and no --start-utc was given: "
+                            "times start at the Unix epoch")
+    rel = state.get("relative", False)
+    with np.errstate(invalid="ignore", over="ignore"):
+        # relative seconds to the ns; epoch seconds (float64: ~0.2 us resolution) to the us
+        t = np.round(v * 1e9) if rel else np.round(v * 1e6)
+        ok = np.isfinite(t) & (t >= 0) & (t < (2**62 if rel else 2**62 / 1000))
+        ti = np.where(ok, t, -1).astype(np.int64)
+        if not rel:
+            ti = np.where(ok, ti * 1000, -1)
+    if rel:
+        ti = np.where(ok, ti + int(start_ns or 0), -1)
+    return ti
+
+
+def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
+    p = path
+    try:
+        with open(p, "r", encoding="utf-8", errors="replace", newline="") as fh:
+            header_line = fh.readline()
+    except OSError as err:
+        raise InputError(f"{p}: cannot read ({err})") from err
+    if not header_line.strip():
+        raise InputError(f"{p}: empty file (no header row)")
+    sep = sniff_sep(header_line) or ","
+    try:
+        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
+        raise InputError(f"{p} line 1: not a CSV header ({str(err).strip().splitlines()[0]})") from err
+    missing = {r: h for r, h in opts.columns.items() if h not in headers}
+    if missing:
+        r, h = next(iter(missing.items()))
+        raise InputError(f"{p}: column {h!r} for role {r} is not in the header "
+                         f"(columns: {', '.join(map(str, headers[:30]))})")
+    mapping, guessed = guess_mapping(headers, opts.columns)
+    report.mapping.update(mapping)
+    report.guesses.update({f"column {k}": v for k, v in guessed.items()})
+    time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
+    if time_role is None:
+        raise InputError(f"{p}: no time column found (give --column time_s=HEADER; columns: "
+                         f"{', '.join(map(str, headers[:30]))})")
+    if not any(r in mapping for r in _VALUE_ROLES):
+        raise InputError(f"{p}: no column maps to a role (give --column ROLE=HEADER; columns: "
+                         f"{', '.join(map(str, headers[:30]))})")
+    if on_mapping is not None:
+        on_mapping(report)
+    thrust_unit = opts.thrust_unit
+    state: dict = {}
+    line0 = 2
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", pd.errors.ParserWarning)
+            reader = pd.read_csv(p, sep=sep, chunksize=opts.chunk_rows,
+                                 keep_default_na=False, na_values=[""], on_bad_lines="warn",
+                                 encoding_errors="replace", skip_blank_lines=False, low_memory=True)
+            for chunk in reader:
+                n = len(chunk)
+                report.records += n
+                for w in caught:
+                    msg = str(w.message)
+                    k = msg.count("Skipping line")
+                    if k:
+                        m = re.search(r"Skipping line (\d+)", msg)
+                        report.skip("csv_malformed_row", k, where=f"line {m.group(1)}: wrong number of fields")
+                caught.clear()
+                t = _times(chunk[mapping[time_role]], time_role, opts.start_utc_ns, report,
+                           mapping[time_role], line0, state)
+                good_t = t >= 0
+                vals, pres = {}, {}
+                for role in _VALUE_ROLES:
+                    if role in mapping:
+                        vals[role], pres[role] = _numeric(chunk[mapping[role]], role, mapping[role], line0, report)
+                any_val = np.zeros(n, bool)
+                for role in pres:
+                    any_val |= pres[role]
+                bad_t = ~good_t & any_val
+                if bad_t.any():
+                    i = int(np.flatnonzero(bad_t)[0])
+                    report.skip("csv_bad_time", int(bad_t.sum()),
+                                where=f"line {line0 + i}: time {str(chunk[mapping[time_role]].iloc[i])[:40]!r}")
+                batch = {}
+                if "lat_deg" in pres or "lon_deg" in pres:
+                    pl = pres.get("lat_deg", np.zeros(n, bool)) & good_t
+                    pn = pres.get("lon_deg", np.zeros(n, bool)) & good_t
+                    both = pl & pn
+                    report.skip("gnss_incomplete", int(np.sum(pl ^ pn)))
+                    g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
+                    if "alt_m" in vals:
+                        g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
+                    batch["gnss"] = g
+                for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
+                    if role in pres:
+                        m = pres[role] & good_t
+                        batch["heading"] = {"t_ns": t[m], "heading_rad": vals[role][m] * scale,
+                                            "reference": np.full(int(m.sum()), "true", dtype=object)}
+                        break
+                for role, scale in (("yaw_rate_degps", np.pi / 180.0), ("yaw_rate_radps", 1.0)):
+                    if role in pres:
+                        m = pres[role] & good_t
+                        batch["yaw_rate"] = {"t_ns": t[m], "r_radps": vals[role][m] * scale}
+                        break
+                if "speed_mps" in pres:
+                    m = pres["speed_mps"] & good_t
+                    v = {"t_ns": t[m], "sog_mps": vals["speed_mps"][m]}
+                    if "course_deg" in pres:
+                        v["cog_rad"] = np.where(pres["course_deg"][m], np.radians(vals["course_deg"][m]), np.nan)
+                    batch["velocity"] = v
+                if "thrust_left" in pres or "thrust_right" in pres:
+                    pl = pres.get("thrust_left", np.zeros(n, bool)) & good_t
+                    pr = pres.get("thrust_right", np.zeros(n, bool)) & good_t
+                    both = pl & pr
+                    report.skip("thrust_incomplete", int(np.sum(pl ^ pr)))
+                    left = vals["thrust_left"][both] if "thrust_left" in vals else np.zeros(0)
+                    right = vals["thrust_right"][both] if "thrust_right" in vals else np.zeros(0)
+                    if thrust_unit is None and both.any():
+                        thrust_unit = guess_thrust_unit(left, right)
+                        report.guesses["thrust_unit"] = thrust_unit
+                    batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
+                                       "unit": np.full(int(both.sum()), thrust_unit or "newton", dtype=object)}
+                line0 += n
+                yield batch
+            for w in caught:
+                k = str(w.message).count("Skipping line")
+                report.skip("csv_malformed_row", k)
+    except pd.errors.EmptyDataError as err:
+        raise InputError(f"{p}: empty file (no rows)") from err
+    except pd.errors.ParserError as err:
+        raise InputError(f"{p}: {str(err).strip().splitlines()[0]}") from err

@@ -1,0 +1,124 @@
+"""PX4 .ulg logs through pyulog.
+
+* ``vehicle_gps_position`` or ``sensor_gps`` (``fix_type`` < 3 is "no fix": skipped,
+  counted; ``lat``/``lon`` in 1e-7 deg or ``latitude_deg``/``longitude_deg``) -> ``/gnss/fix``;
+* ``vehicle_attitude.q`` (w, x, y, z; PX4 is NED/FRD already) -> ``/compass/heading``;
+* ``actuator_motors.control[0|1]`` (normalized) or else ``actuator_outputs.output[0|1]``
+  (pwm_us) -> ``/thrust/command`` (left = index 0, right = index 1 unless given with
+  ``--topic thrust_left=actuator_outputs.output[2]``).
+
+Time: the log's microsecond ``timestamp`` shifted to UTC by the first GPS message with
+``time_utc_usec``; without one, by ``--start-utc`` (else the Unix epoch, noted).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from collections.abc import Iterator
+
+import numpy as np
+
+from ...errors import FormatError, InputError
+
+
+def _topic(ulog, name):
+    return next((d for d in ulog.data_list if d.name == name and d.multi_id == 0), None) or \
+        next((d for d in ulog.data_list if d.name == name), None)
+
+
+def _col(d, key, path):
+    try:
+        return np.asarray(d.data[key])
+    except KeyError:
+        raise InputError(f"{path}: topic {d.name} has no field {key!r} "
+                         f"(fields: {', '.join(sorted(d.data)[:20])})") from None
+
+
+def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
+    from pyulog import ULog
+
+    with open(path, "rb") as fh:
+        head = fh.read(7)
+    if head != b"ULog\x01\x12\x35":
+        raise FormatError(f"{path}: not a PX4 ULog file (bad magic bytes)")
+    sink = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
+            ulog = ULog(str(path), ["vehicle_gps_position", "sensor_gps", "vehicle_attitude",
+                                    "actuator_motors", "actuator_outputs"] +
+                        [s.split(".", 1)[0].lstrip("/") for s in opts.topics.values()])
+    except Exception as err:  # pyulog's own errors on damaged files
+        raise FormatError(f"{path}: not a readable ULog file ({type(err).__name__}: {err})") from err
+    gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
+    offset_ns = None
+    if gps is not None and "time_utc_usec" in gps.data:
+        tu = np.asarray(gps.data["time_utc_usec"], dtype=np.int64)
+        ok = np.flatnonzero(tu > 0)
+        if len(ok):
+            i = int(ok[0])
+            offset_ns = (int(tu[i]) - int(gps.data["timestamp"][i])) * 1000
+    if offset_ns is None:
+        offset_ns = opts.start_utc_ns or 0
+        report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
+        report.note("no GPS UTC time in the log: log time counted from " + report.guesses["time_base"])
+    batch = {}
+    if gps is not None:
+        report.mapping["gnss"] = gps.name
+        t = np.asarray(gps.data["timestamp"], np.int64) * 1000 + offset_ns
+        if "latitude_deg" in gps.data:
+            lat, lon = _col(gps, "latitude_deg", path).astype(float), _col(gps, "longitude_deg", path).astype(float)
+            alt = np.asarray(gps.data.get("altitude_msl_m", np.full(len(t), np.nan)), float)
+        else:
+            lat = _col(gps, "lat", path).astype(np.int64) * 1e-7
+            lon = _col(gps, "lon", path).astype(np.int64) * 1e-7
+            alt = np.asarray(gps.data.get("alt", np.full(len(t), np.nan)), float) * 1e-3
+        fix = np.asarray(gps.data.get("fix_type", np.full(len(t), 3)))
+        nofix = fix < 3
+        report.skip("gnss_no_fix", int(nofix.sum()))
+        report.records += len(t)
+        k = ~nofix
+        batch["gnss"] = {"t_ns": t[k], "lat_deg": lat[k], "lon_deg": lon[k], "alt_m": alt[k]}
+    att = _topic(ulog, "vehicle_attitude")
+    if att is not None:
+        report.mapping["heading"] = "vehicle_attitude.q"
+        w, x, y, z = (_col(att, f"q[{i}]", path).astype(float) for i in range(4))
+        psi = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        report.records += len(w)
+        batch["heading"] = {"t_ns": np.asarray(att.data["timestamp"], np.int64) * 1000 + offset_ns,
+                            "heading_rad": psi}
+    thr = None
+    if "thrust_left" in opts.topics or "thrust_right" in opts.topics:
+        if not ("thrust_left" in opts.topics and "thrust_right" in opts.topics):
+            raise InputError(f"{path}: give both --topic thrust_left= and thrust_right=")
+        specs = [opts.topics["thrust_left"].lstrip("/").split(".", 1),
+                 opts.topics["thrust_right"].lstrip("/").split(".", 1)]
+        if specs[0][0] != specs[1][0] or len(specs[0]) < 2 or len(specs[1]) < 2:
+            raise InputError(f"{path}: thrust_left and thrust_right must be fields of one topic "
+                             "(e.g. actuator_outputs.output[2])")
+        d = _topic(ulog, specs[0][0])
+        if d is None:
+            raise InputError(f"{path}: topic {specs[0][0]} is not in the log "
+                             f"(topics: {', '.join(sorted({x.name for x in ulog.data_list}))})")
+        thr = (d, specs[0][1], specs[1][1], opts.thrust_unit or ("pwm_us" if d.name == "actuator_outputs"
+                                                                  else "normalized"))
+    else:
+        d = _topic(ulog, "actuator_motors")
+        if d is not None:
+            thr = (d, "control[0]", "control[1]", opts.thrust_unit or "normalized")
+        elif (d := _topic(ulog, "actuator_outputs")) is not None:
+            thr = (d, "output[0]", "output[1]", opts.thrust_unit or "pwm_us")
+        if thr is not None:
+            report.guesses["topic thrust_left"] = f"{thr[0].name}.{thr[1]}"
+            report.guesses["topic thrust_right"] = f"{thr[0].name}.{thr[2]}"
+    if thr is not None:
+        d, kl, kr, unit = thr
+        report.mapping["thrust_left"] = f"{d.name}.{kl}"
+        report.mapping["thrust_right"] = f"{d.name}.{kr}"
+        left, right = _col(d, kl, path).astype(float), _col(d, kr, path).astype(float)
+        report.records += len(left)
+        batch["thrust"] = {"t_ns": np.asarray(d.data["timestamp"], np.int64) * 1000 + offset_ns,
+                           "left": left, "right": right, "unit": np.full(len(left), unit, dtype=object)}
+    if on_mapping is not None:
+        on_mapping(report)
+    yield batch

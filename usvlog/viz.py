@@ -1,0 +1,582 @@
+"""Rerun visualisation of runs and replays: FieldLog(s) -> .rrd with a blueprint inside.
+
+The only module that imports rerun. Everything is sent with ``send_columns`` (whole
+arrays at once); per-row logging is some 50x slower (see benchmarks/bench_view.py).
+
+Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
+
+    /runs/<name>/map/{gps, gps_rejected, estimate, truth, whatif, path, boat}   GeoPoints / GeoLineStrings
+    /runs/<name>/local/{...same..., ctl_<ctl>/closest, ctl_<ctl>/carrot, ctl_<ctl>/arrows} 2D, x = east, y = -north
+    /runs/<name>/ts/<quantity>/<series>                                       Scalars (fit/: identification)
+    /runs/<name>/events                                                       TextLog
+
+``<ctl>`` is ``control`` (closed-loop simulation), ``replay`` (controller replayed on a
+recorded run) or ``whatif``. The local 2D view draws x = east and y = -north, so with
+the viewer's y axis pointing down north is up and east is right. Timeline ``time`` (UTC); with
+several logs also ``elapsed`` (since each log's start, so runs recorded on different days overlay).
+Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep every sample.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+import sys
+import uuid
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from . import viewdata as vd
+from .errors import InputError
+from .frames import Datum, ned_to_geodetic
+from .io.atomic import atomic_path, check_output
+from .log import FieldLog
+
+APP_ID = "usvlog"
+OVERLAY_HZ = 10.0
+DEFAULT_HOST = "127.0.0.1"
+
+# colours of the roles (single log); several logs are coloured by run instead
+ROLE = {
+    "gps": (150, 150, 150), "gps_rejected": (230, 30, 30), "estimate": (31, 119, 180),
+    "truth": (60, 60, 60), "whatif": (148, 103, 189), "path": (255, 170, 0), "boat": (255, 90, 0),
+    "closest": (40, 170, 60), "carrot": (220, 0, 200), "heading": (31, 119, 180),
+    "desired": (255, 127, 14), "cog": (40, 170, 60), "recorded": (120, 120, 120),
+    "control": (214, 39, 40), "replay": (140, 86, 75), "compass": (150, 150, 150),
+    "n": (31, 119, 180), "e": (214, 39, 40),
+}
+RUN_COLORS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14), (23, 190, 207)]
+
+
+def _mix(c, w, k):
+    return tuple(int(round(a * (1 - k) + b * k)) for a, b in zip(c, w))
+
+
+def _safe(name: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9_-]+", "_", name).strip("_")
+    return s or "run"
+
+
+def default_names(logs: list[FieldLog]) -> list[str]:
+    out: list[str] = []
+    for i, log in enumerate(logs):
+        base = _safe(Path(log.source).stem) if log.source else f"run{i}"
+        name, k = base, 2
+        while name in out:
+            name, k = f"{base}_{k}", k + 1
+        out.append(name)
+    return out
+
+
+class _Writer:
+    """Sends one log's arrays to a recording and remembers which view wants which entity."""
+
+    def __init__(self, rec: rr.RecordingStream, log: FieldLog, name: str, index: int, multi: bool):
+        self.rec, self.log, self.name, self.index, self.multi = rec, log, name, index, multi
+        self.prefix = f"/runs/{name}"
+        self.views: dict[str, list[str]] = defaultdict(list)
+        self.geo_box: list[np.ndarray] = []   # [lat_min, lon_min, lat_max, lon_max] of what went on the map
+        tr = log.time_range()
+        self.t0 = tr[0] if tr else 0
+        self.datum = log.datum
+        g = vd.gps(log)
+        if self.datum is None and g is not None and len(g[0]):
+            self.datum = Datum(lat_deg=float(g[1][0]), lon_deg=float(g[2][0]))
+
+    # -- helpers ---------------------------------------------------------------
+    def color(self, role: str, variant: str = "") -> tuple[int, int, int]:
+        if not self.multi:
+            c = ROLE.get(role, (100, 100, 100))
+        else:
+            c = RUN_COLORS[self.index % len(RUN_COLORS)]
+        if variant == "light":
+            c = _mix(c, (255, 255, 255), 0.45)
+        elif variant == "dark":
+            c = _mix(c, (0, 0, 0), 0.4)
+        return c
+
+    def label(self, s: str) -> str:
+        return f"{self.name}: {s}" if self.multi else s
+
+    def index_cols(self, t_ns: np.ndarray):
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        cols = [rr.TimeColumn("time", timestamp=t_ns.astype("datetime64[ns]"))]
+        if self.multi:  # runs recorded at different times overlay on the time since each one's start
+            cols.append(rr.TimeColumn("elapsed", duration=(t_ns - self.t0).astype("timedelta64[ns]")))
+        return cols
+
+    def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color, width: float = 1.5,
+                step: bool = False) -> None:
+        y = np.asarray(y, dtype=float)
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        ok = np.isfinite(y)
+        if not ok.any():
+            return
+        path = f"{self.prefix}/ts/{sub}"
+        kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
+        self.rec.log(path, rr.SeriesLines(colors=[color], names=[self.label(name)], widths=[width], **kw),
+                     static=True)
+        self.rec.send_columns(path, indexes=self.index_cols(t_ns[ok]), columns=rr.Scalars.columns(scalars=y[ok]))
+        self.views[view].append(path)
+
+    def geo(self, n, e):
+        lat, lon, _ = ned_to_geodetic(np.asarray(n, float), np.asarray(e, float), 0.0, datum=self.datum)
+        return self.note_geo(np.column_stack([lat, lon]))
+
+    def note_geo(self, latlon: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(latlon).all(1)
+        if ok.any():
+            self.geo_box.append(np.r_[latlon[ok].min(0), latlon[ok].max(0)])
+        return latlon
+
+    def static(self, view: str, sub: str, archetype) -> None:
+        path = f"{self.prefix}/{sub}"
+        self.rec.log(path, archetype, static=True)
+        self.views[view].append(path)
+
+    # -- the drawing -------------------------------------------------------------
+    def draw(self) -> None:
+        self.draw_tracks()
+        self.draw_controllers()
+        self.draw_series()
+        self.draw_events()
+
+    def draw_tracks(self) -> None:
+        log = self.log
+        g = vd.gps(log)
+        if g is not None and len(g[0]):
+            t, lat, lon, n, e = g
+            c = self.color("gps", "light")
+            self.static("map", "map/gps", rr.GeoPoints(lat_lon=self.note_geo(np.column_stack([lat, lon])),
+                                                        radii=rr.Radius.ui_points(2.0), colors=[c]))
+            self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(2.0),
+                                                          colors=[c]))
+            rej = vd.gps_rejections(log)
+            if rej is not None and len(rej[0]):
+                k = np.clip(np.searchsorted(t, rej[0]), 0, len(t) - 1)
+                c = self.color("gps_rejected", "dark")
+                self.static("map", "map/gps_rejected", rr.GeoPoints(
+                    lat_lon=np.column_stack([lat[k], lon[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
+                self.static("local", "local/gps_rejected", rr.Points2D(
+                    np.column_stack([e[k], -n[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
+        path = vd.path_polyline(log)
+        if path is not None and self.datum is not None:
+            c = self.color("path", "light")
+            self.static("map", "map/path", rr.GeoLineStrings(lat_lon=[self.geo(path[:, 0], path[:, 1])],
+                                                              radii=rr.Radius.ui_points(2.0), colors=[c]))
+            self.static("local", "local/path", rr.LineStrips2D([np.column_stack([path[:, 1], -path[:, 0]])],
+                                                               radii=rr.Radius.ui_points(1.5), colors=[c]))
+        for topic, label, f in vd.state_tracks(log):
+            t = np.asarray(f.index.to_numpy(), dtype=np.int64)
+            k = _thin(t, OVERLAY_HZ)
+            n, e = np.asarray(f["n_m"].to_numpy(), float)[k], np.asarray(f["e_m"].to_numpy(), float)[k]
+            ok = np.isfinite(n) & np.isfinite(e)
+            n, e = n[ok], e[ok]
+            if len(n) < 2:
+                continue
+            c = self.color(label, {"truth": "dark", "whatif": "light"}.get(label, ""))
+            if self.datum is not None:
+                self.static("map", f"map/{label}", rr.GeoLineStrings(lat_lon=[self.geo(n, e)],
+                                                                      radii=rr.Radius.ui_points(1.5), colors=[c]))
+            self.static("local", f"local/{label}", rr.LineStrips2D([np.column_stack([e, -n])],
+                                                                   radii=rr.Radius.ui_points(1.0), colors=[c]))
+        # the boat, over time
+        b = vd.boat_state(log)
+        if b is not None:
+            f = b[1]
+            t = np.asarray(f.index.to_numpy(), dtype=np.int64)
+            n, e = np.asarray(f["n_m"].to_numpy(), float), np.asarray(f["e_m"].to_numpy(), float)
+        elif g is not None and len(g[0]):
+            t, n, e = g[0], g[3], g[4]
+        else:
+            return
+        k = _thin(t, OVERLAY_HZ)
+        k = k[np.isfinite(n[k]) & np.isfinite(e[k])]
+        if not len(k):
+            return
+        c = self.color("boat", "dark")
+        cols = self.index_cols(t[k])
+        if self.datum is not None:
+            path = f"{self.prefix}/map/boat"
+            self.rec.log(path, rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(7.0), colors=[c]), static=True)
+            self.rec.send_columns(path, indexes=cols, columns=rr.GeoPoints.columns(positions=self.geo(n[k], e[k])))
+            self.views["map"].append(path)
+        path = f"{self.prefix}/local/boat"
+        self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(7.0), colors=[c]), static=True)
+        self.rec.send_columns(path, indexes=cols,
+                              columns=rr.Points2D.columns(positions=np.column_stack([e[k], -n[k]])))
+        self.views["local"].append(path)
+
+    def draw_controllers(self) -> None:
+        ext = _extent(self.log)
+        arrow = float(np.clip(0.08 * ext, 0.5, 10.0))
+        for topic, label, f, sf, desc in vd.controllers(self.log):
+            t = np.asarray(f.index.to_numpy(), dtype=np.int64)
+            k = _thin(t, OVERLAY_HZ)
+            tk = t[k]
+            cols = self.index_cols(tk)
+            for what, role in (("closest", "closest"), ("carrot", "carrot")):
+                cn, ce = f"{what}_n_m", f"{what}_e_m"
+                if cn in f.columns and ce in f.columns:
+                    n = np.asarray(f[cn].to_numpy(), float)[k]
+                    e = np.asarray(f[ce].to_numpy(), float)[k]
+                    path = f"{self.prefix}/local/ctl_{label}/{what}"
+                    self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(5.0),
+                                                               colors=[self.color(role, "light")]), static=True)
+                    self.rec.send_columns(path, indexes=cols,
+                                          columns=rr.Points2D.columns(positions=np.column_stack([e, -n])))
+                    self.views["local"].append(path)
+            if sf is None or "psi_rad" not in sf.columns:
+                continue
+            n = vd.interp(tk, sf, "n_m")
+            e = vd.interp(tk, sf, "e_m")
+            if {"closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m"} <= set(f.columns):
+                # the guidance at each tick: boat -> closest point on the path -> carrot
+                cl_n, cl_e = _col(f, "closest_n_m")[k], _col(f, "closest_e_m")[k]
+                ca_n, ca_e = _col(f, "carrot_n_m")[k], _col(f, "carrot_e_m")[k]
+                strips = np.stack([np.column_stack([e, -n]), np.column_stack([cl_e, -cl_n]),
+                                   np.column_stack([ca_e, -ca_n])], axis=1)   # (ticks, 3, 2)
+                path = f"{self.prefix}/local/ctl_{label}/guidance"
+                self.rec.log(path, rr.LineStrips2D.from_fields(radii=rr.Radius.ui_points(0.75),
+                                                               colors=[self.color("carrot", "light")]), static=True)
+                self.rec.send_columns(path, indexes=cols, columns=rr.LineStrips2D.columns(strips=list(strips)))
+                self.views["local"].append(path)
+            psi = vd.interp(tk, sf, "psi_rad", angle=True)
+            dirs = [psi]
+            colors = [self.color("heading")]
+            if "psi_d_rad" in f.columns:
+                dirs.append(np.asarray(f["psi_d_rad"].to_numpy(), float)[k])
+                colors.append(self.color("desired", "light"))
+            if {"u_mps", "v_mps"} <= set(sf.columns):
+                cog = vd.course_over_ground(sf)
+                ts = np.asarray(sf.index.to_numpy(), dtype=np.int64)
+                dirs.append(vd.interp(tk, _frame_of(ts, cog), "x", angle=True))
+                colors.append(self.color("cog", "dark"))
+            m = len(dirs)
+            ang = np.column_stack(dirs)                       # (ticks, m)
+            origins = np.repeat(np.column_stack([e, -n]), m, axis=0)
+            vec = arrow * np.column_stack([np.sin(ang).ravel(), -np.cos(ang).ravel()])
+            ok = np.isfinite(vec).all(1) & np.isfinite(origins).all(1)
+            vec[~ok] = 0.0
+            origins[~ok] = 0.0
+            path = f"{self.prefix}/local/ctl_{label}/arrows"
+            self.rec.log(path, rr.Arrows2D.from_fields(radii=rr.Radius.ui_points(1.5)), static=True)
+            self.rec.send_columns(path, indexes=cols, columns=rr.Arrows2D.columns(
+                origins=origins, vectors=vec, colors=np.tile(np.array(colors, np.uint8), (len(tk), 1))
+            ).partition(np.full(len(tk), m)))
+            self.views["local"].append(path)
+
+    def draw_series(self) -> None:
+        log = self.log
+        states = vd.state_tracks(log)
+        unwrapped = {}
+        for topic, label, f in states:
+            t = np.asarray(f.index.to_numpy(), dtype=np.int64)
+            var = {"truth": "dark", "whatif": "light"}.get(label, "")
+            c = self.color(label, var)
+            self.scalars("u", f"u/{label}", t, f["u_mps"].to_numpy(), name=f"u {label}", color=c)
+            self.scalars("v", f"v/{label}", t, f["v_mps"].to_numpy(), name=f"v {label}", color=c)
+            self.scalars("r", f"r/{label}", t, np.degrees(np.asarray(f["r_radps"].to_numpy(), float)),
+                         name=f"r {label}", color=c)
+            psi = np.asarray(f["psi_rad"].to_numpy(), float)
+            ok = np.isfinite(psi)
+            if ok.any():
+                unwrapped[id(f)] = (t[ok], psi[ok])
+                self.scalars("psi", f"psi/{label}", t[ok], np.degrees(np.unwrap(psi[ok])), name=f"psi {label}",
+                             color=c)
+            if label != "whatif":
+                for comp in ("n", "e"):
+                    col = f"current_{comp}_mps"
+                    if col in f.columns:
+                        self.scalars("current", f"current/{comp}_{label}", t, f[col].to_numpy(),
+                                     name=f"current {comp.upper()} {label}",
+                                     color=self.color(comp if not self.multi else label, var))
+            if label == "whatif" and vd.nonempty(log, "/replay/whatif/controller") is None:
+                for q, sub in (("tau_u_n", "tau_u"), ("tau_r_nm", "tau_r")):
+                    if q in f.columns:
+                        self.scalars(sub, f"{sub}/whatif_state", t, f[q].to_numpy(), name=f"{sub} what-if run",
+                                     color=c, width=1.0)
+        if not states:
+            comp = vd.nonempty(log, "/compass/heading")
+            if comp is not None:
+                t = np.asarray(comp.index.to_numpy(), dtype=np.int64)
+                h = np.asarray(comp["heading_rad"].to_numpy(), float)
+                ok = np.isfinite(h)
+                self.scalars("psi", "psi/compass", t[ok], np.degrees(np.unwrap(h[ok])), name="compass heading",
+                             color=self.color("compass"))
+        rec = vd.recorded_tau(log)
+        if rec is not None:
+            t, tu, tr = rec
+            c = self.color("recorded", "dark")
+            self.scalars("tau_u", "tau_u/recorded", t, tu, name="tau_u recorded", color=c, step=True)
+            self.scalars("tau_r", "tau_r/recorded", t, tr, name="tau_r recorded", color=c, step=True)
+        for topic, label, f, sf, desc in vd.controllers(log):
+            t = np.asarray(f.index.to_numpy(), dtype=np.int64)
+            c = self.color(label, "light")
+            if "u_d_mps" in f.columns:
+                self.scalars("u", f"u/u_d_{label}", t, f["u_d_mps"].to_numpy(), name=f"u_d {label}", color=c)
+            if "psi_d_rad" in f.columns:
+                psi_d = np.asarray(f["psi_d_rad"].to_numpy(), float)
+                if sf is not None and id(sf) in unwrapped:  # next to the heading of the boat it steers
+                    ta, pa = unwrapped[id(sf)]
+                    _, d = vd.heading_pair(ta, pa, t, psi_d)
+                else:
+                    d = np.unwrap(psi_d)
+                self.scalars("psi", f"psi/psi_d_{label}", t, np.degrees(d), name=f"psi_d {label}", color=c)
+            for q, sub in (("tau_u_n", "tau_u"), ("tau_r_nm", "tau_r")):
+                if q in f.columns:
+                    self.scalars(sub, f"{sub}/{label}", t, f[q].to_numpy(), name=f"{sub} {desc}", color=c)
+            if "cross_track_m" in f.columns:
+                self.scalars("cross_track", f"cross_track/{label}", t, f["cross_track_m"].to_numpy(),
+                             name=f"cross-track {label}", color=self.color(label))
+            if "saturated" in f.columns:
+                self.scalars("saturation", f"saturation/{label}", t,
+                             np.asarray(f["saturated"].to_numpy(), bool).astype(float),
+                             name=f"saturated {label}", color=self.color(label), step=True)
+        fit = vd.nonempty(log, "/identify/fit")
+        if fit is not None:
+            t = np.asarray(fit.index.to_numpy(), dtype=np.int64)
+            for q, qs, name, scale in (("u_mps", "u_sim_mps", "u", 1.0), ("v_mps", "v_sim_mps", "v", 1.0),
+                                       ("r_radps", "r_sim_radps", "r", math.degrees(1.0))):
+                if q in fit.columns and qs in fit.columns:
+                    self.scalars(f"fit_{name}", f"fit/{name}_measured", t, _col(fit, q) * scale,
+                                 name=f"{name} measured", color=self.color("recorded", "dark"), width=1.0)
+                    self.scalars(f"fit_{name}", f"fit/{name}_model", t, _col(fit, qs) * scale,
+                                 name=f"{name} model", color=self.color("control"), width=1.5)
+        inn = vd.nonempty(log, "/estimate/innovations")
+        if inn is not None and "nis" in inn.columns and "sensor" in inn.columns:
+            t = np.asarray(inn.index.to_numpy(), dtype=np.int64)
+            sensor = inn["sensor"].astype(str).to_numpy()
+            nis = np.asarray(inn["nis"].to_numpy(), float)
+            palette = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)]
+            for i, s in enumerate(sorted(set(sensor))):
+                m = sensor == s
+                c = palette[i % 4] if not self.multi else self.color(s, ["", "light", "dark"][i % 3])
+                self.scalars("nis", f"nis/{_safe(s)}", t[m], nis[m], name=f"NIS {s}", color=c, width=1.0)
+
+    def draw_events(self) -> None:
+        ev = vd.events(self.log)
+        if not ev:
+            return
+        path = f"{self.prefix}/events"
+        t = np.array([e.t_ns for e in ev], dtype=np.int64)
+        text = [self.label(e.text) for e in ev]
+        self.rec.send_columns(path, indexes=self.index_cols(t),
+                              columns=rr.TextLog.columns(text=text, level=[e.level for e in ev]))
+        self.views["events"].append(path)
+
+
+def _col(frame, name) -> np.ndarray:
+    return np.asarray(frame[name].to_numpy(), dtype=float)
+
+
+def _frame_of(t_ns, x):
+    import pandas as pd
+
+    return pd.DataFrame({"x": x}, index=pd.Index(t_ns, name="t_ns"))
+
+
+def _thin(t_ns: np.ndarray, max_hz: float) -> np.ndarray:
+    """Indices keeping at most ``max_hz`` samples per second (every k-th sample)."""
+    if len(t_ns) < 3:
+        return np.arange(len(t_ns))
+    dt = float(np.median(np.diff(t_ns))) / 1e9
+    step = max(1, int(round((1.0 / max_hz) / dt))) if dt > 0 else 1
+    k = np.arange(0, len(t_ns), step)
+    if k[-1] != len(t_ns) - 1:
+        k = np.append(k, len(t_ns) - 1)
+    return k
+
+
+def _extent(log: FieldLog) -> float:
+    pts = []
+    b = vd.boat_state(log)
+    if b is not None:
+        pts.append(np.column_stack([b[1]["n_m"].to_numpy(), b[1]["e_m"].to_numpy()]))
+    p = vd.path_polyline(log)
+    if p is not None:
+        pts.append(p)
+    if not pts:
+        return 10.0
+    a = np.concatenate(pts).astype(float)
+    a = a[np.isfinite(a).all(1)]
+    return float(np.ptp(a, axis=0).max()) if len(a) else 10.0
+
+
+# -----------------------------------------------------------------------------
+# blueprint
+# -----------------------------------------------------------------------------
+
+SERIES_VIEWS = [  # (key, title)
+    ("u", "Surge speed u vs u_d (m/s)"), ("psi", "Heading psi vs psi_d (deg, unwrapped)"),
+    ("cross_track", "Cross-track error (m)"), ("v", "Sway speed v (m/s)"), ("r", "Yaw rate r (deg/s)"),
+    ("tau_u", "Surge force tau_u: replayed vs recorded (N)"), ("tau_r", "Yaw moment tau_r: replayed vs recorded (N m)"),
+    ("nis", "NIS (normalised innovation squared)"), ("current", "Estimated current (m/s)"),
+    ("saturation", "Thrusters saturated (0/1)"), ("fit_u", "Identification: u measured vs model (m/s)"),
+    ("fit_v", "Identification: v measured vs model (m/s)"), ("fit_r", "Identification: r measured vs model (deg/s)"),
+]
+
+
+def map_zoom(boxes: np.ndarray, pixels: float = 500.0) -> float:
+    """OpenStreetMap zoom level at which the boxes' extent spans about ``pixels`` pixels."""
+    lat0, lon0 = boxes[:, 0].min(), boxes[:, 1].min()
+    lat1, lon1 = boxes[:, 2].max(), boxes[:, 3].max()
+    c = math.cos(math.radians(0.5 * (lat0 + lat1)))
+    span = max((lat1 - lat0) * 111_320.0, (lon1 - lon0) * 111_320.0 * c, 20.0)   # metres
+    # at zoom z one 256-px tile spans 40 075 km cos(lat) / 2^z, i.e. 156 543 m cos(lat) / 2^z per pixel
+    return float(np.clip(math.log2(156_543.03 * c * pixels / span), 2.0, 21.0))
+
+
+def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
+    views: dict[str, list[str]] = defaultdict(list)
+    for w in writers:
+        for k, v in w.views.items():
+            views[k].extend(v)
+    spatial: list = []
+    if views["map"]:
+        boxes = [b for w in writers for b in w.geo_box]
+        zoom = map_zoom(np.array(boxes)) if boxes else None
+        spatial.append(rrb.MapView(name="Map", origin="/", contents=views["map"], zoom=zoom))
+    if views["local"]:
+        title = "Local NED (m), north up" + (", all runs" if len(writers) > 1 else "")
+        spatial.append(rrb.Spatial2DView(name=title, origin="/", contents=views["local"]))
+        if len(writers) > 1:
+            side = [rrb.Spatial2DView(name=f"{w.name}: local", origin="/", contents=w.views["local"])
+                    for w in writers if w.views.get("local")]
+            spatial.append(rrb.Horizontal(*side, name="Side by side"))
+    left: list = []
+    if spatial:
+        left.append(rrb.Tabs(*spatial, name="Tracks"))
+    if views["events"]:
+        left.append(rrb.TextLogView(name="Events", origin="/", contents=views["events"]))
+    # u and psi always in sight; the rest in tabs, the cross-track error first
+    series = {key: rrb.TimeSeriesView(name=title, origin="/", contents=views[key])
+              for key, title in SERIES_VIEWS if views[key]}
+    right = [series[k] for k in ("u", "psi") if k in series]
+    rest = [v for k, v in series.items() if k not in ("u", "psi")]
+    if rest:
+        right.append(rrb.Tabs(*rest, name="More series"))
+    cols = []
+    if left:
+        cols.append(rrb.Vertical(*left, row_shares=[3, 1][:len(left)]))
+    if right:
+        cols.append(rrb.Vertical(*right))
+    if not cols:
+        cols = [rrb.TextLogView(name="Events", origin="/")]
+    timeline = "elapsed" if len(writers) > 1 else "time"
+    return rrb.Blueprint(rrb.Horizontal(*cols, column_shares=[1, 1][:len(cols)]),
+                         rrb.TimePanel(timeline=timeline), collapse_panels=False)
+
+
+# -----------------------------------------------------------------------------
+# public API
+# -----------------------------------------------------------------------------
+
+def _recording(logs: list[FieldLog], names: list[str]) -> rr.RecordingStream:
+    key = "|".join(f"{n}:{lg.time_range()}" for n, lg in zip(names, logs))
+    rid = uuid.uuid5(uuid.NAMESPACE_URL, "usvlog:" + key)
+    return rr.RecordingStream(APP_ID, recording_id=rid, send_properties=False)
+
+
+def _prepare(logs, names):
+    if isinstance(logs, FieldLog):
+        logs = [logs]
+    logs = list(logs)
+    if not logs:
+        raise InputError("nothing to view: no logs given")
+    if names is None:
+        names = default_names(logs)
+    else:
+        names = [_safe(n) for n in names]
+        if len(names) != len(logs) or len(set(names)) != len(names):
+            raise InputError(f"need {len(logs)} distinct names, got {names}")
+    for log, name in zip(logs, names):
+        if log.time_range() is None:
+            raise InputError(f"{log.source or name}: log has no data to view")
+    return logs, names
+
+
+def _draw(rec, logs, names) -> list[_Writer]:
+    writers = []
+    multi = len(logs) > 1
+    for i, (log, name) in enumerate(zip(logs, names)):
+        w = _Writer(rec, log, name, i, multi)
+        w.draw()
+        writers.append(w)
+    return writers
+
+
+def to_rrd(logs: list[FieldLog] | FieldLog, out_path, *, names: list[str] | None = None,
+           force: bool = False) -> Path:
+    """Write one or several logs to an .rrd file with the blueprint stored inside.
+
+    Several logs are overlaid under ``/runs/<name>/`` (names default to the files' stems)
+    and also shown side by side; the time panel then starts on the ``elapsed`` timeline.
+    """
+    logs, names = _prepare(logs, names)
+    out = check_output(out_path, force)
+    rec = _recording(logs, names)
+    with atomic_path(out, force=force) as tmp:
+        rec.save(tmp)
+        try:
+            writers = _draw(rec, logs, names)
+            # the blueprint depends on what the logs hold, so it goes in last (stored as the default)
+            rec.send_blueprint(build_blueprint(writers), make_active=True, make_default=True)
+            rec.flush()
+        finally:
+            rec.disconnect()
+    return out
+
+
+def viewer_command(rrd_path, *, serve: bool = False, host: str = DEFAULT_HOST, port: int | None = None,
+                   grpc_port: int | None = None) -> list[str]:
+    """The ``rerun`` command that opens (or serves to a browser) an .rrd file.
+
+    Serving binds ``host`` (127.0.0.1 unless given); ``port`` is the web viewer's HTTP port,
+    ``grpc_port`` the data server's port.
+    """
+    cmd = [sys.executable, "-m", "rerun"]
+    if serve:
+        cmd += ["--serve-web", "--bind", host]
+        if port is not None:
+            cmd += ["--web-viewer-port", str(int(port))]
+        if grpc_port is not None:
+            cmd += ["--port", str(int(grpc_port))]
+    cmd.append(str(rrd_path))
+    return cmd
+
+
+def spawn_viewer(rrd_path) -> subprocess.Popen:
+    """Open the native viewer on an .rrd file (returns at once)."""
+    return subprocess.Popen(viewer_command(rrd_path), start_new_session=True)
+
+
+def serve(rrd_path, *, host: str = DEFAULT_HOST, port: int | None = None, grpc_port: int | None = None) -> int:
+    """Serve an .rrd file to a browser viewer until interrupted; returns the exit code.
+
+    ``python -m rerun`` starts the viewer binary as a child, so the server runs in its own
+    process group and the whole group is stopped on Ctrl-C.
+    """
+    import os
+    import signal
+
+    proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port),
+                            start_new_session=True)
+    try:
+        return proc.wait()
+    except KeyboardInterrupt:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+        return 0
+
+
+__all__ = ["to_rrd", "build_blueprint", "viewer_command", "spawn_viewer", "serve", "default_names",
+           "OVERLAY_HZ", "math"]
