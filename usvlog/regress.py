@@ -156,6 +156,11 @@ def stage_identify(run: _Run) -> None:
                 m["identify.xg_err_m"] = abs(v - tv)
             else:
                 m[f"identify.{k}_err_pct"] = 100.0 * abs(v - tv) / abs(tv)
+    if truth is not None and ident.current:
+        tr = run.log["/truth/state"]
+        cn, ce = ident.current_[0]
+        m["identify.current_err_mps"] = float(np.hypot(cn - tr["current_n_mps"].mean(),
+                                                       ce - tr["current_e_mps"].mean()))
     val = ident.validate(run.log)
     for k, v in val.fit_percent.items():
         m[f"identify.fit_{k}_pct"] = float(v)
