@@ -31,7 +31,7 @@ def test_identify_equation_error_writes_vessel_json_and_fit_channel(excitation_f
     assert np.sqrt(np.mean((f["n_m"].to_numpy() - n_true) ** 2)) < 1.0
 
 
-def test_identify_refuses_existing_output_filter_error_and_bad_fix(excitation_file, tmp_path, capsys):
+def test_identify_refuses_existing_output_bad_holdout_and_bad_fix(excitation_file, tmp_path, capsys):
     out = tmp_path / "p.toml"
     out.write_text("x")
     assert main(["identify", str(excitation_file), "--out", str(out)]) == 2

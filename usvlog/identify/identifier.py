@@ -165,6 +165,7 @@ class Identifier:
             names = [k for k in PARAM_NAMES if k not in fixv]
             cov = np.diag([ee.stderr[k] ** 2 for k in names])
             self.current_ = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None
@@ -181,6 +182,7 @@ class Identifier:
             for i, k in enumerate(names):
                 se[PARAM_NAMES.index(k)] = d[i]
             self.current_ = [_ekf_current(lg, vessel, theta, self.current) for lg in fit_logs]
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)   # not computed
             corr = cov / np.outer(np.maximum(d, 1e-300), np.maximum(d, 1e-300))
             self.cond_ = float(np.sqrt(np.linalg.cond(corr)))
             self.residual_rms_ = {}
