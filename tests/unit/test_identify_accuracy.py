@@ -129,3 +129,21 @@ def test_two_runs_fitted_jointly_each_with_its_own_current():
     ta = 0.2 * np.array([np.cos(np.radians(CUR_DIR)), np.sin(np.radians(CUR_DIR))])
     tb = 0.1 * np.array([np.cos(np.radians(200.0)), np.sin(np.radians(200.0))])
     assert np.abs(ca - ta).max() < 0.01 and np.abs(cb - tb).max() < 0.01, (ca, cb)
+
+
+def test_bad_thrust_records_skipped_and_counted(excitation_log):
+    from usvlog.identify.data import run_data
+
+    log = excitation_log.copy()
+    fr = log["/thrust/command"].copy()
+    fr.iloc[[100, 2000], fr.columns.get_loc("thrust_left_n")] = np.nan
+    fr.iloc[[5, 2000], fr.columns.get_loc("left")] = np.nan   # row 5 keeps its logged force
+    log.channels["/thrust/command"] = fr
+    good, bad = run_data(excitation_log), run_data(log)
+    # row 100: logged force missing, the command (newtons) serves; row 2000: both missing
+    assert bad.thrust_skipped == 1 and len(bad.t_thrust) == len(good.t_thrust) - 1
+    keep = np.ones(len(good.t_thrust), bool)
+    keep[2000] = False
+    np.testing.assert_array_equal(bad.tau_u, good.tau_u[keep])
+    idf = Identifier("equation-error").fit([log])
+    assert any("1 thrust record(s) not finite" in v for v in idf.verdict_)

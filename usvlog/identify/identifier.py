@@ -273,6 +273,9 @@ class Identifier:
         if not vessel.thrusters.known and any(r.thrust_source != "logged newtons" for r in runs):
             out.append("thruster map is only a guess (thrusters.known = false): forces set the absolute "
                        "scale of m, Iz and the damping; --fix a known value (e.g. a weighed mass)")
+        skipped = sum(r.thrust_skipped for r in runs)
+        if skipped:
+            out.append(f"{skipped} thrust record(s) not finite: skipped (the command before each held)")
         if self.method == "output-error":
             for s, v in self.residual_rms_.items():
                 if v > 2.0:
