@@ -147,3 +147,15 @@ def test_bad_thrust_records_skipped_and_counted(excitation_log):
     np.testing.assert_array_equal(bad.tau_u, good.tau_u[keep])
     idf = Identifier("equation-error").fit([log])
     assert any("1 thrust record(s) not finite" in v for v in idf.verdict_)
+
+
+def test_gps_jumps_dropped_as_outliers_not_fitted():
+    jumps = tuple((t, 20.0) for t in (31.0, 95.0, 170.0, 222.0))
+    sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0, gps_jumps=jumps)
+    log = simulate("excitation", SimSettings(duration_s=240.0, current_mps=0.2, current_dir_deg=CUR_DIR,
+                                             sensors=sens), seed=11)
+    idf = Identifier("output-error", segment_s=240.0).fit([log])
+    assert idf.oe_.outliers == {"gps": 4, "compass": 0}
+    err = _errors(idf)
+    assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
+    assert any("4 GNSS fix(es)" in v for v in idf.verdict_)

@@ -276,6 +276,11 @@ class Identifier:
         skipped = sum(r.thrust_skipped for r in runs)
         if skipped:
             out.append(f"{skipped} thrust record(s) not finite: skipped (the command before each held)")
+        if self.method == "output-error" and self.oe_ is not None and self.oe_.outliers:
+            o = self.oe_.outliers
+            if o["gps"] or o["compass"]:
+                out.append(f"{o['gps']} GNSS fix(es) and {o['compass']} compass reading(s) beyond "
+                           f"5 sigma of the fitted model dropped as outliers")
         if self.method == "output-error":
             for s, v in self.residual_rms_.items():
                 if v > 2.0:
