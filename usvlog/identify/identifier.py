@@ -368,7 +368,7 @@ class Identifier:
              "fit_percent": val.fit_percent if val is not None else self.fit_percent_(),
              "fit_percent_on": "validation" if val is not None else "fitted runs",
              "current_ne_mps": [list(c) for c in self.current_],
-             "condition_number": self.cond_,
+             "condition_number": self.cond_ if math.isfinite(self.cond_) else None,
              "correlation": {k: {j: float(x) for j, x in row.items()} for k, row in self.corr_.to_dict("index").items()},
              "verdict": list(self.verdict_),
              "fixed": dict(self.fix),
