@@ -31,13 +31,35 @@ def test_identify_equation_error_writes_vessel_json_and_fit_channel(excitation_f
     assert np.sqrt(np.mean((f["n_m"].to_numpy() - n_true) ** 2)) < 1.0
 
 
-def test_identify_refuses_existing_output_filter_error_and_bad_fix(excitation_file, tmp_path, capsys):
+def test_identify_refuses_existing_output_bad_holdout_and_bad_fix(excitation_file, tmp_path, capsys):
     out = tmp_path / "p.toml"
     out.write_text("x")
     assert main(["identify", str(excitation_file), "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
-    assert main(["identify", str(excitation_file), "--method", "filter-error", "--out", str(tmp_path / "q.toml")]) == 2
-    assert "not implemented" in capsys.readouterr().err
+    assert main(["identify", str(excitation_file), "--holdout", "0.95", "--out", str(tmp_path / "q.toml")]) == 2
+    assert "holdout" in capsys.readouterr().err
     assert main(["identify", str(excitation_file), "--fix", "mass=3", "--out", str(tmp_path / "q.toml")]) == 2
     assert "--fix" in capsys.readouterr().err
     assert out.read_text() == "x"
+
+
+def test_identify_output_error_validate_on_another_manoeuvre(tmp_path, capsys):
+    from usvlog.io.mcapio import write_log
+    from usvlog.simulate import SensorSettings, SimSettings, simulate
+
+    sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
+    ex, tu = tmp_path / "ex.mcap", tmp_path / "turns.mcap"
+    write_log(simulate("excitation", SimSettings(duration_s=240.0, current_mps=0.1, sensors=sens), seed=41), ex)
+    write_log(simulate("turns", SimSettings(duration_s=200.0, current_mps=0.1, sensors=sens), seed=42), tu)
+    out, fit = tmp_path / "boat.toml", tmp_path / "fit.mcap"
+    assert main(["identify", str(ex), "--validate", str(tu), "--out", str(out), "--out-log", str(fit), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["method"] == "output-error" and d["fit_percent_on"] == "validation"
+    assert d["params"]["Iz"] == pytest.approx(10.0, rel=0.03) and d["params"]["d33"] == pytest.approx(5.0, rel=0.02)
+    assert d["fit_percent"]["r"] > 80 and d["fit_percent"]["track"] > 80, d["fit_percent"]
+    lo, hi = d["ci95"]["d11"]
+    assert lo < d["params"]["d11"] < hi
+    f = read_log(fit)["/identify/fit"]
+    # the fitted model's track follows the measured one to about the GPS noise
+    err = np.hypot(f["n_m"] - f["n_sim_m"], f["e_m"] - f["e_sim_m"]).to_numpy()
+    assert np.sqrt(np.mean(err ** 2)) < 1.0

@@ -79,9 +79,23 @@ def test_straight_line_equation_error_warns_too():
         assert any("yaw barely excited" in v for v in idf.verdict_), idf.verdict_
 
 
-def test_filter_error_rejected_and_bad_fix():
-    with pytest.raises(ConfigError, match="filter-error is not implemented"):
-        Identifier("filter-error")
+def test_filter_error_accuracy_fast():
+    """Dynamic-EKF likelihood on the quieter 4-minute run (its intervals are wider: the filter's
+    process noise absorbs part of the model's mismatch)."""
+    sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
+    log = simulate("excitation", SimSettings(duration_s=240.0, current_mps=0.2, current_dir_deg=CUR_DIR,
+                                             sensors=sens), seed=11)
+    idf = Identifier("filter-error").fit([log])
+    err = _errors(idf)
+    assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
+    assert _current_error(idf, 0.2) < 0.01
+    z = [abs(idf.theta_[i] - getattr(TRUE, k)) / idf.stderr_[k] for i, k in enumerate(PARAM_NAMES)]
+    assert max(z) < 4, z
+
+
+def test_bad_settings_rejected():
+    with pytest.raises(ConfigError, match="not one of"):
+        Identifier("least-squares")
     with pytest.raises(ConfigError, match="cannot fix"):
         Identifier(fix={"mass": 3.0})
 
@@ -115,3 +129,33 @@ def test_two_runs_fitted_jointly_each_with_its_own_current():
     ta = 0.2 * np.array([np.cos(np.radians(CUR_DIR)), np.sin(np.radians(CUR_DIR))])
     tb = 0.1 * np.array([np.cos(np.radians(200.0)), np.sin(np.radians(200.0))])
     assert np.abs(ca - ta).max() < 0.01 and np.abs(cb - tb).max() < 0.01, (ca, cb)
+
+
+def test_bad_thrust_records_skipped_and_counted(excitation_log):
+    from usvlog.identify.data import run_data
+
+    log = excitation_log.copy()
+    fr = log["/thrust/command"].copy()
+    fr.iloc[[100, 2000], fr.columns.get_loc("thrust_left_n")] = np.nan
+    fr.iloc[[5, 2000], fr.columns.get_loc("left")] = np.nan   # row 5 keeps its logged force
+    log.channels["/thrust/command"] = fr
+    good, bad = run_data(excitation_log), run_data(log)
+    # row 100: logged force missing, the command (newtons) serves; row 2000: both missing
+    assert bad.thrust_skipped == 1 and len(bad.t_thrust) == len(good.t_thrust) - 1
+    keep = np.ones(len(good.t_thrust), bool)
+    keep[2000] = False
+    np.testing.assert_array_equal(bad.tau_u, good.tau_u[keep])
+    idf = Identifier("equation-error").fit([log])
+    assert any("1 thrust record(s) not finite" in v for v in idf.verdict_)
+
+
+def test_gps_jumps_dropped_as_outliers_not_fitted():
+    jumps = tuple((t, 20.0) for t in (31.0, 95.0, 170.0, 222.0))
+    sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0, gps_jumps=jumps)
+    log = simulate("excitation", SimSettings(duration_s=240.0, current_mps=0.2, current_dir_deg=CUR_DIR,
+                                             sensors=sens), seed=11)
+    idf = Identifier("output-error", segment_s=240.0).fit([log])
+    assert idf.oe_.outliers == {"gps": 4, "compass": 0}
+    err = _errors(idf)
+    assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
+    assert any("4 GNSS fix(es)" in v for v in idf.verdict_)

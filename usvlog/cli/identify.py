@@ -22,7 +22,8 @@ def register(sub) -> None:
     p.add_argument("--vessel", default=None, help="vessel TOML: thruster map and geometry, start values "
                                                   "(default: the vessel stored in the first log)")
     p.add_argument("--method", choices=METHODS, default="output-error",
-                   help="output-error (accurate, default), equation-error (fast, biased)")
+                   help="output-error (accurate, default), equation-error (fast, biased), filter-error "
+                        "(dynamic EKF likelihood; slower)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validate", default=None, metavar="LOG", help="validate on this log (not fitted)")
     g.add_argument("--holdout", type=float, default=0.0, help="hold out this last fraction of each log")
@@ -96,7 +97,7 @@ def format_report(d: dict) -> str:
     lines.append(f"Iz - m xg^2 = {d['Iz_minus_m_xg2']:.4g} (Theorem 3.1 condition 1 needs > 0)")
     for i, c in enumerate(d["current_ne_mps"]):
         lines.append(f"current run {i}: north {c[0]:+.3f} m/s, east {c[1]:+.3f} m/s")
-    if d.get("condition_number") == d.get("condition_number"):
+    if d.get("condition_number") is not None:
         lines.append(f"condition number {d['condition_number']:.3g}")
     fp = d["fit_percent"]
     lines.append(f"fit % ({d['fit_percent_on']}): u {fp['u']:.1f}, v {fp['v']:.1f}, r {fp['r']:.1f}, "

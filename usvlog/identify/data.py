@@ -37,6 +37,7 @@ class RunData:
     psi_compass: np.ndarray
     sigma_compass: np.ndarray  # rad
     thrust_source: str = "newton"   # "logged newtons" or the map used
+    thrust_skipped: int = 0         # non-finite thrust records skipped
     source: str = ""
 
     @property
@@ -59,23 +60,22 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     src = log.source or "log"
     fr = log["/thrust/command"]
     t_ns = np.asarray(fr.index, dtype=np.int64)
+    fl = np.full(len(fr), np.nan)
+    frr = np.full(len(fr), np.nan)
     if "thrust_left_n" in fr and "thrust_right_n" in fr:
-        fl = np.asarray(fr["thrust_left_n"].to_numpy(), float)
-        frr = np.asarray(fr["thrust_right_n"].to_numpy(), float)
-        if np.isfinite(fl).all() and np.isfinite(frr).all():
-            return t_ns, fl, frr, "logged newtons"
+        fl = np.asarray(fr["thrust_left_n"].to_numpy(), float).copy()
+        frr = np.asarray(fr["thrust_right_n"].to_numpy(), float).copy()
+    logged = np.isfinite(fl) & np.isfinite(frr)
+    if logged.all():
+        return t_ns, fl, frr, "logged newtons"
+    # rows without logged forces: the commands through the thruster map
     units = fr["unit"].astype(str).to_numpy() if "unit" in fr else np.array(["newton"] * len(fr))
-    fl = np.empty(len(fr))
-    frr = np.empty(len(fr))
-    for unit in np.unique(units):
-        k = units == unit
-        fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy()[k], unit)
-        frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy()[k], unit)
-    bad = ~(np.isfinite(fl) & np.isfinite(frr))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise InputError(f"{src} /thrust/command: non-finite thrust at row {i}")
-    how = "newton" if set(np.unique(units)) == {"newton"} else f"{vessel.thrusters.map} map"
+    need = ~logged
+    for unit in np.unique(units[need]):
+        k = need & (units == unit)
+        fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy(float)[k], unit)
+        frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy(float)[k], unit)
+    how = "newton" if set(np.unique(units[need])) == {"newton"} else f"{vessel.thrusters.map} map"
     return t_ns, fl, frr, how
 
 
@@ -84,6 +84,10 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     vessel = vessel or log.vessel or default_vessel()
     src = log.source or "log"
     t_ns, fl, frr, how = thrust_forces(log, vessel)
+    # a bad record is skipped (counted): the command before it stays in force
+    good = np.isfinite(fl) & np.isfinite(frr)
+    skipped = int((~good).sum())
+    t_ns, fl, frr = t_ns[good], fl[good], frr[good]
     if len(t_ns) < 10:
         raise InputError(f"{src} /thrust/command: only {len(t_ns)} samples")
     order = np.argsort(t_ns, kind="stable")
@@ -124,4 +128,4 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     return RunData(t0_ns=t0, t_thrust=(t_ns - t0) / 1e9, tau_u=np.asarray(tau_u, float),
                    tau_r=np.asarray(tau_r, float), t_gps=(tg[ok] - t0) / 1e9, n_gps=n[ok], e_gps=e[ok],
                    sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
-                   sigma_compass=sc[okc], thrust_source=how, source=src)
+                   sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src)

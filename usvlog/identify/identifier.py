@@ -65,6 +65,26 @@ def _ee_inputs(run: RunData, ks: KinStates, current=(0.0, 0.0)):
     return smooth_like(ks.t, nu, EE_ACC_S), derivative(ks.t, nu, EE_ACC_S), tu, tr
 
 
+def _log_before(log: FieldLog, t_ns: int) -> FieldLog:
+    """The part of a log before ``t_ns`` (every channel)."""
+    out = log.copy()
+    for topic, frame in log.channels.items():
+        out.channels[topic] = frame[np.asarray(frame.index, dtype=np.int64) < t_ns]
+    return out
+
+
+def _ekf_current(log: FieldLog, vessel: Vessel, theta, current: bool) -> tuple[float, float]:
+    """Mean water current the dynamic EKF estimates with the identified parameters."""
+    if not current:
+        return (0.0, 0.0)
+    from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
+
+    v = Vessel(name=vessel.name, params=VesselParams(**dict(zip(PARAM_NAMES, map(float, theta)))),
+               thrusters=vessel.thrusters)
+    st = estimate(log, EstimateSettings(model="dynamic", current=True, output_step_s=0.1), v).state
+    return (float(np.nanmean(st["current_n_mps"])), float(np.nanmean(st["current_e_mps"])))
+
+
 def _excitation_warnings(kin: list[KinStates], force: bool = False) -> list[str]:
     r_rms = math.sqrt(np.mean(np.concatenate([k.r for k in kin]) ** 2))
     psi_span = max(float(np.ptp(k.psi)) for k in kin)
@@ -80,7 +100,8 @@ class Identifier:
 
     ``method``: ``"output-error"`` (simulate from the recorded thrust, fit GPS and compass;
     the accurate one), ``"equation-error"`` (least squares on smoothed states; fast, biased),
-    ``"filter-error"`` (not built yet: raises). ``fix``: known values by name (e.g. a weighed
+    ``"filter-error"`` (the estimator's dynamic EKF with candidate parameters, maximising the
+    innovation likelihood; slower, wider intervals). ``fix``: known values by name (e.g. a weighed
     mass). ``current``: fit a constant water current per run (two nuisance parameters).
     ``segment_s``: multiple-shooting segment length of the final output-error fit.
     """
@@ -89,9 +110,6 @@ class Identifier:
                  segment_s: float = 300.0, warm_segment_s: float = 60.0, holdout: float = 0.0):
         if method not in METHODS:
             raise ConfigError(f"method {method!r} is not one of {', '.join(METHODS)}")
-        if method == "filter-error":
-            raise ConfigError("method filter-error is not implemented yet; use output-error "
-                              "(fits the raw GPS and compass) or equation-error")
         fix = dict(fix or {})
         for k, v in fix.items():
             if k not in PARAM_NAMES:
@@ -119,6 +137,7 @@ class Identifier:
         self.vessel_in_ = vessel
         runs, kin = [], []
         held = []
+        fit_logs = []
         for log in logs:
             run = run_data(log, vessel)
             ks = kinematic_states(log, run, vessel)
@@ -126,6 +145,8 @@ class Identifier:
                 t_cut = run.t_thrust[0] + (1 - self.holdout) * run.duration_s
                 held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf)))
                 run, ks = run.window(-np.inf, t_cut), ks.window(-np.inf, t_cut)
+                log = _log_before(log, run.t0_ns + int(t_cut * 1e9))
+            fit_logs.append(log)
             runs.append(run)
             kin.append(ks)
         self.runs_ = runs
@@ -144,9 +165,27 @@ class Identifier:
             names = [k for k in PARAM_NAMES if k not in fixv]
             cov = np.diag([ee.stderr[k] ** 2 for k in names])
             self.current_ = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None
+        elif self.method == "filter-error":
+            from .filter import fit_filter_error   # noqa: PLC0415
+
+            fe = fit_filter_error(fit_logs, vessel, self._start(ee, vessel), free_mask=free,
+                                  current=self.current)
+            self.oe_ = None
+            self.fe_ = fe
+            theta, names, cov = fe.theta, list(fe.free), fe.cov
+            d = np.sqrt(np.maximum(np.diag(cov), 0))
+            se = np.zeros(6)
+            for i, k in enumerate(names):
+                se[PARAM_NAMES.index(k)] = d[i]
+            self.current_ = [_ekf_current(lg, vessel, theta, self.current) for lg in fit_logs]
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)   # not computed
+            corr = cov / np.outer(np.maximum(d, 1e-300), np.maximum(d, 1e-300))
+            self.cond_ = float(np.sqrt(np.linalg.cond(corr)))
+            self.residual_rms_ = {}
         else:
             theta0 = self._start(ee, vessel)
             oe = fit_output_error(runs, theta0, lambda i, t: kin[i].at(t), free_mask=free,
@@ -234,6 +273,14 @@ class Identifier:
         if not vessel.thrusters.known and any(r.thrust_source != "logged newtons" for r in runs):
             out.append("thruster map is only a guess (thrusters.known = false): forces set the absolute "
                        "scale of m, Iz and the damping; --fix a known value (e.g. a weighed mass)")
+        skipped = sum(r.thrust_skipped for r in runs)
+        if skipped:
+            out.append(f"{skipped} thrust record(s) not finite: skipped (the command before each held)")
+        if self.method == "output-error" and self.oe_ is not None and self.oe_.outliers:
+            o = self.oe_.outliers
+            if o["gps"] or o["compass"]:
+                out.append(f"{o['gps']} GNSS fix(es) and {o['compass']} compass reading(s) beyond "
+                           f"5 sigma of the fitted model dropped as outliers")
         if self.method == "output-error":
             for s, v in self.residual_rms_.items():
                 if v > 2.0:
@@ -321,7 +368,7 @@ class Identifier:
              "fit_percent": val.fit_percent if val is not None else self.fit_percent_(),
              "fit_percent_on": "validation" if val is not None else "fitted runs",
              "current_ne_mps": [list(c) for c in self.current_],
-             "condition_number": self.cond_,
+             "condition_number": self.cond_ if math.isfinite(self.cond_) else None,
              "correlation": {k: {j: float(x) for j, x in row.items()} for k, row in self.corr_.to_dict("index").items()},
              "verdict": list(self.verdict_),
              "fixed": dict(self.fix),

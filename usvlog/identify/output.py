@@ -23,6 +23,7 @@ from .data import RunData
 from .shoot import NS, shoot
 
 MAX_DT = 0.05
+OUTLIER_SIGMA = 5.0
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -38,6 +39,7 @@ class OutputErrorResult:
     n_residuals: int
     x0s: np.ndarray            # per-segment initial states
     nfev: int
+    outliers: dict = None      # measurements dropped as outliers, per sensor
 
 
 class Problem:
@@ -305,11 +307,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         nfev += vp.nfev
         theta, cur = vp.unpack(sol.x)
         vp._eval(sol.x)
-        r = vp._r
-        rms = {"gps": float(np.sqrt(np.mean(r[prob.r_sensor == 0] ** 2))),
-               "compass": float(np.sqrt(np.mean(r[prob.r_sensor == 1] ** 2)))}
-        if reweight:
-            sensor_scale = (sensor_scale[0] * rms["gps"], sensor_scale[1] * rms["compass"])
+        if reweight:   # each sensor weighted by its own (robust) residual scatter from here on
+            sc = _robust_scale(prob, vp._r)
+            sensor_scale = (sensor_scale[0] * sc[0], sensor_scale[1] * sc[1])
         # capture initial states for the next stage
         x0_prev = (prob, vp.x0s.copy())
 
@@ -317,6 +317,27 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             if t > _p[0].runs[run].t_thrust[-1] - 1.0:
                 return x0_kin(run, t)
             return _state_at(_p[0], _p[1], _theta, _cur, run, t)
+    # outliers (GPS jumps, compass glitches): drop measurements beyond OUTLIER_SIGMA robust
+    # sigmas and solve again from where it stands (same segments, warm initial states)
+    outliers = {"gps": 0, "compass": 0}
+    for _ in range(3):
+        sc = _robust_scale(prob, vp._r)
+        bad = np.abs(vp._r) > OUTLIER_SIGMA * np.where(prob.r_sensor == 0, sc[0], sc[1])
+        if not bad.any():
+            break
+        runs, n_gps, n_comp = _drop_measurements(prob, runs, bad)
+        outliers["gps"] += n_gps
+        outliers["compass"] += n_comp
+        prob = Problem(runs, stages[-1])
+        prob.set_sensor_scale(*sensor_scale)
+        vp = _VP(prob, theta, free, fit_current, vp.x0s, cur)
+        p0 = vp.pack(theta, cur)
+        lo, hi = _bounds(free, len(p0) - int(free.sum()))
+        sol = least_squares(vp.fun, np.clip(p0, lo + 1e-9, hi), jac=vp.jac, bounds=(lo, hi), x_scale="jac",
+                            method="trf", ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=max_nfev, verbose=verbose)
+        nfev += vp.nfev
+        theta, cur = vp.unpack(sol.x)
+        vp._eval(sol.x)
     r, G = vp._r, vp._J
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
@@ -334,7 +355,35 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     return OutputErrorResult(theta=theta, free=tuple(n for n, f in zip(PARAM_NAMES, free) if f),
                              currents=np.asarray(cur, float) if fit_current else np.zeros((len(runs), 2)),
                              cov=cov, names=names, cond=cond, sigma2=sigma2, rms=rms, n_residuals=n_res,
-                             x0s=vp.x0s, nfev=nfev)
+                             x0s=vp.x0s, nfev=nfev, outliers=outliers)
+
+
+def _robust_scale(prob: Problem, r) -> tuple[float, float]:
+    """Per-sensor scatter of whitened residuals, 1.4826 median |r| (sigma for Gaussian noise)."""
+    out = []
+    for k in (0, 1):
+        a = np.abs(r[prob.r_sensor == k])
+        out.append(float(1.4826 * np.median(a)) if len(a) else 1.0)
+    return out[0] or 1.0, out[1] or 1.0
+
+
+def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[list[RunData], int, int]:
+    """Runs without the measurements behind the flagged residual rows."""
+    from dataclasses import replace as _replace
+
+    m = np.unique(prob.r_meas[bad_rows])
+    run_of = prob.seg_run[prob.meas_seg[m]]
+    kind, t = prob.kind[m], prob.meas_t[m]
+    out = []
+    for i, run in enumerate(runs):
+        tg = t[(run_of == i) & (kind == 0)]
+        tc = t[(run_of == i) & (kind == 1)]
+        g = ~np.isin(run.t_gps, tg)
+        c = ~np.isin(run.t_compass, tc)
+        out.append(_replace(run, t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g],
+                            sigma_gps=run.sigma_gps[g], t_compass=run.t_compass[c],
+                            psi_compass=run.psi_compass[c], sigma_compass=run.sigma_compass[c]))
+    return out, int((kind == 0).sum()), int((kind == 1).sum())
 
 
 def _state_at(prob: Problem, x0s, theta, cur, run, t):

@@ -1,0 +1,83 @@
+"""Filter-error identification: the estimator's dynamic EKF (eqs. (1)+(3) driven by the
+recorded thrust, with the water current as states) run with candidate parameters; the
+parameters maximise the innovation log-likelihood of the forward pass. Standard errors from
+the inverse of the finite-difference Hessian of the negative log-likelihood."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..log import FieldLog
+from ..vessel import PARAM_NAMES, Vessel
+
+
+@dataclass(frozen=True, kw_only=True)
+class FilterErrorResult:
+    theta: np.ndarray     # (m, Iz, d11, d22, d33, xg)
+    cov: np.ndarray       # covariance of the free parameters
+    free: tuple[str, ...]
+    loglik: float
+    nfev: int
+
+
+def fit_filter_error(logs: list[FieldLog], vessel: Vessel, theta0, *, free_mask=None,
+                     current: bool = True, max_iter: int = 200) -> FilterErrorResult:
+    from ..estimate import EstimateSettings, build_problem   # noqa: PLC0415
+    from ..estimate.core import forward_loglik, process_noise   # noqa: PLC0415
+
+    free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
+    s = EstimateSettings(model="dynamic", current=current, gate_probability=1.0)
+    pbs = [build_problem(log, s, vessel) for log in logs]
+    q = process_noise(s)
+    theta0 = np.asarray(theta0, float)
+    pos = np.array([True, True, True, True, True, False])   # searched in log space
+    nfev = [0]
+
+    def theta_of(z):
+        th = theta0.copy()
+        zz = np.where(pos[free], np.exp(z), z)
+        th[free] = zz
+        return th
+
+    def nll(z):
+        th = theta_of(z)
+        nfev[0] += 1
+        if not np.all(np.isfinite(th)) or th[1] - th[0] * th[5] ** 2 <= 1e-3 * th[1]:
+            return 1e12
+        return -sum(forward_loglik(replace(pb, prm=th), q, s.max_consecutive_rejects) for pb in pbs)
+
+    z0 = np.where(pos[free], np.log(np.maximum(theta0[free], 1e-6)), theta0[free])
+    sol = minimize(nll, z0, method="BFGS", options={"gtol": 1e-2, "maxiter": max_iter})
+    z = sol.x
+    th = theta_of(z)
+    # Hessian in theta (not log) space by central differences
+    x = th[free].astype(float)
+    k = len(x)
+    h = 1e-3 * np.maximum(np.abs(x), 1e-2)
+
+    def f(xx):
+        t = th.copy()
+        t[free] = xx
+        nfev[0] += 1
+        if t[1] - t[0] * t[5] ** 2 <= 0:
+            return 1e12
+        return -sum(forward_loglik(replace(pb, prm=t), q, s.max_consecutive_rejects) for pb in pbs)
+
+    f0 = f(x)
+    H = np.zeros((k, k))
+    for i in range(k):
+        for j in range(i, k):
+            ei, ej = np.eye(k)[i] * h[i], np.eye(k)[j] * h[j]
+            if i == j:
+                H[i, i] = (f(x + ei) - 2 * f0 + f(x - ei)) / h[i] ** 2
+            else:
+                H[i, j] = H[j, i] = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * h[i] * h[j])
+    try:
+        cov = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        cov = np.linalg.pinv(H)
+    return FilterErrorResult(theta=th, cov=cov, free=tuple(n for n, fr in zip(PARAM_NAMES, free) if fr),
+                             loglik=float(-f0), nfev=nfev[0])
