@@ -253,7 +253,9 @@ def test_nmea_round_trip_midnight_rollover(tmp_path):
     np.testing.assert_array_equal(g.index.to_numpy(), start + tr["k"] * 100_000_000)  # crosses midnight
     np.testing.assert_allclose(g["lat_deg"], tr["lat"], atol=1e-7, rtol=0)
     np.testing.assert_allclose(g["lon_deg"], tr["lon"], atol=1e-7, rtol=0)
-    np.testing.assert_allclose(g["alt_m"], 5.0)  # GGA kept, the RMC of the same fix not duplicated
+    # GGA kept, the RMC of the same fix not duplicated; altitude above the WGS-84 ellipsoid:
+    # the sentences' 5.0 m above sea level + 20.0 m geoid separation
+    np.testing.assert_allclose(g["alt_m"], 5.0 + 20.0)
     assert len(res.log["/compass/heading"]) == 75
     assert sum(res.report.skipped.values()) == 0
 
