@@ -365,9 +365,9 @@ def test_simulated_run_through_merged_csv_is_exact(tmp_path, excitation_log):
 @pytest.mark.parametrize("topic", ["/compass/heading", "/thrust/command", "/imu/yaw_rate", "/gnss/velocity",
                                    "/gnss/fix", "/truth/state"])
 def test_column_encoder_matches_codec_bytes(topic):
-    """The importer's column-wise message encoder writes exactly what Codec.encode writes."""
+    """The column-wise message encoder (Codec.encode, the one the importer and write_log use)
+    writes exactly what one orjson.dumps per row writes (Codec.encode_reference)."""
     from usvlog.channels import codec_for_topic, frame_from_columns
-    from usvlog.io.importers.sink import encode_messages
 
     codec = codec_for_topic(topic)
     rng = np.random.default_rng(7)
@@ -383,7 +383,7 @@ def test_column_encoder_matches_codec_bytes(topic):
             v[rng.random(n) < 0.2] = np.nan
             cols[c] = v
     frame = frame_from_columns(cols, np.arange(n, dtype=np.int64), codec)
-    assert encode_messages(codec, frame, topic) == codec.encode(frame, topic)
+    assert codec.encode(frame, topic) == codec.encode_reference(frame, topic)
 
 
 def test_imported_messages_validate_against_their_schemas(tmp_path):
