@@ -170,3 +170,16 @@ def test_writer_streamed_in_batches_reads_back_whole(tmp_path):
         summ = make_reader(fh).get_summary()
     assert summ.statistics.message_count == sum(len(f) for f in log.channels.values())
     assert len(summ.chunk_indexes) > 4
+
+
+def test_missing_and_unreadable_inputs_are_one_line_storage_errors(tmp_path):
+    """read_log, the importer's format detection and read_text share one mapping of read errors."""
+    from usvlog.errors import StorageError
+    from usvlog.io.config import read_text
+    from usvlog.io.importers import detect_format
+
+    for read in (read_log, detect_format, read_text):
+        with pytest.raises(StorageError, match="nope.x: no such file"):
+            read(tmp_path / "nope.x")
+    with pytest.raises(StorageError, match=r"d.mcap: cannot read \(Is a directory\)"):
+        read_log(tmp_path.joinpath("d.mcap").mkdir() or tmp_path / "d.mcap")

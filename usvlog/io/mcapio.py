@@ -23,9 +23,9 @@ import pandas as pd
 from .. import __version__
 from ..channels import (MESSAGE_ENCODING, SCHEMA_ENCODING, Codec, auto_schema, codec_for_schema,
                         codec_for_topic, frame_from_columns, schema_for_topic)
-from ..errors import FormatError, InputError, StorageError
+from ..errors import FormatError, InputError
 from ..log import FieldLog, RecoveryReport
-from .atomic import atomic_path
+from .atomic import atomic_path, reading
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -44,25 +44,15 @@ _CHUNK = struct.Struct("<QQQI")
 # writing
 # -----------------------------------------------------------------------------
 
-def _codec_for(log: FieldLog, topic: str) -> tuple[dict, Codec]:
-    schema = schema_for_topic(topic) or log.schemas.get(topic)
+def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
+    """(schema, codec) of a channel: the registered schema, else ``schema`` (e.g. the one
+    stored in the file read), else one generated from ``frame``'s dtypes."""
+    schema = schema_for_topic(topic) or schema
     if schema is None:
-        schema = auto_schema(topic, log.channels[topic])
-    codec = codec_for_topic(topic) or codec_for_schema(schema)
-    return schema, codec
-
-
-def encode_log(log: FieldLog) -> list[tuple[str, dict, np.ndarray, list[bytes]]]:
-    """[(topic, schema, t_ns, payloads)] for every channel, validated for writing."""
-    out = []
-    for topic in log.topics:
-        frame = log.channels[topic]
-        schema, codec = _codec_for(log, topic)
-        t = np.asarray(frame.index, dtype=np.int64)
-        if len(t) and t.min() < 0:
-            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-        out.append((topic, schema, t, codec.encode(frame, topic)))
-    return out
+        if frame is None:
+            raise InputError(f"channel {topic}: no registered schema (see schemas/)")
+        schema = auto_schema(topic, frame)
+    return schema, codec_for_topic(topic) or codec_for_schema(schema)
 
 
 def _compression(compression: str) -> str:
@@ -160,12 +150,7 @@ class McapWriter:
         known = self._topics.get(topic)
         if known is not None:
             return known[0]
-        schema = schema_for_topic(topic) or schema
-        if schema is None:
-            if frame is None:
-                raise InputError(f"channel {topic}: no registered schema (see schemas/)")
-            schema = auto_schema(topic, frame)
-        codec = codec_for_topic(topic) or codec_for_schema(schema)
+        schema, codec = _codec_for(topic, schema, frame)
         sname = schema.get("title", topic)
         sdata = json.dumps(schema, sort_keys=False).encode()
         sid = self._schema_ids.get((sname, sdata))
@@ -342,7 +327,7 @@ def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, di
 
     schemas, channels, both, out, ids = [], [], [], [], {}
     for topic in log.topics:
-        schema, codec = _codec_for(log, topic)
+        schema, codec = _codec_for(topic, log.schemas.get(topic), log.channels[topic])
         sname = schema.get("title", topic)
         sdata = json.dumps(schema, sort_keys=False).encode()
         key = (sname, sdata)
@@ -682,12 +667,8 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
 
 
 def _read_bytes(p: Path) -> bytes:
-    try:
+    with reading(p):
         data = p.read_bytes()
-    except FileNotFoundError as err:
-        raise StorageError(f"{p}: no such file") from err
-    except OSError as err:
-        raise StorageError(f"{p}: cannot read ({err.strerror})") from err
     if len(data) < 8 or data[:8] != MAGIC:
         raise FormatError(f"{p}: not an MCAP file (bad magic bytes)")
     return data

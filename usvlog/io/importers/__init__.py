@@ -22,7 +22,7 @@ from ...errors import ConfigError, FormatError, InputError, StorageError, Usvlog
 from ...frames import Datum
 from ...log import FieldLog
 from ...vessel import Vessel
-from ..atomic import atomic_path, check_output
+from ..atomic import atomic_path, check_output, reading
 from .core import THRUST_UNITS, Assembler, ImportReport
 from .sink import McapSink, MemorySink
 
@@ -114,13 +114,8 @@ def detect_format(path) -> str:
         if (p / "metadata.yaml").exists() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
             return "ros2"
         raise FormatError(f"{p}: a directory that is not a ROS 2 bag (no metadata.yaml)")
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(65536)
-    except FileNotFoundError as err:
-        raise StorageError(f"{p}: no such file") from err
-    except OSError as err:
-        raise StorageError(f"{p}: cannot read ({err.strerror})") from err
+    with reading(p), open(p, "rb") as fh:
+        head = fh.read(65536)
     if not head:
         raise InputError(f"{p}: empty file")
     if head.startswith(ROS1_MAGIC):
