@@ -39,7 +39,8 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import re
-from dataclasses import dataclass
+from functools import lru_cache
+from typing import NamedTuple
 
 from .frames import ssa
 
@@ -61,9 +62,12 @@ class NmeaFieldError(NmeaError):
     """A sentence whose field cannot be read or is out of range."""
 
 
-@dataclass(frozen=True)
-class NmeaSample:
-    """What one sentence says. Fields a sentence type does not carry are None."""
+class NmeaSample(NamedTuple):
+    """What one sentence says. Fields a sentence type does not carry are None.
+
+    Immutable; a NamedTuple rather than a frozen dataclass because one is made per
+    sentence and it is three times cheaper to build (imports parse >100k lines/s).
+    """
 
     kind: str                          # sentence type: GGA, RMC, HDT, ...
     talker: str = ""
@@ -122,15 +126,17 @@ def _tod_ns(value: str) -> int | None:
     return ((h * 60 + m) * 60 + s) * _NS + int((frac[1:] + "000000000")[:9] if frac else 0)
 
 
+@lru_cache(maxsize=64)
 def _date(value: str) -> _dt.date | None:
     """ddmmyy -> date (None when empty); two-digit years as ``%y`` (1969-2068)."""
     if not value:
         return None
-    try:
-        if len(value) == 6 and value.isdigit():
-            return _dt.datetime.strptime(value, "%d%m%y").date()
-    except ValueError:
-        pass
+    if len(value) == 6 and value.isdigit():
+        yy = int(value[4:6])
+        try:
+            return _dt.date(yy + (2000 if yy < 69 else 1900), int(value[2:4]), int(value[0:2]))
+        except ValueError:
+            pass
     raise NmeaFieldError(f"bad date {value!r}")
 
 
@@ -202,10 +208,13 @@ def _signed(value: str, direction: str, what: str) -> float:
 
 # -- sentences ------------------------------------------------------------------
 
+_PAD = [""] * 14
+
+
 def _split(text: str, require_checksum: bool) -> tuple[str, str, list[str]]:
     """(talker, kind, fields) of a sentence whose checksum holds."""
     line = text.strip()
-    if not line.startswith(("$", "!")):
+    if line[:1] not in ("$", "!"):
         raise NmeaError("does not start with $")
     star = line.rfind("*")
     if star < 0:
@@ -214,14 +223,18 @@ def _split(text: str, require_checksum: bool) -> tuple[str, str, list[str]]:
         body = line[1:]
     else:
         body = line[1:star]
-        if line[star + 1:].strip().upper() != checksum(body):
+        cs = line[star + 1:]
+        if cs != checksum(body) and cs.strip().upper() != checksum(body):
             raise NmeaChecksumError("checksum does not match")
     parts = body.split(",")
     head = parts[0]
-    if not _HEAD.fullmatch(head) or len(parts) < 2:
+    if len(parts) < 2 or not _HEAD.fullmatch(head):
         raise NmeaError(f"bad sentence head {head[:10]!r}")
-    talker, kind = (head[:2], head[2:]) if len(head) == 5 and head[0] != "P" else ("", head)
-    return talker, kind, parts[1:] + [""] * 14
+    parts[0:1] = ()
+    parts += _PAD
+    if len(head) == 5 and head[0] != "P":
+        return head[:2], head[2:], parts
+    return "", head, parts
 
 
 def parse_sentence(text: str, *, require_checksum: bool = True) -> NmeaSample:
