@@ -181,3 +181,21 @@ def test_vtg_both_layouts():
     assert old.cog_rad == pytest.approx(math.radians(54.7), abs=1e-12)
     kmh = parse_sentence(with_checksum("GPVTG,10.0,T,,M,,N,36.0,K,A"))
     assert kmh.sog_mps == pytest.approx(10.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("text, dt_utc, extra_ns", [
+    ("2024-05-01T10:00:00Z", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),
+    ("2024-05-01T12:00:00.25+02:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 250_000_000),
+    ("2024-05-01 10:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),          # no zone: UTC
+    ("1999-12-31T23:59:59.123456789Z", dt.datetime(1999, 12, 31, 23, 59, 59, tzinfo=dt.timezone.utc), 123_456_789),
+])
+def test_parse_time_is_exact_to_the_nanosecond(text, dt_utc, extra_ns):
+    """The one ISO 8601 reader (import --start-utc, NMEA line prefixes, simulate start_utc)."""
+    from usvlog.io.importers import parse_start_utc
+    from usvlog.log import parse_time
+    from usvlog.simulate import start_ns
+
+    want = int(dt_utc.timestamp()) * 10**9 + extra_ns
+    assert parse_time(text) == parse_start_utc(text) == start_ns(text) == want
+    with pytest.raises(ValueError):
+        parse_time("yesterday-ish")

@@ -28,6 +28,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import InputError
+from ...log import parse_time
 from ...nmea import (NmeaChecksumError, NmeaError, NmeaFieldError, NmeaSample, date_ns, parse_sentence,
                      resolve_time_of_day)
 
@@ -82,13 +83,9 @@ def _prefix_ns(prefix: str, start_ns: int | None, report, state: dict) -> int | 
             report.note("line time stamps are relative and no --start-utc was given: times start at the Unix epoch")
         return int(round(v * 1e9)) + (start_ns or 0)
     try:
-        ts = _dt.datetime.fromisoformat(s.replace("Z", "+00:00"))
+        return parse_time(s)
     except ValueError:
         return -1
-    if ts.tzinfo is None:
-        ts = ts.replace(tzinfo=_dt.timezone.utc)
-    delta = ts - _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
-    return (delta.days * 86400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
 
 
 def _first_date(path, limit: int = 20000) -> int | None:
