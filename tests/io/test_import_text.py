@@ -412,3 +412,21 @@ def test_imported_messages_validate_against_their_schemas(tmp_path):
                 validators[schema.name].validate(json.loads(message.data))
                 seen.add(channel.topic)
     assert seen == {"/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity"}
+
+
+def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):
+    """No RMC: the day comes from --start-utc and a time of day is placed nearest the previous one."""
+    start = dt.datetime(2024, 5, 1, 23, 59, 59, 500000, tzinfo=dt.timezone.utc)
+    tr = nmea_truth(20)
+    lines = []
+    for i in range(20):
+        ts = start + dt.timedelta(milliseconds=100 * i)
+        la, lh = _dm(tr["lat"][i], True)
+        lo, oh = _dm(tr["lon"][i], False)
+        lines.append(_cs(f"GPGGA,{ts:%H%M%S}.{ts.microsecond // 10000:02d},{la},{lh},{lo},{oh},1,10,0.8,5.0,M,,M,,"))
+    p = tmp_path / "gga.nmea"
+    p.write_text("\n".join(lines) + "\n")
+    g = import_file(p, start_utc="2024-05-01T23:00:00Z").log["/gnss/fix"]
+    t0 = int(start.timestamp() * 10**3) * 10**6
+    np.testing.assert_array_equal(g["stamp_ns"].to_numpy(), t0 + np.arange(20) * 100_000_000)
+    np.testing.assert_allclose(g["alt_m"], 5.0)   # no geoid separation given: height above sea level kept
