@@ -4,6 +4,8 @@ Layout written: header, metadata records (datum, vessel, provenance: first, so a
 truncated file keeps them), then zstd chunks of JSON messages in log-time order,
 then the usual summary (indexes, statistics). Each message's ``sequence`` is its
 row number in the channel's frame so reading restores the frame's row order.
+:class:`McapWriter` is the one writer: ``write_log`` writes a whole log through it,
+the importer streams batches into it (its metadata then follows the chunks).
 
 Reading walks the records itself (``_walk``) rather than through the mcap
 library's per-record objects: it stops at the first incomplete record of a file
