@@ -20,6 +20,8 @@ _E2 = _F * (2.0 - _F)
 
 def ssa(angle):
     """Smallest signed angle: wrap radians to [-pi, pi)."""
+    if type(angle) is float:  # one value (sentence parsers): the same arithmetic without an array
+        return np.float64((angle + np.pi) % (2.0 * np.pi) - np.pi)
     return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,26 @@ class RecoveryReport:
 
 def format_time(t_ns: int) -> str:
     return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+_FRACTION = re.compile(r"(?<=\d)[.,](\d+)")
+_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
+
+
+def parse_time(text: str) -> int:
+    """ISO 8601 time -> ns since the epoch, exact (fractions to the ns); UTC when it has no
+    zone. Raises ValueError when ``text`` is not one."""
+    s = str(text).strip().replace("Z", "+00:00").replace("z", "+00:00")
+    frac = _FRACTION.search(s)
+    ns = 0
+    if frac is not None:
+        ns = int((frac.group(1) + "000000000")[:9])
+        s = s[:frac.start()] + s[frac.end():]
+    t = _dt.datetime.fromisoformat(s)
+    if t.tzinfo is None:
+        t = t.replace(tzinfo=_dt.timezone.utc)
+    d = t - _EPOCH
+    return (d.days * 86_400 + d.seconds) * 1_000_000_000 + ns
 
 
 @dataclass

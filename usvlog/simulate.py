@@ -9,7 +9,6 @@ random comes from one seeded numpy Generator, so a seed reproduces a run bit for
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from dataclasses import dataclass, field, replace
 
@@ -92,13 +91,12 @@ class SimSettings:
 
 
 def start_ns(iso: str) -> int:
+    from .log import parse_time
+
     try:
-        t = _dt.datetime.fromisoformat(iso.replace("Z", "+00:00"))
+        return parse_time(iso)
     except ValueError as err:
         raise ConfigError(f"start time {iso!r} is not ISO 8601") from err
-    if t.tzinfo is None:
-        t = t.replace(tzinfo=_dt.timezone.utc)
-    return int(round(t.timestamp())) * 1_000_000_000 + t.microsecond * 1000
 
 
 # -----------------------------------------------------------------------------

@@ -111,7 +111,7 @@ def build_ulog(n: int = 25) -> tuple[bytes, dict]:
     out.append(_ulog_msg("B", bytes(16) + struct.pack("<QQQ", 0, 0, 0)))
     formats = {
         "vehicle_gps_position": ("uint64_t timestamp;uint64_t time_utc_usec;int32_t lat;int32_t lon;"
-                                 "int32_t alt;uint8_t fix_type;", "<QQiiiB"),
+                                 "int32_t alt;int32_t alt_ellipsoid;uint8_t fix_type;", "<QQiiiiB"),
         "vehicle_attitude": ("uint64_t timestamp;float[4] q;", "<Q4f"),
         "actuator_outputs": ("uint64_t timestamp;uint32_t noutputs;float[16] output;", "<QI16f"),
     }
@@ -126,7 +126,7 @@ def build_ulog(n: int = 25) -> tuple[bytes, dict]:
         ts = int(tr["ts_us"][i])
         out.append(_ulog_msg("D", struct.pack("<H", 0) + struct.pack(
             formats["vehicle_gps_position"][1], ts, utc0_us + ts - int(tr["ts_us"][0]), int(tr["lat_e7"][i]),
-            int(tr["lon_e7"][i]), 12500, int(tr["fix"][i]))))
+            int(tr["lon_e7"][i]), 12500, 12500 + 38000, int(tr["fix"][i]))))  # 12.5 m MSL, geoid 38 m
         half = float(tr["psi"][i]) / 2  # rotation about NED z: q = (cos, 0, 0, sin)
         out.append(_ulog_msg("D", struct.pack("<H", 1) + struct.pack(
             formats["vehicle_attitude"][1], ts + 10_000, math.cos(half), 0.0, 0.0, math.sin(half))))

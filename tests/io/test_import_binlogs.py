@@ -70,6 +70,7 @@ def test_ulog_round_trip(tmp_path):
     np.testing.assert_array_equal(g.index.to_numpy(), t[ok])
     np.testing.assert_allclose(g["lat_deg"], tr["lat_e7"][ok] * 1e-7, atol=1e-7, rtol=0)
     np.testing.assert_allclose(g["lon_deg"], tr["lon_e7"][ok] * 1e-7, atol=1e-7, rtol=0)
+    np.testing.assert_allclose(g["alt_m"], 12.5 + 38.0)  # above the WGS-84 ellipsoid, as /gnss/fix defines it
     assert res.report.skipped["gnss_no_fix"] == int((~ok).sum())
     h = log["/compass/heading"]
     np.testing.assert_allclose(ssa(h["heading_rad"] - tr["psi"]), 0.0, atol=1e-6)

@@ -253,7 +253,9 @@ def test_nmea_round_trip_midnight_rollover(tmp_path):
     np.testing.assert_array_equal(g.index.to_numpy(), start + tr["k"] * 100_000_000)  # crosses midnight
     np.testing.assert_allclose(g["lat_deg"], tr["lat"], atol=1e-7, rtol=0)
     np.testing.assert_allclose(g["lon_deg"], tr["lon"], atol=1e-7, rtol=0)
-    np.testing.assert_allclose(g["alt_m"], 5.0)  # GGA kept, the RMC of the same fix not duplicated
+    # GGA kept, the RMC of the same fix not duplicated; altitude above the WGS-84 ellipsoid:
+    # the sentences' 5.0 m above sea level + 20.0 m geoid separation
+    np.testing.assert_allclose(g["alt_m"], 5.0 + 20.0)
     assert len(res.log["/compass/heading"]) == 75
     assert sum(res.report.skipped.values()) == 0
 
@@ -363,9 +365,9 @@ def test_simulated_run_through_merged_csv_is_exact(tmp_path, excitation_log):
 @pytest.mark.parametrize("topic", ["/compass/heading", "/thrust/command", "/imu/yaw_rate", "/gnss/velocity",
                                    "/gnss/fix", "/truth/state"])
 def test_column_encoder_matches_codec_bytes(topic):
-    """The importer's column-wise message encoder writes exactly what Codec.encode writes."""
+    """The column-wise message encoder (Codec.encode, the one the importer and write_log use)
+    writes exactly what one orjson.dumps per row writes (Codec.encode_reference)."""
     from usvlog.channels import codec_for_topic, frame_from_columns
-    from usvlog.io.importers.sink import encode_messages
 
     codec = codec_for_topic(topic)
     rng = np.random.default_rng(7)
@@ -381,7 +383,7 @@ def test_column_encoder_matches_codec_bytes(topic):
             v[rng.random(n) < 0.2] = np.nan
             cols[c] = v
     frame = frame_from_columns(cols, np.arange(n, dtype=np.int64), codec)
-    assert encode_messages(codec, frame, topic) == codec.encode(frame, topic)
+    assert codec.encode(frame, topic) == codec.encode_reference(frame, topic)
 
 
 def test_imported_messages_validate_against_their_schemas(tmp_path):
@@ -410,3 +412,21 @@ def test_imported_messages_validate_against_their_schemas(tmp_path):
                 validators[schema.name].validate(json.loads(message.data))
                 seen.add(channel.topic)
     assert seen == {"/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity"}
+
+
+def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):
+    """No RMC: the day comes from --start-utc and a time of day is placed nearest the previous one."""
+    start = dt.datetime(2024, 5, 1, 23, 59, 59, 500000, tzinfo=dt.timezone.utc)
+    tr = nmea_truth(20)
+    lines = []
+    for i in range(20):
+        ts = start + dt.timedelta(milliseconds=100 * i)
+        la, lh = _dm(tr["lat"][i], True)
+        lo, oh = _dm(tr["lon"][i], False)
+        lines.append(_cs(f"GPGGA,{ts:%H%M%S}.{ts.microsecond // 10000:02d},{la},{lh},{lo},{oh},1,10,0.8,5.0,M,,M,,"))
+    p = tmp_path / "gga.nmea"
+    p.write_text("\n".join(lines) + "\n")
+    g = import_file(p, start_utc="2024-05-01T23:00:00Z").log["/gnss/fix"]
+    t0 = int(start.timestamp() * 10**3) * 10**6
+    np.testing.assert_array_equal(g["stamp_ns"].to_numpy(), t0 + np.arange(20) * 100_000_000)
+    np.testing.assert_allclose(g["alt_m"], 5.0)   # no geoid separation given: height above sea level kept

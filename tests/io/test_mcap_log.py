@@ -12,6 +12,7 @@ from usvlog.channels import registered_topics, schema_by_name, schema_names
 from usvlog.errors import FormatError, InputError, OutputExistsError
 from usvlog.io.mcapio import read_log, write_log
 from usvlog.log import FieldLog
+from usvlog.simulate import SimSettings, simulate
 from usvlog.resources import schemas_dir
 
 
@@ -139,3 +140,55 @@ def test_outputs_get_the_usual_file_mode(tmp_path, excitation_log):
     finally:
         os.umask(old)
     assert (p.stat().st_mode & 0o777) == 0o644
+
+@pytest.mark.parametrize("chunk_size, compression", [(1 << 20, "zstd"), (8192, "lz4"), (3000, "none")])
+def test_write_log_is_the_mcap_writers_file(tmp_path, chunk_size, compression):
+    """McapWriter (under write_log) writes the bytes the mcap library's Writer writes for the same log."""
+    from usvlog.io.mcapio import _write_log_reference
+
+    log = simulate("excitation", SimSettings(duration_s=15.0), seed=4)
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    write_log(log, a, chunk_size=chunk_size, compression=compression)
+    _write_log_reference(log, b, chunk_size=chunk_size, compression=compression)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_writer_streamed_in_batches_reads_back_whole(tmp_path):
+    """Batches of frames (with metadata after them, as the importer writes) read back as one log;
+    sequence numbers run on over batches, so row order is kept."""
+    from mcap.reader import make_reader
+
+    from usvlog.io.mcapio import McapWriter
+
+    log = simulate("excitation", SimSettings(duration_s=15.0), seed=5)
+    p = tmp_path / "s.mcap"
+    with open(p, "wb") as fh:
+        w = McapWriter(fh, chunk_size=16 * 1024)
+        for k in range(4):
+            w.add_frames({t: f.iloc[len(f) * k // 4:len(f) * (k + 1) // 4] for t, f in log.channels.items()})
+            if k == 1:
+                w.flush()
+        for name in sorted(log.meta):
+            w.add_metadata(name, log.meta[name])
+        w.finish()
+    back = read_log(p)
+    for topic in log.topics:
+        pd.testing.assert_frame_equal(back[topic], log[topic], check_dtype=False)
+    assert back.meta == log.meta
+    with open(p, "rb") as fh:
+        summ = make_reader(fh).get_summary()
+    assert summ.statistics.message_count == sum(len(f) for f in log.channels.values())
+    assert len(summ.chunk_indexes) > 4
+
+
+def test_missing_and_unreadable_inputs_are_one_line_storage_errors(tmp_path):
+    """read_log, the importer's format detection and read_text share one mapping of read errors."""
+    from usvlog.errors import StorageError
+    from usvlog.io.config import read_text
+    from usvlog.io.importers import detect_format
+
+    for read in (read_log, detect_format, read_text):
+        with pytest.raises(StorageError, match="nope.x: no such file"):
+            read(tmp_path / "nope.x")
+    with pytest.raises(StorageError, match=r"d.mcap: cannot read \(Is a directory\)"):
+        read_log(tmp_path.joinpath("d.mcap").mkdir() or tmp_path / "d.mcap")

@@ -136,3 +136,66 @@ def test_encode_row_names_missing_column():
     obj = codec.decode([codec.encode_row({"stamp_ns": 1, "left": 2.0, "right": 1.0, "unit": "newton"})])
     assert math.isnan(obj["thrust_left_n"][0]) and obj["left"][0] == 2.0
     assert isinstance(pd.Series(obj["left"]).iloc[0], float)
+
+
+def test_error_kinds_and_optional_checksum():
+    from usvlog.nmea import NmeaChecksumError, NmeaFieldError
+
+    good = "GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"
+    with pytest.raises(NmeaChecksumError):
+        parse_sentence("$" + good + "*00")
+    with pytest.raises(NmeaChecksumError, match="missing"):
+        parse_sentence("$" + good)
+    # without a checksum only when the caller allows it (files); a present one must still match
+    s = parse_sentence("$" + good, require_checksum=False)
+    assert s.has_fix and s.lat_deg == pytest.approx(48 + 7.038 / 60, abs=1e-12)
+    with pytest.raises(NmeaChecksumError):
+        parse_sentence("$" + good + "*00", require_checksum=False)
+    with pytest.raises(NmeaFieldError, match="time"):
+        parse_sentence(with_checksum("GPGGA,12a519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"))
+    with pytest.raises(NmeaError) as err:
+        parse_sentence("$" + "\x01\x02,1,2", require_checksum=False)
+    assert not isinstance(err.value, (NmeaChecksumError, NmeaFieldError))
+
+
+def test_talkers_no_fix_forms_gll_without_status_and_altitude_without_separation():
+    for talker in ("GP", "GN", "GL", "GA", "BD"):
+        s = parse_sentence(with_checksum(f"{talker}GGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,,M,,"))
+        assert s.talker == talker and s.kind == "GGA"
+        assert s.alt_m == pytest.approx(545.4)       # no geoid separation: height above sea level kept
+    # quality > 0 with empty position, RMC void: no fix, not an error
+    assert not parse_sentence(with_checksum("GPGGA,123519,,,,,1,08,0.9,,M,,M,,")).has_fix
+    assert not parse_sentence(with_checksum("GPGLL,4916.45,N,12311.12,W,225444,V,")).has_fix
+    old = parse_sentence(with_checksum("GPGLL,4916.45,N,12311.12,W,225444"))   # NMEA 2.0: no status field
+    assert old.has_fix and old.time_of_day_ns == (22 * 3600 + 54 * 60 + 44) * 10**9
+    p = parse_sentence(with_checksum("PGRME,15.0,M,45.0,M,25.0,M"))
+    assert p.kind == "PGRME" and p.talker == ""
+
+
+def test_vtg_both_layouts():
+    v = parse_sentence(with_checksum("GPVTG,270.0,T,,M,10.0,N,18.52,K,A"))
+    assert v.sog_mps == pytest.approx(10.0 * 1852 / 3600, abs=1e-12)
+    assert v.cog_rad == pytest.approx(-math.pi / 2, abs=1e-12)       # 270 deg wrapped to [-pi, pi)
+    old = parse_sentence(with_checksum("GPVTG,054.7,034.4,005.5,010.2"))
+    assert old.sog_mps == pytest.approx(5.5 * 1852 / 3600, abs=1e-12)
+    assert old.cog_rad == pytest.approx(math.radians(54.7), abs=1e-12)
+    kmh = parse_sentence(with_checksum("GPVTG,10.0,T,,M,,N,36.0,K,A"))
+    assert kmh.sog_mps == pytest.approx(10.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("text, dt_utc, extra_ns", [
+    ("2024-05-01T10:00:00Z", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),
+    ("2024-05-01T12:00:00.25+02:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 250_000_000),
+    ("2024-05-01 10:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),          # no zone: UTC
+    ("1999-12-31T23:59:59.123456789Z", dt.datetime(1999, 12, 31, 23, 59, 59, tzinfo=dt.timezone.utc), 123_456_789),
+])
+def test_parse_time_is_exact_to_the_nanosecond(text, dt_utc, extra_ns):
+    """The one ISO 8601 reader (import --start-utc, NMEA line prefixes, simulate start_utc)."""
+    from usvlog.io.importers import parse_start_utc
+    from usvlog.log import parse_time
+    from usvlog.simulate import start_ns
+
+    want = int(dt_utc.timestamp()) * 10**9 + extra_ns
+    assert parse_time(text) == parse_start_utc(text) == start_ns(text) == want
+    with pytest.raises(ValueError):
+        parse_time("yesterday-ish")

@@ -10,6 +10,17 @@ from pathlib import Path
 from ..errors import OutputExistsError, StorageError
 
 
+@contextlib.contextmanager
+def reading(path):
+    """Turn the OS errors of reading ``path`` into one-line StorageErrors."""
+    try:
+        yield
+    except FileNotFoundError as err:
+        raise StorageError(f"{path}: no such file") from err
+    except OSError as err:
+        raise StorageError(f"{path}: cannot read ({err.strerror})") from err
+
+
 def check_output(path, force: bool) -> Path:
     p = Path(path)
     if p.exists() and not force:

@@ -7,18 +7,16 @@ from pathlib import Path
 
 from ..errors import ConfigError, StorageError
 from ..vessel import Vessel, default_vessel, vessel_from_toml
+from .atomic import reading
 
 
 def read_text(path) -> str:
     p = Path(path)
     try:
-        return p.read_text()
-    except FileNotFoundError as err:
-        raise StorageError(f"{p}: no such file") from err
+        with reading(p):
+            return p.read_text()
     except UnicodeDecodeError as err:
         raise ConfigError(f"{p}: not a text file") from err
-    except OSError as err:
-        raise StorageError(f"{p}: cannot read ({err.strerror})") from err
 
 
 def read_toml(path) -> dict:

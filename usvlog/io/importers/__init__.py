@@ -20,9 +20,9 @@ from pathlib import Path
 
 from ...errors import ConfigError, FormatError, InputError, StorageError, UsvlogError
 from ...frames import Datum
-from ...log import FieldLog
+from ...log import FieldLog, parse_time
 from ...vessel import Vessel
-from ..atomic import atomic_path, check_output
+from ..atomic import atomic_path, check_output, reading
 from .core import THRUST_UNITS, Assembler, ImportReport
 from .sink import McapSink, MemorySink
 
@@ -95,16 +95,10 @@ def parse_pairs(items, what: str) -> dict:
 def parse_start_utc(text: str | None) -> int | None:
     if text is None:
         return None
-    import pandas as pd
-
     try:
-        ts = pd.Timestamp(text)
-    except (ValueError, TypeError) as err:
+        return parse_time(text)
+    except ValueError as err:
         raise ConfigError(f"start time {text!r} is not an ISO 8601 time") from err
-    if ts is pd.NaT:
-        raise ConfigError(f"start time {text!r} is not an ISO 8601 time")
-    ts = ts.tz_localize("UTC") if ts.tzinfo is None else ts.tz_convert("UTC")
-    return int(ts.as_unit("ns").value)
 
 
 def detect_format(path) -> str:
@@ -114,13 +108,8 @@ def detect_format(path) -> str:
         if (p / "metadata.yaml").exists() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
             return "ros2"
         raise FormatError(f"{p}: a directory that is not a ROS 2 bag (no metadata.yaml)")
-    try:
-        with open(p, "rb") as fh:
-            head = fh.read(65536)
-    except FileNotFoundError as err:
-        raise StorageError(f"{p}: no such file") from err
-    except OSError as err:
-        raise StorageError(f"{p}: cannot read ({err.strerror})") from err
+    with reading(p), open(p, "rb") as fh:
+        head = fh.read(65536)
     if not head:
         raise InputError(f"{p}: empty file")
     if head.startswith(ROS1_MAGIC):

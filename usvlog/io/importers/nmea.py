@@ -1,11 +1,16 @@
 """NMEA 0183 text logs, raw or with a time stamp before each sentence, read line by line.
 
-Sentences (any talker ID): GGA, RMC, GLL -> ``/gnss/fix``; HDT (true), HDG (magnetic
-sensor heading + deviation + variation -> true when the variation is given), HDM
-(magnetic) -> ``/compass/heading``; VTG -> ``/gnss/velocity``. The date comes from RMC
-(or ``--start-utc``); the UTC time of day rolling past midnight moves to the next day.
-The same fix reported by GGA and RMC is kept once. Lines with a bad checksum,
-garbage and sentences that say "no fix" are skipped and counted.
+Sentences are parsed by :func:`usvlog.nmea.parse_sentence`, the parser the live
+recorder uses too (talker IDs, HDG deviation/variation, GGA altitude as WGS-84
+ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL ->
+``/gnss/fix``; HDT, HDG, HDM -> ``/compass/heading``; VTG -> ``/gnss/velocity``.
+What is particular to a file is done here: the date comes from RMC (or
+``--start-utc``); a time of day without a date is placed on the day nearest the
+previous sentence's time (:func:`usvlog.nmea.resolve_time_of_day`), so the time
+rolling past midnight moves to the next day. The same fix reported by GGA and RMC
+is kept once. Sentences without a checksum are accepted (some loggers strip it);
+lines with a bad checksum, garbage, unreadable fields and sentences that say
+"no fix" are skipped and counted.
 
 Times: a line's prefix (ISO 8601 or seconds, epoch or relative to ``--start-utc``) is
 the record time; the sentence's own UTC time is ``stamp_ns``. Without a prefix,
@@ -23,10 +28,12 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import InputError
+from ...log import parse_time
+from ...nmea import (NmeaChecksumError, NmeaError, NmeaFieldError, NmeaSample, date_ns, parse_sentence,
+                     resolve_time_of_day)
 
 _SENTENCE = re.compile(r"[$!][A-Z][A-Z0-9]{2,5},")
 _DAY_NS = 86_400 * 1_000_000_000
-_KNOT = 1852.0 / 3600.0
 _POSITION = {"GGA", "RMC", "GLL"}
 _HEADING = {"HDT", "HDG", "HDM"}
 _USED = _POSITION | _HEADING | {"VTG"}
@@ -40,60 +47,22 @@ def looks_like_nmea(text: str) -> bool:
     return hits >= max(1, len(lines) // 2)
 
 
-def _deg(value: str, hemi: str) -> float:
-    """NMEA ddmm.mmmm / dddmm.mmmm + hemisphere -> signed degrees (NaN when empty)."""
-    if not value:
-        return math.nan
-    v = float(value)
-    d = math.floor(v / 100.0)
-    deg = d + (v - 100.0 * d) / 60.0
-    return -deg if hemi in ("S", "W") else deg
-
-
-def _tod_ns(value: str) -> int | None:
-    """hhmmss(.sss) -> ns since midnight, None when empty or malformed."""
-    if len(value) < 6:
-        return None
-    try:
-        hh, mm, ss = int(value[0:2]), int(value[2:4]), float(value[4:])
-    except ValueError:
-        return None
-    if not (0 <= hh < 24 and 0 <= mm < 60 and 0 <= ss < 61):
-        return None
-    return (hh * 3600 + mm * 60) * 1_000_000_000 + int(round(ss * 1e9))
-
-
-def _date_ns(value: str) -> int | None:
-    """ddmmyy -> ns of that day's midnight UTC."""
-    if len(value) != 6 or not value.isdigit():
-        return None
-    try:
-        d = _dt.date(2000 + int(value[4:6]), int(value[2:4]), int(value[0:2]))
-    except ValueError:
-        return None
-    return (d - _dt.date(1970, 1, 1)).days * _DAY_NS
-
-
-def _float(value: str) -> float:
-    return float(value) if value else math.nan
-
-
 class _Clock:
-    """Calendar day of sentence times: RMC dates, midnight rollover."""
+    """Calendar time of sentence times of day: RMC dates, midnight roll-over."""
 
     def __init__(self, day_ns: int | None):
-        self.day = day_ns
-        self.last_tod: int | None = None
+        self.day = day_ns or 0
+        self.last: int | None = None
 
-    def stamp(self, tod: int) -> int:
-        if self.last_tod is not None and tod < self.last_tod - _DAY_NS // 2:
-            self.day = (self.day or 0) + _DAY_NS  # rolled past midnight
-        self.last_tod = tod
-        return (self.day or 0) + tod
-
-    def set_date(self, day_ns: int, tod: int) -> None:
-        self.day = day_ns
-        self.last_tod = tod
+    def stamp(self, tod: int, date: _dt.date | None) -> int:
+        if date is not None:
+            t = date_ns(date) + tod
+        elif self.last is None:
+            t = self.day + tod
+        else:
+            t = resolve_time_of_day(tod, self.last)
+        self.last = t
+        return t
 
 
 def _prefix_ns(prefix: str, start_ns: int | None, report, state: dict) -> int | None:
@@ -114,13 +83,9 @@ def _prefix_ns(prefix: str, start_ns: int | None, report, state: dict) -> int | 
             report.note("line time stamps are relative and no --start-utc was given: times start at the Unix epoch")
         return int(round(v * 1e9)) + (start_ns or 0)
     try:
-        ts = _dt.datetime.fromisoformat(s.replace("Z", "+00:00"))
+        return parse_time(s)
     except ValueError:
         return -1
-    if ts.tzinfo is None:
-        ts = ts.replace(tzinfo=_dt.timezone.utc)
-    delta = ts - _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
-    return (delta.days * 86400 + delta.seconds) * 1_000_000_000 + delta.microseconds * 1000
 
 
 def _first_date(path, limit: int = 20000) -> int | None:
@@ -129,11 +94,14 @@ def _first_date(path, limit: int = 20000) -> int | None:
         for i, line in enumerate(fh):
             if i >= limit:
                 break
-            k = line.find("RMC,")
-            if k >= 3:
-                f = line[k + 4:].split("*")[0].split(",")
-                if len(f) > 8 and (d := _date_ns(f[8])) is not None:
-                    return d
+            m = _SENTENCE.search(line) if "RMC," in line else None
+            if m is not None:
+                try:
+                    s = parse_sentence(line[m.start():], require_checksum=False)
+                except NmeaError:
+                    continue
+                if s.date is not None:
+                    return date_ns(s.date)
     return None
 
 
@@ -155,8 +123,6 @@ class _Buf:
 
 
 def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
-    import pynmea2
-
     p = path
     start_ns = opts.start_utc_ns
     day0 = _first_date(p)
@@ -219,26 +185,21 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
                 report.skip("nmea_bad_time", 1, where=f"line {lineno}: time {prefix.strip()[:40]!r}")
                 continue
             try:
-                msg = pynmea2.parse(body, check=False)
-            except pynmea2.ChecksumError:
+                smp = parse_sentence(body, require_checksum=False)
+            except NmeaChecksumError:
                 report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
                 continue
-            except (pynmea2.ParseError, ValueError, TypeError, AttributeError) as err:
-                if isinstance(err, pynmea2.SentenceTypeError):
-                    report.skip("nmea_unsupported", 1)
-                else:
-                    report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
+            except NmeaFieldError:
+                report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
                 continue
-            typ = getattr(msg, "sentence_type", "")
+            except NmeaError:
+                report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
+                continue
+            typ = smp.kind
             if typ not in _USED:
                 report.skip("nmea_unsupported", 1)
                 continue
-            f = list(msg.data) + [""] * 12
-            try:
-                kind, vals, stamp = _decode(typ, f, clock)
-            except (ValueError, IndexError):
-                report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
-                continue
+            kind, vals, stamp = _values(smp, clock)
             if kind == "nofix":
                 report.skip("gnss_no_fix", 1, where=f"line {lineno}: {typ} without a fix")
                 continue
@@ -266,52 +227,17 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     yield buf.batch()
 
 
-def _decode(typ: str, f: list, clock: _Clock):
-    """(kind, values, own stamp ns or None) of one sentence's fields."""
-    if typ == "GGA":
-        tod = _tod_ns(f[0])
-        if not f[5] or f[5] == "0" or not f[1] or not f[3]:
+def _values(s: NmeaSample, clock: _Clock):
+    """(kind, values, own stamp ns or None) of one parsed sentence."""
+    stamp = clock.stamp(s.time_of_day_ns, s.date) if s.time_of_day_ns is not None else None
+    if s.kind in _POSITION:
+        if not s.has_fix:
             return "nofix", None, None
-        stamp = clock.stamp(tod) if tod is not None else None
-        return "gnss", (_deg(f[1], f[2]), _deg(f[3], f[4]), _float(f[8])), stamp
-    if typ == "RMC":
-        tod = _tod_ns(f[0])
-        day = _date_ns(f[8])
-        if day is not None and tod is not None:
-            clock.set_date(day, tod)
-            stamp = day + tod
-        else:
-            stamp = clock.stamp(tod) if tod is not None else None
-        if f[1] != "A" or not f[2] or not f[4]:
-            return "nofix", None, None
-        return "gnss", (_deg(f[2], f[3]), _deg(f[4], f[5]), math.nan), stamp
-    if typ == "GLL":
-        tod = _tod_ns(f[4])
-        stamp = clock.stamp(tod) if tod is not None else None
-        if (f[5] and f[5] != "A") or not f[0] or not f[2]:
-            return "nofix", None, None
-        return "gnss", (_deg(f[0], f[1]), _deg(f[2], f[3]), math.nan), stamp
-    if typ == "HDT":
-        return "heading", (math.radians(float(f[0])), "true"), None
-    if typ == "HDM":
-        return "heading", (math.radians(float(f[0])), "magnetic"), None
-    if typ == "HDG":
-        h = float(f[0])
-        if f[1]:
-            h += float(f[1]) * (-1.0 if f[2] == "W" else 1.0)
-        ref = "magnetic"
-        if f[3]:
-            h += float(f[3]) * (-1.0 if f[4] == "W" else 1.0)
-            ref = "true"
-        return "heading", (math.radians(h), ref), None
-    if typ == "VTG":
-        if f[1] == "T" or f[5] == "N" or f[7] == "K":
-            cog, kn, kmh = f[0], f[4], f[6]
-        else:  # old layout without the unit letters
-            cog, kn, kmh = f[0], f[2], ""
-        sog = float(kn) * _KNOT if kn else (float(kmh) / 3.6 if kmh else math.nan)
-        return "velocity", (sog, math.radians(float(cog)) if cog else math.nan), None
-    raise ValueError(typ)
+        return "gnss", (s.lat_deg, s.lon_deg, math.nan if s.alt_m is None else s.alt_m), stamp
+    if s.kind in _HEADING:
+        return "heading", (s.heading_rad, s.reference), None
+    return "velocity", (math.nan if s.sog_mps is None else s.sog_mps,
+                        math.nan if s.cog_rad is None else s.cog_rad), None
 
 
 def _put(buf: _Buf, kind: str, t: int, stamp: int, vals: tuple) -> None:

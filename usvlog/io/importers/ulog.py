@@ -35,6 +35,15 @@ def _col(d, key, path):
                          f"(fields: {', '.join(sorted(d.data)[:20])})") from None
 
 
+def _first(data: dict, names: tuple[str, ...], n: int):
+    """The first of ``names`` in ``data`` (altitude: above the WGS-84 ellipsoid, as ``/gnss/fix``
+    defines it, when the log has it; else above sea level), else NaN."""
+    for name in names:
+        if name in data:
+            return data[name]
+    return np.full(n, np.nan)
+
+
 def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
     from pyulog import ULog
 
@@ -68,11 +77,11 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
         t = np.asarray(gps.data["timestamp"], np.int64) * 1000 + offset_ns
         if "latitude_deg" in gps.data:
             lat, lon = _col(gps, "latitude_deg", path).astype(float), _col(gps, "longitude_deg", path).astype(float)
-            alt = np.asarray(gps.data.get("altitude_msl_m", np.full(len(t), np.nan)), float)
+            alt = np.asarray(_first(gps.data, ("altitude_ellipsoid_m", "altitude_msl_m"), len(t)), float)
         else:
             lat = _col(gps, "lat", path).astype(np.int64) * 1e-7
             lon = _col(gps, "lon", path).astype(np.int64) * 1e-7
-            alt = np.asarray(gps.data.get("alt", np.full(len(t), np.nan)), float) * 1e-3
+            alt = np.asarray(_first(gps.data, ("alt_ellipsoid", "alt"), len(t)), float) * 1e-3
         fix = np.asarray(gps.data.get("fix_type", np.full(len(t), 3)))
         nofix = fix < 3
         report.skip("gnss_no_fix", int(nofix.sum()))

@@ -397,7 +397,8 @@ class Recorder:
     def gnss(self, lat_deg: float, lon_deg: float, alt_m: float = math.nan, *, t_ns: int | None = None,
              stamp_ns: int | None = None, cov=None, frame_id: str = "gnss", source: str = "api",
              _counted: bool = False) -> None:
-        """A position fix (degrees, metres; ``alt_m`` NaN when unknown, stored as null). ``cov``:
+        """A position fix (degrees; ``alt_m`` metres above the WGS-84 ellipsoid, NaN when unknown,
+        stored as null; NMEA GGA gives it as sea level + geoid separation, see ``usvlog.nmea``). ``cov``:
         None (unknown: zeros, type 0), 3 ENU variances in m^2 (diagonal known, type 2) or a full
         3x3 / 9-element ENU covariance (type 3)."""
         if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
@@ -478,8 +479,11 @@ class Recorder:
     # -- raw lines -----------------------------------------------------------------
     def nmea(self, text: str, *, source: str = "nmea", t_ns: int | None = None):
         """One NMEA 0183 sentence as received: kept in ``/raw/nmea``; positions, headings,
-        fix quality and GPS time go to their canonical channels. Returns the parsed sample
-        (None when malformed: counted as garbage, still kept raw)."""
+        fix quality and GPS time go to their canonical channels. Parsed by
+        :func:`usvlog.nmea.parse_sentence` (as the file importer does), checksum required;
+        a time of day without a date is placed nearest the receive time minus the source's
+        clock offset. Returns the parsed sample (None when malformed, whatever the reason:
+        counted as garbage, still kept raw)."""
         t = self.now_ns() if t_ns is None else int(t_ns)
         try:
             s = parse_sentence(text)
