@@ -318,8 +318,8 @@ def test_random_bytes_only_usvlog_errors(tmp_path, data):
     for fmt in ("auto", "csv", "nmea"):
         try:
             import_file(p, fmt)
-        except UsvlogError:
-            pass
+        except UsvlogError as err:
+            assert str(err) and "\n" not in str(err)  # a clear one-line error, nothing else escapes
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -333,15 +333,15 @@ def test_random_lines_only_usvlog_errors(tmp_path, lines, csv_cells):
     for fmt in ("auto", "nmea"):
         try:
             import_file(p, fmt, start_utc="2024-05-01T00:00:00Z")
-        except UsvlogError:
-            pass
+        except UsvlogError as err:
+            assert str(err) and "\n" not in str(err)  # a clear one-line error, nothing else escapes
     q = tmp_path / "rand.csv"
     q.write_text("time,lat,lon,heading,left,right\n" + "\n".join(",".join(r) for r in csv_cells))
     for fmt in ("auto", "csv"):
         try:
             import_file(q, fmt)
-        except UsvlogError:
-            pass
+        except UsvlogError as err:
+            assert str(err) and "\n" not in str(err)  # a clear one-line error, nothing else escapes
 
 
 def test_simulated_run_through_merged_csv_is_exact(tmp_path, excitation_log):

@@ -277,7 +277,7 @@ def _live(tmp_path, duration_s):
     return read_log(out), sent, result["summary"]
 
 
-def _check_live(log, sent, summary, duration_s):
+def check_live(log, sent, summary, duration_s):
     assert log.recovery is None and summary.stopped_by == "stop"
     # every message sent is in the log, in order, with its values
     fix = log["/gnss/fix"]
@@ -317,13 +317,13 @@ def _check_live(log, sent, summary, duration_s):
 
 def test_live_serial_tcp_udp_5s(tmp_path):
     log, sent, summary = _live(tmp_path, 5.0)
-    _check_live(log, sent, summary, 5.0)
+    check_live(log, sent, summary, 5.0)
 
 
 @pytest.mark.slow
 def test_live_serial_tcp_udp_30s(tmp_path):
     log, sent, summary = _live(tmp_path, 30.0)
-    _check_live(log, sent, summary, 30.0)
+    check_live(log, sent, summary, 30.0)
 
 
 # -----------------------------------------------------------------------------
@@ -351,7 +351,7 @@ def _stream(ports, seconds, **kw):
     return boat.run(seconds)
 
 
-def _kill_after(tmp_path, n_s):
+def check_kill_after(tmp_path, n_s):
     out = tmp_path / "killed.mcap"
     vt = tmp_path / "boat.toml"
     vt.write_text(default_vessel().to_toml())
@@ -378,12 +378,12 @@ def _kill_after(tmp_path, n_s):
 
 
 def test_sigkill_loses_at_most_the_last_second(tmp_path):
-    _kill_after(tmp_path, 4.0)
+    check_kill_after(tmp_path, 4.0)
 
 
 @pytest.mark.slow
 def test_sigkill_after_20s_holds_19s(tmp_path):
-    _kill_after(tmp_path, 20.0)
+    check_kill_after(tmp_path, 20.0)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
