@@ -29,7 +29,7 @@ from usvlog.vessel import default_vessel  # noqa: E402
 def head(pb, k):
     """The first k steps of a problem."""
     sel = pb.mstep < k
-    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
                    m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel], mz=pb.mz[sel],
                    mR=pb.mR[sel])
 

@@ -10,7 +10,8 @@ import pytest
 from usvlog.errors import ConfigError, InputError
 from usvlog.estimate import EstimateSettings, OnlineEKF, build_problem, estimate
 from usvlog.estimate import kernels
-from usvlog.estimate.core import process_noise, run_fast, run_reference_path
+from usvlog.estimate.core import process_noise, run_fast, run_reference_path, yaw_jump_variance
+from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS
 from usvlog.estimate.reference import jacobian as ref_jacobian
 from usvlog.estimate.reference import rhs as ref_rhs
 from usvlog.frames import ssa
@@ -109,6 +110,7 @@ def test_fast_path_equals_filterpy_reference(model, current):
     log = simulate("excitation", SimSettings(duration_s=20.0, current_mps=0.2, sensors=sens), seed=5)
     s = EstimateSettings(model=model, current=current)
     pb = build_problem(log, s, default_vessel())
+    assert pb.qjump.any() == (model == "kinematic")  # the zig-zag's yaw-moment steps
     q = process_noise(s)
     fast = run_fast(pb, q, s.max_consecutive_rejects, True)
     ref = run_reference_path(pb, q, s.max_consecutive_rejects, True)
@@ -163,7 +165,7 @@ def test_kinematic_smoother_accuracy(kinematic_run):
     s, f = _errors(res.state, truth), _errors(res.forward, truth)
     assert s["u_mps"] <= 0.04
     assert s["v_mps"] <= 0.08          # the issue asks 0.05: see the README (sway in a 20/20 zig-zag)
-    assert s["r_degps"] <= 0.7         # the issue asks 0.45: see the README
+    assert s["r_degps"] <= 0.45
     assert s["pos_m"] <= 0.3
     for c in ("u_mps", "r_degps", "pos_m"):
         assert f[c] >= 2.0 * s[c], c   # the smoother is 2-4x better than the filter alone
@@ -190,6 +192,26 @@ def test_dynamic_with_current_accuracy():
     ce = res.state["current_e_mps"].iloc[len(res.state) // 2:].mean()
     assert cn == pytest.approx(0.2 * math.cos(math.radians(60)), abs=0.01)
     assert ce == pytest.approx(0.2 * math.sin(math.radians(60)), abs=0.01)
+
+
+def test_yaw_moment_steps_let_r_dot_jump(kinematic_run):
+    log, res = kinematic_run
+    # the variance added at a step of the yaw moment: (sigma * step / max|tau_r|)^2
+    s = EstimateSettings(yaw_jump_radps2=0.3)
+    tau_r = np.array([0.0, 1.0, 1.0, -2.0, -1.5, -1.5])   # tau_r[0]: before the first command
+    np.testing.assert_allclose(yaw_jump_variance(tau_r, s), [0, 0, 0, (0.3 * 3 / 2) ** 2, (0.3 * 0.5 / 2) ** 2, 0])
+    assert not yaw_jump_variance(tau_r, EstimateSettings(model="dynamic")).any()
+    assert not yaw_jump_variance(tau_r, EstimateSettings(yaw_jump_radps2=0.0)).any()
+    # without it r_dot follows the zig-zag's reversals slowly: r is 1.5x worse
+    off = estimate(log, EstimateSettings(yaw_jump_radps2=0.0))
+    truth = log["/truth/state"]
+    assert _errors(off.state, truth)["r_degps"] > 1.5 * _errors(res.state, truth)["r_degps"]
+    # a log without thrust has no steps: r_dot's own random walk is faster then
+    nothrust = log.copy()
+    del nothrust.channels["/thrust/command"]
+    plain = estimate(nothrust)
+    assert plain.report.settings["q_r"] == Q_R_KINEMATIC_NO_JUMPS > res.report.settings["q_r"]
+    assert _errors(plain.state, truth)["r_degps"] <= 0.7
 
 
 def test_gps_jumps_rejected_and_dropout_bridged():

@@ -13,7 +13,8 @@ a_e, r_dot], over-ground velocity in NED driven by random-walk accelerations (ov
 ground, a boat's velocity turns far more smoothly in NED than its body-frame sway does
 in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Discretisation: Euler
 step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity and
-current states (the kinematic accelerations carry the noise). Measurements select state entries (GNSS: n, e; compass: psi, with the
+current states (the kinematic accelerations carry the noise), plus, kinematic, a
+variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``core.yaw_jump_variance``). Measurements select state entries (GNSS: n, e; compass: psi, with the
 residual wrapped; yaw rate: r).
 """
 
@@ -110,8 +111,9 @@ def sparse_matmul(A, B, out):
 
 
 @njit(cache=True)
-def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
-    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P.
+def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
+    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P; ``qj`` is a
+    variance added to the yaw acceleration of the kinematic model (a step of the yaw moment).
 
     Po = Phi P Phi^T + Q dt is formed as P + dt (F P + P F^T) + dt^2 F P F^T over the
     non-zero entries of the sparse F (a few per row), upper triangle mirrored."""
@@ -136,6 +138,8 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
+    if qj != 0.0:
+        Po[8, 8] += qj
 
 
 @njit(cache=True)
@@ -227,7 +231,7 @@ class Work:
 
 
 @njit(cache=True)
-def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
+def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
             X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
@@ -257,7 +261,7 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
     j = 0
     for k in range(N):
         if k > 0 and dts[k] > 0.0:
-            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, xo, Po, Phi, f, F, tmp)
+            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
@@ -321,7 +325,7 @@ def _chol_solve(L, inv, A, B, X):
 
 
 @njit(cache=True)
-def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
+def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,
     their one-sigma in SD and the covariance block of states 2..4 in PB."""
@@ -349,7 +353,7 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
         Pk = PP[k]
         xk = X[k]
         if dts[k + 1] > 0.0:
-            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q,
+            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q, qjump[k + 1],
                     xp, Pp, Phi, f, F, tmp)
         else:
             for a in range(nx):

@@ -51,10 +51,12 @@ class VesselEKF(ExtendedKalmanFilter):
         self.params, self.dynamic, self.q = params, dynamic, np.asarray(q, float)
         self._step = (0.0, 0.0, 0.0)
 
-    def predict_step(self, dt: float, tau_u: float, tau_r: float) -> None:
+    def predict_step(self, dt: float, tau_u: float, tau_r: float, qj: float = 0.0) -> None:
         x = self.x[:, 0]
         self.F = np.eye(self.dim_x) + dt * jacobian(x, self.params, self.dynamic)
         self.Q = np.diag(self.q * dt)
+        if qj:  # a step of the yaw moment: the kinematic model's r_dot may jump
+            self.Q[8, 8] += qj
         self._step = (dt, tau_u, tau_r)
         self.predict()
 
@@ -86,7 +88,7 @@ class VesselEKF(ExtendedKalmanFilter):
         return (*res, True)
 
 
-def run_reference(x0, P0, dts, taus, mstep, mkind, mz, mR, params, dynamic, q, gates, max_rej,
+def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynamic, q, gates, max_rej,
                   smoother: bool):
     """Forward pass with filterpy, then the RTS smoother. Same inputs and outputs as the
     compiled path: (X, SD_forward, PB_forward, XS, SD_smoothed, PB_smoothed, innov,
@@ -106,7 +108,7 @@ def run_reference(x0, P0, dts, taus, mstep, mkind, mz, mR, params, dynamic, q, g
     j = 0
     for k in range(N):
         if k > 0 and dts[k] > 0:
-            ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]))
+            ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]), float(qjump[k]))
             Fs[k] = ekf.F.copy()
         else:
             Fs[k] = np.eye(nx)
