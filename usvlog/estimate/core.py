@@ -17,7 +17,7 @@ from ..frames import Datum, geodetic_to_ned, ssa
 from ..log import FieldLog, format_time
 from ..vessel import Vessel, default_vessel
 from . import kernels
-from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, SENSOR_DIM, SENSORS, YAW_RATE
+from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, KINEMATIC_SWAY, SENSOR_DIM, SENSORS, YAW_RATE
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -27,14 +27,18 @@ GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thr
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
-_P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations / current
+_P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations (, k) / current
+# random walk of the sway damping k of the kinematic model with sway damping, 1/s^3:
+# a constant in effect
+Q_SWAY_DAMPING = 1e-8
 
 
 def state_size(settings: EstimateSettings) -> int:
-    """9 for the kinematic model (n, e, psi, v_n, v_e, r, a_n, a_e, r_dot), 6 or 8
+    """9 for the kinematic model (n, e, psi, v_n, v_e, r, a_n, a_e, r_dot), 10 with sway
+    damping (n, e, psi, u, v, r, a_x, a_y, r_dot, k), 6 or 8
     (with the current) for the dynamic one."""
     if settings.model == "kinematic":
-        return 9
+        return 10 if settings.sway_damping else 9
     return 8 if settings.use_current else 6
 
 
@@ -230,7 +234,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         drop = tuple((int(tg[i]), float(dtg[i]) * 1e-9) for i in gi)
     return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, qjump=qjump, m_t_ns=m_t, mstep=mstep, mkind=mkind,
                    mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
-                   model=DYNAMIC if s.model == "dynamic" else KINEMATIC,
+                   model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
                    gates=np.asarray(gate, float), dropouts=drop, skipped=skipped)
 
 
@@ -260,6 +264,8 @@ def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> 
     i = 6 if settings.model == "kinematic" else 3
     q[i] = q[i + 1] = settings.q_uv_value if q_uv is None else q_uv
     q[i + 2] = settings.q_r_value if q_r is None else q_r
+    if settings.model == "kinematic" and settings.sway_damping:
+        q[9] = Q_SWAY_DAMPING
     if settings.model == "dynamic" and nx == 8:
         q[6] = q[7] = settings.q_current if q_c is None else q_c
     return q
@@ -314,7 +320,7 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool)
 
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
-                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)
+                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
     return RawRun(*out[:8], float(out[8]))
 
 

@@ -11,7 +11,12 @@ State, dynamic model: x = [n, e, psi, u, v, r] (+ [c_n, c_e] water current, NED)
 nu = [u, v, r] relative to the water. Kinematic model: x = [n, e, psi, v_n, v_e, r, a_n,
 a_e, r_dot], over-ground velocity in NED driven by random-walk accelerations (over
 ground, a boat's velocity turns far more smoothly in NED than its body-frame sway does
-in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Discretisation: Euler
+in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Kinematic
+model with sway damping (KINEMATIC_SWAY): x = [n, e, psi, u, v, r, a_x, a_y, r_dot, k],
+over-ground body velocity with u_dot = a_x + r v, v_dot = a_y - k v - r u (a_x, a_y the
+over-ground acceleration in the body frame, random walks; -k v the sway damping, k a
+constant the filter estimates: a boat's lateral acceleration is mostly its sway damping,
+so the sway follows the yaw rate). Discretisation: Euler
 step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity and
 current states (the kinematic accelerations carry the noise), plus, kinematic, a
 variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``core.yaw_jump_variance``). Measurements select state entries (GNSS: n, e; compass: psi, with the
@@ -27,7 +32,7 @@ from numba import njit
 
 from ..vessel import nu_dot_jacobian_terms, nu_dot_terms
 
-KINEMATIC, DYNAMIC = 0, 1
+KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
 GNSS, COMPASS, YAW_RATE = 0, 1, 2
 SENSORS = ("gnss", "compass", "yaw_rate")
 SENSOR_DIM = (2, 1, 1)
@@ -68,6 +73,14 @@ def process(x, tau_u, tau_r, prm, model, f, F):
     F[0, 3], F[0, 4] = c, -s
     F[1, 3], F[1, 4] = s, c
     F[2, 5] = 1.0
+    if model == KINEMATIC_SWAY:  # body frame, over ground (see the module docstring)
+        f[3] = x[6] + r * v
+        f[4] = x[7] - x[9] * v - r * u
+        f[5] = x[8]
+        F[3, 4], F[3, 5], F[3, 6] = r, v, 1.0
+        F[4, 3], F[4, 4], F[4, 5], F[4, 7], F[4, 9] = -r, -x[9], -u, 1.0, -v
+        F[5, 8] = 1.0
+        return
     if nx == 8:  # water current, NED
         f[0] += x[6]
         f[1] += x[7]
@@ -138,7 +151,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
-    if qj != 0.0:
+    if qj != 0.0:  # r_dot is state 8 in both kinematic models
         Po[8, 8] += qj
 
 

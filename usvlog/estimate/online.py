@@ -24,7 +24,8 @@ class OnlineEKF:
     kinematic model); ``update_gnss`` / ``update_heading`` apply a measurement through
     the chi-square gate and return True when it was accepted. ``x`` is the state of
     :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
-    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot]. ``P`` is its covariance.
+    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot] (with sway damping [n, e, psi, u, v,
+    r, a_x, a_y, r_dot, k]). ``P`` is its covariance.
     """
 
     def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
@@ -33,7 +34,8 @@ class OnlineEKF:
         s = self.settings
         self.vessel = vessel
         self.nx = state_size(s)
-        self._model = kernels.DYNAMIC if s.model == "dynamic" else kernels.KINEMATIC
+        self._model = (kernels.DYNAMIC if s.model == "dynamic" else
+                       kernels.KINEMATIC_SWAY if s.sway_damping else kernels.KINEMATIC)
         self._prm = vessel.params.as_array()
         # one call at a time: no yaw-moment steps known ahead, r_dot wanders on its own
         q_r = Q_R_KINEMATIC_NO_JUMPS if s.model == "kinematic" and s.q_r is None else None

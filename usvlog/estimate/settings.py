@@ -49,6 +49,9 @@ class EstimateSettings:
     yaw_jump_radps2: kinematic model: one-sigma jump of the yaw acceleration when the
         recorded yaw moment steps by its largest magnitude in the log (0: off; see
         ``core.yaw_jump_variance``).
+    sway_damping: kinematic model in the body frame with an estimated sway damping k
+        (u_dot = a_x + r v, v_dot = a_y - k v - r u; 10 states): u, v 2-3x better in a
+        zig-zag, but it changes the smoothed states identification starts from (off by default).
     tune: pick q_uv, q_r (and q_current) by maximising the innovation likelihood.
     fast: numba-compiled filter and smoother (False: the filterpy reference path).
     output_step_s: the output grid step (also the prediction step).
@@ -70,6 +73,7 @@ class EstimateSettings:
     gate_probability: float = 0.9999
     max_consecutive_rejects: int = 50
     yaw_jump_radps2: float = 0.25
+    sway_damping: bool = False
     smoother: bool = True
     tune: bool = False
     fast: bool = True
@@ -78,6 +82,8 @@ class EstimateSettings:
     def __post_init__(self):
         if self.model not in MODELS:
             raise ConfigError(f"estimate model {self.model!r} is not one of {', '.join(MODELS)}")
+        if self.sway_damping and self.model != "kinematic":
+            raise ConfigError("sway_damping is an option of the kinematic model")
         if self.model == "kinematic" and self.current:
             raise ConfigError("the kinematic model cannot estimate a current (GPS alone does not "
                               "separate it from the boat's own velocity); use --model dynamic")
