@@ -2,8 +2,8 @@
 
     python benchmarks/accuracy_estimate.py [--duration-s 300]
 
-Runs (seeded, as in tests/unit/test_estimate.py): kinematic on a still-water excitation
-run (seed 3); dynamic with current states on a run with a 0.2 m/s current towards 60 deg
+Runs (seeded, as in tests/unit/test_estimate.py): kinematic, without and with sway
+damping, on a still-water excitation run (seed 3); dynamic with current states on a run with a 0.2 m/s current towards 60 deg
 (seed 4); kinematic on a run with four 30 m GPS jumps and a 20 s dropout (seed 6).
 """
 
@@ -54,6 +54,8 @@ def main() -> None:
     d = ap.parse_args().duration_s
     log = simulate("excitation", SimSettings(duration_s=d), seed=3)
     table("kinematic model, still water (seed 3)", estimate(log, EstimateSettings()), log["/truth/state"])
+    table("kinematic model with sway damping, still water (seed 3)",
+          estimate(log, EstimateSettings(sway_damping=True)), log["/truth/state"])
     log = simulate("excitation", SimSettings(duration_s=d, current_mps=0.2, current_dir_deg=60.0), seed=4)
     table("dynamic model + current states, 0.2 m/s current (seed 4)",
           estimate(log, EstimateSettings(model="dynamic")), log["/truth/state"])

@@ -2,7 +2,7 @@
 filterpy loop (+ numpy RTS smoother) against the compiled fast path, side by side.
 
     python benchmarks/bench_estimate.py [--duration-s 3600] [--model kinematic|dynamic]
-                                        [--reference-s SECONDS]
+                                        [--reference-s SECONDS] [--sway-damping]
 
 ``--reference-s`` times the filterpy loop on the first SECONDS only and scales its time
 to the whole run (the loop's cost is linear in the number of steps).
@@ -29,7 +29,7 @@ from usvlog.vessel import default_vessel  # noqa: E402
 def head(pb, k):
     """The first k steps of a problem."""
     sel = pb.mstep < k
-    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
                    m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel], mz=pb.mz[sel],
                    mR=pb.mR[sel])
 
@@ -39,12 +39,13 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--model", default="dynamic", choices=["kinematic", "dynamic"])
     ap.add_argument("--reference-s", type=float, default=None)
+    ap.add_argument("--sway-damping", action="store_true", help="the kinematic model with sway damping")
     args = ap.parse_args()
 
     t = time.perf_counter()
     log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2), seed=1)
     print(f"simulated {args.duration_s:.0f} s in {time.perf_counter() - t:.1f} s")
-    s = EstimateSettings(model=args.model)
+    s = EstimateSettings(model=args.model, sway_damping=args.sway_damping)
     pb = build_problem(log, s, default_vessel())
     q = process_noise(s)
     n = len(pb.dts)

@@ -45,6 +45,16 @@ def test_estimate_kinematic_text_and_no_current(current_file, tmp_path, capsys):
     assert "kinematic model cannot estimate a current" in capsys.readouterr().err
 
 
+def test_estimate_sway_damping_flag(current_file, tmp_path, capsys):
+    out = tmp_path / "s.mcap"
+    assert main(["estimate", str(current_file), "--out", str(out), "--sway-damping", "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["states"] == 10 and rep["settings"]["sway_damping"] is True
+    assert main(["estimate", str(current_file), "--out", str(tmp_path / "d.mcap"), "--model", "dynamic",
+                 "--sway-damping"]) == 2
+    assert "sway_damping is an option of the kinematic model" in capsys.readouterr().err
+
+
 def test_estimate_missing_channel_one_line(tmp_path, capsys):
     log = simulate("excitation", SimSettings(duration_s=5.0), seed=1)
     del log.channels["/gnss/fix"]

@@ -10,7 +10,8 @@ import pytest
 from usvlog.errors import ConfigError, InputError
 from usvlog.estimate import EstimateSettings, OnlineEKF, build_problem, estimate
 from usvlog.estimate import kernels
-from usvlog.estimate.core import process_noise, run_fast, run_reference_path
+from usvlog.estimate.core import process_noise, run_fast, run_reference_path, yaw_jump_variance
+from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS
 from usvlog.estimate.reference import jacobian as ref_jacobian
 from usvlog.estimate.reference import rhs as ref_rhs
 from usvlog.frames import ssa
@@ -48,7 +49,8 @@ def _kernel_f_F(x, tau, prm, model):
     return f, F
 
 
-@pytest.mark.parametrize("model,nx", [(kernels.KINEMATIC, 9), (kernels.DYNAMIC, 6), (kernels.DYNAMIC, 8)])
+@pytest.mark.parametrize("model,nx", [(kernels.KINEMATIC, 9), (kernels.KINEMATIC_SWAY, 10), (kernels.DYNAMIC, 6),
+                                      (kernels.DYNAMIC, 8)])
 def test_process_jacobian_matches_finite_difference_and_vessel_model(model, nx):
     rng = np.random.default_rng(7)
     p = VesselParams(m=30.0, Iz=8.0, d11=4.0, d22=9.0, d33=3.0, xg=0.2)
@@ -85,6 +87,25 @@ def test_dynamic_model_is_the_papers_equation_3():
     np.testing.assert_allclose(f[3:], expect, rtol=1e-12)
 
 
+def test_sway_damping_model_is_body_frame_kinematics():
+    # x = [n, e, psi, u, v, r, a_x, a_y, r_dot, k]: the NED velocity R(psi) [u, v] changes at
+    # R(psi) [a_x, a_y - k v] (the body-frame over-ground acceleration), heading at r
+    x = np.array([3.0, -2.0, 0.9, 1.2, -0.3, 0.25, 0.05, -0.02, 0.1, 0.15])
+    f, _ = _kernel_f_F(x, (0.0, 0.0), default_vessel().params.as_array(), kernels.KINEMATIC_SWAY)
+
+    def ned_velocity(y):
+        c, s = math.cos(y[2]), math.sin(y[2])
+        return np.array([c * y[3] - s * y[4], s * y[3] + c * y[4]])
+
+    h = 1e-6
+    dvel = (ned_velocity(x + h * f) - ned_velocity(x - h * f)) / (2 * h)
+    c, s = math.cos(x[2]), math.sin(x[2])
+    ax, ay = x[6], x[7] - x[9] * x[4]
+    np.testing.assert_allclose(dvel, [c * ax - s * ay, s * ax + c * ay], atol=1e-8)
+    np.testing.assert_allclose(f[:3], [*ned_velocity(x), x[5]], atol=1e-15)
+    np.testing.assert_allclose(f[5:], [x[8], 0, 0, 0, 0], atol=1e-15)
+
+
 def test_body_velocity_rotation_and_sigma():
     psi, vn, ve = 0.7, 0.4, -0.3
     u, v = kernels.body_velocity(np.array([psi]), np.array([vn]), np.array([ve]))
@@ -103,12 +124,14 @@ def test_body_velocity_rotation_and_sigma():
 # fast path == filterpy reference
 # -----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("model,current", [("kinematic", None), ("dynamic", True), ("dynamic", False)])
-def test_fast_path_equals_filterpy_reference(model, current):
+@pytest.mark.parametrize("model,current,sway", [("kinematic", None, False), ("kinematic", None, True),
+                                                ("dynamic", True, False), ("dynamic", False, False)])
+def test_fast_path_equals_filterpy_reference(model, current, sway):
     sens = SensorSettings(gps_jumps=((6.0, 30.0),))
     log = simulate("excitation", SimSettings(duration_s=20.0, current_mps=0.2, sensors=sens), seed=5)
-    s = EstimateSettings(model=model, current=current)
+    s = EstimateSettings(model=model, current=current, sway_damping=sway)
     pb = build_problem(log, s, default_vessel())
+    assert pb.qjump.any() == (model == "kinematic")  # the zig-zag's yaw-moment steps
     q = process_noise(s)
     fast = run_fast(pb, q, s.max_consecutive_rejects, True)
     ref = run_reference_path(pb, q, s.max_consecutive_rejects, True)
@@ -122,7 +145,7 @@ def test_fast_path_equals_filterpy_reference(model, current):
     assert fast.loglik == pytest.approx(ref.loglik, abs=1e-9)
     # and through the public call
     a = estimate(log, s)
-    b = estimate(log, EstimateSettings(model=model, current=current, fast=False))
+    b = estimate(log, EstimateSettings(model=model, current=current, sway_damping=sway, fast=False))
     np.testing.assert_allclose(a.state.to_numpy(), b.state.to_numpy(), atol=1e-9, equal_nan=True)
 
 
@@ -163,7 +186,7 @@ def test_kinematic_smoother_accuracy(kinematic_run):
     s, f = _errors(res.state, truth), _errors(res.forward, truth)
     assert s["u_mps"] <= 0.04
     assert s["v_mps"] <= 0.08          # the issue asks 0.05: see the README (sway in a 20/20 zig-zag)
-    assert s["r_degps"] <= 0.7         # the issue asks 0.45: see the README
+    assert s["r_degps"] <= 0.45
     assert s["pos_m"] <= 0.3
     for c in ("u_mps", "r_degps", "pos_m"):
         assert f[c] >= 2.0 * s[c], c   # the smoother is 2-4x better than the filter alone
@@ -190,6 +213,40 @@ def test_dynamic_with_current_accuracy():
     ce = res.state["current_e_mps"].iloc[len(res.state) // 2:].mean()
     assert cn == pytest.approx(0.2 * math.cos(math.radians(60)), abs=0.01)
     assert ce == pytest.approx(0.2 * math.sin(math.radians(60)), abs=0.01)
+
+
+def test_kinematic_smoother_with_sway_damping_meets_the_issue(kinematic_run):
+    log, _ = kinematic_run
+    res = estimate(log, EstimateSettings(model="kinematic", sway_damping=True))
+    truth = log["/truth/state"]
+    s, f = _errors(res.state, truth), _errors(res.forward, truth)
+    assert s["u_mps"] <= 0.05 and s["v_mps"] <= 0.05
+    assert s["r_degps"] <= 0.45
+    assert s["pos_m"] <= 0.3
+    for c in ("u_mps", "v_mps", "r_degps", "pos_m"):
+        assert f[c] >= 2.0 * s[c], c   # the smoother is 2-6x better than the filter alone
+    assert res.report.sensor("gnss").mean_nis == pytest.approx(2.0, abs=0.2)
+    assert res.report.states == 10
+
+
+def test_yaw_moment_steps_let_r_dot_jump(kinematic_run):
+    log, res = kinematic_run
+    # the variance added at a step of the yaw moment: (sigma * step / max|tau_r|)^2
+    s = EstimateSettings(yaw_jump_radps2=0.3)
+    tau_r = np.array([0.0, 1.0, 1.0, -2.0, -1.5, -1.5])   # tau_r[0]: before the first command
+    np.testing.assert_allclose(yaw_jump_variance(tau_r, s), [0, 0, 0, (0.3 * 3 / 2) ** 2, (0.3 * 0.5 / 2) ** 2, 0])
+    assert not yaw_jump_variance(tau_r, EstimateSettings(model="dynamic")).any()
+    assert not yaw_jump_variance(tau_r, EstimateSettings(yaw_jump_radps2=0.0)).any()
+    # without it r_dot follows the zig-zag's reversals slowly: r is 1.5x worse
+    off = estimate(log, EstimateSettings(yaw_jump_radps2=0.0))
+    truth = log["/truth/state"]
+    assert _errors(off.state, truth)["r_degps"] > 1.5 * _errors(res.state, truth)["r_degps"]
+    # a log without thrust has no steps: r_dot's own random walk is faster then
+    nothrust = log.copy()
+    del nothrust.channels["/thrust/command"]
+    plain = estimate(nothrust)
+    assert plain.report.settings["q_r"] == Q_R_KINEMATIC_NO_JUMPS > res.report.settings["q_r"]
+    assert _errors(plain.state, truth)["r_degps"] <= 0.7
 
 
 def test_gps_jumps_rejected_and_dropout_bridged():

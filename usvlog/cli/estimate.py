@@ -22,6 +22,8 @@ def register(sub) -> None:
     p.add_argument("--no-current", dest="current", action="store_false", help="no current states")
     p.add_argument("--tune", action="store_true",
                    help="pick process noise by maximising the innovation likelihood")
+    p.add_argument("--sway-damping", action="store_true",
+                   help="kinematic model in the body frame with an estimated sway damping (better u, v)")
     p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate")
     p.add_argument("--no-smoother", action="store_true", help="forward filter only")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -32,7 +34,8 @@ def register(sub) -> None:
 def run(args) -> int:
     check_output(args.out, args.force)
     settings = EstimateSettings(model=args.model, current=args.current, tune=args.tune,
-                                gate_probability=args.gate, smoother=not args.no_smoother)
+                                gate_probability=args.gate, smoother=not args.no_smoother,
+                                sway_damping=args.sway_damping)
     log = read_log(args.log)
     vessel = load_vessel(args.vessel) if args.vessel else None
     stage(f"estimating {args.log} ({args.model} model{', tuning' if args.tune else ''})")

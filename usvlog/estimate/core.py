@@ -17,8 +17,8 @@ from ..frames import Datum, geodetic_to_ned, ssa
 from ..log import FieldLog, format_time
 from ..vessel import Vessel, default_vessel
 from . import kernels
-from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, SENSOR_DIM, SENSORS, YAW_RATE
-from .settings import EstimateSettings
+from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, KINEMATIC_SWAY, SENSOR_DIM, SENSORS, YAW_RATE
+from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
 STATE_TOPIC = "/estimate/state"
@@ -27,14 +27,18 @@ GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thr
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
-_P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations / current
+_P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations (, k) / current
+# random walk of the sway damping k of the kinematic model with sway damping, 1/s^3:
+# a constant in effect
+Q_SWAY_DAMPING = 1e-8
 
 
 def state_size(settings: EstimateSettings) -> int:
-    """9 for the kinematic model (n, e, psi, v_n, v_e, r, a_n, a_e, r_dot), 6 or 8
+    """9 for the kinematic model (n, e, psi, v_n, v_e, r, a_n, a_e, r_dot), 10 with sway
+    damping (n, e, psi, u, v, r, a_x, a_y, r_dot, k), 6 or 8
     (with the current) for the dynamic one."""
     if settings.model == "kinematic":
-        return 9
+        return 10 if settings.sway_damping else 9
     return 8 if settings.use_current else 6
 
 
@@ -56,6 +60,7 @@ class Problem:
     is_grid: np.ndarray     # (N,) bool: an output time
     dts: np.ndarray         # (N,) s since the previous step (0 for the first)
     taus: np.ndarray        # (N, 2) tau_u, tau_r held over the step that ends at k
+    qjump: np.ndarray       # (N,) yaw-acceleration variance added at step k (kinematic)
     m_t_ns: np.ndarray      # (M,) measurement times
     mstep: np.ndarray       # (M,) step index of each measurement
     mkind: np.ndarray       # (M,) GNSS / COMPASS / YAW_RATE
@@ -211,6 +216,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         taus[1:, 0] = np.where(has, tu[i], 0.0)
         taus[1:, 1] = np.where(has, tr[i], 0.0)
 
+    qjump = yaw_jump_variance(taus[:, 1], s)
+
     nx = state_size(s)
     x0 = np.zeros(nx)
     x0[0], x0[1], x0[2] = n[0], e[0], psi[0]
@@ -225,10 +232,28 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         thr = max(5 * float(np.median(dtg)), 1e9)
         gi = np.flatnonzero(dtg > thr)
         drop = tuple((int(tg[i]), float(dtg[i]) * 1e-9) for i in gi)
-    return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, m_t_ns=m_t, mstep=mstep, mkind=mkind,
+    return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, qjump=qjump, m_t_ns=m_t, mstep=mstep, mkind=mkind,
                    mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
-                   model=DYNAMIC if s.model == "dynamic" else KINEMATIC,
+                   model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
                    gates=np.asarray(gate, float), dropouts=drop, skipped=skipped)
+
+
+def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarray:
+    """Variance added to the kinematic model's yaw acceleration at each step (N,).
+
+    A boat's yaw acceleration jumps when its yaw moment does (a bang-bang zig-zag, a
+    thruster reversal), which a random-walk r_dot follows only slowly. Where the log
+    records the thrust, a step of the yaw moment by d between two steps adds the variance
+    (yaw_jump_radps2 * d / max|tau_r|)^2: scale-free in the moment, so no vessel
+    parameter enters; zero without thrust, for the dynamic model (which is driven by the
+    thrust itself) and with yaw_jump_radps2 = 0."""
+    q = np.zeros(len(tau_r))
+    if settings.model != "kinematic" or settings.yaw_jump_radps2 == 0 or len(tau_r) < 3:
+        return q
+    scale = float(np.max(np.abs(tau_r[1:])))
+    if scale > 0:
+        q[2:] = np.square(settings.yaw_jump_radps2 * np.diff(tau_r[1:]) / scale)
+    return q
 
 
 def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> np.ndarray:
@@ -239,6 +264,8 @@ def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> 
     i = 6 if settings.model == "kinematic" else 3
     q[i] = q[i + 1] = settings.q_uv_value if q_uv is None else q_uv
     q[i + 2] = settings.q_r_value if q_r is None else q_r
+    if settings.model == "kinematic" and settings.sway_damping:
+        q[9] = Q_SWAY_DAMPING
     if settings.model == "dynamic" and nx == 8:
         q[6] = q[7] = settings.q_current if q_c is None else q_c
     return q
@@ -267,11 +294,11 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun
     PP = np.empty((N if smoother else 1, nx, nx))
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
-    ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
+    ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
                          pb.model, q, pb.gates, max_rej, X, PP, SDf, PBf, innov, acc)
     if smoother:
         XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
-        kernels.smooth(X, PP, pb.dts, pb.taus, pb.prm, pb.model, q, XS, SDs, PBs)
+        kernels.smooth(X, PP, pb.dts, pb.taus, pb.qjump, pb.prm, pb.model, q, XS, SDs, PBs)
     else:
         XS, SDs, PBs = X, SDf, PBf
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
@@ -282,7 +309,7 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X = np.empty((N, nx))
     one = np.empty((1, nx, nx))
-    return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR,
+    return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR,
                                  pb.prm, pb.model, q, pb.gates, max_rej, X, one, one[:, 0],
                                  np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8)))
 
@@ -292,8 +319,8 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool)
     from .reference import run_reference
 
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
-    out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
-                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)
+    out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
+                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
     return RawRun(*out[:8], float(out[8]))
 
 
@@ -303,7 +330,7 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
     Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps."""
     if len(pb.dts) > max_steps:
         k = max_steps
-        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
                       m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
                       mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
     else:
@@ -452,6 +479,8 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if vessel is None:
         vessel = log.vessel or default_vessel()
     pb = build_problem(log, settings, vessel)
+    if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
+        settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
     tuned = None
     if settings.tune:
         tuned = tune_process_noise(pb, settings)

@@ -11,9 +11,15 @@ State, dynamic model: x = [n, e, psi, u, v, r] (+ [c_n, c_e] water current, NED)
 nu = [u, v, r] relative to the water. Kinematic model: x = [n, e, psi, v_n, v_e, r, a_n,
 a_e, r_dot], over-ground velocity in NED driven by random-walk accelerations (over
 ground, a boat's velocity turns far more smoothly in NED than its body-frame sway does
-in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Discretisation: Euler
+in a zig-zag); body u, v are R(psi)^T [v_n, v_e] (see :func:`body_velocity`). Kinematic
+model with sway damping (KINEMATIC_SWAY): x = [n, e, psi, u, v, r, a_x, a_y, r_dot, k],
+over-ground body velocity with u_dot = a_x + r v, v_dot = a_y - k v - r u (a_x, a_y the
+over-ground acceleration in the body frame, random walks; -k v the sway damping, k a
+constant the filter estimates: a boat's lateral acceleration is mostly its sway damping,
+so the sway follows the yaw rate). Discretisation: Euler
 step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity and
-current states (the kinematic accelerations carry the noise). Measurements select state entries (GNSS: n, e; compass: psi, with the
+current states (the kinematic accelerations carry the noise), plus, kinematic, a
+variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``core.yaw_jump_variance``). Measurements select state entries (GNSS: n, e; compass: psi, with the
 residual wrapped; yaw rate: r).
 """
 
@@ -26,7 +32,7 @@ from numba import njit
 
 from ..vessel import nu_dot_jacobian_terms, nu_dot_terms
 
-KINEMATIC, DYNAMIC = 0, 1
+KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
 GNSS, COMPASS, YAW_RATE = 0, 1, 2
 SENSORS = ("gnss", "compass", "yaw_rate")
 SENSOR_DIM = (2, 1, 1)
@@ -67,6 +73,14 @@ def process(x, tau_u, tau_r, prm, model, f, F):
     F[0, 3], F[0, 4] = c, -s
     F[1, 3], F[1, 4] = s, c
     F[2, 5] = 1.0
+    if model == KINEMATIC_SWAY:  # body frame, over ground (see the module docstring)
+        f[3] = x[6] + r * v
+        f[4] = x[7] - x[9] * v - r * u
+        f[5] = x[8]
+        F[3, 4], F[3, 5], F[3, 6] = r, v, 1.0
+        F[4, 3], F[4, 4], F[4, 5], F[4, 7], F[4, 9] = -r, -x[9], -u, 1.0, -v
+        F[5, 8] = 1.0
+        return
     if nx == 8:  # water current, NED
         f[0] += x[6]
         f[1] += x[7]
@@ -110,8 +124,9 @@ def sparse_matmul(A, B, out):
 
 
 @njit(cache=True)
-def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
-    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P.
+def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
+    """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P; ``qj`` is a
+    variance added to the yaw acceleration of the kinematic model (a step of the yaw moment).
 
     Po = Phi P Phi^T + Q dt is formed as P + dt (F P + P F^T) + dt^2 F P F^T over the
     non-zero entries of the sparse F (a few per row), upper triangle mirrored."""
@@ -136,6 +151,8 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, xo, Po, Phi, f, F, tmp):
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
+    if qj != 0.0:  # r_dot is state 8 in both kinematic models
+        Po[8, 8] += qj
 
 
 @njit(cache=True)
@@ -227,7 +244,7 @@ class Work:
 
 
 @njit(cache=True)
-def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
+def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
             X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
@@ -257,7 +274,7 @@ def forward(x0, P0, dts, taus, mstep, mkind, mz, mR, prm, model, q, gates, max_r
     j = 0
     for k in range(N):
         if k > 0 and dts[k] > 0.0:
-            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, xo, Po, Phi, f, F, tmp)
+            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
@@ -321,7 +338,7 @@ def _chol_solve(L, inv, A, B, X):
 
 
 @njit(cache=True)
-def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
+def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,
     their one-sigma in SD and the covariance block of states 2..4 in PB."""
@@ -349,7 +366,7 @@ def smooth(X, PP, dts, taus, prm, model, q, XS, SD, PB):
         Pk = PP[k]
         xk = X[k]
         if dts[k + 1] > 0.0:
-            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q,
+            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q, qjump[k + 1],
                     xp, Pp, Phi, f, F, tmp)
         else:
             for a in range(nx):

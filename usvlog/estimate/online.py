@@ -14,7 +14,7 @@ from ..errors import ConfigError
 from ..vessel import Vessel
 from . import kernels
 from .core import initial_covariance, process_noise, state_size
-from .settings import EstimateSettings
+from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 
 class OnlineEKF:
@@ -24,7 +24,8 @@ class OnlineEKF:
     kinematic model); ``update_gnss`` / ``update_heading`` apply a measurement through
     the chi-square gate and return True when it was accepted. ``x`` is the state of
     :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
-    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot]. ``P`` is its covariance.
+    kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot] (with sway damping [n, e, psi, u, v,
+    r, a_x, a_y, r_dot, k]). ``P`` is its covariance.
     """
 
     def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
@@ -33,9 +34,12 @@ class OnlineEKF:
         s = self.settings
         self.vessel = vessel
         self.nx = state_size(s)
-        self._model = kernels.DYNAMIC if s.model == "dynamic" else kernels.KINEMATIC
+        self._model = (kernels.DYNAMIC if s.model == "dynamic" else
+                       kernels.KINEMATIC_SWAY if s.sway_damping else kernels.KINEMATIC)
         self._prm = vessel.params.as_array()
-        self._q = process_noise(s)
+        # one call at a time: no yaw-moment steps known ahead, r_dot wanders on its own
+        q_r = Q_R_KINEMATIC_NO_JUMPS if s.model == "kinematic" and s.q_r is None else None
+        self._q = process_noise(s, q_r=q_r)
         self._x = np.zeros(self.nx) if x0 is None else np.array(x0, float).copy()
         if self._x.shape != (self.nx,):
             raise ConfigError(f"OnlineEKF: x0 must have {self.nx} entries")
@@ -61,7 +65,7 @@ class OnlineEKF:
             return
         w = self._w
         kernels.predict(self._x, self._P, float(tau_u), float(tau_r), float(dt), self._prm, self._model,
-                        self._q, w.xo, w.Po, w.Phi, w.f, w.F, w.tmp)
+                        self._q, 0.0, w.xo, w.Po, w.Phi, w.f, w.F, w.tmp)
         self._x[:] = w.xo
         self._P[:] = w.Po
 

@@ -11,7 +11,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
 from ..frames import ssa
-from ..vessel import VesselParams, plant_jacobian, plant_rhs
+from ..vessel import VesselParams, eta_dot, plant_jacobian, plant_rhs
 from .kernels import COMPASS, GNSS, SENSOR_DIM
 
 _SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}
@@ -19,7 +19,12 @@ _SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}
 
 def rhs(x, tau_u, tau_r, params: VesselParams, dynamic: bool):
     """x_dot: dynamic (6 states, or 8 with a random-walk current) or kinematic (9 states:
-    n, e, psi, v_n, v_e, r and random-walk accelerations a_n, a_e, r_dot)."""
+    n, e, psi, v_n, v_e, r and random-walk accelerations a_n, a_e, r_dot; or 10 with sway
+    damping: n, e, psi, u, v, r over ground, a_x, a_y, r_dot, k with eta_dot = R(psi) nu,
+    u_dot = a_x + r v, v_dot = a_y - k v - r u)."""
+    if not dynamic and len(x) == 10:   # with sway damping: body frame, over ground
+        u, v, r = x[3:6]
+        return np.r_[eta_dot(x[:3], x[3:6]), x[6] + r * v, x[7] - x[9] * v - r * u, x[8], np.zeros(4)]
     if not dynamic:
         return np.concatenate([x[3:9], np.zeros(3)])
     cur = (x[6], x[7]) if len(x) == 8 else (0.0, 0.0)
@@ -30,6 +35,13 @@ def jacobian(x, params: VesselParams, dynamic: bool):
     """d(rhs)/dx."""
     nx = len(x)
     J = np.zeros((nx, nx))
+    if not dynamic and nx == 10:
+        u, v, r, k = x[3], x[4], x[5], x[9]
+        J[:3, :6] = plant_jacobian(x[:6], params)[:3]      # eta_dot = R(psi) nu
+        J[3, 4], J[3, 5], J[3, 6] = r, v, 1.0               # u_dot = a_x + r v
+        J[4, 3], J[4, 4], J[4, 5], J[4, 7], J[4, 9] = -r, -k, -u, 1.0, -v   # v_dot = a_y - k v - r u
+        J[5, 8] = 1.0
+        return J
     if not dynamic:
         J[:6, 3:9] = np.eye(6)
         return J
@@ -51,10 +63,12 @@ class VesselEKF(ExtendedKalmanFilter):
         self.params, self.dynamic, self.q = params, dynamic, np.asarray(q, float)
         self._step = (0.0, 0.0, 0.0)
 
-    def predict_step(self, dt: float, tau_u: float, tau_r: float) -> None:
+    def predict_step(self, dt: float, tau_u: float, tau_r: float, qj: float = 0.0) -> None:
         x = self.x[:, 0]
         self.F = np.eye(self.dim_x) + dt * jacobian(x, self.params, self.dynamic)
         self.Q = np.diag(self.q * dt)
+        if qj:  # a step of the yaw moment: the kinematic model's r_dot may jump
+            self.Q[8, 8] += qj
         self._step = (dt, tau_u, tau_r)
         self.predict()
 
@@ -86,7 +100,7 @@ class VesselEKF(ExtendedKalmanFilter):
         return (*res, True)
 
 
-def run_reference(x0, P0, dts, taus, mstep, mkind, mz, mR, params, dynamic, q, gates, max_rej,
+def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynamic, q, gates, max_rej,
                   smoother: bool):
     """Forward pass with filterpy, then the RTS smoother. Same inputs and outputs as the
     compiled path: (X, SD_forward, PB_forward, XS, SD_smoothed, PB_smoothed, innov,
@@ -106,7 +120,7 @@ def run_reference(x0, P0, dts, taus, mstep, mkind, mz, mR, params, dynamic, q, g
     j = 0
     for k in range(N):
         if k > 0 and dts[k] > 0:
-            ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]))
+            ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]), float(qjump[k]))
             Fs[k] = ekf.F.copy()
         else:
             Fs[k] = np.eye(nx)

@@ -13,10 +13,14 @@ MODELS = ("kinematic", "dynamic")
 # suit a small USV; ``tune=True`` replaces them by the innovation-likelihood optimum.
 DEFAULT_Q = {
     # random-walk accelerations: m^2/s^5 for a_n, a_e (NED); rad^2/s^5 for r_dot
-    "kinematic": {"q_uv": 1e-4, "q_r": 0.01},
+    # (q_r 2e-3 where the log's yaw-moment steps add their own jumps of r_dot, see
+    # yaw_jump_radps2; without them r_dot must wander faster: Q_R_KINEMATIC_NO_JUMPS)
+    "kinematic": {"q_uv": 1e-4, "q_r": 2e-3},
     # model error of eq. (3) driven by the recorded thrust: m^2/s^3 on u, v; rad^2/s^3 on r
     "dynamic": {"q_uv": 1e-5, "q_r": 1e-5},
 }
+
+Q_R_KINEMATIC_NO_JUMPS = 0.01
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -42,6 +46,12 @@ class EstimateSettings:
     max_consecutive_rejects: after this many rejections in a row of one sensor its next
         measurement is accepted anyway (so a filter that lost track recovers).
     smoother: run the RTS smoother (else the state is the forward filter's).
+    yaw_jump_radps2: kinematic model: one-sigma jump of the yaw acceleration when the
+        recorded yaw moment steps by its largest magnitude in the log (0: off; see
+        ``core.yaw_jump_variance``).
+    sway_damping: kinematic model in the body frame with an estimated sway damping k
+        (u_dot = a_x + r v, v_dot = a_y - k v - r u; 10 states): u, v 2-3x better in a
+        zig-zag, but it changes the smoothed states identification starts from (off by default).
     tune: pick q_uv, q_r (and q_current) by maximising the innovation likelihood.
     fast: numba-compiled filter and smoother (False: the filterpy reference path).
     output_step_s: the output grid step (also the prediction step).
@@ -62,6 +72,8 @@ class EstimateSettings:
     yaw_rate_noise_radps: float = 0.01
     gate_probability: float = 0.9999
     max_consecutive_rejects: int = 50
+    yaw_jump_radps2: float = 0.25
+    sway_damping: bool = False
     smoother: bool = True
     tune: bool = False
     fast: bool = True
@@ -70,6 +82,8 @@ class EstimateSettings:
     def __post_init__(self):
         if self.model not in MODELS:
             raise ConfigError(f"estimate model {self.model!r} is not one of {', '.join(MODELS)}")
+        if self.sway_damping and self.model != "kinematic":
+            raise ConfigError("sway_damping is an option of the kinematic model")
         if self.model == "kinematic" and self.current:
             raise ConfigError("the kinematic model cannot estimate a current (GPS alone does not "
                               "separate it from the boat's own velocity); use --model dynamic")
@@ -85,6 +99,8 @@ class EstimateSettings:
             v = getattr(self, name)
             if not (math.isfinite(v) and abs(v) <= 2 * math.pi):
                 raise ConfigError(f"estimate setting {name} = {v} must be an angle in [-2 pi, 2 pi] rad")
+        if not (math.isfinite(self.yaw_jump_radps2) and self.yaw_jump_radps2 >= 0):
+            raise ConfigError(f"yaw_jump_radps2 = {self.yaw_jump_radps2} must be a finite number >= 0")
         if not (0.5 <= self.gate_probability <= 1.0):
             raise ConfigError(f"gate_probability = {self.gate_probability} must be in [0.5, 1]")
         if self.max_consecutive_rejects < 1:
