@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import argparse
+
 from ..estimate import EstimateSettings, estimate
 from ..io.atomic import check_output
 from ..io.config import load_vessel
@@ -22,8 +24,9 @@ def register(sub) -> None:
     p.add_argument("--no-current", dest="current", action="store_false", help="no current states")
     p.add_argument("--tune", action="store_true",
                    help="pick process noise by maximising the innovation likelihood")
-    p.add_argument("--sway-damping", action="store_true",
-                   help="kinematic model in the body frame with an estimated sway damping (better u, v)")
+    p.add_argument("--sway-damping", action=argparse.BooleanOptionalAction, default=None,
+                   help="kinematic model in the body frame with an estimated sway damping (better u, v; "
+                        "default: on for the kinematic model)")
     p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate")
     p.add_argument("--no-smoother", action="store_true", help="forward filter only")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")

@@ -51,7 +51,8 @@ class EstimateSettings:
         ``core.yaw_jump_variance``).
     sway_damping: kinematic model in the body frame with an estimated sway damping k
         (u_dot = a_x + r v, v_dot = a_y - k v - r u; 10 states): u, v 2-3x better in a
-        zig-zag, but it changes the smoothed states identification starts from (off by default).
+        zig-zag. ``None`` (default): on for the kinematic model. Identification's own
+        smoother keeps the 9-state model (see ``usvlog.identify.smooth``).
     tune: pick q_uv, q_r (and q_current) by maximising the innovation likelihood.
     fast: numba-compiled filter and smoother (False: the filterpy reference path).
     output_step_s: the output grid step (also the prediction step).
@@ -73,7 +74,7 @@ class EstimateSettings:
     gate_probability: float = 0.9999
     max_consecutive_rejects: int = 50
     yaw_jump_radps2: float = 0.25
-    sway_damping: bool = False
+    sway_damping: bool | None = None
     smoother: bool = True
     tune: bool = False
     fast: bool = True
@@ -82,6 +83,8 @@ class EstimateSettings:
     def __post_init__(self):
         if self.model not in MODELS:
             raise ConfigError(f"estimate model {self.model!r} is not one of {', '.join(MODELS)}")
+        if self.sway_damping is None:  # default: on for the kinematic model
+            object.__setattr__(self, "sway_damping", self.model == "kinematic")
         if self.sway_damping and self.model != "kinematic":
             raise ConfigError("sway_damping is an option of the kinematic model")
         if self.model == "kinematic" and self.current:

@@ -77,7 +77,7 @@ def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
         from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
     except ImportError:
         return savgol_states(run)
-    st = estimate(log, EstimateSettings(model="kinematic", output_step_s=GRID_DT), vessel).state
+    st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT), vessel).state
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))
