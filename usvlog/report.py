@@ -331,7 +331,10 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
         log, baseline = log[0], (log[1] if len(log) == 2 else baseline)
     ax_mode = _Axes(axes)
     out = check_report_outputs(out_dir, force)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StorageError(f"{out}: cannot create directory ({err.strerror})") from err
     plt = _plt()
     path = vd.path_polyline(log)
     figs = [

@@ -31,8 +31,15 @@ VERBS = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the verb's usage is under --help)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="usvlog",
         description="Field logs of small unmanned surface vessels: import, estimate, identify, replay, view.")
     parser.add_argument("--version", action="version", version=f"usvlog {__version__}")

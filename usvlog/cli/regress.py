@@ -7,7 +7,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from ..baseline import junit_xml
-from ..errors import ConfigError
+from ..errors import ConfigError, StorageError
 from ..io.atomic import write_text_atomic
 from ..io.baselines import (find_regress_scenarios, format_baseline, load_regress_scenario, read_baseline,
                             write_baseline)
@@ -31,6 +31,20 @@ def run_one(path: str) -> ScenarioOutcome:
     """Load a scenario and its baseline, run it (top level: runs in worker processes)."""
     scn = load_regress_scenario(path)
     return run_scenario(scn, read_baseline(scn.baseline))
+
+
+def check_datasets(paths, *, shipped: bool) -> None:
+    """Every scenario's recorded run must exist: a missing one is the user's error, before any work."""
+    scns = [load_regress_scenario(p) for p in paths]
+    missing = [s for s in scns if not s.dataset.exists()]
+    if not missing:
+        return
+    hint = ""
+    if shipped and len(missing) == len(scns):
+        hint = ("; the shipped scenarios' datasets are in tests/data/ of a source checkout, not in the installed "
+                "package: run usvlog regress in a checkout, or give your own scenarios")
+    raise StorageError(f"{missing[0].dataset}: dataset of scenario {missing[0].name} not found "
+                       f"({len(missing)} of {len(scns)} scenarios miss theirs){hint}")
 
 
 def format_table(outcomes: list[ScenarioOutcome]) -> str:
@@ -70,6 +84,7 @@ def run(args) -> int:
     paths = find_regress_scenarios(args.paths or [replay_dir()])
     if not paths:
         raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")
+    check_datasets(paths, shipped=not args.paths)
     bar = _progress(len(paths))
     outcomes: list[ScenarioOutcome] = []
     if args.jobs == 1 or len(paths) == 1:

@@ -1,0 +1,87 @@
+"""What a new user runs into: every mistake is one line on stderr and exit 2, nothing written."""
+
+import shutil
+
+import pytest
+
+from usvlog.cli import main
+from usvlog.resources import replay_dir
+
+
+def _one_line_error(capsys, *words):
+    """The error is the last line on stderr and the only one saying error (progress lines may precede it)."""
+    err = capsys.readouterr().err.strip().splitlines()
+    assert [x for x in err if "error" in x] == err[-1:], err
+    assert not any("Traceback" in x for x in err)
+    for w in words:
+        assert w in err[-1], err[-1]
+    return err[-1]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["identify", "a.mcap", "--out", "p.toml", "--method", "foo"], ["usvlog identify: error", "'foo'", "--help"]),
+    (["estimate", "a.mcap", "--out", "e.mcap", "--model", "foo"], ["usvlog estimate: error", "kinematic"]),
+    (["export", "a.mcap", "--out", "d", "--format", "xyz"], ["usvlog export: error", "parquet"]),
+    (["replay", "a.mcap", "--out", "r.mcap"], ["usvlog replay: error", "--scenario"]),
+    (["nosuchverb"], ["usvlog: error", "invalid choice"]),
+])
+def test_usage_errors_are_one_line(argv, words, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    _one_line_error(capsys, *words)
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("fix, words", [("m=-3", "m must be > 0"), ("Iz=0", "Iz must be > 0"),
+                                        ("d22=-1", "d22 must be >= 0"), ("xg=nan", "xg must be finite")])
+def test_identify_rejects_impossible_fix(fix, words, excitation_file, tmp_path, capsys):
+    out = tmp_path / "p.toml"
+    assert main(["identify", str(excitation_file), "--out", str(out), "--fix", fix]) == 2
+    _one_line_error(capsys, f"--fix '{fix}'", words)
+    assert not out.exists()
+
+
+def test_report_into_unwritable_place_is_a_user_error(excitation_file, tmp_path, capsys):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("not a directory")
+    assert main(["report", str(excitation_file), "--out", str(blocker / "rep")]) == 2
+    _one_line_error(capsys, "file.txt/rep", "cannot create directory")
+
+
+def test_gains_default_is_the_paper_section_iv(capsys):
+    # the paper's Section IV: m = 33, Iz = 10, d = 5, xg = 0.1; KPu = 5, KIu = 0.5, KPpsi = 5, KIpsi = 0.1, KDpsi = 1
+    assert main(["gains"]) == 0
+    out = capsys.readouterr().out
+    assert "m=33 Iz=10 d11=5 d22=5 d33=5 xg=0.1" in out
+    assert "KPu=5 KIu=0.5 KPpsi=5 KIpsi=0.1 KDpsi=1" in out
+    assert main(["gains", "--gains", "paper-sine"]) == 0
+    assert "KPpsi=" in capsys.readouterr().out
+    assert main(["gains", "--gains", "nosuch"]) == 2
+    _one_line_error(capsys, "'nosuch'", "paper-circle")
+
+
+def test_unknown_simulate_scenario_lists_every_kind(tmp_path, capsys):
+    out = tmp_path / "x.mcap"
+    assert main(["simulate", "xyz", "--out", str(out)]) == 2
+    line = _one_line_error(capsys, "'xyz'", "excitation", "turns", "straight", "paper-circle", "paper-sine")
+    assert "ident-current" not in line  # a regression scenario, not something simulate runs
+    assert not out.exists()
+
+
+def test_regression_scenario_given_to_simulate_or_replay(tmp_path, capsys, excitation_file):
+    assert main(["simulate", "ident-current", "--out", str(tmp_path / "x.mcap")]) == 2
+    _one_line_error(capsys, "regression scenario", "usvlog regress")
+    assert main(["replay", str(excitation_file), "--scenario", "ident-current", "--out",
+                 str(tmp_path / "r.mcap")]) == 2
+    _one_line_error(capsys, "regression scenario", "usvlog regress")
+    assert not list(tmp_path.iterdir())
+
+
+def test_regress_missing_dataset_is_one_line_before_any_work(tmp_path, capsys):
+    shutil.copy(replay_dir() / "ident-current.toml", tmp_path / "ident-current.toml")  # ../tests/data/... is absent
+    junit = tmp_path / "junit.xml"
+    assert main(["regress", str(tmp_path), "--junit", str(junit)]) == 2
+    _one_line_error(capsys, "ident-current.mcap", "not found", "1 of 1")
+    assert not junit.exists()
