@@ -23,9 +23,11 @@ from .common import stage
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in simulated run")
-    p.add_argument("--out", default="usvlog-demo", help="output directory (default: usvlog-demo)")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--duration-s", type=float, default=600.0)
+    p.add_argument("--out", default="usvlog-demo",
+                   help="output directory (default: usvlog-demo); a re-run replaces the demo's own files in it")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the simulated excitation run (default 1)")
+    p.add_argument("--duration-s", type=float, default=600.0,
+                   help="length of the simulated excitation run in seconds (default 600)")
     p.set_defaults(func=run)
 
 

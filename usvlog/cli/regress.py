@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--update", action="store_true", help="accept the current metrics as the new baselines")
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML for a CI system")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--jobs", type=int, default=1, help="scenarios run in parallel processes")
+    p.add_argument("--jobs", type=int, default=1, help="scenarios run in this many parallel processes (default 1)")
     p.set_defaults(func=run)
 
 
