@@ -85,3 +85,38 @@ def test_regress_missing_dataset_is_one_line_before_any_work(tmp_path, capsys):
     assert main(["regress", str(tmp_path), "--junit", str(junit)]) == 2
     _one_line_error(capsys, "ident-current.mcap", "not found", "1 of 1")
     assert not junit.exists()
+
+
+def test_interrupted_report_writes_nothing(tmp_path, monkeypatch):
+    from usvlog import report
+    from usvlog.io.config import load_scenario
+    from usvlog.replay import simulate_scenario
+
+    log = simulate_scenario(load_scenario("paper-circle"), duration_s=20.0)
+
+    def ctrl_c(*a, **k):  # Ctrl-C while the fourth figure renders
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "_fig_speed_heading", ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        report.write_report(log, tmp_path / "rep")
+    assert not (tmp_path / "rep").exists()
+    monkeypatch.undo()
+    page = report.write_report(log, tmp_path / "rep")
+    names = sorted(p.name for p in page.parent.iterdir())
+    assert names == ["fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_heading.png", "report.html"]
+    assert all((page.parent / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for n in names if n.endswith(".png"))
+
+
+def test_ctrl_c_inside_compiled_code_is_an_interruption():
+    from usvlog.cli import interrupted
+
+    try:  # what numba's dispatcher raises when Ctrl-C lands inside a compiled call
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set")
+    except SystemError as err:
+        assert interrupted(err)
+    assert not interrupted(SystemError("a real bug"))
+    assert not interrupted(ValueError("x"))

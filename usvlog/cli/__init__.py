@@ -49,6 +49,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def interrupted(err: BaseException) -> bool:
+    """True when ``err`` was caused by a KeyboardInterrupt (directly or down its chain)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -67,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except Exception as err:  # a bug: one line, traceback on request
+        if interrupted(err):  # Ctrl-C inside compiled code arrives wrapped (numba: SystemError)
+            print(f"usvlog {args.verb}: interrupted", file=sys.stderr)
+            return 130
         if os.environ.get("USVLOG_DEBUG"):
             raise
         print(f"usvlog {args.verb}: internal error: {type(err).__name__}: {err} "
