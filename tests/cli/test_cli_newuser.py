@@ -120,3 +120,13 @@ def test_ctrl_c_inside_compiled_code_is_an_interruption():
         assert interrupted(err)
     assert not interrupted(SystemError("a real bug"))
     assert not interrupted(ValueError("x"))
+
+
+def test_export_refuses_before_writing_any_file(excitation_file, tmp_path, capsys):
+    out = tmp_path / "csv"
+    out.mkdir()
+    (out / "truth__state.csv").write_text("mine\n")  # the last channel's file exists, the others do not
+    assert main(["export", str(excitation_file), "--out", str(out)]) == 2
+    _one_line_error(capsys, "truth__state.csv", "output exists")
+    assert sorted(p.name for p in out.iterdir()) == ["truth__state.csv"]
+    assert (out / "truth__state.csv").read_text() == "mine\n"
