@@ -130,3 +130,11 @@ def test_export_refuses_before_writing_any_file(excitation_file, tmp_path, capsy
     _one_line_error(capsys, "truth__state.csv", "output exists")
     assert sorted(p.name for p in out.iterdir()) == ["truth__state.csv"]
     assert (out / "truth__state.csv").read_text() == "mine\n"
+
+
+@pytest.mark.parametrize("port", ["0", "99999", "-1"])
+def test_view_bad_port_refused_before_any_work(port, excitation_file, tmp_path, capsys):
+    out = tmp_path / "x.rrd"
+    assert main(["view", str(excitation_file), "--out", str(out), "--serve", "--port", port]) == 2
+    _one_line_error(capsys, f"--port {port}", "65535")
+    assert not out.exists()
