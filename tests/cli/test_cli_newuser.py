@@ -138,3 +138,15 @@ def test_view_bad_port_refused_before_any_work(port, excitation_file, tmp_path, 
     assert main(["view", str(excitation_file), "--out", str(out), "--serve", "--port", port]) == 2
     _one_line_error(capsys, f"--port {port}", "65535")
     assert not out.exists()
+
+
+def test_demo_bad_output_or_duration_is_a_user_error(tmp_path, capsys):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    assert main(["demo", "--out", str(blocker)]) == 2
+    _one_line_error(capsys, "file.txt", "not a directory")
+    assert main(["demo", "--out", str(blocker / "sub")]) == 2
+    _one_line_error(capsys, "file.txt/sub", "cannot create directory")
+    assert main(["demo", "--out", str(tmp_path / "d"), "--duration-s", "-1"]) == 2
+    _one_line_error(capsys, "duration_s = -1.0", "> 0")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt"]
