@@ -150,3 +150,11 @@ def test_demo_bad_output_or_duration_is_a_user_error(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "d"), "--duration-s", "-1"]) == 2
     _one_line_error(capsys, "duration_s = -1.0", "> 0")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file.txt"]
+
+
+def test_regress_junit_place_checked_before_running(tmp_path, capsys):
+    junit = tmp_path / "nodir" / "junit.xml"
+    assert main(["regress", str(replay_dir() / "ident-current.toml"), "--junit", str(junit)]) == 2
+    _one_line_error(capsys, "junit.xml", "does not exist")
+    assert main(["regress", str(replay_dir() / "ident-current.toml"), "--junit", str(tmp_path)]) == 2
+    _one_line_error(capsys, "output is a directory")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..baseline import junit_xml
 from ..errors import ConfigError, StorageError
-from ..io.atomic import write_text_atomic
+from ..io.atomic import check_output, write_text_atomic
 from ..io.baselines import (find_regress_scenarios, format_baseline, load_regress_scenario, read_baseline,
                             write_baseline)
 from ..regress import ScenarioOutcome, accept, run_scenario
@@ -81,6 +81,10 @@ def _progress(total: int):
 def run(args) -> int:
     if args.jobs < 1:
         raise ConfigError(f"--jobs {args.jobs} must be >= 1")
+    if args.junit:  # the report's place is checked before the scenarios run, not after
+        junit = check_output(args.junit, force=True)
+        if not (junit.parent if str(junit.parent) else Path(".")).is_dir():
+            raise StorageError(f"{junit}: directory {junit.parent} does not exist")
     paths = find_regress_scenarios(args.paths or [replay_dir()])
     if not paths:
         raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")
