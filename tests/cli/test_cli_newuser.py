@@ -158,3 +158,19 @@ def test_regress_junit_place_checked_before_running(tmp_path, capsys):
     _one_line_error(capsys, "junit.xml", "does not exist")
     assert main(["regress", str(replay_dir() / "ident-current.toml"), "--junit", str(tmp_path)]) == 2
     _one_line_error(capsys, "output is a directory")
+
+
+@pytest.mark.parametrize("argv", [
+    ["estimate", "{log}", "--out", "{nodir}/e.mcap"],
+    ["identify", "{log}", "--out", "{nodir}/p.toml"],
+    ["identify", "{log}", "--out", "{tmp}/p.toml", "--out-log", "{nodir}/fit.mcap"],
+    ["replay", "{log}", "--scenario", "paper-circle", "--out", "{nodir}/r.mcap"],
+    ["simulate", "excitation", "--out", "{nodir}/s.mcap"],
+    ["view", "{log}", "--out", "{nodir}/v.rrd"],
+])
+def test_output_in_a_missing_directory_fails_before_the_work(argv, excitation_file, tmp_path, capsys):
+    fill = {"log": str(excitation_file), "nodir": str(tmp_path / "nodir"), "tmp": str(tmp_path)}
+    assert main([a.format(**fill) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nodir" in err[0] and "does not exist" in err[0], err  # refused before any progress
+    assert not list(tmp_path.iterdir())  # and no other output written either

@@ -30,7 +30,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     settings = EstimateSettings(model=args.model, current=args.current, tune=args.tune,
                                 gate_probability=args.gate, smoother=not args.no_smoother)
     log = read_log(args.log)

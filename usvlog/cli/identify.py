@@ -70,9 +70,9 @@ def fit_log(idf: Identifier, log):
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     if args.out_log:
-        check_output(args.out_log, args.force)
+        check_output(args.out_log, args.force, parent=True)
     fix = parse_fix(args.fix)
     idf = Identifier(args.method, fix=fix, current=not args.no_current, holdout=args.holdout)
     vessel = load_vessel(args.vessel) if args.vessel else None

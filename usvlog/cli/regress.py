@@ -82,9 +82,7 @@ def run(args) -> int:
     if args.jobs < 1:
         raise ConfigError(f"--jobs {args.jobs} must be >= 1")
     if args.junit:  # the report's place is checked before the scenarios run, not after
-        junit = check_output(args.junit, force=True)
-        if not (junit.parent if str(junit.parent) else Path(".")).is_dir():
-            raise StorageError(f"{junit}: directory {junit.parent} does not exist")
+        check_output(args.junit, True, parent=True)
     paths = find_regress_scenarios(args.paths or [replay_dir()])
     if not paths:
         raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")

@@ -33,7 +33,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     scen = load_scenario(args.scenario)
     gains = None
     if args.gains:

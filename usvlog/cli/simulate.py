@@ -76,7 +76,7 @@ def settings_from_args(args) -> SimSettings:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)  # fail before the work, not after
+    check_output(args.out, args.force, parent=True)  # fail before the work, not after
     if args.scenario not in SCENARIOS:
         p = Path(args.scenario)
         if not (p.suffix == ".toml" or p.exists() or "/" in args.scenario
