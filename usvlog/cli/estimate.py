@@ -22,7 +22,7 @@ def register(sub) -> None:
     p.add_argument("--no-current", dest="current", action="store_false", help="no current states")
     p.add_argument("--tune", action="store_true",
                    help="pick process noise by maximising the innovation likelihood")
-    p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate")
+    p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate (default 0.9999)")
     p.add_argument("--no-smoother", action="store_true", help="forward filter only")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
