@@ -311,11 +311,16 @@ def _fig_fit_track(plt, log, axes: _Axes):
     return fig
 
 
-def _save(fig, path: Path, force: bool) -> None:
-    plt = _plt()
-    with atomic_path(path, force=force) as tmp:
-        fig.savefig(tmp, format="png")
-    plt.close(fig)
+def _render(fig) -> bytes:
+    """The figure as PNG bytes (the files are written only once every figure has rendered)."""
+    import io
+
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png")
+    finally:
+        _plt().close(fig)
+    return buf.getvalue()
 
 
 def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *, baseline: FieldLog | None = None,
@@ -331,7 +336,6 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
         log, baseline = log[0], (log[1] if len(log) == 2 else baseline)
     ax_mode = _Axes(axes)
     out = check_report_outputs(out_dir, force)
-    out.mkdir(parents=True, exist_ok=True)
     plt = _plt()
     path = vd.path_polyline(log)
     figs = [
@@ -351,14 +355,21 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
         ("fit_track.png", "Identification fit: measured vs simulated track",
          lambda: _fig_fit_track(plt, log, ax_mode), "/identify/fit"),
     ]
-    shown, missing = [], []
+    shown, missing, pngs = [], [], []
     for name, caption, make, needs in figs:
         fig = make()
         if fig is None:
             missing.append((caption, needs))
             continue
-        _save(fig, out / name, force)
+        pngs.append((name, _render(fig)))
         shown.append((name, caption))
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StorageError(f"{out}: cannot create directory ({err.strerror})") from err
+    for name, data in pngs:
+        with atomic_path(out / name, force=force) as tmp:
+            Path(tmp).write_bytes(data)
     page = out / PAGE
     write_text_atomic(page, _html(log, baseline, shown, missing, AXES_NOTE[axes]), force=force)
     return page

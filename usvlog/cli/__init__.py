@@ -31,8 +31,15 @@ VERBS = [
 ]
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the verb's usage is under --help)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="usvlog",
         description="Field logs of small unmanned surface vessels: import, estimate, identify, replay, view.")
     parser.add_argument("--version", action="version", version=f"usvlog {__version__}")
@@ -40,6 +47,17 @@ def build_parser() -> argparse.ArgumentParser:
     for name in VERBS:
         importlib.import_module(f".{name}", __name__).register(sub)
     return parser
+
+
+def interrupted(err: BaseException) -> bool:
+    """True when ``err`` was caused by a KeyboardInterrupt (directly or down its chain)."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return False
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,6 +78,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except Exception as err:  # a bug: one line, traceback on request
+        if interrupted(err):  # Ctrl-C inside compiled code arrives wrapped (numba: SystemError)
+            print(f"usvlog {args.verb}: interrupted", file=sys.stderr)
+            return 130
         if os.environ.get("USVLOG_DEBUG"):
             raise
         print(f"usvlog {args.verb}: internal error: {type(err).__name__}: {err} "

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import StorageError
 from ..estimate import EstimateSettings, estimate
 from ..frames import ssa
 from ..io.atomic import write_text_atomic
@@ -23,9 +24,11 @@ from .common import stage
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in simulated run")
-    p.add_argument("--out", default="usvlog-demo", help="output directory (default: usvlog-demo)")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--duration-s", type=float, default=600.0)
+    p.add_argument("--out", default="usvlog-demo",
+                   help="output directory (default: usvlog-demo); a re-run replaces the demo's own files in it")
+    p.add_argument("--seed", type=int, default=1, help="random seed of the simulated excitation run (default 1)")
+    p.add_argument("--duration-s", type=float, default=600.0,
+                   help="length of the simulated excitation run in seconds (default 600)")
     p.set_defaults(func=run)
 
 
@@ -42,11 +45,16 @@ class _Stages:
 
 def run(args) -> int:
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)  # checked first
+    if out.exists() and not out.is_dir():
+        raise StorageError(f"{out}: output is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise StorageError(f"{out}: cannot create directory ({err.strerror})") from err
     step = _Stages()
     raw = out / "excitation.mcap"
     step(f"simulate: excitation run, {args.duration_s:.0f} s, 0.2 m/s current -> {raw}")
-    settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)
     write_log(simulate("excitation", settings, seed=args.seed), raw, force=True)
     step("inspect")
     log = read_log(raw)

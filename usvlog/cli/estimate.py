@@ -27,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--sway-damping", action=argparse.BooleanOptionalAction, default=None,
                    help="kinematic model in the body frame with an estimated sway damping (better u, v; "
                         "default: on for the kinematic model)")
-    p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate")
+    p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate (default 0.9999)")
     p.add_argument("--no-smoother", action="store_true", help="forward filter only")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
@@ -35,7 +35,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     settings = EstimateSettings(model=args.model, current=args.current, tune=args.tune,
                                 gate_probability=args.gate, smoother=not args.no_smoother,
                                 sway_damping=args.sway_damping)

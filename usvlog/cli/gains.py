@@ -4,13 +4,16 @@ from __future__ import annotations
 
 from ..control.gains import check_gains
 from ..errors import ConfigError
-from ..io.config import load_gains, load_vessel, load_vessel_or_scenario_vessel, read_toml
+from ..io.config import (load_gains, load_vessel, load_vessel_or_scenario_vessel, read_toml,
+                         scenario_path)
 from .common import print_json
 
 
 def register(sub) -> None:
     p = sub.add_parser("gains", help="check controller gains against Theorem 3.1 (exit 1 when a condition fails)")
-    p.add_argument("--gains", required=True, help="gains TOML ([gains], [guidance]) or a scenario file")
+    p.add_argument("--gains", default="paper-circle",
+                   help="gains TOML ([gains], [guidance]), a scenario file, or the name of a shipped "
+                        "scenario (default: paper-circle, the paper's Section IV gains and vessel)")
     p.add_argument("--vessel", default=None,
                    help="vessel TOML (default: the scenario's [vessel] when --gains is a scenario, "
                         "else the paper's Section IV vessel)")
@@ -23,6 +26,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    args.gains = scenario_path(args.gains)
     gains, _ = load_gains(args.gains)
     if args.vessel:
         vessel = load_vessel_or_scenario_vessel(args.vessel)

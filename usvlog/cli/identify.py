@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..channels import codec_for_topic, frame_from_columns
@@ -48,6 +50,10 @@ def parse_fix(items: list[str]) -> dict[str, float]:
             out[name] = float(value)
         except ValueError:
             raise ConfigError(f"--fix {it!r}: {value!r} is not a number") from None
+        v = out[name]
+        if not math.isfinite(v) or (name in ("m", "Iz") and v <= 0) or (name.startswith("d") and v < 0):
+            bound = "> 0" if name in ("m", "Iz") else ">= 0" if name.startswith("d") else "finite"
+            raise ConfigError(f"--fix {it!r}: {name} must be {bound}")
     return out
 
 
@@ -64,9 +70,9 @@ def fit_log(idf: Identifier, log):
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     if args.out_log:
-        check_output(args.out_log, args.force)
+        check_output(args.out_log, args.force, parent=True)
     fix = parse_fix(args.fix)
     idf = Identifier(args.method, fix=fix, current=not args.no_current, holdout=args.holdout)
     vessel = load_vessel(args.vessel) if args.vessel else None

@@ -7,8 +7,8 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from ..baseline import junit_xml
-from ..errors import ConfigError
-from ..io.atomic import write_text_atomic
+from ..errors import ConfigError, StorageError
+from ..io.atomic import check_output, write_text_atomic
 from ..io.baselines import (find_regress_scenarios, format_baseline, load_regress_scenario, read_baseline,
                             write_baseline)
 from ..regress import ScenarioOutcome, accept, run_scenario
@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--update", action="store_true", help="accept the current metrics as the new baselines")
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML for a CI system")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--jobs", type=int, default=1, help="scenarios run in parallel processes")
+    p.add_argument("--jobs", type=int, default=1, help="scenarios run in this many parallel processes (default 1)")
     p.set_defaults(func=run)
 
 
@@ -31,6 +31,20 @@ def run_one(path: str) -> ScenarioOutcome:
     """Load a scenario and its baseline, run it (top level: runs in worker processes)."""
     scn = load_regress_scenario(path)
     return run_scenario(scn, read_baseline(scn.baseline))
+
+
+def check_datasets(paths, *, shipped: bool) -> None:
+    """Every scenario's recorded run must exist: a missing one is the user's error, before any work."""
+    scns = [load_regress_scenario(p) for p in paths]
+    missing = [s for s in scns if not s.dataset.exists()]
+    if not missing:
+        return
+    hint = ""
+    if shipped and len(missing) == len(scns):
+        hint = ("; the shipped scenarios' datasets are in tests/data/ of a source checkout, not in the installed "
+                "package: run usvlog regress in a checkout, or give your own scenarios")
+    raise StorageError(f"{missing[0].dataset}: dataset of scenario {missing[0].name} not found "
+                       f"({len(missing)} of {len(scns)} scenarios miss theirs){hint}")
 
 
 def format_table(outcomes: list[ScenarioOutcome]) -> str:
@@ -67,9 +81,12 @@ def _progress(total: int):
 def run(args) -> int:
     if args.jobs < 1:
         raise ConfigError(f"--jobs {args.jobs} must be >= 1")
+    if args.junit:  # the report's place is checked before the scenarios run, not after
+        check_output(args.junit, True, parent=True)
     paths = find_regress_scenarios(args.paths or [replay_dir()])
     if not paths:
         raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")
+    check_datasets(paths, shipped=not args.paths)
     bar = _progress(len(paths))
     outcomes: list[ScenarioOutcome] = []
     if args.jobs == 1 or len(paths) == 1:

@@ -14,7 +14,8 @@ from .common import print_json, stage
 def register(sub) -> None:
     p = sub.add_parser("replay", help="replay a recorded run through guidance + controller, and a what-if run")
     p.add_argument("log", help="recorded run (canonical MCAP)")
-    p.add_argument("--scenario", required=True, help="scenario TOML or name in replay/ (path, gains, guidance, speed)")
+    p.add_argument("--scenario", required=True, help="closed-loop scenario: a TOML file (path, gains, guidance, speed) or "
+                        "a shipped name (paper-circle, paper-sine)")
     p.add_argument("--gains", default=None,
                    help="gains TOML overriding the scenario's [gains] (and [guidance] when it has one)")
     p.add_argument("--vessel", default=None,
@@ -32,7 +33,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)
+    check_output(args.out, args.force, parent=True)
     scen = load_scenario(args.scenario)
     gains = None
     if args.gains:

@@ -1,18 +1,20 @@
 from __future__ import annotations
 
 from dataclasses import replace as dc_replace
+from pathlib import Path
 
 from ..errors import ConfigError
 from ..io.atomic import check_output
-from ..io.config import load_vessel
+from ..io.config import closed_loop_scenarios, load_vessel
 from ..io.mcapio import write_log
+from ..resources import replay_dir
 from ..simulate import SCENARIOS, SensorSettings, SimSettings, simulate
 from .common import stage
 
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario of the paper's plant into a canonical log")
-    p.add_argument("scenario", help="built-in open-loop scenario (excitation), a closed-loop scenario name "
+    p.add_argument("scenario", help="built-in open-loop scenario (excitation, turns, straight), a closed-loop scenario name "
                                     "in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
                                     "closed-loop scenario takes its settings from the file (only --duration-s, "
                                     "--seed, --vessel, --controller and --truth-rate-hz override them)")
@@ -74,8 +76,13 @@ def settings_from_args(args) -> SimSettings:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force)  # fail before the work, not after
+    check_output(args.out, args.force, parent=True)  # fail before the work, not after
     if args.scenario not in SCENARIOS:
+        p = Path(args.scenario)
+        if not (p.suffix == ".toml" or p.exists() or "/" in args.scenario
+                or (replay_dir() / f"{args.scenario}.toml").exists()):
+            raise ConfigError(f"no scenario {args.scenario!r} (open loop: {', '.join(SCENARIOS)}; closed loop: "
+                              f"{', '.join(closed_loop_scenarios())}; or a scenario TOML file)")
         return run_closed_loop(args)
     settings = settings_from_args(args)
     seed = 0 if args.seed is None else args.seed

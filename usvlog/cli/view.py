@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..io.atomic import check_output
 from ..io.mcapio import read_log
 from .common import stage
@@ -28,9 +28,11 @@ def run(args) -> int:
     from .. import viz  # rerun is imported only when a verb needs it
 
     out = Path(args.out) if args.out else Path(args.logs[0]).with_suffix(".rrd")
-    check_output(out, args.force)  # fail before the work, not after
+    check_output(out, args.force, parent=True)  # fail before the work, not after
     if args.name is not None and len(args.name) != len(args.logs):
         raise InputError(f"--name given {len(args.name)} times for {len(args.logs)} logs")
+    if args.port is not None and not 1 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port}: not a TCP port (1 to 65535)")
     logs = []
     for path in args.logs:
         stage(f"reading {path}")

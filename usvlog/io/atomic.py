@@ -21,12 +21,20 @@ def reading(path):
         raise StorageError(f"{path}: cannot read ({err.strerror})") from err
 
 
-def check_output(path, force: bool) -> Path:
+def check_output(path, force: bool, *, parent: bool = False) -> Path:
+    """Refuse an existing output without ``force``; with ``parent``, also a missing directory.
+
+    Verbs call it (with ``parent=True``) before their work, so a bad ``--out`` fails at once.
+    """
     p = Path(path)
     if p.exists() and not force:
         raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
     if p.exists() and p.is_dir():
         raise StorageError(f"{p}: output is a directory")
+    if parent:
+        d = p.parent if str(p.parent) else Path(".")
+        if not d.is_dir():
+            raise StorageError(f"{p}: directory {d} does not exist")
     return p
 
 

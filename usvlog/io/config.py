@@ -42,9 +42,24 @@ def scenario_path(name_or_path) -> Path:
         return p
     cand = replay_dir() / f"{name_or_path}.toml"
     if not cand.exists():
-        have = ", ".join(sorted(q.stem for q in replay_dir().glob("*.toml"))) or "none"
-        raise StorageError(f"no scenario {name_or_path!r} (file or name in replay/: {have})")
+        have = ", ".join(closed_loop_scenarios()) or "none"
+        raise StorageError(f"no scenario {name_or_path!r} (a file, or a name in replay/: {have})")
     return cand
+
+
+def closed_loop_scenarios() -> list[str]:
+    """Names of the shipped closed-loop scenarios (regression-only ones, ``[dataset]`` without ``[path]``, left out)."""
+    from ..resources import replay_dir
+
+    names = []
+    for q in sorted(replay_dir().glob("*.toml")):
+        try:
+            doc = tomllib.loads(q.read_text())
+            if "path" in doc or "dataset" not in doc:
+                names.append(q.stem)
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            continue
+    return names
 
 
 def load_scenario(name_or_path, *, vessel=None):
@@ -53,6 +68,9 @@ def load_scenario(name_or_path, *, vessel=None):
 
     path = scenario_path(name_or_path)
     doc = read_toml(path)
+    if "dataset" in doc and "path" not in doc:
+        raise ConfigError(f"{path}: a regression scenario ([dataset]): run it with usvlog regress; closed-loop "
+                          f"scenarios: {', '.join(closed_loop_scenarios())} or a file like them")
     vdoc = doc.get("vessel")
     if vessel is None and isinstance(vdoc, dict) and "file" in vdoc:
         extra = set(vdoc) - {"file"}

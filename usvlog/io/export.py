@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError, StorageError
 from ..log import FieldLog
-from .atomic import atomic_path
+from .atomic import atomic_path, check_output
 
 
 def channel_filename(topic: str, fmt: str) -> str:
@@ -18,6 +18,8 @@ def export_log(log: FieldLog, out_dir, *, fmt: str = "csv", force: bool = False)
     if fmt not in ("csv", "parquet"):
         raise ConfigError(f"export format {fmt!r} is not csv or parquet")
     out = Path(out_dir)
+    for topic in log.topics:  # every output checked before the first is written
+        check_output(out / channel_filename(topic, fmt), force)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
