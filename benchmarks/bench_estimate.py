@@ -2,7 +2,7 @@
 filterpy loop (+ numpy RTS smoother) against the compiled fast path, side by side.
 
     python benchmarks/bench_estimate.py [--duration-s 3600] [--model kinematic|dynamic]
-                                        [--reference-s SECONDS] [--sway-damping]
+                                        [--reference-s SECONDS] [--[no-]sway-damping]
 
 ``--reference-s`` times the filterpy loop on the first SECONDS only and scales its time
 to the whole run (the loop's cost is linear in the number of steps).
@@ -39,7 +39,8 @@ def main() -> None:
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--model", default="dynamic", choices=["kinematic", "dynamic"])
     ap.add_argument("--reference-s", type=float, default=None)
-    ap.add_argument("--sway-damping", action="store_true", help="the kinematic model with sway damping")
+    ap.add_argument("--sway-damping", action=argparse.BooleanOptionalAction, default=None,
+                    help="kinematic model with sway damping (default: as EstimateSettings, on for kinematic)")
     args = ap.parse_args()
 
     t = time.perf_counter()
