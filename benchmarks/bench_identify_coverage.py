@@ -14,6 +14,11 @@ import time
 
 import numpy as np
 
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
+
 from usvlog.identify import Identifier
 from usvlog.simulate import SimSettings, simulate
 from usvlog.vessel import PARAM_NAMES, VesselParams
