@@ -24,9 +24,9 @@ TALKERS = st.sampled_from(["GP", "GN", "GL", "GA", "HE", "HC", "II"])
 
 def _dm(deg: float, lat: bool) -> tuple[str, str]:
     hemi = ("N" if deg >= 0 else "S") if lat else ("E" if deg >= 0 else "W")
-    a = abs(deg)
-    d = int(a)
-    m = (a - d) * 60.0
+    a = round(abs(deg) * 60.0, 6)          # minutes, rounded as printed (59.9999996 -> next degree)
+    d, m = divmod(a, 60.0)
+    d = int(d)
     return (f"{d:02d}" if lat else f"{d:03d}") + f"{m:09.6f}", hemi
 
 
