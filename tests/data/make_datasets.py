@@ -72,13 +72,6 @@ def make_csv(path: Path) -> None:
     write_merged_csv(_source_run(60.0, 21), path, force=True)
 
 
-def _cs(body: str) -> str:
-    c = 0
-    for ch in body:
-        c ^= ord(ch)
-    return f"${body}*{c:02X}"
-
-
 def _dm(deg: float, lat: bool) -> tuple[str, str]:
     hemi = ("N" if deg >= 0 else "S") if lat else ("E" if deg >= 0 else "W")
     a = abs(deg)
@@ -88,6 +81,8 @@ def _dm(deg: float, lat: bool) -> tuple[str, str]:
 
 
 def make_nmea(path: Path) -> None:
+    from usvlog.nmea import with_checksum as _cs
+
     log = _source_run(90.0, 22)
     lines = []
     gps, hd = log["/gnss/fix"], log["/compass/heading"]
