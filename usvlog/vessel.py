@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 from numba.extending import register_jitable
 
+from .checks import require_finite
 from .errors import ConfigError, InputError
 
 PARAM_NAMES = ("m", "Iz", "d11", "d22", "d33", "xg")
@@ -38,10 +39,7 @@ class VesselParams:
     xg: float = 0.1
 
     def __post_init__(self):
-        for f in PARAM_NAMES:
-            v = getattr(self, f)
-            if not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"vessel parameter {f} = {v!r} is not a finite number")
+        require_finite(self, PARAM_NAMES, "vessel parameter")
         if self.m <= 0:
             raise ConfigError(f"vessel parameter m = {self.m} must be > 0")
         if self.Iz <= 0:

@@ -30,6 +30,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from ..checks import require_finite
 from ..errors import ConfigError
 from ..vessel import VesselParams
 
@@ -47,12 +48,10 @@ class Gains:
     KDpsi: float = 1.0
 
     def __post_init__(self):
+        require_finite(self, GAIN_NAMES, "gain")
         for f in GAIN_NAMES:
-            v = getattr(self, f)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f"gain {f} = {v!r} is not a finite number")
-            if v < 0:
-                raise ConfigError(f"gain {f} = {v} must be >= 0")
+            if getattr(self, f) < 0:
+                raise ConfigError(f"gain {f} = {getattr(self, f)} must be >= 0")
 
     def as_array(self) -> np.ndarray:
         return np.array([getattr(self, f) for f in GAIN_NAMES], dtype=float)
