@@ -13,7 +13,7 @@ sys.path.insert(0, str(ROOT))
 
 def hour_log():
     """GPS 36k + compass 72k + thrust 360k = 468k messages (``/truth/state`` dropped)."""
-    from usvlog.simulate import SimSettings, simulate
+    from usvlog.sim.simulate import SimSettings, simulate
 
     log = simulate("excitation", SimSettings(duration_s=3600.0), seed=1)
     log.channels.pop("/truth/state", None)
@@ -21,7 +21,7 @@ def hour_log():
 
 
 def hour_file() -> Path:
-    from usvlog.io.mcapio import write_log
+    from usvlog.io.mcap import write_log
 
     if not HOUR.exists():
         OUT.mkdir(parents=True, exist_ok=True)

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from usvlog.estimate import EstimateSettings, estimate  # noqa: E402
-from usvlog.frames import ssa  # noqa: E402
-from usvlog.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
+from usvlog.model.frames import ssa  # noqa: E402
+from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
 
 
 def errors(frame, truth) -> dict:

@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from usvlog.estimate import EstimateSettings, build_problem  # noqa: E402
 from usvlog.estimate.core import process_noise, run_fast, run_reference_path  # noqa: E402
-from usvlog.simulate import SimSettings, simulate  # noqa: E402
-from usvlog.vessel import default_vessel  # noqa: E402
+from usvlog.model.vessel import default_vessel  # noqa: E402
+from usvlog.sim.simulate import SimSettings, simulate  # noqa: E402
 
 
 def head(pb, k):

@@ -6,18 +6,15 @@
 from __future__ import annotations
 
 import argparse
-import time
-
-import numpy as np
-
 import sys  # noqa: E402
+import time
 from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
 from usvlog.identify import Identifier
-from usvlog.simulate import SimSettings, simulate
-from usvlog.vessel import PARAM_NAMES, VesselParams
+from usvlog.model.vessel import PARAM_NAMES, VesselParams
+from usvlog.sim.simulate import SimSettings, simulate
 
 
 def main() -> None:

@@ -14,7 +14,6 @@ import sys
 import time
 
 import orjson
-
 from _log import hour_file
 
 
@@ -63,7 +62,7 @@ def peak_rss_mb(path, load: bool) -> float:
 
 
 def main() -> None:
-    from usvlog.io.mcapio import read_log
+    from usvlog.io.mcap import read_log
 
     path = hour_file()
     base, peak = peak_rss_mb(path, False), peak_rss_mb(path, True)

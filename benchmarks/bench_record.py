@@ -27,7 +27,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from usvlog.io.mcapio import read_log  # noqa: E402
+from usvlog.io.mcap import read_log  # noqa: E402
 from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target  # noqa: E402
 
 

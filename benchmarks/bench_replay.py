@@ -10,10 +10,9 @@ simulation, and the compiled controller kernel alone. Prints the figures.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from dataclasses import replace
-
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # run from a checkout
 
 from usvlog.control.law import Controller, speed_at
-from usvlog.io.config import load_scenario
-from usvlog.replay import replay_log, simulate_scenario
+from usvlog.replay import replay_log
+from usvlog.sim.closed_loop import simulate_scenario
+from usvlog.sim.scenario import load_scenario
 
 
 def main() -> None:

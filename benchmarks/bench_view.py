@@ -23,9 +23,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-from usvlog.channels import codec_for_topic, frame_from_columns
-from usvlog.simulate import SimSettings, simulate
-from usvlog.viz import to_rrd
+from usvlog.log.channels import codec_for_topic, frame_from_columns
+from usvlog.sim.simulate import SimSettings, simulate
+from usvlog.view.rrd import to_rrd
 
 
 def hour_log(duration_s: float):

@@ -25,7 +25,7 @@ def best_of(fn, n=3):
 
 
 def main() -> None:
-    from usvlog.io.mcapio import _write_log_reference, read_log, write_log
+    from usvlog.io.mcap import _write_log_reference, read_log, write_log
 
     log = read_log(hour_file())
     n = sum(len(f) for f in log.channels.values())

@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from usvlog.estimate import EstimateSettings, estimate  # noqa: E402
 from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS  # noqa: E402
-from usvlog.simulate import SimSettings, simulate  # noqa: E402
+from usvlog.sim.simulate import SimSettings, simulate  # noqa: E402
 
 
 def wiener_rms(x: np.ndarray, dt: float, noise_var: float, smooth_bins: int) -> float:

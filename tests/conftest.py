@@ -1,7 +1,7 @@
 import pytest
 
-from usvlog.io.mcapio import write_log
-from usvlog.simulate import SimSettings, simulate
+from usvlog.io.mcap import write_log
+from usvlog.sim.simulate import SimSettings, simulate
 
 
 @pytest.fixture(scope="session")

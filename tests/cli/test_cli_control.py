@@ -6,9 +6,10 @@ import pytest
 import usvlog
 from usvlog.cli import main
 from usvlog.control.paths import path_from_json
-from usvlog.io.config import load_scenario
-from usvlog.replay import replay_log, simulate_scenario
+from usvlog.replay import replay_log
 from usvlog.resources import replay_dir
+from usvlog.sim.closed_loop import simulate_scenario
+from usvlog.sim.scenario import load_scenario
 
 PC = str(replay_dir() / "paper-circle.toml")
 

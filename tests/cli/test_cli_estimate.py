@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from usvlog.cli import main
-from usvlog.io.mcapio import read_log, write_log
-from usvlog.simulate import SimSettings, simulate
+from usvlog.io.mcap import read_log, write_log
+from usvlog.sim.simulate import SimSettings, simulate
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +67,7 @@ def test_estimate_missing_channel_one_line(tmp_path, capsys):
 
 
 def test_estimate_vessel_file_is_used(current_file, tmp_path, capsys):
-    from usvlog.vessel import default_vessel
+    from usvlog.model.vessel import default_vessel
 
     v = default_vessel().with_params(m=40.0)
     toml = tmp_path / "boat.toml"

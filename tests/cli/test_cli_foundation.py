@@ -39,7 +39,7 @@ def test_bad_files_one_line_exit_2(tmp_path, capsys):
 
 
 def test_inspect_reports_damage(tmp_path, excitation_log, capsys):
-    from usvlog.io.mcapio import write_log
+    from usvlog.io.mcap import write_log
 
     p = tmp_path / "cut.mcap"
     write_log(excitation_log, tmp_path / "full.mcap", chunk_size=64 * 1024)
@@ -53,7 +53,7 @@ def test_inspect_reports_damage(tmp_path, excitation_log, capsys):
 def test_export_csv_round_trip(tmp_path, excitation_file):
     import pandas as pd
 
-    from usvlog.io.mcapio import read_log
+    from usvlog.io.mcap import read_log
 
     assert main(["export", str(excitation_file), "--out", str(tmp_path / "csv")]) == 0
     back = pd.read_csv(tmp_path / "csv" / "compass__heading.csv", index_col="t_ns")

@@ -5,8 +5,8 @@ import pytest
 
 from usvlog.cli import main
 from usvlog.io.config import load_vessel
-from usvlog.io.mcapio import read_log
-from usvlog.vessel import PARAM_NAMES
+from usvlog.io.mcap import read_log
+from usvlog.model.vessel import PARAM_NAMES
 
 
 def test_identify_equation_error_writes_vessel_json_and_fit_channel(excitation_file, tmp_path, capsys):
@@ -44,8 +44,8 @@ def test_identify_refuses_existing_output_bad_holdout_and_bad_fix(excitation_fil
 
 
 def test_identify_output_error_validate_on_another_manoeuvre(tmp_path, capsys):
-    from usvlog.io.mcapio import write_log
-    from usvlog.simulate import SensorSettings, SimSettings, simulate
+    from usvlog.io.mcap import write_log
+    from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
     sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
     ex, tu = tmp_path / "ex.mcap", tmp_path / "turns.mcap"

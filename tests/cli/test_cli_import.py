@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from usvlog.cli import main
-from usvlog.io.mcapio import read_log
+from usvlog.io.mcap import read_log
 
 T0_S = 1_714_557_600.0
 

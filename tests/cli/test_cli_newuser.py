@@ -88,9 +88,9 @@ def test_regress_missing_dataset_is_one_line_before_any_work(tmp_path, capsys):
 
 
 def test_interrupted_report_writes_nothing(tmp_path, monkeypatch):
-    from usvlog import report
-    from usvlog.io.config import load_scenario
-    from usvlog.replay import simulate_scenario
+    from usvlog.sim.closed_loop import simulate_scenario
+    from usvlog.sim.scenario import load_scenario
+    from usvlog.view import report
 
     log = simulate_scenario(load_scenario("paper-circle"), duration_s=20.0)
 

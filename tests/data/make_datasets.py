@@ -60,7 +60,7 @@ DROP = {"paper-sine": ["/control/state", "/estimate/state"]}
 
 
 def _source_run(seconds: float, seed: int):
-    from usvlog.simulate import SimSettings, simulate
+    from usvlog.sim.simulate import SimSettings, simulate
 
     return simulate("excitation", SimSettings(duration_s=seconds, current_mps=0.1, current_dir_deg=200.0),
                     seed=seed)
@@ -81,7 +81,7 @@ def _dm(deg: float, lat: bool) -> tuple[str, str]:
 
 
 def make_nmea(path: Path) -> None:
-    from usvlog.nmea import with_checksum as _cs
+    from usvlog.io.nmea import with_checksum as _cs
 
     log = _source_run(90.0, 22)
     lines = []
@@ -152,7 +152,7 @@ SOURCES = {"imported-csv": ("kingfisher-merged.csv", make_csv), "imported-nmea":
 
 def make(name: str) -> Path:
     from usvlog.cli import main
-    from usvlog.io.mcapio import read_log, write_log
+    from usvlog.io.mcap import read_log, write_log
 
     argv, _ = DATASETS[name]
     out = HERE / f"{name}.mcap"

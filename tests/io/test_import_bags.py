@@ -135,7 +135,7 @@ def test_bag_custom_type_field_paths(bag):
     np.testing.assert_allclose(g["lat_deg"], LAT, atol=1e-7, rtol=0)
     np.testing.assert_allclose(g["lon_deg"], LON, atol=1e-7, rtol=0)
     np.testing.assert_array_equal(g.index.to_numpy() - g["stamp_ns"].to_numpy(), STAMP_LAG + 8_000_000)
-    from usvlog.frames import ssa
+    from usvlog.model.frames import ssa
 
     np.testing.assert_allclose(ssa(log["/compass/heading"]["heading_rad"] - PSI), 0.0, atol=1e-6)
     assert res.report.guesses["heading_unit"] == "deg"

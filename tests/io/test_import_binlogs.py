@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from import_fixtures import T0_NS, build_dataflash, build_ulog
+
 from usvlog.cli import main
 from usvlog.errors import FormatError
-from usvlog.frames import ssa
 from usvlog.io.importers import detect_format, import_file
-from usvlog.vessel import Thrusters, Vessel
+from usvlog.model.frames import ssa
+from usvlog.model.vessel import Thrusters, Vessel
 
 
 def test_dataflash_round_trip(tmp_path):

@@ -12,11 +12,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from usvlog.errors import FormatError, InputError, UsvlogError
-from usvlog.frames import ssa
 from usvlog.io.importers import import_file
-from usvlog.io.mcapio import read_log
-from usvlog.summary import skipped_counts
-from usvlog.vessel import Thrusters, Vessel
+from usvlog.io.mcap import read_log
+from usvlog.log.summary import skipped_counts
+from usvlog.model.frames import ssa
+from usvlog.model.vessel import Thrusters, Vessel
 
 T0 = 1_714_557_600_000_000_000  # 2024-05-01T10:00:00Z
 
@@ -367,7 +367,7 @@ def test_simulated_run_through_merged_csv_is_exact(tmp_path, excitation_log):
 def test_column_encoder_matches_codec_bytes(topic):
     """The column-wise message encoder (Codec.encode, the one the importer and write_log use)
     writes exactly what one orjson.dumps per row writes (Codec.encode_reference)."""
-    from usvlog.channels import codec_for_topic, frame_from_columns
+    from usvlog.log.channels import codec_for_topic, frame_from_columns
 
     codec = codec_for_topic(topic)
     rng = np.random.default_rng(7)
@@ -393,7 +393,7 @@ def test_imported_messages_validate_against_their_schemas(tmp_path):
     import jsonschema
     from mcap.reader import make_reader
 
-    from usvlog.channels import schema_by_name, schema_names
+    from usvlog.log.channels import schema_by_name, schema_names
 
     validators = {n: jsonschema.Draft202012Validator(schema_by_name(n)) for n in schema_names()}
     c = tmp_path / "merged.csv"

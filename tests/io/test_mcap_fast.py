@@ -15,14 +15,15 @@ import orjson
 import pandas as pd
 import pytest
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.records import Chunk, Message
+from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from usvlog.channels import Codec, _decode_layout, auto_schema, codec_for_topic
 from usvlog.errors import InputError
-from usvlog.io.mcapio import _read_log, _write_log_reference, read_log, write_log
-from usvlog.log import FieldLog
+from usvlog.io.mcap import read_log, write_log
+from usvlog.io.mcap.reference import _write_log_reference, read_log_reference
+from usvlog.log.channels import Codec, _decode_layout, auto_schema, codec_for_topic
+from usvlog.log.fieldlog import FieldLog
 
 T0 = 1_780_000_000 * 10**9
 TRIALS = int(os.environ.get("USVLOG_FUZZ_TRIALS", "25"))
@@ -140,7 +141,7 @@ def test_fast_read_matches_reference_and_library(tmp_path, compression):
     log = tricky_log()
     p = tmp_path / "t.mcap"
     write_log(log, p, chunk_size=16 * 1024, compression=compression)
-    fast, ref = read_log(p), _read_log(p, fast=False)
+    fast, ref = read_log(p), read_log_reference(p)
     assert_logs_equal(fast, ref)
     assert fast.recovery is None
     for t in log.topics:
@@ -172,7 +173,7 @@ def test_truncated_file_fast_equals_reference_and_library(tmp_path, excitation_l
     data = full.read_bytes()
     p = tmp_path / "cut.mcap"
     p.write_bytes(data[: int(cut * len(data))])
-    fast, ref = read_log(p), _read_log(p, fast=False)
+    fast, ref = read_log(p), read_log_reference(p)
     assert_logs_equal(fast, ref)
     rec = fast.recovery
     assert rec is not None and rec.bytes_recovered + rec.bytes_lost == len(p.read_bytes())
@@ -196,7 +197,7 @@ def test_corrupt_chunk_fast_equals_reference(tmp_path, excitation_log):
     data[mid:mid + 64] = bytes(64)
     p = tmp_path / "bad.mcap"
     p.write_bytes(bytes(data))
-    fast, ref = read_log(p), _read_log(p, fast=False)
+    fast, ref = read_log(p), read_log_reference(p)
     assert_logs_equal(fast, ref)
     rec = fast.recovery
     assert "corrupt" in rec.reason
@@ -237,7 +238,7 @@ def test_files_from_the_plain_mcap_writer(tmp_path, compression, chunked):
     p = tmp_path / "plain.mcap"
     data = _plain_writer_file(compression, chunked)
     p.write_bytes(data)
-    fast, ref = read_log(p), _read_log(p, fast=False)
+    fast, ref = read_log(p), read_log_reference(p)
     assert_logs_equal(fast, ref)
     assert fast.recovery is None
     a = fast["/a"]
@@ -257,7 +258,7 @@ def test_files_from_the_plain_mcap_writer(tmp_path, compression, chunked):
     # truncated versions too
     for cut in (0.45, 0.8):
         p.write_bytes(data[: int(cut * len(data))])
-        assert_logs_equal(read_log(p), _read_log(p, fast=False))
+        assert_logs_equal(read_log(p), read_log_reference(p))
 
 
 # -- the JSON codec -----------------------------------------------------------------
@@ -418,7 +419,7 @@ def test_damaged_bytes_read_the_same_both_ways(tmp_path, compression, chunked):
         outcomes = []
         for fast in (True, False):
             try:
-                outcomes.append(_read_log(p, fast=fast))
+                outcomes.append((read_log if fast else read_log_reference)(p))
             except InputError as err:
                 outcomes.append(type(err))
         if isinstance(outcomes[0], FieldLog) and isinstance(outcomes[1], FieldLog):

@@ -8,12 +8,12 @@ import pytest
 from mcap.reader import make_reader
 
 import usvlog
-from usvlog.channels import registered_topics, schema_by_name, schema_names
 from usvlog.errors import FormatError, InputError, OutputExistsError
-from usvlog.io.mcapio import read_log, write_log
-from usvlog.log import FieldLog
-from usvlog.simulate import SimSettings, simulate
+from usvlog.io.mcap import read_log, write_log
+from usvlog.log.channels import registered_topics, schema_by_name, schema_names
+from usvlog.log.fieldlog import FieldLog
 from usvlog.resources import schemas_dir
+from usvlog.sim.simulate import SimSettings, simulate
 
 
 def test_schema_files_are_valid_json_schemas_with_versioned_names():
@@ -69,7 +69,7 @@ def test_location_fix_is_foxglove_layout(excitation_file):
 
 
 def test_same_seed_gives_identical_file_bytes(tmp_path):
-    from usvlog.simulate import SimSettings, simulate
+    from usvlog.sim.simulate import SimSettings, simulate
 
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
     write_log(simulate("excitation", SimSettings(duration_s=20.0), seed=11), a)
@@ -144,7 +144,7 @@ def test_outputs_get_the_usual_file_mode(tmp_path, excitation_log):
 @pytest.mark.parametrize("chunk_size, compression", [(1 << 20, "zstd"), (8192, "lz4"), (3000, "none")])
 def test_write_log_is_the_mcap_writers_file(tmp_path, chunk_size, compression):
     """McapWriter (under write_log) writes the bytes the mcap library's Writer writes for the same log."""
-    from usvlog.io.mcapio import _write_log_reference
+    from usvlog.io.mcap.reference import _write_log_reference
 
     log = simulate("excitation", SimSettings(duration_s=15.0), seed=4)
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
@@ -158,7 +158,7 @@ def test_writer_streamed_in_batches_reads_back_whole(tmp_path):
     sequence numbers run on over batches, so row order is kept."""
     from mcap.reader import make_reader
 
-    from usvlog.io.mcapio import McapWriter
+    from usvlog.io.mcap import McapWriter
 
     log = simulate("excitation", SimSettings(duration_s=15.0), seed=5)
     p = tmp_path / "s.mcap"

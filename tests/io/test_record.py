@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 import os
-import socket
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -19,13 +19,12 @@ import pytest
 import usvlog
 from usvlog.cli import main as cli_main
 from usvlog.errors import InputError, OutputExistsError
-from usvlog.frames import Datum, ssa
-from usvlog.io.mcapio import read_log, read_logs
+from usvlog.io.mcap import read_log, read_logs
+from usvlog.io.nmea import with_checksum
 from usvlog.io.record import Recorder, record
 from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target
-from usvlog.nmea import with_checksum
-from usvlog.vessel import default_vessel
-
+from usvlog.model.frames import Datum, ssa
+from usvlog.model.vessel import default_vessel
 
 ROOT = Path(__file__).resolve().parents[2]
 T0 = 1_750_000_000 * 10**9
@@ -117,7 +116,7 @@ def test_recorded_file_is_standard_mcap_and_every_message_validates(tmp_path):
     import jsonschema
     from mcap.reader import make_reader
 
-    from usvlog.channels import schema_by_name
+    from usvlog.log.channels import schema_by_name
 
     out = tmp_path / "v.mcap"
     with Recorder(out, vessel=default_vessel()) as rec:

@@ -11,8 +11,12 @@ from pathlib import Path
 import pytest
 
 from usvlog.cli import main
-from usvlog.io.baselines import find_regress_scenarios, load_regress_scenario, read_baseline
-from usvlog.regress import run_scenario, run_stages
+from usvlog.regress.baselines import (
+    find_regress_scenarios,
+    load_regress_scenario,
+    read_baseline,
+)
+from usvlog.regress.stages import run_scenario, run_stages
 from usvlog.resources import replay_dir
 
 pytestmark = pytest.mark.regression
@@ -77,7 +81,7 @@ def test_scenario_passes_its_baseline(path):
 
 
 def test_results_are_deterministic():
-    from usvlog.io.mcapio import read_log
+    from usvlog.io.mcap import read_log
 
     scn = load_regress_scenario(REPLAY / "sine-ekf.toml")
     a = run_stages(scn, read_log(scn.dataset))

@@ -2,8 +2,8 @@ import xml.etree.ElementTree as ET
 
 import pytest
 
-from usvlog.baseline import BaselineEntry, compare, junit_xml, updated_baseline
 from usvlog.errors import ConfigError
+from usvlog.regress.gate import BaselineEntry, compare, junit_xml, updated_baseline
 
 B = {
     "cross_track_rms_m": BaselineEntry(value=0.10, worse="larger", abs_tol=0.01),

@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from usvlog.control.gains import Gains, check_gains, error_matrix
+from usvlog.control.gains import Gains, GuidanceSettings, check_gains, error_matrix
 from usvlog.control.law import COL, Controller, control_law
 from usvlog.control.paths import path_from_spec
-from usvlog.control.gains import GuidanceSettings
-from usvlog.io.config import load_scenario
-from usvlog.replay import closed_loop, replay_log, simulate_scenario
-from usvlog.vessel import Thrusters, Vessel, VesselParams, nu_dot_terms
+from usvlog.model.vessel import Thrusters, Vessel, VesselParams, nu_dot_terms
+from usvlog.replay import replay_log
+from usvlog.sim.closed_loop import closed_loop, simulate_scenario
+from usvlog.sim.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")

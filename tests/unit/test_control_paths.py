@@ -6,7 +6,7 @@ import pytest
 from usvlog.control.guidance import closest_point, initial_theta, reference_heading
 from usvlog.control.paths import path_from_spec
 from usvlog.errors import ConfigError
-from usvlog.frames import Datum, ned_to_geodetic
+from usvlog.model.frames import Datum, ned_to_geodetic
 
 SPECS = [
     {"type": "circle", "center_ne": [2.0, -3.0], "radius_m": 4.0, "direction": "cw", "start_deg": 30.0},

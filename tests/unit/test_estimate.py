@@ -8,15 +8,25 @@ import pandas as pd
 import pytest
 
 from usvlog.errors import ConfigError, InputError
-from usvlog.estimate import EstimateSettings, OnlineEKF, build_problem, estimate
-from usvlog.estimate import kernels
-from usvlog.estimate.core import process_noise, run_fast, run_reference_path, yaw_jump_variance
-from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS
+from usvlog.estimate import (
+    EstimateSettings,
+    OnlineEKF,
+    build_problem,
+    estimate,
+    kernels,
+)
+from usvlog.estimate.core import (
+    process_noise,
+    run_fast,
+    run_reference_path,
+    yaw_jump_variance,
+)
 from usvlog.estimate.reference import jacobian as ref_jacobian
 from usvlog.estimate.reference import rhs as ref_rhs
-from usvlog.frames import ssa
-from usvlog.simulate import SensorSettings, SimSettings, simulate
-from usvlog.vessel import VesselParams, default_vessel
+from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS
+from usvlog.model.frames import ssa
+from usvlog.model.vessel import VesselParams, default_vessel
+from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
 T0 = pd.Timestamp("2026-06-01T12:00:00Z").value
 
@@ -344,10 +354,11 @@ def test_time_backwards_and_missing_channels_are_one_line_errors():
 
 
 def test_to_log_round_trip(tmp_path):
-    from usvlog.channels import schema_for_topic
-    from usvlog.io.mcapio import read_log, write_log
     import jsonschema
     import orjson
+
+    from usvlog.io.mcap import read_log, write_log
+    from usvlog.log.channels import schema_for_topic
 
     log = simulate("excitation", SimSettings(duration_s=10.0, current_mps=0.1), seed=1)
     res = estimate(log, EstimateSettings(model="dynamic"))
@@ -361,7 +372,7 @@ def test_to_log_round_trip(tmp_path):
     assert list(inn["sensor"].unique()) == ["gnss", "compass"] or set(inn["sensor"]) == {"gnss", "compass"}
     assert inn["accepted"].dtype == bool and len(inn) == len(res.innovations)
     # the messages validate against the schemas
-    from usvlog.channels import codec_for_topic
+    from usvlog.log.channels import codec_for_topic
     for topic in ("/estimate/state", "/estimate/innovations"):
         msg = orjson.loads(codec_for_topic(topic).encode(out[topic].iloc[:3], topic)[1])
         jsonschema.validate(msg, schema_for_topic(topic))

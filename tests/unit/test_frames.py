@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from usvlog.errors import ConfigError
-from usvlog.frames import Datum, geodetic_to_ned, ned_to_geodetic, rot, ssa
+from usvlog.model.frames import Datum, geodetic_to_ned, ned_to_geodetic, rot, ssa
 
 D = Datum(lat_deg=43.4723, lon_deg=-80.5449)
 

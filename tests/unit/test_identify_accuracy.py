@@ -5,8 +5,8 @@ import pytest
 
 from usvlog.errors import ConfigError, InputError
 from usvlog.identify import Identifier
-from usvlog.simulate import SensorSettings, SimSettings, simulate
-from usvlog.vessel import PARAM_NAMES, VesselParams
+from usvlog.model.vessel import PARAM_NAMES, VesselParams
+from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
 TRUE = VesselParams()
 # the targets: relative error per parameter

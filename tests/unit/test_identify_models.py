@@ -6,8 +6,8 @@ import pytest
 from usvlog.identify.data import run_data
 from usvlog.identify.equation import LIN_NAMES, fit_equation_error, regressors
 from usvlog.identify.output import Problem, simulate_run
-from usvlog.simulate import SimSettings, simulate
-from usvlog.vessel import VesselParams, nu_dot
+from usvlog.model.vessel import VesselParams, nu_dot
+from usvlog.sim.simulate import SimSettings, simulate
 
 P = VesselParams(m=28.0, Iz=7.5, d11=4.0, d22=9.0, d33=2.5, xg=-0.15)
 

@@ -7,9 +7,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from usvlog.channels import codec_for_topic, frame_from_columns, registered_topics
-from usvlog.nmea import NmeaError, checksum, parse_sentence, resolve_time_of_day, with_checksum
-from usvlog.timesync import OffsetEstimator
+from usvlog.io.nmea import (
+    NmeaError,
+    checksum,
+    parse_sentence,
+    resolve_time_of_day,
+    with_checksum,
+)
+from usvlog.io.record.timesync import OffsetEstimator
+from usvlog.log.channels import codec_for_topic, frame_from_columns, registered_topics
 
 
 def test_checksum_of_a_published_sentence():
@@ -139,7 +145,7 @@ def test_encode_row_names_missing_column():
 
 
 def test_error_kinds_and_optional_checksum():
-    from usvlog.nmea import NmeaChecksumError, NmeaFieldError
+    from usvlog.io.nmea import NmeaChecksumError, NmeaFieldError
 
     good = "GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,"
     with pytest.raises(NmeaChecksumError):
@@ -192,8 +198,8 @@ def test_vtg_both_layouts():
 def test_parse_time_is_exact_to_the_nanosecond(text, dt_utc, extra_ns):
     """The one ISO 8601 reader (import --start-utc, NMEA line prefixes, simulate start_utc)."""
     from usvlog.io.importers import parse_start_utc
-    from usvlog.log import parse_time
-    from usvlog.simulate import start_ns
+    from usvlog.log.fieldlog import parse_time
+    from usvlog.sim.simulate import start_ns
 
     want = int(dt_utc.timestamp()) * 10**9 + extra_ns
     assert parse_time(text) == parse_start_utc(text) == start_ns(text) == want

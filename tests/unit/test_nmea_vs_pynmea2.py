@@ -16,8 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usvlog.frames import ssa
-from usvlog.nmea import NmeaChecksumError, NmeaError, parse_sentence, with_checksum
+from usvlog.io.nmea import NmeaChecksumError, NmeaError, parse_sentence, with_checksum
+from usvlog.model.frames import ssa
 
 TALKERS = st.sampled_from(["GP", "GN", "GL", "GA", "HE", "HC", "II"])
 

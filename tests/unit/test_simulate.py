@@ -1,10 +1,15 @@
 import numpy as np
 import pytest
 
-from usvlog.frames import geodetic_to_ned, ssa
-from usvlog.simulate import SimSettings, simulate
-from usvlog.summary import summarize
-from usvlog.vessel import coriolis_matrix, damping_matrix, mass_matrix, VesselParams
+from usvlog.log.summary import summarize
+from usvlog.model.frames import geodetic_to_ned, ssa
+from usvlog.model.vessel import (
+    VesselParams,
+    coriolis_matrix,
+    damping_matrix,
+    mass_matrix,
+)
+from usvlog.sim.simulate import SimSettings, simulate
 
 
 def _residual_of_eq3(truth, p):

@@ -2,9 +2,19 @@ import numpy as np
 import pytest
 
 from usvlog.errors import ConfigError
-from usvlog.vessel import (Thrusters, Vessel, VesselParams, coriolis_matrix, damping_matrix,
-                           mass_matrix, nu_dot, nu_dot_jacobian, plant_jacobian, plant_rhs,
-                           vessel_from_toml)
+from usvlog.model.vessel import (
+    Thrusters,
+    Vessel,
+    VesselParams,
+    coriolis_matrix,
+    damping_matrix,
+    mass_matrix,
+    nu_dot,
+    nu_dot_jacobian,
+    plant_jacobian,
+    plant_rhs,
+    vessel_from_toml,
+)
 
 P = VesselParams()
 

@@ -14,10 +14,15 @@ import math
 import numpy as np
 import pytest
 
-from usvlog.channels import codec_for_topic, frame_from_columns
-from usvlog.frames import ssa
-from usvlog.io.mcapio import write_log
-from usvlog.simulate import SensorSettings, SimSettings, field_log_from_run, plant_step
+from usvlog.io.mcap import write_log
+from usvlog.log.channels import codec_for_topic, frame_from_columns
+from usvlog.model.frames import ssa
+from usvlog.sim.simulate import (
+    SensorSettings,
+    SimSettings,
+    field_log_from_run,
+    plant_step,
+)
 
 R_PATH = 8.0
 
@@ -88,7 +93,7 @@ def make_view_log(duration_s: float = 90.0, seed: int = 4):
     log.set("/estimate/state", frame_from_columns(est, t_ns, codec_for_topic("/estimate/state")))
     # innovations: GPS residuals against truth; the jump is rejected
     gps = log["/gnss/fix"]
-    from usvlog.frames import geodetic_to_ned
+    from usvlog.model.frames import geodetic_to_ned
     gn, ge, _ = geodetic_to_ned(gps["lat_deg"].to_numpy(), gps["lon_deg"].to_numpy(), 0.0, datum=log.datum)
     tg = gps.index.to_numpy()
     k = np.searchsorted(t_ns, tg)

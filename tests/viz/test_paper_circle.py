@@ -1,26 +1,23 @@
-"""View and report on the real closed-loop channels (runs once the controller stage is merged)."""
+"""View and report on the real closed-loop channels."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-replay = pytest.importorskip("usvlog.replay")
-config = pytest.importorskip("usvlog.io.config")
-if not hasattr(replay, "simulate_scenario") or not hasattr(config, "load_scenario"):
-    pytest.skip("closed-loop scenarios not available", allow_module_level=True)
+from usvlog.sim.closed_loop import simulate_scenario
+from usvlog.sim.scenario import load_scenario
+from usvlog.view.report import write_report
+from usvlog.view.rrd import to_rrd
 
-from usvlog.report import write_report  # noqa: E402
-from usvlog.viz import to_rrd  # noqa: E402
-
-from .test_viz import read_rrd  # noqa: E402
+from .test_viz import read_rrd
 
 
 @pytest.fixture(scope="module")
 def circle_logs():
-    scen = config.load_scenario("paper-circle")
-    full = replay.simulate_scenario(scen, duration_s=110.0)
-    base = replay.simulate_scenario(scen, controller="baseline", duration_s=110.0)
+    scen = load_scenario("paper-circle")
+    full = simulate_scenario(scen, duration_s=110.0)
+    base = simulate_scenario(scen, controller="baseline", duration_s=110.0)
     return full, base
 
 

@@ -10,11 +10,11 @@ import sys
 import numpy as np
 import pytest
 
-from usvlog import viewdata as vd
 from usvlog.cli import main
 from usvlog.errors import OutputExistsError
-from usvlog.report import FIGURES, write_report
-from usvlog.simulate import SimSettings, simulate
+from usvlog.sim.simulate import SimSettings, simulate
+from usvlog.view import data as vd
+from usvlog.view.report import FIGURES, write_report
 
 
 def _png_size(path):

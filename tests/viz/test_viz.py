@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from usvlog import viewdata as vd
 from usvlog.cli import main
 from usvlog.errors import OutputExistsError
-from usvlog.frames import ssa
-from usvlog.io.mcapio import read_log
-from usvlog.simulate import SimSettings, simulate
-from usvlog.viz import OVERLAY_HZ, to_rrd, viewer_command
+from usvlog.io.mcap import read_log
+from usvlog.model.frames import ssa
+from usvlog.sim.simulate import SimSettings, simulate
+from usvlog.view import data as vd
+from usvlog.view.rrd import OVERLAY_HZ, to_rrd, viewer_command
 
 
 def read_rrd(path):
@@ -85,7 +85,7 @@ def test_gps_and_path_values(rrd, view_log):
     poly = np.array(json.loads(view_log.meta["usvlog.path"]["polyline_ne"]))
     assert strip[:, 0] == pytest.approx(poly[:, 1]) and strip[:, 1] == pytest.approx(-poly[:, 0])
     # and on the map the path goes back to the same metres through the datum
-    from usvlog.frames import geodetic_to_ned
+    from usvlog.model.frames import geodetic_to_ned
     ll = np.array(ents["/runs/circle/map/path"]["static"]["GeoLineStrings:line_strings"][0][0])
     n, e, _ = geodetic_to_ned(ll[:, 0], ll[:, 1], 0.0, datum=view_log.datum)
     assert np.hypot(n, e) == pytest.approx(8.0, abs=1e-6)
@@ -224,7 +224,7 @@ def test_cli_view_writes_rrd_next_to_log(view_file, capsys):
 
 
 def test_default_names_are_distinct(view_log):
-    from usvlog.viz import default_names
+    from usvlog.view.rrd import default_names
 
     a, b, c = view_log.copy(), view_log.copy(), view_log.copy()
     a.source, b.source, c.source = "/x/run 1.mcap", "/y/run 1.mcap", None
@@ -243,7 +243,7 @@ def test_guidance_lines_join_boat_closest_and_carrot(rrd, view_log):
 
 
 def test_map_zoom_fits_the_extent():
-    from usvlog.viz import map_zoom
+    from usvlog.view.rrd import map_zoom
 
     # 1 km east-west at the equator on 500 px: 2 m/px -> 156543 / 2^z = 2 -> z = log2(78271.5)
     box = np.array([[0.0, 0.0, 0.0, 1000.0 / 111_320.0]])

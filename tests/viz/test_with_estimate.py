@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from usvlog.estimate import EstimateSettings, estimate
-from usvlog.report import write_report
-from usvlog.simulate import SensorSettings, SimSettings, simulate
-from usvlog.viz import to_rrd
+from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
+from usvlog.view.report import write_report
+from usvlog.view.rrd import to_rrd
 
 from .test_viz import read_rrd
 

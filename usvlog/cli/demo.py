@@ -11,14 +11,14 @@ import numpy as np
 
 from ..errors import StorageError
 from ..estimate import EstimateSettings, estimate
-from ..frames import ssa
 from ..io.atomic import write_text_atomic
 from ..io.export import export_log
 from ..io.importers import import_file
+from ..io.mcap import read_log, write_log
 from ..io.mergedcsv import write_merged_csv
-from ..io.mcapio import read_log, write_log
-from ..simulate import SimSettings, simulate
-from ..summary import format_summary, summarize
+from ..log.summary import format_summary, summarize
+from ..model.frames import ssa
+from ..sim.simulate import SimSettings, simulate
 from .common import stage
 
 
@@ -98,7 +98,7 @@ def _import_stage(log, out: Path, step) -> None:
 
 def identify_stage(log, out: Path) -> None:
     from ..identify import Identifier
-    from ..vessel import PARAM_NAMES
+    from ..model.vessel import PARAM_NAMES
 
     idf = Identifier("output-error").fit([log])
     write_text_atomic(out / "identified.toml", idf.to_vessel().to_toml(), force=True)
@@ -118,8 +118,9 @@ def identify_stage(log, out: Path) -> None:
 def _control_stages(out: Path, step) -> Path:
     """Section IV closed loop, gain check, replay with a baseline what-if."""
     from ..control.gains import check_gains
-    from ..io.config import load_scenario
-    from ..replay import replay_log, simulate_scenario
+    from ..replay import replay_log
+    from ..sim.closed_loop import simulate_scenario
+    from ..sim.scenario import load_scenario
     from .replay import format_metrics
 
     scen = load_scenario("paper-circle")
@@ -127,7 +128,7 @@ def _control_stages(out: Path, step) -> Path:
     step(f"simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
     log = simulate_scenario(scen)
     write_log(log, circ, force=True)
-    step(f"gains: Theorem 3.1 for the paper's gains")
+    step("gains: Theorem 3.1 for the paper's gains")
     chk = check_gains(scen.sim.vessel.params, scen.gains)
     print(chk.verdict)
     print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
@@ -141,10 +142,10 @@ def _control_stages(out: Path, step) -> Path:
 
 def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
     """Rerun recordings of both runs and the report with the paper's figures."""
-    from ..io.config import load_scenario
-    from ..replay import simulate_scenario
-    from ..report import write_report
-    from ..viz import to_rrd
+    from ..sim.closed_loop import simulate_scenario
+    from ..sim.scenario import load_scenario
+    from ..view.report import write_report
+    from ..view.rrd import to_rrd
 
     rrd = out / "demo.rrd"
     step(f"view: paper-circle replay (track, guidance, what-if, errors) -> {rrd} "

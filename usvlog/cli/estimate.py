@@ -7,7 +7,7 @@ import argparse
 from ..estimate import EstimateSettings, estimate
 from ..io.atomic import check_output
 from ..io.config import load_vessel
-from ..io.mcapio import read_log, write_log
+from ..io.mcap import read_log, write_log
 from .common import print_json, stage
 
 

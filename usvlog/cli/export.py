@@ -1,7 +1,7 @@
 from __future__ import annotations
 
 from ..io.export import export_log
-from ..io.mcapio import read_log
+from ..io.mcap import read_log
 
 
 def register(sub) -> None:

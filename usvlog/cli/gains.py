@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from ..control.gains import check_gains
 from ..errors import ConfigError
-from ..io.config import (load_gains, load_vessel, load_vessel_or_scenario_vessel, read_toml,
-                         scenario_path)
+from ..io.config import load_vessel, load_vessel_or_scenario_vessel, read_toml
+from ..sim.scenario import load_gains, scenario_path
 from .common import print_json
 
 

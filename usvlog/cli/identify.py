@@ -6,13 +6,13 @@ import math
 
 import numpy as np
 
-from ..channels import codec_for_topic, frame_from_columns
 from ..errors import ConfigError
 from ..identify import METHODS, Identifier
 from ..io.atomic import check_output, write_text_atomic
 from ..io.config import load_vessel
-from ..io.mcapio import read_log, write_log
-from ..vessel import PARAM_NAMES
+from ..io.mcap import read_log, write_log
+from ..log.channels import codec_for_topic, frame_from_columns
+from ..model.vessel import PARAM_NAMES
 from .common import print_json, stage
 
 FIT_TOPIC = "/identify/fit"

@@ -1,7 +1,7 @@
 from __future__ import annotations
 
-from ..io.mcapio import read_log
-from ..summary import format_summary, summarize
+from ..io.mcap import read_log
+from ..log.summary import format_summary, summarize
 from .common import print_json
 
 

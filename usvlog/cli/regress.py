@@ -6,12 +6,17 @@ import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from ..baseline import junit_xml
 from ..errors import ConfigError, StorageError
 from ..io.atomic import check_output, write_text_atomic
-from ..io.baselines import (find_regress_scenarios, format_baseline, load_regress_scenario, read_baseline,
-                            write_baseline)
-from ..regress import ScenarioOutcome, accept, run_scenario
+from ..regress.baselines import (
+    find_regress_scenarios,
+    format_baseline,
+    load_regress_scenario,
+    read_baseline,
+    write_baseline,
+)
+from ..regress.gate import junit_xml
+from ..regress.stages import ScenarioOutcome, accept, run_scenario
 from ..resources import replay_dir
 from .common import print_json, stage
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import replace
 
 from ..io.atomic import check_output
-from ..io.config import load_gains, load_scenario, load_vessel_or_scenario_vessel, read_toml
-from ..io.mcapio import read_log, write_log
+from ..io.config import load_vessel_or_scenario_vessel, read_toml
+from ..io.mcap import read_log, write_log
 from ..replay import replay_log
+from ..sim.scenario import load_gains, load_scenario
 from .common import print_json, stage
 
 

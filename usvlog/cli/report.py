@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ..io.mcapio import read_log
+from ..io.mcap import read_log
 from .common import stage
 
 
@@ -20,7 +20,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..report import check_report_outputs, write_report
+    from ..view.report import check_report_outputs, write_report
 
     check_report_outputs(args.out, args.force)  # fail before the work, not after
     log = read_log(args.log)

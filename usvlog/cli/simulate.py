@@ -5,10 +5,11 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..io.atomic import check_output
-from ..io.config import closed_loop_scenarios, load_vessel
-from ..io.mcapio import write_log
+from ..io.config import load_vessel
+from ..io.mcap import write_log
 from ..resources import replay_dir
-from ..simulate import SCENARIOS, SensorSettings, SimSettings, simulate
+from ..sim.scenario import closed_loop_scenarios
+from ..sim.simulate import SCENARIOS, SensorSettings, SimSettings, simulate
 from .common import stage
 
 
@@ -95,8 +96,8 @@ def run(args) -> int:
 
 def run_closed_loop(args) -> int:
     """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
-    from ..io.config import load_scenario
-    from ..replay import simulate_scenario
+    from ..sim.closed_loop import simulate_scenario
+    from ..sim.scenario import load_scenario
 
     scen = load_scenario(args.scenario, vessel=load_vessel(args.vessel) if args.vessel else None)
     if args.truth_rate_hz is not None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import ConfigError, InputError
 from ..io.atomic import check_output
-from ..io.mcapio import read_log
+from ..io.mcap import read_log
 from .common import stage
 
 
@@ -25,7 +25,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from .. import viz  # rerun is imported only when a verb needs it
+    from ..view import rrd as viz  # rerun is imported only when a verb needs it
 
     out = Path(args.out) if args.out else Path(args.logs[0]).with_suffix(".rrd")
     check_output(out, args.force, parent=True)  # fail before the work, not after

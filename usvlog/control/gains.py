@@ -30,9 +30,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ..checks import require_finite
 from ..errors import ConfigError
-from ..vessel import VesselParams
+from ..model.vessel import VesselParams, require_finite
 
 GAIN_NAMES = ("KPu", "KIu", "KPpsi", "KIpsi", "KDpsi")
 

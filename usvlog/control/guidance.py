@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from .._jit import njit
 from .paths import Path, path_eval
 
 

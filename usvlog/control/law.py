@@ -27,11 +27,10 @@ integrators and the prefilters advance to k+1.
 
 from __future__ import annotations
 
-
 import numpy as np
 
-from ..vessel import Vessel
-from ._jit import njit
+from .._jit import njit
+from ..model.vessel import Vessel
 from .gains import Gains, GuidanceSettings
 from .guidance import guidance_step, initial_theta
 from .paths import Path

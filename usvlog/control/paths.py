@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import njit
 from ..errors import ConfigError
-from ._jit import njit
 
 CIRCLE, SINUSOID, LINE, SPLINE = 0, 1, 2, 3
 KINDS = {"circle": CIRCLE, "sinusoid": SINUSOID, "line": LINE, "waypoints": SPLINE}
@@ -242,7 +242,7 @@ def path_from_spec(spec: dict, *, datum=None, source: str = "path") -> Path:
     if frame == "latlon":
         if datum is None:
             raise ConfigError(f"{source}: [path] lat/lon waypoints need a datum (the log's usvlog.datum)")
-        from ..frames import geodetic_to_ned
+        from ..model.frames import geodetic_to_ned
 
         n, e, _ = geodetic_to_ned(pts[:, 0], pts[:, 1], 0.0, datum=datum)
         pts = np.column_stack([n, e])

@@ -6,8 +6,16 @@
     result.to_log(log)  # the log plus /estimate/state and /estimate/innovations
 """
 
-from .core import (INNOVATION_TOPIC, STATE_COLUMNS, STATE_TOPIC, EstimateReport, EstimateResult,
-                   SensorReport, build_problem, estimate)
+from .core import (
+                   INNOVATION_TOPIC,
+                   STATE_COLUMNS,
+                   STATE_TOPIC,
+                   EstimateReport,
+                   EstimateResult,
+                   SensorReport,
+                   build_problem,
+                   estimate,
+)
 from .online import OnlineEKF
 from .settings import DEFAULT_Q, MODELS, EstimateSettings
 

@@ -11,13 +11,22 @@ import pandas as pd
 from scipy.optimize import minimize
 from scipy.stats import chi2
 
-from ..channels import codec_for_topic, frame_from_columns
 from ..errors import ConfigError, InputError
-from ..frames import Datum, geodetic_to_ned, ssa
-from ..log import FieldLog, format_time
-from ..vessel import Vessel, default_vessel
+from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.fieldlog import FieldLog, format_time
+from ..model.frames import Datum, geodetic_to_ned, ssa
+from ..model.vessel import Vessel, default_vessel
 from . import kernels
-from .kernels import COMPASS, DYNAMIC, GNSS, KINEMATIC, KINEMATIC_SWAY, SENSOR_DIM, SENSORS, YAW_RATE
+from .kernels import (
+    COMPASS,
+    DYNAMIC,
+    GNSS,
+    KINEMATIC,
+    KINEMATIC_SWAY,
+    SENSOR_DIM,
+    SENSORS,
+    YAW_RATE,
+)
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -315,7 +324,7 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
-    from ..vessel import VesselParams
+    from ..model.vessel import VesselParams
     from .reference import run_reference
 
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))

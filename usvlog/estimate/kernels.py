@@ -2,7 +2,7 @@
 
 One implementation of the process model, the prediction, the gated measurement update,
 the forward pass and the smoother; the offline fast path and :class:`OnlineEKF` both run
-these. The dynamics come from :mod:`usvlog.vessel` (``nu_dot_terms`` and
+these. The dynamics come from :mod:`usvlog.model.vessel` (``nu_dot_terms`` and
 ``nu_dot_jacobian_terms`` are plain arithmetic, compiled here as they are); the
 filterpy reference path (:mod:`.reference`) uses ``plant_rhs``/``plant_jacobian`` and
 a test holds both to each other and to finite differences.
@@ -30,7 +30,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ..vessel import nu_dot_jacobian_terms, nu_dot_terms
+from ..model.vessel import nu_dot_jacobian_terms, nu_dot_terms
 
 KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
 GNSS, COMPASS, YAW_RATE = 0, 1, 2

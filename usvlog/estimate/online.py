@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from ..errors import ConfigError
-from ..vessel import Vessel
+from ..model.vessel import Vessel
 from . import kernels
 from .core import initial_covariance, process_noise, state_size
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings

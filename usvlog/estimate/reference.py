@@ -2,7 +2,7 @@
 extended RTS smoother in numpy over the stored priors, posteriors and Jacobians.
 
 Slow (tens of microseconds a step) but written straight from the textbook with the
-vessel model of :mod:`usvlog.vessel`; the compiled kernels must agree with it to 1e-9.
+vessel model of :mod:`usvlog.model.vessel`; the compiled kernels must agree with it to 1e-9.
 """
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
-from ..frames import ssa
-from ..vessel import VesselParams, eta_dot, plant_jacobian, plant_rhs
+from ..model.frames import ssa
+from ..model.vessel import VesselParams, eta_dot, plant_jacobian, plant_rhs
 from .kernels import COMPASS, GNSS, SENSOR_DIM
 
 _SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}

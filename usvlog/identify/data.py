@@ -13,9 +13,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InputError
-from ..frames import Datum, geodetic_to_ned, ssa
-from ..log import FieldLog
-from ..vessel import Vessel, default_vessel
+from ..log.fieldlog import FieldLog
+from ..model.frames import Datum, geodetic_to_ned, ssa
+from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
 DEFAULT_COMPASS_SIGMA_RAD = math.radians(2.0)

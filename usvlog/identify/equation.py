@@ -1,6 +1,6 @@
 """Equation-error identification: eq. (3) is linear in (m, m xg, Iz, d11, d22, d33).
 
-Expanding M nu_dot + C(nu) nu + D nu = tau with (4)-(6) (see :mod:`usvlog.vessel`) and
+Expanding M nu_dot + C(nu) nu + D nu = tau with (4)-(6) (see :mod:`usvlog.model.vessel`) and
 collecting the unknowns theta = (m, m xg, Iz, d11, d22, d33):
 
     surge:  m (u_dot - v r) - (m xg) r^2               + d11 u = tau_u
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ConfigError
-from ..vessel import PARAM_NAMES
+from ..model.vessel import PARAM_NAMES
 
 LIN_NAMES = ("m", "mxg", "Iz", "d11", "d22", "d33")
 

@@ -3,19 +3,23 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
 from ..errors import ConfigError, InputError
-from ..frames import ssa
-from ..log import FieldLog
-from ..vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
+from ..log.fieldlog import FieldLog
+from ..model.frames import ssa
+from ..model.vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
-from .output import (OutputErrorResult, fit_initial_state, fit_output_error, predict_segments,
-                     simulate_run)
+from .output import (
+    fit_initial_state,
+    fit_output_error,
+    predict_segments,
+    simulate_run,
+)
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 
 METHODS = ("output-error", "equation-error", "filter-error")
@@ -77,7 +81,7 @@ def _ekf_current(log: FieldLog, vessel: Vessel, theta, current: bool) -> tuple[f
     """Mean water current the dynamic EKF estimates with the identified parameters."""
     if not current:
         return (0.0, 0.0)
-    from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
+    from ..estimate import EstimateSettings, estimate  # noqa: PLC0415
 
     v = Vessel(name=vessel.name, params=VesselParams(**dict(zip(PARAM_NAMES, map(float, theta)))),
                thrusters=vessel.thrusters)
@@ -170,7 +174,7 @@ class Identifier:
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None
         elif self.method == "filter-error":
-            from .filter import fit_filter_error   # noqa: PLC0415
+            from .filter import fit_filter_error  # noqa: PLC0415
 
             fe = fit_filter_error(fit_logs, vessel, self._start(ee, vessel), free_mask=free,
                                   current=self.current)

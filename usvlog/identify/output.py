@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..frames import ssa
-from ..vessel import PARAM_NAMES
+from ..model.frames import ssa
+from ..model.vessel import PARAM_NAMES
 from .data import RunData
 from .shoot import NS, shoot
 

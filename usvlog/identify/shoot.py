@@ -1,10 +1,10 @@
 """Multiple-shooting simulation of eqs. (1)+(3) with forward sensitivities (numba).
 
-The dynamics are :func:`usvlog.vessel.nu_dot_terms` itself, compiled by numba (no
+The dynamics are :func:`usvlog.model.vessel.nu_dot_terms` itself, compiled by numba (no
 second copy of the model); its derivatives with respect to (u, v, r) and to the six
 parameters are M^-1 (dF - dM nu_dot) with F = tau - C(nu) nu - D nu (eqs. (4)-(6)),
 checked against finite differences of the whole simulation in the tests. Kinematics are eq. (1) plus a
-constant current, as in :func:`usvlog.simulate.plant_step`.
+constant current, as in :func:`usvlog.sim.simulate.plant_step`.
 
 Sensitivity columns: 0-5 the segment's initial state (n, e, psi, u, v, r), 6-11 the
 parameters (m, Iz, d11, d22, d33, xg), 12-13 the current (north, east).
@@ -17,7 +17,7 @@ import math
 import numba
 import numpy as np
 
-from ..vessel import nu_dot_terms
+from ..model.vessel import nu_dot_terms
 
 NS = 14
 

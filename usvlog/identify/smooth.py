@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
-from ..frames import ssa
+from ..model.frames import ssa
 from .data import RunData
 
 GRID_DT = 0.1
@@ -74,7 +74,7 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
 def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
     """Smoothed over-ground states of a run (the estimator's kinematic smoother if available)."""
     try:
-        from ..estimate import EstimateSettings, estimate   # noqa: PLC0415
+        from ..estimate import EstimateSettings, estimate  # noqa: PLC0415
     except ImportError:
         return savgol_states(run)
     st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT), vessel).state

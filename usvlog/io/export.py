@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import ConfigError, StorageError
-from ..log import FieldLog
+from ..log.fieldlog import FieldLog
 from .atomic import atomic_path, check_output
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..log import FieldLog
+from ..log.fieldlog import FieldLog
 from .atomic import atomic_path
 
 COLUMNS = {  # topic -> {canonical column: CSV header}

@@ -19,9 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...errors import ConfigError, FormatError, InputError, StorageError, UsvlogError
-from ...frames import Datum
-from ...log import FieldLog, parse_time
-from ...vessel import Vessel
+from ...log.fieldlog import FieldLog, parse_time
+from ...model.frames import Datum
+from ...model.vessel import Vessel
 from ..atomic import atomic_path, check_output, reading
 from .core import THRUST_UNITS, Assembler, ImportReport
 from .sink import McapSink, MemorySink
@@ -124,8 +124,8 @@ def detect_format(path) -> str:
         return "ulog"
     if head.startswith(DATAFLASH_MAGIC):
         return "dataflash"
-    from .nmea import looks_like_nmea
     from .csvlog import looks_like_csv
+    from .nmea import looks_like_nmea
 
     text = head.decode("utf-8", errors="replace")
     if looks_like_nmea(text):

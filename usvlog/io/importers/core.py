@@ -12,7 +12,7 @@ equal). :class:`Assembler` turns batches into canonical frames, one batch at a t
   stream (backwards or duplicated time stamps).
 
 Thrust commands that are not newtons go through the vessel's thruster map
-(:meth:`usvlog.vessel.Thrusters.command_to_force`); the recorded commands and
+(:meth:`usvlog.model.vessel.Thrusters.command_to_force`); the recorded commands and
 their unit are kept. The datum is the first kept fix unless one is given.
 
 Pure numpy/pandas: no file is opened here (the sinks that write live in
@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ...channels import codec_for_topic, frame_from_columns
 from ...errors import ConfigError
-from ...frames import Datum, ssa
-from ...vessel import Vessel
+from ...log.channels import codec_for_topic, frame_from_columns
+from ...model.frames import Datum, ssa
+from ...model.vessel import Vessel
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {

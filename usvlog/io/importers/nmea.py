@@ -1,12 +1,12 @@
 """NMEA 0183 text logs, raw or with a time stamp before each sentence, read line by line.
 
-Sentences are parsed by :func:`usvlog.nmea.parse_sentence`, the parser the live
+Sentences are parsed by :func:`usvlog.io.nmea.parse_sentence`, the parser the live
 recorder uses too (talker IDs, HDG deviation/variation, GGA altitude as WGS-84
 ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL ->
 ``/gnss/fix``; HDT, HDG, HDM -> ``/compass/heading``; VTG -> ``/gnss/velocity``.
 What is particular to a file is done here: the date comes from RMC (or
 ``--start-utc``); a time of day without a date is placed on the day nearest the
-previous sentence's time (:func:`usvlog.nmea.resolve_time_of_day`), so the time
+previous sentence's time (:func:`usvlog.io.nmea.resolve_time_of_day`), so the time
 rolling past midnight moves to the next day. The same fix reported by GGA and RMC
 is kept once. Sentences without a checksum are accepted (some loggers strip it);
 lines with a bad checksum, garbage, unreadable fields and sentences that say
@@ -28,9 +28,16 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import InputError
-from ...log import parse_time
-from ...nmea import (NmeaChecksumError, NmeaError, NmeaFieldError, NmeaSample, date_ns, parse_sentence,
-                     resolve_time_of_day)
+from ...log.fieldlog import parse_time
+from ..nmea import (
+    NmeaChecksumError,
+    NmeaError,
+    NmeaFieldError,
+    NmeaSample,
+    date_ns,
+    parse_sentence,
+    resolve_time_of_day,
+)
 
 _SENTENCE = re.compile(r"[$!][A-Z][A-Z0-9]{2,5},")
 _DAY_NS = 86_400 * 1_000_000_000

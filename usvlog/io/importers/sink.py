@@ -1,7 +1,7 @@
 """Where imported frames go: into memory (a FieldLog) or streamed into an MCAP file.
 
 :class:`McapSink` encodes and writes each batch as it comes (the one MCAP writer,
-:class:`usvlog.io.mcapio.McapWriter`), so importing a file 10x larger does not need
+:class:`usvlog.io.mcap.McapWriter`), so importing a file 10x larger does not need
 10x the memory; metadata records (datum, vessel, provenance) are written once the
 import knows them, before the summary.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from ...log import FieldLog
+from ...log.fieldlog import FieldLog
 
 
 class MemorySink:
@@ -31,11 +31,11 @@ class MemorySink:
 
 class McapSink:
     """Streams canonical frames into an MCAP file opened by the caller (binary, writable),
-    through :class:`usvlog.io.mcapio.McapWriter` (zstd level 1: imports are large), one
+    through :class:`usvlog.io.mcap.McapWriter` (zstd level 1: imports are large), one
     chunk (or more) per batch: each batch is on the file before the next is read."""
 
     def __init__(self, fh, *, chunk_size: int = 1 << 20):
-        from ..mcapio import McapWriter
+        from ..mcap import McapWriter
 
         self._w = McapWriter(fh, chunk_size=chunk_size, zstd_level=1)
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import orjson
 
-from ...nmea import with_checksum
+from ..nmea import with_checksum
 
 _M_PER_DEG = 111_320.0
 

@@ -5,7 +5,7 @@ thread closes the chunk, writes it and fsyncs the file at a fixed rate (every
 0.8 ``flush_s``), so no message waits in memory longer than ``flush_s`` and a
 SIGKILL or a power cut loses at most the last ``flush_s`` (1 s by default). Metadata records
 (vessel, provenance, and the datum as soon as the first fix gives it) are written
-between chunks and fsynced at once; ``usvlog.io.mcapio.read_log`` reads metadata
+between chunks and fsynced at once; ``usvlog.io.mcap.read_log`` reads metadata
 found anywhere before the cut and every complete chunk. ``close()`` finishes the
 file with the usual summary.
 
@@ -32,13 +32,19 @@ from pathlib import Path
 
 import orjson
 
-from ... import __version__
-from ...channels import MESSAGE_ENCODING, SCHEMA_ENCODING, codec_for_topic, registered_topics, schema_for_topic
+from ..._version import __version__
 from ...errors import ConfigError, InputError, OutputExistsError, StorageError
-from ...frames import Datum, ssa
-from ...log import META_DATUM, META_PROVENANCE, META_VESSEL, format_time
-from ...nmea import NmeaError, parse_sentence, resolve_time_of_day
-from ...timesync import OffsetEstimator
+from ...log.channels import (
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    codec_for_topic,
+    registered_topics,
+    schema_for_topic,
+)
+from ...log.fieldlog import META_DATUM, META_PROVENANCE, META_VESSEL, format_time
+from ...model.frames import Datum, ssa
+from ..nmea import NmeaError, parse_sentence, resolve_time_of_day
+from .timesync import OffsetEstimator
 
 TOPIC_FIX = "/gnss/fix"
 TOPIC_QUALITY = "/gnss/quality"
@@ -480,7 +486,7 @@ class Recorder:
     def nmea(self, text: str, *, source: str = "nmea", t_ns: int | None = None):
         """One NMEA 0183 sentence as received: kept in ``/raw/nmea``; positions, headings,
         fix quality and GPS time go to their canonical channels. Parsed by
-        :func:`usvlog.nmea.parse_sentence` (as the file importer does), checksum required;
+        :func:`usvlog.io.nmea.parse_sentence` (as the file importer does), checksum required;
         a time of day without a date is placed nearest the receive time minus the source's
         clock offset. Returns the parsed sample (None when malformed, whatever the reason:
         counted as garbage, still kept raw)."""

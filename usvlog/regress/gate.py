@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 from xml.sax.saxutils import escape, quoteattr
 
-from .errors import ConfigError
+from ..errors import ConfigError
 
 WORSE = ("larger", "smaller", "either")
 

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .baseline import BaselineEntry, Check, compare, updated_baseline
-from .errors import ConfigError, UsvlogError
-from .frames import ssa
-from .log import FieldLog
+from ..errors import ConfigError, UsvlogError
+from ..log.fieldlog import FieldLog
+from ..model.frames import ssa
+from .gate import BaselineEntry, Check, compare, updated_baseline
 
 STAGES = ("estimate", "identify", "replay")
 SECTIONS = {"scenario", "dataset", "stages", "estimate", "identify", "replay", "baseline"}
@@ -99,7 +99,7 @@ def _truth_at(log: FieldLog, t_ns: np.ndarray):
 
 
 def stage_estimate(run: _Run) -> None:
-    from .estimate import EstimateSettings, estimate
+    from ..estimate import EstimateSettings, estimate
 
     try:
         settings = EstimateSettings(**run.scenario.estimate)
@@ -136,7 +136,7 @@ def stage_estimate(run: _Run) -> None:
 
 
 def stage_identify(run: _Run) -> None:
-    from .identify import Identifier
+    from ..identify import Identifier
 
     kw = dict(run.scenario.identify)
     try:
@@ -168,9 +168,9 @@ def stage_identify(run: _Run) -> None:
 
 
 def stage_replay(run: _Run) -> None:
-    from .control.gains import gains_from_dict
-    from .io.config import load_scenario
-    from .replay import replay_log
+    from ..control.gains import gains_from_dict
+    from ..replay import replay_log
+    from ..sim.scenario import load_scenario
 
     cfg = dict(run.scenario.replay)
     name = cfg.pop("scenario")
@@ -238,7 +238,7 @@ def run_stages(scn: RegressScenario, log: FieldLog) -> dict[str, float]:
 
 
 def run_scenario(scn: RegressScenario, baseline: dict[str, BaselineEntry]) -> ScenarioOutcome:
-    from .io.mcapio import read_log
+    from ..io.mcap import read_log
 
     t0 = time.perf_counter()
     try:

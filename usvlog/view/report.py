@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import viewdata as vd
-from .errors import ConfigError, OutputExistsError, StorageError
-from .frames import ssa
-from .io.atomic import atomic_path, write_text_atomic
-from .log import FieldLog, format_time
+from ..errors import ConfigError, OutputExistsError, StorageError
+from ..io.atomic import atomic_path, write_text_atomic
+from ..log.fieldlog import FieldLog, format_time
+from ..model.frames import ssa
+from . import data as vd
 
 PAGE = "report.html"
 FIGURES = ("fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_heading.png",

@@ -16,11 +16,11 @@ import numpy as np
 import pandas as pd
 from numba.extending import register_jitable
 
-from .channels import codec_for_topic, frame_from_columns
-from .errors import ConfigError
-from .frames import Datum, ned_to_geodetic, ssa
-from .log import FieldLog
-from .vessel import Vessel, default_vessel, nu_dot_terms
+from ..errors import ConfigError
+from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.fieldlog import FieldLog
+from ..model.frames import Datum, ned_to_geodetic, ssa
+from ..model.vessel import Vessel, default_vessel, nu_dot_terms
 
 DEFAULT_START_UTC = "2026-06-01T12:00:00+00:00"
 DEFAULT_DATUM = Datum(lat_deg=43.4723, lon_deg=-80.5449, alt_m=0.0)  # a lake near Clearpath's home
@@ -91,7 +91,7 @@ class SimSettings:
 
 
 def start_ns(iso: str) -> int:
-    from .log import parse_time
+    from ..log.fieldlog import parse_time
 
     try:
         return parse_time(iso)

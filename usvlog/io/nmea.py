@@ -42,7 +42,7 @@ import re
 from functools import lru_cache
 from typing import NamedTuple
 
-from .frames import ssa
+from ..model.frames import ssa
 
 _NS = 1_000_000_000
 _DAY_NS = 86_400 * _NS

@@ -19,8 +19,16 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 from numba.extending import register_jitable
 
-from .checks import require_finite
-from .errors import ConfigError, InputError
+from ..errors import ConfigError, InputError
+
+
+def require_finite(obj, names, kind: str) -> None:
+    """Every field in ``names`` of ``obj`` is a finite number (not a bool), else ConfigError."""
+    for f in names:
+        v = getattr(obj, f)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{kind} {f} = {v!r} is not a finite number")
+
 
 PARAM_NAMES = ("m", "Iz", "d11", "d22", "d33", "xg")
 THRUST_UNITS = ("newton", "normalized", "pwm_us")

@@ -31,11 +31,11 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from . import viewdata as vd
-from .errors import InputError
-from .frames import Datum, ned_to_geodetic
-from .io.atomic import atomic_path, check_output
-from .log import FieldLog
+from ..errors import InputError
+from ..io.atomic import atomic_path, check_output
+from ..log.fieldlog import FieldLog
+from ..model.frames import Datum, ned_to_geodetic
+from . import data as vd
 
 APP_ID = "usvlog"
 OVERLAY_HZ = 10.0

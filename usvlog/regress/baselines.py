@@ -5,10 +5,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from ..baseline import BaselineEntry
 from ..errors import ConfigError
-from .atomic import write_text_atomic
-from .config import read_toml
+from ..io.atomic import write_text_atomic
+from ..io.config import read_toml
+from .gate import BaselineEntry
 
 
 def read_baseline(path) -> dict[str, BaselineEntry]:
@@ -78,7 +78,7 @@ def find_regress_scenarios(paths) -> list[Path]:
 
 
 def load_regress_scenario(path):
-    from ..regress import regress_scenario_from_dict
+    from .stages import regress_scenario_from_dict
 
     p = Path(path).resolve()
     return regress_scenario_from_dict(read_toml(p), p)

@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .log import FieldLog, format_time
+from .fieldlog import FieldLog, format_time
 
 
 @dataclass(frozen=True)

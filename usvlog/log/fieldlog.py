@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .errors import InputError
-from .frames import Datum
-from .vessel import Vessel
+from .._version import __version__
+from ..errors import InputError
+from ..model.frames import Datum
+from ..model.vessel import Vessel
 
 META_DATUM = "usvlog.datum"
 META_VESSEL = "usvlog.vessel"
@@ -143,20 +144,12 @@ class FieldLog:
     def add_provenance(self, *, producer: str, source: str = "", settings: dict | None = None,
                        **extra) -> None:
         """Append a provenance record: what produced (or changed) this log, from what, how."""
-        from . import __version__
-
         rec = {"producer": producer, "usvlog_version": __version__, "source": source,
                "settings": json.dumps(settings or {}, sort_keys=True, default=str)}
         rec.update({k: v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=str)
                     for k, v in extra.items()})
         n = len(self.provenance)
         self.meta[f"{META_PROVENANCE}/{n}"] = rec
-
-    # -- I/O conveniences (the work is in usvlog.io) ----------------------------------
-    def save(self, path, *, force: bool = False, **kwargs) -> None:
-        from .io.mcapio import write_log
-
-        write_log(self, path, force=force, **kwargs)
 
     def copy(self) -> "FieldLog":
         return FieldLog(channels=dict(self.channels), meta={k: dict(v) for k, v in self.meta.items()},

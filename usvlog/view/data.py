@@ -1,6 +1,6 @@
 """What the viewer and the report draw, pulled out of a FieldLog (pure numpy, no I/O).
 
-Both :mod:`usvlog.viz` (Rerun) and :mod:`usvlog.report` (matplotlib) read a log
+Both :mod:`usvlog.view.rrd` (Rerun) and :mod:`usvlog.view.report` (matplotlib) read a log
 through these helpers, so they show the same tracks, errors and events. Every
 helper returns ``None`` (or an empty list) when the log lacks the channel: a raw
 field log draws GPS and compass only, a replayed one draws everything.
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .frames import geodetic_to_ned, ssa, unwrap
-from .log import FieldLog
+from ..log.fieldlog import FieldLog
+from ..model.frames import geodetic_to_ned, ssa, unwrap
 
 META_PATH = "usvlog.path"
 
@@ -72,7 +72,7 @@ def gps(log: FieldLog):
     t, lat, lon = _times(f)[ok], lat[ok], lon[ok]
     datum = log.datum
     if datum is None and len(lat):
-        from .frames import Datum
+        from ..model.frames import Datum
         datum = Datum(lat_deg=float(lat[0]), lon_deg=float(lon[0]))
     n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=datum) if len(lat) else (lat, lon, None)
     return t, lat, lon, np.asarray(n), np.asarray(e)

@@ -23,8 +23,8 @@ import numpy as np
 import orjson
 import pandas as pd
 
-from .errors import InputError
-from .resources import schemas_dir
+from ..errors import InputError
+from ..resources import schemas_dir
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
@@ -163,7 +163,7 @@ class Codec:
         if not blobs:
             return (np.frombuffer(b"{}" * n, dtype=np.uint8).copy(),
                     np.arange(n + 1, dtype=np.int64) * 2)
-        from ._kernels import assemble
+        from ..io.mcap.kernels import assemble
 
         base = np.cumsum([0] + [len(b) for b in blobs])
         vs = np.empty((n, len(spans)), dtype=np.int64)
@@ -387,7 +387,7 @@ class _Mismatch(Exception):
 def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
                    ) -> dict[str, np.ndarray] | None:
     """The fast path of :meth:`Codec.decode_spans`; None when it does not apply."""
-    from . import _kernels as K
+    from ..io.mcap import kernels as K
 
     layout = _layout(buf[starts[0]:ends[0]].tobytes())
     if layout is None:
@@ -475,7 +475,7 @@ def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
     rows with a number it could not decide (half-way cases, subnormals, more than 19
     digits) all the row's numbers parsed by pyarrow, both with correct rounding (the
     doubles orjson gives)."""
-    from . import _kernels as K
+    from ..io.mcap import kernels as K
 
     kk = kinds[:, slots]
     if not np.all((kk == K.K_FLOAT) | (kk == K.K_INT) | (kk == K.K_INT_BIG) | (kk == K.K_NULL)):
@@ -505,7 +505,7 @@ def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
 
 def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
     """String values (spans with quotes); each run of equal strings is decoded once."""
-    from . import _kernels as K
+    from ..io.mcap import kernels as K
 
     if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
         raise _Mismatch

@@ -1,0 +1,25 @@
+"""Canonical MCAP logs: write a FieldLog, read one back (recovering damaged files).
+
+Layout written: header, metadata records (datum, vessel, provenance: first, so a
+truncated file keeps them), then zstd chunks of JSON messages in log-time order,
+then the usual summary (indexes, statistics). Each message's ``sequence`` is its
+row number in the channel's frame so reading restores the frame's row order.
+:class:`McapWriter` is the one writer: ``write_log`` writes a whole log through it,
+the importer streams batches into it (its metadata then follows the chunks).
+
+Writing builds the message and index records with compiled loops
+(``usvlog._kernels``) and gives the same bytes as the mcap library's ``Writer``
+(``_write_log_reference``, kept to test against).
+
+Reading walks the records itself rather than through the mcap library's
+per-record objects: it stops at the first incomplete record of a file cut short
+(or the first corrupt chunk), keeps every complete chunk, and reports what was
+lost. ``_scan_fast`` walks records and messages into arrays with compiled loops;
+``_scan_reference`` is the plain one-record-at-a-time reading, kept as the
+reference the tests compare it with.
+"""
+
+from .reader import read_log, read_logs, scan_file
+from .writer import McapWriter, write_log
+
+__all__ = ["McapWriter", "read_log", "read_logs", "scan_file", "write_log"]

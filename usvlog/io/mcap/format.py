@@ -1,0 +1,15 @@
+"""MCAP record layout shared by the writer and the readers: magic, opcodes, fixed structs."""
+
+import struct
+
+MAGIC = b"\x89MCAP0\r\n"
+
+OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
+OP_METADATA, OP_DATA_END = 0x0C, 0x0F
+
+_U16 = struct.Struct("<H")
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+_REC = struct.Struct("<BQ")
+_MSG = struct.Struct("<HIQQ")
+_CHUNK = struct.Struct("<QQQI")

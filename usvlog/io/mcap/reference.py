@@ -1,0 +1,152 @@
+"""Reference paths the compiled MCAP code is tested against: the mcap library's Writer
+(one ``add_message`` per message) and a plain one-record-at-a-time scan."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+
+from ..._version import __version__
+from ...errors import InputError
+from ...log.channels import (
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    Codec,
+)
+from ...log.fieldlog import FieldLog
+from ..atomic import atomic_path
+from .format import (
+    _REC,
+    _U64,
+    OP_CHUNK,
+    OP_DATA_END,
+    OP_FOOTER,
+    OP_MESSAGE,
+)
+from .reader import (
+    _add_message,
+    _apply,
+    _chunk_header,
+    _chunk_records,
+    _CorruptChunk,
+    _decompress,
+    _parse,
+    _read_log,
+    _Scan,
+)
+from .writer import _codec_for, _compression
+
+
+def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, dict, Codec]]]:
+    """(mcap Schema records, Channel records, both in registration order, and
+    [(topic, schema, codec)] in channel-id order) -- for the reference writer."""
+    from mcap.records import Channel, Schema
+
+    schemas, channels, both, out, ids = [], [], [], [], {}
+    for topic in log.topics:
+        schema, codec = _codec_for(topic, log.schemas.get(topic), log.channels[topic])
+        sname = schema.get("title", topic)
+        sdata = json.dumps(schema, sort_keys=False).encode()
+        key = (sname, sdata)
+        if key not in ids:
+            ids[key] = len(schemas) + 1
+            schemas.append(Schema(id=ids[key], name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            both.append(schemas[-1])
+        channels.append(Channel(id=len(channels) + 1, topic=topic, message_encoding=MESSAGE_ENCODING,
+                                schema_id=ids[key], metadata={}))
+        both.append(channels[-1])
+        out.append((topic, schema, codec))
+    return schemas, channels, both, out
+
+
+def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
+                         compression: str = "zstd") -> None:
+    """Write ``log`` through the mcap library's Writer, one ``add_message`` per message
+    (the reference :func:`write_log` is tested against)."""
+    from mcap.writer import CompressionType, Writer
+
+    comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+            "none": CompressionType.NONE}[_compression(compression)]
+    _schemas, _channels, registered, encs = _schema_records(log)
+    encoded = []
+    for topic, _schema, codec in encs:
+        frame = log.channels[topic]
+        t = np.asarray(frame.index, dtype=np.int64)
+        if len(t) and t.min() < 0:
+            raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+        encoded.append((t, codec.encode_reference(frame, topic)))
+    with atomic_path(path, force=force) as tmp:
+        with open(tmp, "wb") as fh:
+            w = Writer(fh, chunk_size=chunk_size, compression=comp)
+            w.start(profile="", library=f"usvlog {__version__}")
+            for name in sorted(log.meta):
+                w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
+            for r in registered:
+                if hasattr(r, "topic"):
+                    w.register_channel(topic=r.topic, message_encoding=r.message_encoding, schema_id=r.schema_id)
+                else:
+                    w.register_schema(name=r.name, encoding=r.encoding, data=r.data)
+            if encoded:
+                t_all = np.concatenate([t for t, _ in encoded])
+                c_all = np.concatenate([np.full(len(t), i) for i, (t, _) in enumerate(encoded)])
+                r_all = np.concatenate([np.arange(len(t)) for t, _ in encoded])
+                order = np.lexsort((r_all, c_all, t_all))
+                for t_i, c_i, r_i in zip(t_all[order].tolist(), c_all[order].tolist(), r_all[order].tolist()):
+                    w.add_message(channel_id=c_i + 1, log_time=t_i, data=encoded[c_i][1][r_i],
+                                  publish_time=t_i, sequence=r_i)
+            w.finish()
+
+
+def _scan_reference(data: bytes) -> _Scan:
+    """The plain reading of the records (one Python step per record), kept as the
+    reference the fast scan is tested against."""
+    scan = _Scan()
+    buf = memoryview(data)
+    end, off = len(data), 8
+    while off + 9 <= end:
+        op, length = _REC.unpack_from(buf, off)
+        body, nxt = off + 9, off + 9 + length
+        if nxt > end:
+            break
+        try:
+            if op == OP_MESSAGE:
+                if length < 22 or _U64.unpack_from(buf, body + 6)[0] >= 1 << 63:
+                    raise struct.error("bad message record")
+                _add_message(scan, buf, body, nxt)
+            elif op == OP_CHUNK:
+                t0, t1, usize, comp, raw = _chunk_header(buf, body, nxt)
+                try:
+                    chunk = memoryview(_decompress(comp, raw, usize))
+                    recs = _chunk_records(chunk)
+                    parsed = [(o, b, e, _parse(o, chunk[b:e])) for o, b, e in recs]
+                except Exception as err:  # corrupt chunk: keep what came before
+                    raise _CorruptChunk(err) from err
+                for o, b, e, pr in parsed:
+                    if o == OP_MESSAGE:
+                        _add_message(scan, chunk, b, e)
+                    elif pr is not None:
+                        _apply(scan, pr, True)
+            else:
+                pr = _parse(op, buf[body:nxt])
+                if pr is not None:
+                    _apply(scan, pr, False)
+        except _CorruptChunk as err:
+            scan.reason = f"chunk at byte {off} is corrupt ({err})"
+            scan.lost_chunk_range = (t0, t1)
+            return scan
+        except (struct.error, UnicodeDecodeError, IndexError) as err:
+            scan.reason = f"malformed record after byte {off} ({err})"
+            return scan
+        if op in (OP_FOOTER, OP_DATA_END):
+            # the data section is complete; the summary is not needed for reading
+            scan.complete = True
+            return scan
+        off = scan.end_offset = nxt
+    return scan
+
+
+def read_log_reference(path, *, topics=None, strict=False) -> FieldLog:
+    """:func:`usvlog.io.mcap.read_log` through the plain scan (the reference the tests compare with)."""
+    return _read_log(path, topics=topics, strict=strict, scanner=_scan_reference)

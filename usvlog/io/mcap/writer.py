@@ -1,0 +1,307 @@
+"""The one MCAP writer: :class:`McapWriter` (streaming) and :func:`write_log` (a whole log).
+
+Message and index records are built with compiled loops (:mod:`.kernels`); the bytes are
+the mcap library's ``Writer``'s for the same messages (:mod:`.reference` keeps that path).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pandas as pd
+
+from ..._version import __version__
+from ...errors import InputError
+from ...log.channels import (
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    Codec,
+    auto_schema,
+    codec_for_schema,
+    codec_for_topic,
+    schema_for_topic,
+)
+from ...log.fieldlog import FieldLog
+from ..atomic import atomic_path
+from .format import (
+    _REC,
+    MAGIC,
+)
+
+
+def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
+    """(schema, codec) of a channel: the registered schema, else ``schema`` (e.g. the one
+    stored in the file read), else one generated from ``frame``'s dtypes."""
+    schema = schema_for_topic(topic) or schema
+    if schema is None:
+        if frame is None:
+            raise InputError(f"channel {topic}: no registered schema (see schemas/)")
+        schema = auto_schema(topic, frame)
+    return schema, codec_for_topic(topic) or codec_for_schema(schema)
+
+
+def _compression(compression: str) -> str:
+    if compression not in ("zstd", "lz4", "none"):
+        raise InputError(f"unknown compression {compression!r} (zstd, lz4 or none)")
+    return compression
+
+
+def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
+              compression: str = "zstd") -> None:
+    """Write ``log`` as a canonical MCAP file, atomically, through :class:`McapWriter`.
+
+    The file is the one the mcap library's ``Writer`` writes for the same messages
+    (byte for byte; ``_write_log_reference`` does it that way and the tests compare).
+    Metadata records come first (a truncated file keeps them), then every channel,
+    then the messages of all channels in (time, channel, row) order.
+    """
+    _compression(compression)
+    with atomic_path(path, force=force) as tmp:
+        with open(tmp, "wb", buffering=1 << 20) as fh:
+            w = McapWriter(fh, chunk_size=chunk_size, compression=compression)
+            for name in sorted(log.meta):
+                w.add_metadata(name, log.meta[name])
+            for topic in log.topics:
+                w.add_channel(topic, log.schemas.get(topic), log.channels[topic])
+            w.add_frames({topic: log.channels[topic] for topic in log.topics}, log.schemas)
+            w.finish()
+
+
+class McapWriter:
+    """Canonical MCAP file written incrementally on an open binary file ``fh``.
+
+    The one MCAP writing path of usvlog: :func:`write_log` writes a whole log through
+    it, the importer streams batches of frames into it. Records and chunks are those
+    the mcap library's ``Writer`` writes for the same calls (byte for byte:
+    ``_write_log_reference`` does it that way and the tests compare): schema and
+    channel records open the chunk that follows their registration; a chunk is
+    closed after the message that takes it past ``chunk_size``; then message
+    indexes, and at :meth:`finish` the summary (schemas, channels, statistics, chunk
+    and metadata indexes). Message records are built by compiled loops from the
+    packed output of :meth:`usvlog.log.fieldlog.channels.Codec.encode_packed`.
+
+    Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
+    plus one batch) is held. Each message's ``sequence`` is its row number in its
+    channel over all batches, as :func:`read_log` expects; within a batch messages
+    are ordered by (time, channel, row).
+    """
+
+    def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = 3):
+        from mcap.records import Header
+
+        self._fh = fh
+        self._chunk_size = int(chunk_size)
+        self._comp = _compression(compression)
+        self._zstd_level = int(zstd_level)
+        self._pos = 0
+        self._schemas: list = []
+        self._schema_ids: dict[tuple[str, bytes], int] = {}
+        self._channels: list = []
+        self._topics: dict[str, tuple[int, Codec]] = {}
+        self._seq: dict[int, int] = {}
+        self._counts: dict[int, int] = {}         # channel id -> messages, in order of the first message
+        self._chunk_indexes: list = []
+        self._meta_index: list = []
+        self._t_min: int | None = None
+        self._t_max: int | None = None
+        self._n = 0
+        # the open chunk: its bytes, and its messages' times, channels, offsets in it
+        self._open = bytearray()
+        self._open_msgs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._write(MAGIC)
+        self._write(self._record(Header(profile="", library=f"usvlog {__version__}")))
+
+    # -- low level -------------------------------------------------------------------
+    def _write(self, b) -> int:
+        at = self._pos
+        self._fh.write(b)
+        self._pos += len(b)
+        return at
+
+    @staticmethod
+    def _record(rec) -> bytes:
+        from mcap.data_stream import RecordBuilder
+
+        rb = RecordBuilder()
+        rec.write(rb)
+        return rb.end()
+
+    # -- channels and metadata -----------------------------------------------------------
+    def add_channel(self, topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> int:
+        """Register ``topic`` (once; its schema: the registered one, else ``schema``, else one
+        generated from ``frame``); returns the channel id."""
+        from mcap.records import Channel, Schema
+
+        known = self._topics.get(topic)
+        if known is not None:
+            return known[0]
+        schema, codec = _codec_for(topic, schema, frame)
+        sname = schema.get("title", topic)
+        sdata = json.dumps(schema, sort_keys=False).encode()
+        sid = self._schema_ids.get((sname, sdata))
+        if sid is None:
+            sid = self._schema_ids[(sname, sdata)] = len(self._schemas) + 1
+            self._schemas.append(Schema(id=sid, name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            self._open += self._record(self._schemas[-1])
+        cid = len(self._channels) + 1
+        self._channels.append(Channel(id=cid, topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=sid,
+                                      metadata={}))
+        self._open += self._record(self._channels[-1])
+        self._topics[topic] = (cid, codec)
+        self._seq[cid] = 0
+        return cid
+
+    def add_metadata(self, name: str, record: dict) -> None:
+        """A metadata record (values stored as strings), after the messages written so far."""
+        from mcap.records import Metadata, MetadataIndex
+
+        self.flush()
+        b = self._record(Metadata(name=name, metadata={str(k): str(v) for k, v in record.items()}))
+        self._meta_index.append(MetadataIndex(offset=self._write(b), length=len(b), name=name))
+
+    # -- messages ------------------------------------------------------------------------
+    def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None) -> None:
+        """Append one batch: every row of every frame (index: int64 log time ns) as a message."""
+        from . import kernels as K
+
+        bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
+        base = 0
+        for topic, frame in frames.items():
+            if not len(frame):
+                continue
+            cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
+            codec = self._topics[topic][1]
+            t = np.asarray(frame.index, dtype=np.int64)
+            if t.min() < 0:
+                raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
+            data, offs = codec.encode_packed(frame, topic)
+            s0 = self._seq[cid]
+            self._seq[cid] = s0 + len(t)
+            bufs.append(data)
+            ts.append(t)
+            cids.append(np.full(len(t), cid, dtype=np.int64))
+            seqs.append(np.arange(s0, s0 + len(t), dtype=np.int64))
+            starts.append(offs[:-1] + base)
+            ends.append(offs[1:] + base)
+            base += len(data)
+        if not ts:
+            return
+        t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
+        order = np.lexsort((s_all, c_all, t_all))
+        t_all, c_all, s_all = t_all[order], c_all[order], s_all[order]
+        recs, rec_offs = K.message_records(np.concatenate(bufs), np.concatenate(starts)[order],
+                                           np.concatenate(ends)[order], c_all, s_all, t_all)
+        _, first = np.unique(c_all, return_index=True)
+        for cid in c_all[np.sort(first)].tolist():
+            self._counts.setdefault(cid, 0)
+        counts = np.bincount(c_all)
+        for cid in self._counts:
+            if cid < len(counts):
+                self._counts[cid] += int(counts[cid])
+        self._n += len(t_all)
+        self._t_min = int(t_all[0]) if self._t_min is None else min(self._t_min, int(t_all[0]))
+        self._t_max = int(t_all[-1]) if self._t_max is None else max(self._t_max, int(t_all[-1]))
+        bounds = K.chunk_bounds(rec_offs, self._chunk_size, len(self._open)).tolist()
+        a = 0
+        for k, b in enumerate(bounds):
+            at = len(self._open)
+            self._open += memoryview(recs)[rec_offs[a]:rec_offs[b]]
+            self._open_msgs.append((t_all[a:b], c_all[a:b], rec_offs[a:b] - rec_offs[a] + at))
+            if k < len(bounds) - 1 or len(self._open) > self._chunk_size:
+                self._close_chunk()
+            a = b
+
+    def flush(self) -> None:
+        """Close the open chunk now (if it holds messages): what was added so far is on ``fh``."""
+        if self._open_msgs:
+            self._close_chunk()
+
+    def _close_chunk(self) -> None:
+        import zlib
+
+        from mcap.opcode import Opcode
+        from mcap.records import Chunk, ChunkIndex
+
+        data = bytes(self._open)
+        tc = np.concatenate([m[0] for m in self._open_msgs])
+        cc = np.concatenate([m[1] for m in self._open_msgs])
+        in_chunk = np.concatenate([m[2] for m in self._open_msgs])
+        self._open = bytearray()
+        self._open_msgs = []
+        if self._comp == "zstd":
+            import zstandard
+
+            packed, cname = zstandard.ZstdCompressor(level=self._zstd_level).compress(data), "zstd"
+        elif self._comp == "lz4":
+            import lz4.frame
+
+            packed, cname = lz4.frame.compress(data), "lz4"
+        else:
+            packed, cname = data, ""
+        t0, t1 = int(tc.min()), int(tc.max())
+        rec = self._record(Chunk(compression=cname, data=packed, message_start_time=t0, message_end_time=t1,
+                                 uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data)))
+        chunk_at = self._write(rec)
+        # one Message Index record per channel, in order of the channel's first message in the chunk
+        uniq, first = np.unique(cc, return_index=True)
+        index_at = self._pos
+        offsets = {}
+        for cid in uniq[np.argsort(first)].tolist():
+            sel = cc == cid
+            entries = np.empty((int(sel.sum()), 2), dtype="<u8")
+            entries[:, 0] = tc[sel]
+            entries[:, 1] = in_chunk[sel]
+            offsets[cid] = self._write(_REC.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes)
+                                       + struct.pack("<HI", cid, entries.nbytes) + entries.tobytes())
+        self._chunk_indexes.append(ChunkIndex(
+            message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_at,
+            chunk_length=len(rec), message_index_offsets=offsets,
+            message_index_length=self._pos - index_at, compression=cname,
+            compressed_size=len(packed), uncompressed_size=len(data)))
+
+    # -- the end ------------------------------------------------------------------------
+    def finish(self) -> None:
+        """Close the open chunk, write the summary and the footer (the file stays open)."""
+        import zlib
+
+        from mcap.data_stream import RecordBuilder
+        from mcap.opcode import Opcode
+        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
+
+        self.flush()
+        self._write(self._record(DataEnd(0)))
+        # summary: the same groups, in the same order, as the mcap Writer
+        summary_start = self._pos
+        sb = RecordBuilder()
+        groups = []
+
+        def group(opcode, records) -> None:
+            g0 = sb.count
+            for r in records:
+                r.write(sb)
+            groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + g0,
+                                        group_length=sb.count - g0))
+
+        stats = Statistics(attachment_count=0, channel_count=len(self._channels),
+                           channel_message_counts=dict(self._counts), chunk_count=len(self._chunk_indexes),
+                           message_count=self._n, metadata_count=len(self._meta_index),
+                           message_start_time=self._t_min or 0, message_end_time=self._t_max or 0,
+                           schema_count=len(self._schemas))
+        group(Opcode.SCHEMA, self._schemas)
+        group(Opcode.CHANNEL, self._channels)
+        group(Opcode.STATISTICS, [stats])
+        group(Opcode.CHUNK_INDEX, self._chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, [])
+        group(Opcode.METADATA_INDEX, self._meta_index)
+        summary_offset_start = summary_start + sb.count
+        for g in groups:
+            g.write(sb)
+        summary = sb.end()
+        crc = zlib.crc32(summary)
+        crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), crc)
+        self._write(summary)
+        self._write(self._record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
+                                        summary_crc=crc)))
+        self._write(MAGIC)

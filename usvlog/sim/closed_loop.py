@@ -1,0 +1,237 @@
+"""The compiled closed loop: plant + guidance + controller (+ the onboard EKF) of a scenario.
+
+:func:`closed_loop` runs the plant of :func:`usvlog.sim.simulate.plant_step` (euler like the
+paper's Section IV, or rk4) driven by the controller; :func:`simulate_scenario` turns a
+:class:`~usvlog.sim.scenario.Scenario` into a field log with sensors (``/control/state``
+and the ``usvlog.path`` metadata record added).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .._jit import njit
+from ..control.gains import Gains
+from ..control.law import COL, NOUT, Controller, control_tick, speed_at
+from ..control.paths import Path
+from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.fieldlog import FieldLog
+from ..model.frames import ssa
+from ..model.vessel import Vessel
+from .scenario import META_PATH, Scenario
+from .simulate import (
+    SimSettings,
+    draw_sensor_noise,
+    field_log_from_run,
+    plant_step,
+)
+
+
+@dataclass(frozen=True)
+class ClosedLoopRun:
+    """A closed-loop simulation: plant states at every step, controller rows at every tick."""
+
+    t: np.ndarray          # s from start, every plant step
+    states: np.ndarray     # (N, 6) [n, e, psi (continuous), u, v, r]
+    tau: np.ndarray        # (N, 2) applied (tau_u, tau_r) held over each step
+    tick: np.ndarray       # plant-step index of every controller tick
+    ctrl: np.ndarray       # (M, NOUT) controller rows (see usvlog.control.law.OUT_COLUMNS)
+    controller_input: str  # "truth" or "ekf"
+
+    def to_dataframe(self):
+        """Plant states and applied forces at every step (index: time in s)."""
+        import pandas as pd
+
+        cols = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]
+        df = pd.DataFrame(self.states, columns=cols, index=pd.Index(self.t, name="t_s"))
+        df["psi_rad"] = ssa(df["psi_rad"].to_numpy())
+        df["tau_u_n"], df["tau_r_nm"] = self.tau[:, 0], self.tau[:, 1]
+        return df
+
+    def controller_dataframe(self):
+        """Controller rows at every tick (columns: usvlog.control.law.OUT_COLUMNS)."""
+        import pandas as pd
+
+        from ..control.law import OUT_COLUMNS
+
+        return pd.DataFrame(self.ctrl, columns=list(OUT_COLUMNS), index=pd.Index(self.t[self.tick], name="t_s"))
+
+
+@njit
+def _closed_loop_kernel(x, n, every, dt, u_ref, dtheta, prm, cn, ce, rk4, cs, kind, pprm, G, P, S, T):
+    """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled."""
+    states = np.empty((n, 6))
+    tau = np.empty((n, 2))
+    ctrl = np.empty(((n + every - 1) // every, NOUT))
+    xa = np.empty(6)
+    tu = 0.0
+    tr = 0.0
+    j = 0
+    for k in range(n):
+        if k % every == 0:
+            for i in range(6):
+                xa[i] = x[i]
+            control_tick(xa, u_ref[k], dtheta[k], every * dt, cs, kind, pprm, G, P, S, T, ctrl[j])
+            tu = ctrl[j, 14]
+            tr = ctrl[j, 15]
+            j += 1
+        for i in range(6):
+            states[k, i] = x[i]
+        tau[k, 0] = tu
+        tau[k, 1] = tr
+        x = plant_step(x, tu, tr, prm, dt, cn, ce, rk4)
+    return states, tau, ctrl
+
+
+def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
+                integrator: str, current_ne, eta0, nu0, schedule: np.ndarray, rate_hz: float,
+                estimator=None) -> ClosedLoopRun:
+    """Simulate plant + controller. ``estimator(k, x_true, tau) -> x_hat`` (None: the true state)."""
+    n = int(round(duration_s / dt_s))
+    every = max(1, int(round(1.0 / (rate_hz * dt_s))))
+    dt_ctrl = every * dt_s
+    t = np.arange(n) * dt_s
+    u_ref = speed_at(schedule, t)
+    dtheta = speed_at(schedule, t, 2) if schedule.shape[1] > 2 else np.full(n, controller.guidance.delta_theta)
+    prm = tuple(plant.params.as_array().tolist())
+    cn, ce = float(current_ne[0]), float(current_ne[1])
+    rk4 = integrator == "rk4"
+    x = tuple(float(a) for a in (*eta0, *nu0))
+    states = np.empty((n, 6))
+    tau = np.empty((n, 2))
+    ticks = np.arange(0, n, every)
+    ctrl = np.empty((len(ticks), NOUT))
+    controller.reset(x)
+    if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
+        c = controller
+        states, tau, ctrl = _closed_loop_kernel(x, n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta),
+                                                prm, cn, ce, rk4, c.cs, c.path.kind, c.path.prm,
+                                                c.G, c.P, c.S, c.T)
+        return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth")
+    tu = tr = 0.0
+    j = 0
+    step = controller.step
+    for k in range(n):
+        if k % every == 0:
+            xh = np.array(x) if estimator is None else estimator(k, x, (tu, tr))
+            row = step(xh, u_ref[k], dt_ctrl, ctrl[j], dtheta[k])
+            tu, tr = float(row[14]), float(row[15])
+            j += 1
+        states[k] = x
+        tau[k, 0] = tu
+        tau[k, 1] = tr
+        x = plant_step(x, tu, tr, prm, dt_s, cn, ce, rk4)
+    return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth" if estimator is None else "ekf")
+
+
+def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):
+    """Controller rows -> a usvlog.ControllerState.v1 frame (commands in ``unit``)."""
+    cols = {c: rows[:, COL[c]] for c in ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m",
+                                         "psi_ref_rad", "psi_d_rad", "r_d_radps", "r_d_dot_radps2", "u_d_mps",
+                                         "u_d_dot_mps2", "u_e_mps", "psi_e_rad", "cross_track_m", "tau_u_n",
+                                         "tau_r_nm", "thrust_left_n", "thrust_right_n")}
+    cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
+    cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
+    cols["saturated"] = rows[:, COL["saturated"]] != 0.0
+    return frame_from_columns(cols, t_ns, codec_for_topic(topic))
+
+
+def command_unit(thrusters) -> str:
+    return "newton" if thrusters.map == "identity" else "normalized"
+
+
+def make_controller(scen: Scenario, path: Path, vessel: Vessel | None = None, gains: Gains | None = None,
+                    controller: str | None = None) -> Controller:
+    return Controller(path, vessel or scen.sim.vessel, gains or scen.gains, scen.guidance,
+                      full=(controller or scen.controller) == "full")
+
+
+class EKFInTheLoop:
+    """The controller's state from ``usvlog.estimate.OnlineEKF`` (dynamic model with current),
+    fed with the very sensor samples the log records (GPS and compass noise drawn up front
+    by ``draw_sensor_noise``), predicted with the applied forces at every controller tick.
+
+    GPS fixes are used in local NED before the log's lat/lon rounding (1e-8 deg, ~1 mm);
+    compass readings are rounded to the log's 1e-4 rad like the recorded ones.
+    """
+
+    def __init__(self, st: SimSettings, t: np.ndarray, noise: dict, dt_ctrl: float):
+        from ..estimate import OnlineEKF
+        from ..estimate.settings import EstimateSettings
+
+        sn = st.sensors
+        self.ekf = OnlineEKF(st.vessel, EstimateSettings(model="dynamic", current=True),
+                             x0=np.array([*st.eta0, *st.nu0, 0.0, 0.0], float))
+        self.dt = dt_ctrl
+        gi, keep = noise["gps_index"], noise["gps_keep"]
+        off = noise["gps_noise"] + noise["gps_bias"]
+        for k, dn, de in noise["gps_jumps"]:
+            off[k] = off[k] + (dn, de)
+        self.gps = {int(k): (float(o[0]), float(o[1])) for k, o, ok in zip(gi, off, keep) if ok}
+        self.gps_var = max(sn.gps_noise_m, 0.05) ** 2
+        cb = math.radians(sn.compass_bias_deg)
+        self.compass = {int(k): cb + float(w) for k, w in zip(noise["compass_index"], noise["compass_noise"])}
+        self.compass_var = max(math.radians(sn.compass_noise_deg), math.radians(0.1)) ** 2
+        self.last = -1
+        self.X: list[np.ndarray] = []
+        self.S: list[np.ndarray] = []
+
+    def __call__(self, k: int, x, tau) -> np.ndarray:
+        ekf = self.ekf
+        if self.last >= 0:
+            ekf.predict(self.dt, tau[0], tau[1])
+        for j in range(self.last + 1, k + 1):  # samples since the previous tick, at this tick's state
+            if j in self.gps:
+                dn, de = self.gps[j]
+                ekf.update_gnss(x[0] + dn, x[1] + de, self.gps_var)
+            if j in self.compass:
+                ekf.update_heading(float(np.round(ssa(x[2] + self.compass[j]), 4)), self.compass_var)
+        self.last = k
+        xh = ekf.x
+        self.X.append(xh)
+        self.S.append(np.sqrt(np.clip(np.diag(ekf.P), 0.0, None)))
+        return np.ascontiguousarray(xh[:6])
+
+    def frame(self, t_ns: np.ndarray):
+        X, S = np.array(self.X), np.array(self.S)
+        names = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"]
+        cols = {c: X[:, i] for i, c in enumerate(names)}
+        cols["psi_rad"] = ssa(cols["psi_rad"])
+        cols.update({f"{c}_std": S[:, i] for i, c in enumerate(names)})
+        return frame_from_columns(cols, t_ns, codec_for_topic("/estimate/state"))
+
+
+def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: int | None = None,
+                      duration_s: float | None = None) -> FieldLog:
+    """Run a closed-loop scenario into a field log (sensors, truth, /control/state, usvlog.path)."""
+    st = scen.sim if duration_s is None else replace(scen.sim, duration_s=duration_s)
+    seed = scen.seed if seed is None else seed
+    ctl_name = controller or scen.controller
+    path = scen.path(st.datum)
+    ctl = make_controller(scen, path, controller=ctl_name)
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(st.duration_s / st.dt_s))) * st.dt_s
+    noise = draw_sensor_noise(st, t, rng)
+    every = max(1, int(round(1.0 / (scen.guidance.rate_hz * st.dt_s))))
+    est = None if scen.controller_input == "truth" else EKFInTheLoop(st, t, noise, every * st.dt_s)
+    run = closed_loop(path, st.vessel, ctl, duration_s=st.duration_s, dt_s=st.dt_s, integrator=st.integrator,
+                      current_ne=st.current_ne, eta0=st.eta0, nu0=st.nu0, schedule=scen.schedule,
+                      rate_hz=scen.guidance.rate_hz, estimator=est)
+    extra = {"controller": ctl_name, "controller_input": run.controller_input,
+             "gains": scen.gains.to_dict(), "guidance": scen.guidance.to_dict(), "path": scen.path_spec,
+             "speed_schedule": [list(s) for s in scen.speed], "eta0": list(st.eta0), "nu0": list(st.nu0),
+             "scenario_file": scen.source}
+    log = field_log_from_run(st, run.t, run.states, run.tau[:, 0], run.tau[:, 1], rng,
+                             producer="usvlog simulate (closed loop)", scenario=scen.name, seed=seed,
+                             extra_settings=extra, noise=noise)
+    t0 = int(log["/truth/state"].index[0])
+    t_ns = t0 + np.round(run.t[run.tick] * 1e9).astype(np.int64)
+    if est is not None:  # the onboard estimate the controller ran on, as a boat's log has it
+        log.set("/estimate/state", est.frame(t_ns))
+    thr = st.vessel.thrusters
+    log.set("/control/state", controller_frame(run.ctrl, t_ns, "/control/state", thr, command_unit(thr)))
+    log.meta[META_PATH] = path.metadata()
+    return log
