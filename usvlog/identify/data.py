@@ -86,7 +86,7 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
 
     Raises
     ------
-    KeyError
+    usvlog.errors.InputError
         If the log has no ``/thrust/command`` channel.
     usvlog.errors.ConfigError
         If commands cannot be converted with the vessel's thruster map.
@@ -131,7 +131,7 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     Raises
     ------
     usvlog.errors.InputError
-        With fewer than 10 usable thrust samples, no valid GNSS fix, or fewer than 10
+        If a channel is missing, with fewer than 10 usable thrust samples, no valid GNSS fix, or fewer than 10
         fixes or headings inside the thrust record.
     """
     vessel = vessel or log.vessel or default_vessel()
