@@ -97,7 +97,7 @@ class GuidanceSettings:
     delta_theta : float, default 1.0
         Carrot distance ahead of the closest point along the path, m (> 0).
     gamma : float, default 0.5
-        Step of the gradient descent (7), 1/m (> 0; see :mod:`usvlog.control.guidance`
+        Step of the gradient descent (7), dimensionless (> 0; see :mod:`usvlog.control.guidance`
         for convergence).
     iterations : int, default 10
         Descent iterations per controller tick, >= 1.

@@ -78,7 +78,7 @@ def closest_point(path: Path, n: float, e: float, theta0: float | None = None, *
     theta0 : float, optional
         Start of the descent, m along the path (default :func:`initial_theta`).
     gamma : float, default 0.5
-        Descent step, 1/m.
+        Descent step (dimensionless).
     iterations : int, default 50
         Descent iterations.
 
