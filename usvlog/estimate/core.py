@@ -308,7 +308,11 @@ def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarr
 
 def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> np.ndarray:
     """Diagonal of the continuous process-noise intensity for the state layout: on the
-    accelerations (kinematic) or on u, v, r and the current (dynamic)."""
+    accelerations (kinematic) or on u, v, r and the current (dynamic).
+
+    ``q_uv``, ``q_r``, ``q_c`` override the settings' values (units as in
+    :class:`EstimateSettings`); returns an array of :func:`state_size` entries (0 on
+    states without process noise)."""
     nx = state_size(settings)
     q = np.zeros(nx)
     i = 6 if settings.model == "kinematic" else 3
@@ -403,7 +407,22 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool)
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
     """q_uv, q_r (and q_current) maximising the forward innovation likelihood.
 
-    Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps."""
+    Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps.
+
+    Parameters
+    ----------
+    pb : Problem
+    settings : EstimateSettings
+        Model and starting intensities.
+    max_steps : int, default 60000
+        Only this many filter steps enter the likelihood (speed).
+
+    Returns
+    -------
+    dict
+        ``q_uv``, ``q_r`` (and ``q_current`` with current states) in the units of
+        :class:`EstimateSettings`, ``loglik`` at the optimum, ``evaluations``.
+    """
     if len(pb.dts) > max_steps:
         k = max_steps
         sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],

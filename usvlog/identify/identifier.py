@@ -499,7 +499,11 @@ class Identifier:
     def fit_frame(self, run_index: int = 0) -> tuple[np.ndarray, dict]:
         """(t_s, columns) of measured vs fitted-model states of a fitted run (``/identify/fit``):
         the output-error model from each segment's fitted initial state (equation error: a
-        free run)."""
+        free run).
+
+        ``t_s``: s from the run's first thrust sample; columns u_mps, u_sim_mps, v_mps,
+        v_sim_mps, r_radps, r_sim_radps, n_m, n_sim_m, e_m, e_sim_m, psi_rad, psi_sim_rad
+        (headings wrapped). Raises ConfigError if the identifier is not fitted."""
         self._check_fitted()
         run, ks = self.runs_[run_index], self._kin[run_index]
         cur = self.current_[run_index]

@@ -484,7 +484,11 @@ class _SingleSeg:
 
 def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
     """Free run of the model from state ``x0`` at ``t0`` (s, on the run's thrust grid) through
-    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0)."""
+    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0).
+
+    ``theta``: m, Iz, d11, d22, d33, xg (SI); ``current``: north, east in m/s; ``x0``:
+    [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]. Rows for times outside the
+    thrust record are NaN."""
     times = np.asarray(times, float)
     i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     out_x = np.full((len(times), 6), np.nan)
@@ -520,7 +524,11 @@ def predict_segments(runs: list[RunData], segment_s: float, x0s, theta, currents
 def fit_initial_state(run: RunData, theta, x0_guess, t0: float, t1: float, *, fit_current=True,
                       current0=(0.0, 0.0)):
     """Initial state at ``t0`` (and a constant current) of a run with the parameters held
-    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current)."""
+    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current).
+
+    Times in s from the run's start; ``x0`` (6,) as [n (m), e (m), psi (rad), u (m/s),
+    v (m/s), r (rad/s)], ``current`` (2,) north, east in m/s (``current0`` when
+    ``fit_current`` is False)."""
     w = run.window(t0, t1)
     free = np.zeros(6, bool)
     prob = Problem([w], 1e12)
