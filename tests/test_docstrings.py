@@ -49,7 +49,7 @@ def _class_has_doc(cls) -> bool:
     doc = cls.__dict__.get("__doc__")
     if not _has_doc(doc):
         return False
-    generated = re.fullmatch(rf"{re.escape(cls.__name__)}\(.*\)", doc.strip(), flags=re.S)
+    generated = re.fullmatch(rf"{re.escape(cls.__name__)}\(.*\)", doc.strip(), flags=re.DOTALL)
     return generated is None
 
 
@@ -92,9 +92,8 @@ def find_undocumented():
                 if not _class_has_doc(obj):
                     missing.append(f"{modname}.{name}")
                 missing.extend(_method_offenders(obj, f"{modname}.{name}"))
-            elif _is_routine(obj):
-                if not _has_doc(obj.__doc__):
-                    missing.append(f"{modname}.{name}")
+            elif _is_routine(obj) and not _has_doc(obj.__doc__):
+                missing.append(f"{modname}.{name}")
     return missing
 
 
