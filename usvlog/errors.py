@@ -34,6 +34,21 @@ class StorageError(UsvlogError, OSError):
 
 
 def where(path: object = None, channel: str | None = None, at: str | None = None) -> str:
-    """Format the 'file, channel, row/time' prefix used by every error message."""
+    """Format the 'file, channel, row/time' prefix used by every error message.
+
+    Parameters
+    ----------
+    path : object, optional
+        File (or other source) name.
+    channel : str, optional
+        Channel (topic).
+    at : str, optional
+        Row, line or time.
+
+    Returns
+    -------
+    str
+        The given parts joined by spaces (empty or None ones left out).
+    """
     parts = [str(p) for p in (path, channel, at) if p not in (None, "")]
     return " ".join(parts)

@@ -38,7 +38,34 @@ GAIN_NAMES = ("KPu", "KIu", "KPpsi", "KIpsi", "KDpsi")
 
 @dataclass(frozen=True, kw_only=True)
 class Gains:
-    """Gains of control law (9)-(10), paper symbols (the Section IV values by default)."""
+    """Gains of control law (9)-(10), paper symbols (the Section IV values by default).
+
+    tau_u = -KPu ue - KIu int(ue) + ... and tau_r = -KPpsi psie - KIpsi int(psie) -
+    KDpsi re + ..., with ue in m/s, psie in rad and re in rad/s (see
+    :mod:`usvlog.control.law`). All gains are finite and >= 0.
+
+    Parameters
+    ----------
+    KPu : float, default 5.0
+        Surge proportional gain, N per m/s (N s/m).
+    KIu : float, default 0.5
+        Surge integral gain, N per m (N/m).
+    KPpsi : float, default 5.0
+        Heading proportional gain, N m/rad.
+    KIpsi : float, default 0.1
+        Heading integral gain, N m/(rad s).
+    KDpsi : float, default 1.0
+        Heading derivative gain (on the yaw-rate error), N m s/rad.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a gain is not a finite number or is negative.
+
+    See Also
+    --------
+    check_gains : the conditions of Theorems 3.1 and 3.2 for these gains and a vessel.
+    """
 
     KPu: float = 5.0
     KIu: float = 0.5
@@ -53,15 +80,49 @@ class Gains:
                 raise ConfigError(f"gain {f} = {getattr(self, f)} must be >= 0")
 
     def as_array(self) -> np.ndarray:
+        """Gains as a float array of shape (5,): KPu, KIu, KPpsi, KIpsi, KDpsi (``GAIN_NAMES``)."""
         return np.array([getattr(self, f) for f in GAIN_NAMES], dtype=float)
 
     def to_dict(self) -> dict[str, float]:
+        """Gains by paper symbol as Python floats (the ``[gains]`` table)."""
         return {f: float(getattr(self, f)) for f in GAIN_NAMES}
 
 
 @dataclass(frozen=True, kw_only=True)
 class GuidanceSettings:
-    """Guidance (7)-(8), prefilters and controller rate."""
+    """Guidance (7)-(8), prefilters and controller rate.
+
+    Parameters
+    ----------
+    delta_theta : float, default 1.0
+        Carrot distance ahead of the closest point along the path, m (> 0).
+    gamma : float, default 0.5
+        Step of the gradient descent (7), dimensionless (> 0; see :mod:`usvlog.control.guidance`
+        for convergence).
+    iterations : int, default 10
+        Descent iterations per controller tick, >= 1.
+    rate_hz : float, default 100.0
+        Controller rate, Hz.
+    psi_omega : float, default 0.5
+        Natural frequency of the heading reference model, rad/s.
+    psi_zeta : float, default 1.0
+        Its relative damping.
+    surge_order : {0, 1, 2}, default 2
+        Order of the surge reference model (0: none, u_d = u_ref).
+    u_omega : float, default 0.5
+        Natural frequency of the surge reference model, rad/s.
+    u_zeta : float, default 1.0
+        Its relative damping (order 2).
+    prefilter_init : {"reference", "state"}, default "reference"
+        Start the prefilters at the reference, or at the vessel's heading and speed.
+    anti_windup : bool, default True
+        Conditional integration while the thrusters saturate.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a value is not a positive finite number or not one of the allowed choices.
+    """
 
     delta_theta: float = 1.0
     gamma: float = 0.5
@@ -90,11 +151,31 @@ class GuidanceSettings:
             raise ConfigError("guidance setting anti_windup must be true or false")
 
     def to_dict(self) -> dict:
+        """All fields by name (the ``[guidance]`` table)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def gains_from_dict(doc: dict, source: str = "gains") -> tuple[Gains, GuidanceSettings]:
-    """Read ``[gains]`` and ``[guidance]`` from a parsed TOML document."""
+    """Read ``[gains]`` and ``[guidance]`` from a parsed TOML document.
+
+    Parameters
+    ----------
+    doc : dict
+        Parsed TOML with a ``[gains]`` table and an optional ``[guidance]`` table
+        (missing keys take the defaults).
+    source : str, default "gains"
+        Name of the document, for error messages.
+
+    Returns
+    -------
+    gains : Gains
+    guidance : GuidanceSettings
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If ``[gains]`` is missing, a table has an unknown key or a value is out of range.
+    """
     g = doc.get("gains")
     if g is None:
         raise ConfigError(f"{source}: no [gains] table")
@@ -120,7 +201,19 @@ def gains_from_dict(doc: dict, source: str = "gains") -> tuple[Gains, GuidanceSe
 # -----------------------------------------------------------------------------
 
 def error_matrix(p: VesselParams, g: Gains) -> np.ndarray:
-    """A_e of (12), exactly as printed in the paper; state x_e = [ueI, ue, psieI, psie, re, v]."""
+    """A_e of (12), exactly as printed in the paper; state x_e = [ueI, ue, psieI, psie, re, v].
+
+    Parameters
+    ----------
+    p : VesselParams
+    g : Gains
+
+    Returns
+    -------
+    numpy.ndarray, shape (6, 6)
+        Closed-loop error-dynamics matrix (x_e_dot = A_e x_e); divides by
+        Iz - m xg^2, so that must be non-zero.
+    """
     m, Iz, d11, d22, d33, xg = p.m, p.Iz, p.d11, p.d22, p.d33, p.xg
     J = Iz - m * xg**2
     A = np.zeros((6, 6))
@@ -141,18 +234,49 @@ def error_matrix(p: VesselParams, g: Gains) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Condition:
+    """One condition of Theorem 3.1: its name, the expression, its value and whether it holds."""
+
     name: str
     expression: str
     value: float
     holds: bool
 
     def to_dict(self) -> dict:
+        """The fields as a JSON-ready dict."""
         return {"name": self.name, "expression": self.expression, "value": self.value, "holds": self.holds}
 
 
 @dataclass(frozen=True)
 class GainCheck:
-    """Verdict of Theorem 3.1 (conditions, A_e, eigenvalues) and Theorem 3.2 (bound (18))."""
+    """Verdict of Theorem 3.1 (conditions, A_e, eigenvalues) and Theorem 3.2 (bound (18)).
+
+    Attributes
+    ----------
+    params : VesselParams
+    gains : Gains
+    conditions : tuple of Condition
+        The three conditions of Theorem 3.1 (condition 2 as two entries).
+    A_e : numpy.ndarray, shape (6, 6)
+        Error-dynamics matrix of (12) (NaN when Iz - m xg^2 = 0).
+    eigenvalues : numpy.ndarray of complex, shape (6,)
+        Eigenvalues of A_e, 1/s.
+    hurwitz : bool
+        All eigenvalues have negative real parts.
+    Q : numpy.ndarray, shape (6, 6)
+        Right-hand side of the Lyapunov equation P A_e + A_e^T P = -Q.
+    P : numpy.ndarray or None
+        Its solution (None unless A_e is Hurwitz).
+    c1, c2, c3, c4 : float or None
+        lambda_min(P), lambda_max(P), lambda_min(Q), 2 lambda_max(P) (None unless Hurwitz).
+    delta : float or None
+        Bound on the disturbance term given to :func:`check_gains`.
+    theta : float
+        The theta in (0, 1) of the bound.
+    bound_per_delta : float or None
+        Ultimate bound (18) of |x_e| per unit of delta.
+    bound : float or None
+        bound_per_delta * delta (None without delta).
+    """
 
     params: VesselParams
     gains: Gains
@@ -173,10 +297,12 @@ class GainCheck:
 
     @property
     def ok(self) -> bool:
+        """All conditions hold and A_e is Hurwitz."""
         return all(c.holds for c in self.conditions) and self.hurwitz
 
     @property
     def failed(self) -> list[str]:
+        """One line per failed condition (and for a non-Hurwitz A_e); empty when :attr:`ok`."""
         out = [f"{c.name} ({c.expression} = {c.value:.6g})" for c in self.conditions if not c.holds]
         if not self.hurwitz:
             worst = float(np.max(self.eigenvalues.real))
@@ -185,11 +311,13 @@ class GainCheck:
 
     @property
     def verdict(self) -> str:
+        """One-line verdict starting with ``OK:`` or ``FAIL:``."""
         if self.ok:
             return "OK: all conditions of Theorem 3.1 hold, A_e is Hurwitz, v is ultimately bounded"
         return "FAIL: " + "; ".join(self.failed)
 
     def to_dict(self) -> dict:
+        """JSON-ready dict of every field plus ``ok`` and ``verdict`` (eigenvalues as re/im pairs)."""
         ev = self.eigenvalues
         return {"ok": self.ok, "verdict": self.verdict, "params": self.params.to_dict(),
                 "gains": self.gains.to_dict(),
@@ -205,7 +333,30 @@ class GainCheck:
 
 def check_gains(params: VesselParams, gains: Gains, *, Q=None, delta: float | None = None,
                 theta: float = 0.5) -> GainCheck:
-    """Theorem 3.1's three conditions, eig(A_e), and the ultimate bound (18) for P A_e + A_e^T P = -Q."""
+    """Theorem 3.1's three conditions, eig(A_e), and the ultimate bound (18) for P A_e + A_e^T P = -Q.
+
+    Parameters
+    ----------
+    params : VesselParams
+        Vessel model parameters (SI units).
+    gains : Gains
+    Q : array_like, optional
+        Symmetric positive definite (6, 6) matrix, or its 6 diagonal entries (default
+        the identity).
+    delta : float, optional
+        Bound (>= 0) on the disturbance of the error dynamics; gives ``bound``.
+    theta : float, default 0.5
+        The theta in (0, 1) of Theorem 3.2.
+
+    Returns
+    -------
+    GainCheck
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If ``theta``, ``delta`` or ``Q`` is out of range.
+    """
     from scipy.linalg import solve_continuous_lyapunov
 
     if not (0 < theta < 1):

@@ -46,7 +46,21 @@ def guidance_step(kind, prm, pn, pe, theta, gamma, iterations, delta_theta):
 
 
 def initial_theta(path: Path, n: float, e: float, samples: int = 4000) -> float:
-    """Global start for the descent: the nearest of ``samples`` points along the drawn range."""
+    """Global start for the descent: the nearest of ``samples`` points along the drawn range.
+
+    Parameters
+    ----------
+    path : Path
+    n, e : float
+        Vessel position north, east in m.
+    samples : int, default 4000
+        Number of evenly spaced path parameters tried.
+
+    Returns
+    -------
+    float
+        Path parameter theta (m along the path) of the nearest sample.
+    """
     th = np.linspace(path.theta_min, path.theta_max, samples)
     pts = path.point(th)
     return float(th[int(np.argmin((pts[:, 0] - n) ** 2 + (pts[:, 1] - e) ** 2))])
@@ -54,13 +68,47 @@ def initial_theta(path: Path, n: float, e: float, samples: int = 4000) -> float:
 
 def closest_point(path: Path, n: float, e: float, theta0: float | None = None, *, gamma: float = 0.5,
                   iterations: int = 50) -> float:
-    """Theta of the (locally) closest point to (n, e), by (7) from ``theta0`` (dense search if None)."""
+    """Theta of the (locally) closest point to (n, e), by (7) from ``theta0`` (dense search if None).
+
+    Parameters
+    ----------
+    path : Path
+    n, e : float
+        Position north, east in m.
+    theta0 : float, optional
+        Start of the descent, m along the path (default :func:`initial_theta`).
+    gamma : float, default 0.5
+        Descent step (dimensionless).
+    iterations : int, default 50
+        Descent iterations.
+
+    Returns
+    -------
+    float
+        Path parameter theta in m.
+    """
     th0 = initial_theta(path, n, e) if theta0 is None else float(theta0)
     return float(closest_theta(path.kind, path.prm, float(n), float(e), th0, float(gamma), int(iterations)))
 
 
 def reference_heading(path: Path, n: float, e: float, theta: float, delta_theta: float) -> float:
-    """psi_ref of (8) in NED for the vessel at (n, e) and closest-point parameter theta."""
+    """psi_ref of (8) in NED for the vessel at (n, e) and closest-point parameter theta.
+
+    Parameters
+    ----------
+    path : Path
+    n, e : float
+        Vessel position north, east in m.
+    theta : float
+        Closest-point parameter, m along the path.
+    delta_theta : float
+        Carrot distance ahead, m.
+
+    Returns
+    -------
+    float
+        Heading towards the carrot point, rad clockwise from north, in [-pi, pi].
+    """
     cn, ce = path.point(theta + delta_theta)
     return math.atan2(ce - e, cn - n)
 

@@ -105,7 +105,24 @@ def path_eval_many(kind, prm, theta):
 
 @dataclass(frozen=True)
 class Path:
-    """A compiled path: ``spec`` (as written), ``kind``/``prm`` for the kernels, theta range."""
+    """A compiled path: ``spec`` (as written), ``kind``/``prm`` for the kernels, theta range.
+
+    Build one with :func:`path_from_spec`. theta is in m along the path (see the module
+    docstring); positions are local NED in m.
+
+    Attributes
+    ----------
+    spec : dict
+        The definition as written (the ``[path]`` table).
+    kind : int
+        ``CIRCLE``, ``SINUSOID``, ``LINE`` or ``SPLINE``.
+    prm : numpy.ndarray
+        Packed parameters for :func:`path_eval`.
+    theta_min, theta_max : float
+        The drawn (and searched) range of theta, m.
+    periodic : bool
+        True for a circle (theta wraps every 2 pi R).
+    """
 
     spec: dict
     kind: int
@@ -135,6 +152,7 @@ class Path:
         return self.point(np.linspace(self.theta_min, self.theta_max, n))
 
     def spec_json(self) -> str:
+        """The spec as JSON with sorted keys (read back by :func:`path_from_json`)."""
         return json.dumps(self.spec, sort_keys=True)
 
     def metadata(self, n: int = 1000) -> dict[str, str]:
@@ -198,7 +216,28 @@ def hermite_coefficients(knots: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 
 def path_from_spec(spec: dict, *, datum=None, source: str = "path") -> Path:
-    """Build a :class:`Path` from its TOML/JSON definition (see module docstring)."""
+    """Build a :class:`Path` from its TOML/JSON definition (see module docstring).
+
+    Parameters
+    ----------
+    spec : dict
+        The ``[path]`` table: ``type`` and that kind's keys (lengths in m, angles in
+        degrees).
+    datum : Datum, optional
+        Needed for ``waypoints`` in the ``latlon`` frame (converted to NED about it).
+    source : str, default "path"
+        Name of the document, for error messages.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown type or key, a missing or invalid value, fewer than two or
+        coinciding waypoints, or lat/lon waypoints without a datum.
+    """
     if not isinstance(spec, dict):
         raise ConfigError(f"{source}: [path] must be a table")
     typ = spec.get("type")
@@ -257,6 +296,11 @@ def path_from_spec(spec: dict, *, datum=None, source: str = "path") -> Path:
 
 
 def path_from_json(text: str, *, datum=None) -> Path:
+    """Path from the JSON of :meth:`Path.spec_json` (e.g. a log's ``usvlog.path`` metadata).
+
+    Raises ``json.JSONDecodeError`` on invalid JSON and
+    :class:`~usvlog.errors.ConfigError` on an invalid spec.
+    """
     return path_from_spec(json.loads(text), datum=datum, source="usvlog.path")
 
 

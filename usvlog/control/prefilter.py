@@ -91,7 +91,31 @@ def _run_surge(u_ref, dt, order, omega, zeta, u0, ud0):
 
 def filter_heading(psi_ref, dt: float, *, omega: float, zeta: float = 1.0, psi0: float | None = None,
                    r0: float = 0.0, a0: float = 0.0) -> np.ndarray:
-    """Run the heading model over a sampled psi_ref: columns psi_d (wrapped), r_d, r_d_dot."""
+    """Run the heading model over a sampled psi_ref: columns psi_d (wrapped), r_d, r_d_dot.
+
+    Parameters
+    ----------
+    psi_ref : array_like, shape (N,)
+        Reference heading in rad, one sample per step.
+    dt : float
+        Step in s.
+    omega : float
+        Natural frequency in rad/s.
+    zeta : float, default 1.0
+        Relative damping.
+    psi0 : float, optional
+        Initial psi_d in rad (default ``psi_ref[0]``).
+    r0 : float, default 0.0
+        Initial r_d in rad/s.
+    a0 : float, default 0.0
+        Initial r_d_dot in rad/s^2.
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, 3)
+        psi_d (rad, wrapped to [-pi, pi)), r_d (rad/s), r_d_dot (rad/s^2); row k is the
+        output at step k, before the input ``psi_ref[k]`` acts.
+    """
     x = np.ascontiguousarray(np.asarray(psi_ref, dtype=float))
     p0 = float(x[0]) if psi0 is None else float(psi0)
     return _run_heading(x, float(dt), float(omega), float(zeta), p0, float(r0), float(a0))
@@ -99,7 +123,30 @@ def filter_heading(psi_ref, dt: float, *, omega: float, zeta: float = 1.0, psi0:
 
 def filter_surge(u_ref, dt: float, *, order: int = 2, omega: float = 0.5, zeta: float = 1.0,
                  u0: float | None = None, ud0: float = 0.0) -> np.ndarray:
-    """Run the surge model over a sampled u_ref: columns u_d, u_d_dot."""
+    """Run the surge model over a sampled u_ref: columns u_d, u_d_dot.
+
+    Parameters
+    ----------
+    u_ref : array_like, shape (N,)
+        Reference surge speed in m/s, one sample per step.
+    dt : float
+        Step in s.
+    order : {0, 1, 2}, default 2
+        Order of the reference model (0: u_d = u_ref).
+    omega : float, default 0.5
+        Natural frequency in rad/s.
+    zeta : float, default 1.0
+        Relative damping (order 2).
+    u0 : float, optional
+        Initial u_d in m/s (default ``u_ref[0]``).
+    ud0 : float, default 0.0
+        Initial u_d_dot in m/s^2 (order 2).
+
+    Returns
+    -------
+    numpy.ndarray, shape (N, 2)
+        u_d (m/s) and u_d_dot (m/s^2) at each step.
+    """
     x = np.ascontiguousarray(np.asarray(u_ref, dtype=float))
     v0 = float(x[0]) if u0 is None else float(u0)
     return _run_surge(x, float(dt), int(order), float(omega), float(zeta), v0, float(ud0))

@@ -52,6 +52,20 @@ def state_size(settings: EstimateSettings) -> int:
 
 
 def initial_covariance(settings: EstimateSettings) -> np.ndarray:
+    """Initial state covariance before the first measurement, diagonal.
+
+    One-sigma 10 m on n, e, 0.5 rad on psi, 1 m/s on the velocities, 0.3 rad/s on r and
+    0.3 (SI units) on the extra states (accelerations, sway damping or current).
+
+    Parameters
+    ----------
+    settings : EstimateSettings
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (nx, nx) with nx = :func:`state_size` (settings).
+    """
     nx = state_size(settings)
     sig = (_P0_SIGMA + _P0_EXTRA[settings.model])[:nx]
     return np.diag(np.square(sig))
@@ -85,6 +99,7 @@ class Problem:
 
     @property
     def nx(self) -> int:
+        """Number of states."""
         return len(self.x0)
 
 
@@ -138,6 +153,32 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel):
 
 
 def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
+    """Collect the filter's inputs from a log: measurements, step grid, thrust, gates.
+
+    GNSS fixes become NED positions about the log's datum (else its first valid fix),
+    compass headings true hull headings; non-finite or out-of-range records are skipped
+    and counted. The steps are the output grid (``settings.output_step_s``) plus every
+    measurement time; thrust is held (zero-order) between its records.
+
+    Parameters
+    ----------
+    log : FieldLog
+        Needs ``/gnss/fix`` and ``/compass/heading``; ``/thrust/command`` for the
+        dynamic model (optional for the kinematic one); ``settings.yaw_rate_topic`` if set.
+    settings : EstimateSettings
+    vessel : Vessel
+        Thruster map for commands not in newtons and the model parameters.
+
+    Returns
+    -------
+    Problem
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If a needed channel is missing or empty, its time goes backwards, it has no valid
+        record, or thrust commands cannot be turned into forces.
+    """
     s = settings
     gps = _channel(log, GNSS_TOPIC)
     comp = _channel(log, COMPASS_TOPIC)
@@ -267,7 +308,11 @@ def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarr
 
 def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> np.ndarray:
     """Diagonal of the continuous process-noise intensity for the state layout: on the
-    accelerations (kinematic) or on u, v, r and the current (dynamic)."""
+    accelerations (kinematic) or on u, v, r and the current (dynamic).
+
+    ``q_uv``, ``q_r``, ``q_c`` override the settings' values (units as in
+    :class:`EstimateSettings`); returns an array of :func:`state_size` entries (0 on
+    states without process noise)."""
     nx = state_size(settings)
     q = np.zeros(nx)
     i = 6 if settings.model == "kinematic" else 3
@@ -286,6 +331,15 @@ def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> 
 
 @dataclass(frozen=True)
 class RawRun:
+    """Raw arrays of one filter (and smoother) run, on every step of a :class:`Problem`.
+
+    ``X``/``XS`` forward and smoothed states (N, nx), ``SDf``/``SDs`` their one-sigma,
+    ``PBf``/``PBs`` their covariance block of states 2..4 (N, 3, 3); ``innov`` (M, 4)
+    [res_0, res_1, nis, log-likelihood term] per measurement, ``accepted`` (M,)
+    0 rejected / 1 accepted / 2 accepted after too many rejections; ``loglik`` their sum.
+    Without the smoother the smoothed arrays are the forward ones.
+    """
+
     X: np.ndarray          # forward posteriors (N, nx)
     SDf: np.ndarray        # their one-sigma
     PBf: np.ndarray        # their covariance block of states 2..4 (N, 3, 3)
@@ -298,6 +352,22 @@ class RawRun:
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+    """Forward EKF (and RTS smoother) with the numba-compiled kernels.
+
+    Parameters
+    ----------
+    pb : Problem
+    q : numpy.ndarray
+        Diagonal of the continuous process-noise intensity (:func:`process_noise`).
+    max_rej : int
+        Rejections in a row after which a sensor's next measurement is forced in.
+    smoother : bool
+        Run the smoother after the forward pass.
+
+    Returns
+    -------
+    RawRun
+    """
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
     PP = np.empty((N if smoother else 1, nx, nx))
@@ -324,6 +394,7 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+    """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
     from ..model.vessel import VesselParams
     from .reference import run_reference
 
@@ -336,7 +407,22 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool)
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
     """q_uv, q_r (and q_current) maximising the forward innovation likelihood.
 
-    Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps."""
+    Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps.
+
+    Parameters
+    ----------
+    pb : Problem
+    settings : EstimateSettings
+        Model and starting intensities.
+    max_steps : int, default 60000
+        Only this many filter steps enter the likelihood (speed).
+
+    Returns
+    -------
+    dict
+        ``q_uv``, ``q_r`` (and ``q_current`` with current states) in the units of
+        :class:`EstimateSettings`, ``loglik`` at the optimum, ``evaluations``.
+    """
     if len(pb.dts) > max_steps:
         k = max_steps
         sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
@@ -371,6 +457,16 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
 
 @dataclass(frozen=True)
 class SensorReport:
+    """Measurement counts and consistency of one sensor in an estimate.
+
+    ``sensor`` is ``gnss``, ``compass`` or ``yaw_rate`` and ``dim`` its measurement
+    dimension; ``forced`` counts measurements accepted after ``max_consecutive_rejects``
+    rejections in a row (they are also in ``accepted``); ``mean_nis`` is the mean
+    normalised innovation squared over the accepted ones (near ``dim`` for a consistent
+    filter); ``skipped`` counts unusable records (non-finite or out of range), which are
+    in neither count.
+    """
+
     sensor: str
     dim: int
     accepted: int
@@ -380,6 +476,7 @@ class SensorReport:
     skipped: int = 0   # records not usable (non-finite or out of range), not counted above
 
     def to_dict(self) -> dict:
+        """The fields as a JSON-ready dict."""
         return {"sensor": self.sensor, "dim": self.dim, "accepted": self.accepted,
                 "rejected": self.rejected, "forced": self.forced, "mean_nis": self.mean_nis,
                 "skipped": self.skipped}
@@ -387,6 +484,33 @@ class SensorReport:
 
 @dataclass(frozen=True)
 class EstimateReport:
+    """Summary of an estimate: model, size, sensors, GNSS dropouts, likelihood.
+
+    Attributes
+    ----------
+    model : str
+        ``kinematic`` or ``dynamic``.
+    states : int
+        Number of filter states.
+    steps : int
+        Filter steps (output grid plus measurement times).
+    duration_s : float
+        First to last measurement, s.
+    sensors : tuple of SensorReport
+        One per sensor present in the log.
+    dropouts : tuple of (int, float)
+        GNSS gaps bridged by prediction: (start in ns since the Unix epoch, duration in s).
+    loglik : float
+        Innovation log-likelihood of the forward pass.
+    thrust_skipped : int
+        Thrust records that could not be used.
+    settings : dict
+        The settings in effect (:meth:`EstimateSettings.to_dict` plus the vessel).
+    tuned : dict or None
+        Result of process-noise tuning (``q_uv``, ``q_r``, maybe ``q_current``,
+        ``loglik``, ``evaluations``), None without tuning.
+    """
+
     model: str
     states: int
     steps: int
@@ -400,15 +524,24 @@ class EstimateReport:
 
     @property
     def dropouts_bridged(self) -> int:
+        """Number of GNSS gaps bridged by prediction."""
         return len(self.dropouts)
 
     def sensor(self, name: str) -> SensorReport:
+        """The report of sensor ``name`` (``gnss``, ``compass``, ``yaw_rate``).
+
+        Raises
+        ------
+        KeyError
+            If that sensor had no measurements.
+        """
         for r in self.sensors:
             if r.sensor == name:
                 return r
         raise KeyError(name)
 
     def to_dict(self) -> dict:
+        """JSON-ready dict; dropouts carry ``start_ns``, a readable ``start`` and ``duration_s``."""
         return {"model": self.model, "states": self.states, "steps": self.steps,
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
@@ -416,6 +549,7 @@ class EstimateReport:
                 "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned}
 
     def format(self) -> str:
+        """Human-readable multi-line summary (what ``usvlog estimate`` prints)."""
         lines = [f"estimate ({self.model}, {self.states} states): {self.steps} steps over {self.duration_s:.1f} s"]
         for r in self.sensors:
             lines.append(f"  {r.sensor:8s} accepted {r.accepted:7d}  rejected {r.rejected:5d}"
@@ -465,6 +599,9 @@ class EstimateResult:
     vessel: Vessel | None = None
 
     def to_dataframe(self) -> pd.DataFrame:
+        """The state estimate ``state`` (not a copy): columns n_m, e_m, psi_rad, u_mps,
+        v_mps, r_radps, current_n_mps, current_e_mps (NaN without current states) and a
+        ``*_std`` one-sigma for each, indexed by t_ns (ns since the Unix epoch)."""
         return self.state
 
     def to_log(self, log: FieldLog) -> FieldLog:
@@ -484,6 +621,39 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     """Estimate the state of a run (forward EKF, then the extended RTS smoother).
 
     ``vessel`` (dynamic model): defaults to the log's own vessel, else the built-in one.
+
+    Parameters
+    ----------
+    log : FieldLog
+        The run. Needs ``/gnss/fix`` (lat_deg, lon_deg, optional cov_*_m2) and
+        ``/compass/heading`` (heading_rad, optional std_rad and reference); the dynamic
+        model also needs ``/thrust/command`` (thrust_left_n / thrust_right_n in N, or
+        commands through the vessel's thruster map).
+    settings : EstimateSettings, optional
+        Model, noise, gating, smoother and tuning (default ``EstimateSettings()``: the
+        kinematic model with the smoother on).
+    vessel : Vessel, optional
+        Model parameters and thruster map; not used by the kinematic model except to
+        convert thrust commands for the yaw-jump term.
+
+    Returns
+    -------
+    EstimateResult
+        ``state`` on a grid of ``settings.output_step_s`` s from the first to the last
+        measurement (positions in m about the log's datum or its first fix, heading in
+        rad, velocities in m/s and rad/s), the forward filter, the innovations and a
+        report. ``result.to_log(log)`` adds them to a copy of the log.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If a needed channel is missing or empty, time goes backwards in one, it has no
+        valid record, or thrust commands cannot be converted to forces.
+
+    Examples
+    --------
+    >>> res = estimate(log, EstimateSettings(model="dynamic"))     # doctest: +SKIP
+    >>> res.state[["n_m", "e_m", "psi_rad"]].head()                # doctest: +SKIP
     """
     if vessel is None:
         vessel = log.vessel or default_vessel()

@@ -26,6 +26,31 @@ class OnlineEKF:
     :mod:`.kernels`: dynamic [n, e, psi, u, v, r] (+ [c_n, c_e] with current states);
     kinematic [n, e, psi, v_n, v_e, r, a_n, a_e, r_dot] (with sway damping [n, e, psi, u, v,
     r, a_x, a_y, r_dot, k]). ``P`` is its covariance.
+
+    Parameters
+    ----------
+    vessel : Vessel
+        Vessel whose model drives the dynamic prediction.
+    settings : EstimateSettings, optional
+        Model, process noise and gate (default ``EstimateSettings(model="dynamic")``).
+        With the kinematic model and no ``q_r``, r_dot wanders at
+        ``Q_R_KINEMATIC_NO_JUMPS`` (no yaw-moment steps are known ahead).
+    x0 : array_like, optional
+        Initial state of ``state_size(settings)`` entries in SI units (default zeros).
+    P0 : array_like, optional
+        Initial covariance (default :func:`.core.initial_covariance`).
+
+    Attributes
+    ----------
+    nx : int
+        Number of states.
+    last_nis : float
+        Normalised innovation squared of the last update (NaN before the first).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If ``x0`` has the wrong length.
     """
 
     def __init__(self, vessel: Vessel, settings: EstimateSettings | None = None, *,
@@ -54,13 +79,26 @@ class OnlineEKF:
 
     @property
     def x(self) -> np.ndarray:
+        """A copy of the state, shape (nx,), SI units (m, rad, m/s, rad/s, ...)."""
         return self._x.copy()
 
     @property
     def P(self) -> np.ndarray:
+        """A copy of the state covariance, shape (nx, nx)."""
         return self._P.copy()
 
     def predict(self, dt: float, tau_u: float = 0.0, tau_r: float = 0.0) -> None:
+        """Propagate state and covariance over ``dt`` (one Euler step of the model).
+
+        Parameters
+        ----------
+        dt : float
+            Step in s; nothing happens unless ``dt > 0``.
+        tau_u : float, default 0.0
+            Surge force applied over the step, N (dynamic model only).
+        tau_r : float, default 0.0
+            Yaw moment applied over the step, N m (dynamic model only).
+        """
         if not dt > 0:
             return
         w = self._w
@@ -79,10 +117,53 @@ class OnlineEKF:
         return bool(ok)
 
     def update_gnss(self, n_m: float, e_m: float, var_m2: float) -> bool:
+        """Gated update with a position fix in the local NED frame.
+
+        Parameters
+        ----------
+        n_m, e_m : float
+            North and east position in m.
+        var_m2 : float
+            Variance of each coordinate in m^2 (no cross-covariance).
+
+        Returns
+        -------
+        bool
+            True when the fix passed the gate (or was forced after
+            ``max_consecutive_rejects`` rejections) and was applied.
+        """
         return self._update(kernels.GNSS, n_m, e_m, var_m2, 0.0, var_m2)
 
     def update_heading(self, psi_rad: float, var_rad2: float) -> bool:
+        """Gated update with a true heading.
+
+        Parameters
+        ----------
+        psi_rad : float
+            Heading in rad, clockwise from north (wrapped against the state).
+        var_rad2 : float
+            Its variance in rad^2.
+
+        Returns
+        -------
+        bool
+            True when the heading was applied (see :meth:`update_gnss`).
+        """
         return self._update(kernels.COMPASS, psi_rad, 0.0, var_rad2, 0.0, 0.0)
 
     def update_yaw_rate(self, r_radps: float, var: float) -> bool:
+        """Gated update with a gyro yaw rate.
+
+        Parameters
+        ----------
+        r_radps : float
+            Yaw rate in rad/s.
+        var : float
+            Its variance in rad^2/s^2.
+
+        Returns
+        -------
+        bool
+            True when the yaw rate was applied (see :meth:`update_gnss`).
+        """
         return self._update(kernels.YAW_RATE, r_radps, 0.0, var, 0.0, 0.0)

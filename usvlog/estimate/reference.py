@@ -32,7 +32,7 @@ def rhs(x, tau_u, tau_r, params: VesselParams, dynamic: bool):
 
 
 def jacobian(x, params: VesselParams, dynamic: bool):
-    """d(rhs)/dx."""
+    """d(rhs)/dx, shape (nx, nx); the same models and arguments as :func:`rhs`."""
     nx = len(x)
     J = np.zeros((nx, nx))
     if not dynamic and nx == 10:
@@ -64,6 +64,19 @@ class VesselEKF(ExtendedKalmanFilter):
         self._step = (0.0, 0.0, 0.0)
 
     def predict_step(self, dt: float, tau_u: float, tau_r: float, qj: float = 0.0) -> None:
+        """Predict over ``dt`` with F = I + dt J(x) and Q = diag(q) dt.
+
+        Parameters
+        ----------
+        dt : float
+            Step in s.
+        tau_u : float
+            Surge force held over the step, N.
+        tau_r : float
+            Yaw moment held over the step, N m.
+        qj : float, default 0.0
+            Variance added to r_dot (state 8) of the kinematic model, rad^2/s^4.
+        """
         x = self.x[:, 0]
         self.F = np.eye(self.dim_x) + dt * jacobian(x, self.params, self.dynamic)
         self.Q = np.diag(self.q * dt)
@@ -73,6 +86,7 @@ class VesselEKF(ExtendedKalmanFilter):
         self.predict()
 
     def predict_x(self, u=0):
+        """filterpy hook: Euler step of the state with the arguments of :meth:`predict_step`."""
         dt, tau_u, tau_r = self._step
         x = self.x[:, 0]
         xn = x + dt * rhs(x, tau_u, tau_r, self.params, self.dynamic)
@@ -80,7 +94,22 @@ class VesselEKF(ExtendedKalmanFilter):
         self.x = xn.reshape(-1, 1)
 
     def gated_update(self, kind: int, z, R, gate: float, force: bool):
-        """Returns (res_0, res_1, nis, loglik term, accepted)."""
+        """Gated update; returns (res_0, res_1, nis, loglik term, accepted).
+
+        Parameters
+        ----------
+        kind : int
+            ``GNSS`` (z = n, e in m), ``COMPASS`` (z = psi in rad) or yaw rate
+            (z = r in rad/s).
+        z : array_like
+            Measurement; only the first ``SENSOR_DIM[kind]`` entries are used.
+        R : numpy.ndarray
+            Measurement covariance, (m, m) in the units of ``z`` squared.
+        gate : float
+            NIS threshold.
+        force : bool
+            Apply the measurement even when its NIS exceeds ``gate``.
+        """
         idx = _SELECT[kind]
         m = SENSOR_DIM[kind]
         H = np.zeros((m, self.dim_x))

@@ -27,35 +27,71 @@ Q_R_KINEMATIC_NO_JUMPS = 0.01
 class EstimateSettings:
     """How to estimate the state of a run.
 
-    model: ``kinematic`` (n, e, psi, over-ground velocity v_n, v_e and r, driven by
+    All fields are keyword-only; the object is frozen and range-checked on creation.
+
+    Parameters
+    ----------
+    model : {"kinematic", "dynamic"}, default "kinematic"
+        ``kinematic``: n, e, psi, over-ground velocity v_n, v_e and r, driven by
         random-walk accelerations; output u, v are body velocities over ground; needs no
-        vessel) or ``dynamic`` (the paper's (1)+(3) driven by the
-        recorded thrust; u, v relative to the water when current states are on).
-    current: estimate a random-walk water current (n, e); ``None`` means on for the
-        dynamic model and off for the kinematic one (where it is not observable).
-    q_uv, q_r: process-noise intensities (None: the model's default, see DEFAULT_Q): on
-        the accelerations (kinematic) or on u, v and r (dynamic);
-    q_current: random-walk intensity of the current, m^2/s^3.
-    gps_noise_m, compass_noise_rad: one-sigma measurement noise overriding the log's
-        covariance / std columns (None: use the log, falling back to
-        gps_fallback_m / compass_fallback_rad where it has none).
-    compass_offset_rad: compass reading minus true heading of the hull (mounting);
-    declination_rad: magnetic declination, east positive, added to ``magnetic`` headings.
-    yaw_rate_topic: optional channel with column ``r_radps`` (gyro), noise yaw_rate_noise_radps.
-    gate_probability: chi-square probability of the NIS gate (1.0 turns the gate off);
-    max_consecutive_rejects: after this many rejections in a row of one sensor its next
-        measurement is accepted anyway (so a filter that lost track recovers).
-    smoother: run the RTS smoother (else the state is the forward filter's).
-    yaw_jump_radps2: kinematic model: one-sigma jump of the yaw acceleration when the
+        vessel. ``dynamic``: the paper's (1)+(3) driven by the recorded thrust; u, v
+        relative to the water when current states are on.
+    current : bool or None, default None
+        Estimate a random-walk water current (n, e); ``None`` means on for the dynamic
+        model and off for the kinematic one (where it is not observable, so True is an
+        error there).
+    q_uv, q_r : float or None, default None
+        Process-noise intensities (None: the model's default, see ``DEFAULT_Q``):
+        kinematic model on the accelerations a_n, a_e in m^2/s^5 and on r_dot in
+        rad^2/s^5; dynamic model on u, v in m^2/s^3 and on r in rad^2/s^3. > 0.
+    q_current : float, default 1e-6
+        Random-walk intensity of the current, m^2/s^3, > 0.
+    gps_noise_m : float or None, default None
+        One-sigma GNSS position noise in m, overriding the log's covariance columns
+        (None: use the log, falling back to ``gps_fallback_m`` where it has none).
+    compass_noise_rad : float or None, default None
+        One-sigma compass noise in rad, overriding the log's ``std_rad`` column (None: use
+        the log, falling back to ``compass_fallback_rad``).
+    gps_fallback_m : float, default 2.0
+        One-sigma GNSS noise in m for fixes without a usable covariance.
+    compass_fallback_rad : float, default radians(3)
+        One-sigma compass noise in rad for headings without a usable std.
+    compass_offset_rad : float, default 0.0
+        Compass reading minus true heading of the hull (mounting), rad, in [-2 pi, 2 pi].
+    declination_rad : float, default 0.0
+        Magnetic declination, east positive, added to ``magnetic`` headings, rad.
+    yaw_rate_topic : str or None, default None
+        Optional channel with column ``r_radps`` (gyro) used as a yaw-rate measurement.
+    yaw_rate_noise_radps : float, default 0.01
+        One-sigma noise of that yaw rate, rad/s.
+    gate_probability : float, default 0.9999
+        Chi-square probability of the NIS gate, in [0.5, 1] (1.0 turns the gate off).
+    max_consecutive_rejects : int, default 50
+        After this many rejections in a row of one sensor its next measurement is
+        accepted anyway (so a filter that lost track recovers); >= 1.
+    yaw_jump_radps2 : float, default 0.25
+        Kinematic model: one-sigma jump of the yaw acceleration in rad/s^2 when the
         recorded yaw moment steps by its largest magnitude in the log (0: off; see
         ``core.yaw_jump_variance``).
-    sway_damping: kinematic model in the body frame with an estimated sway damping k
+    sway_damping : bool or None, default None
+        Kinematic model in the body frame with an estimated sway damping k in 1/s
         (u_dot = a_x + r v, v_dot = a_y - k v - r u; 10 states): u, v 2-3x better in a
-        zig-zag. ``None`` (default): on for the kinematic model. Identification's own
-        smoother keeps the 9-state model (see ``usvlog.identify.smooth``).
-    tune: pick q_uv, q_r (and q_current) by maximising the innovation likelihood.
-    fast: numba-compiled filter and smoother (False: the filterpy reference path).
-    output_step_s: the output grid step (also the prediction step).
+        zig-zag. ``None``: on for the kinematic model (True is an error for the dynamic
+        one). Identification's own smoother keeps the 9-state model (see
+        ``usvlog.identify.smooth``).
+    smoother : bool, default True
+        Run the RTS smoother (else the state is the forward filter's).
+    tune : bool, default False
+        Pick q_uv, q_r (and q_current) by maximising the innovation likelihood.
+    fast : bool, default True
+        Numba-compiled filter and smoother (False: the filterpy reference path).
+    output_step_s : float, default 0.01
+        The output grid step in s (also the prediction step), in [1e-4, 1].
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a value is out of range or the options contradict each other.
     """
 
     model: str = "kinematic"
@@ -113,17 +149,25 @@ class EstimateSettings:
 
     @property
     def use_current(self) -> bool:
+        """Whether current states are estimated (``current``, or the model's default)."""
         return bool(self.model == "dynamic" if self.current is None else self.current)
 
     @property
     def q_uv_value(self) -> float:
+        """``q_uv`` or the model's default (m^2/s^5 kinematic, m^2/s^3 dynamic)."""
         return DEFAULT_Q[self.model]["q_uv"] if self.q_uv is None else self.q_uv
 
     @property
     def q_r_value(self) -> float:
+        """``q_r`` or the model's default (rad^2/s^5 kinematic, rad^2/s^3 dynamic)."""
         return DEFAULT_Q[self.model]["q_r"] if self.q_r is None else self.q_r
 
     def to_dict(self) -> dict:
+        """All fields as a plain dict with the defaults resolved.
+
+        ``current``, ``q_uv`` and ``q_r`` hold the values in effect (never None); used for
+        provenance and ``--json`` output.
+        """
         d = asdict(self)
         d["current"] = self.use_current
         d["q_uv"], d["q_r"] = self.q_uv_value, self.q_r_value

@@ -23,7 +23,16 @@ DEFAULT_COMPASS_SIGMA_RAD = math.radians(2.0)
 
 @dataclass(frozen=True, kw_only=True)
 class RunData:
-    """One run as arrays (times in s from ``t0_ns``)."""
+    """One run as arrays (times in s from ``t0_ns``).
+
+    ``t0_ns``: the run's first thrust sample, ns since the Unix epoch. ``t_thrust`` with
+    ``tau_u`` (N) and ``tau_r`` (N m): the thrust, held over each step (the grid the model
+    is integrated on). ``t_gps`` with ``n_gps``, ``e_gps`` (m about the log's datum) and
+    ``sigma_gps`` (m, one sigma per fix and axis). ``t_compass`` with ``psi_compass``
+    (rad, true heading wrapped to [-pi, pi)) and ``sigma_compass`` (rad).
+    ``thrust_source``: ``"logged newtons"`` or how forces were made from commands;
+    ``thrust_skipped``: non-finite thrust records skipped; ``source``: the log's name.
+    """
 
     t0_ns: int
     t_thrust: np.ndarray      # grid the model is integrated on (thrust held over each step)
@@ -42,6 +51,7 @@ class RunData:
 
     @property
     def duration_s(self) -> float:
+        """Length of the thrust record in s."""
         return float(self.t_thrust[-1] - self.t_thrust[0])
 
     def window(self, t_lo: float, t_hi: float) -> "RunData":
@@ -56,7 +66,31 @@ class RunData:
 
 
 def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """(t_ns, f_left, f_right, how): per-thruster forces in newtons."""
+    """(t_ns, f_left, f_right, how): per-thruster forces in newtons.
+
+    Parameters
+    ----------
+    log : FieldLog
+        Must have ``/thrust/command``.
+    vessel : Vessel
+        Thruster map for records without logged ``thrust_left_n``/``thrust_right_n``.
+
+    Returns
+    -------
+    t_ns : numpy.ndarray of int64
+        Record times, ns since the Unix epoch.
+    f_left, f_right : numpy.ndarray
+        Port and starboard forces in N (NaN where a record is not finite).
+    how : str
+        ``"logged newtons"``, ``"newton"`` or ``"<map> map"``.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If the log has no ``/thrust/command`` channel.
+    usvlog.errors.ConfigError
+        If commands cannot be converted with the vessel's thruster map.
+    """
     src = log.source or "log"
     fr = log["/thrust/command"]
     t_ns = np.asarray(fr.index, dtype=np.int64)
@@ -80,7 +114,26 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
 
 
 def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
-    """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass)."""
+    """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass).
+
+    Parameters
+    ----------
+    log : FieldLog
+        Needs ``/thrust/command``, ``/gnss/fix`` and ``/compass/heading``.
+    vessel : Vessel, optional
+        Thruster map and geometry (default the log's vessel, else the built-in one).
+
+    Returns
+    -------
+    RunData
+        GNSS and compass samples inside the thrust record only.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If a channel is missing, with fewer than 10 usable thrust samples, no valid GNSS fix, or fewer than 10
+        fixes or headings inside the thrust record.
+    """
     vessel = vessel or log.vessel or default_vessel()
     src = log.source or "log"
     t_ns, fl, frr, how = thrust_forces(log, vessel)

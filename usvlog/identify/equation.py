@@ -24,7 +24,21 @@ LIN_NAMES = ("m", "mxg", "Iz", "d11", "d22", "d33")
 
 
 def regressors(nu, nu_dot):
-    """Rows of the three equations: (A (3, N, 6), y-without-tau) with A @ theta = (tau_u, 0, tau_r)."""
+    """Rows of the three equations: (A (3, N, 6), y-without-tau) with A @ theta = (tau_u, 0, tau_r).
+
+    Parameters
+    ----------
+    nu : array_like, shape (N, 3)
+        Body velocity [u (m/s), v (m/s), r (rad/s)].
+    nu_dot : array_like, shape (N, 3)
+        Its time derivative [m/s^2, m/s^2, rad/s^2].
+
+    Returns
+    -------
+    numpy.ndarray, shape (3, N, 6)
+        Regressors of the surge, sway and yaw equations for theta = (m, m xg, Iz, d11,
+        d22, d33) (``LIN_NAMES``).
+    """
     nu, nu_dot = np.asarray(nu, float), np.asarray(nu_dot, float)
     u, v, r = nu[:, 0], nu[:, 1], nu[:, 2]
     ud, vd, rd = nu_dot[:, 0], nu_dot[:, 1], nu_dot[:, 2]
@@ -43,6 +57,14 @@ def lin_to_params(th):
 
 @dataclass(frozen=True, kw_only=True)
 class EquationErrorResult:
+    """Result of :func:`fit_equation_error`.
+
+    ``theta``: m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m);
+    ``stderr``: their least-squares standard errors by name (assuming white equation
+    errors; 0 for fixed ones); ``rms``: residual RMS of the surge, sway and yaw equations
+    (N, N, N m); ``n``: number of samples.
+    """
+
     theta: np.ndarray            # (m, Iz, d11, d22, d33, xg)
     stderr: dict                 # by parameter name (least-squares, assumes white equation errors)
     rms: tuple[float, float, float]   # residual RMS of the three equations (N, N, N m)
@@ -50,11 +72,13 @@ class EquationErrorResult:
 
     @property
     def valid(self) -> bool:
+        """True if the parameters are physical: finite, m, Iz > 0, damping >= 0, Iz - m xg^2 > 0."""
         th = self.theta
         return bool(np.all(np.isfinite(th)) and th[0] > 0 and th[1] > 0 and np.all(th[2:5] >= 0)
                     and th[1] - th[0] * th[5] ** 2 > 0)
 
     def to_dict(self) -> dict[str, float]:
+        """Parameters by paper symbol, SI units."""
         return {k: float(v) for k, v in zip(PARAM_NAMES, self.theta)}
 
 
@@ -65,6 +89,32 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
     ``fix``: known parameters by name (m, Iz, d11, d22, d33, xg). Surge and yaw are fitted
     jointly, each weighted by the inverse of its residual scatter (two passes) unless
     ``weights`` (three numbers; the sway one is unused) is given; then d22 from sway.
+
+    Parameters
+    ----------
+    nu : array_like, shape (N, 3)
+        Smoothed body velocity [u (m/s), v (m/s), r (rad/s)] relative to the water.
+    nu_dot : array_like, shape (N, 3)
+        Its time derivative [m/s^2, m/s^2, rad/s^2].
+    tau_u : float or array_like, shape (N,)
+        Surge force in N.
+    tau_r : float or array_like, shape (N,)
+        Yaw moment in N m.
+    fix : dict of str to float, optional
+        Known parameters by paper symbol, SI units.
+    weights : sequence of 3 float, optional
+        Weights of the surge, sway and yaw equations (1/N, unused, 1/(N m)).
+
+    Returns
+    -------
+    EquationErrorResult
+        d22 is constrained to >= 0; the other parameters are unconstrained (check
+        :attr:`EquationErrorResult.valid`).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If ``fix`` names an unknown parameter.
     """
     fix = dict(fix or {})
     for k in fix:

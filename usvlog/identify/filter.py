@@ -16,6 +16,14 @@ from ..model.vessel import PARAM_NAMES, Vessel
 
 @dataclass(frozen=True, kw_only=True)
 class FilterErrorResult:
+    """Result of :func:`fit_filter_error`.
+
+    ``theta``: all six parameters m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s),
+    xg (m), fixed ones included; ``cov``: covariance of the free ones (order ``free``),
+    from the inverse Hessian of the negative log-likelihood; ``loglik``: the innovation
+    log-likelihood at ``theta``, summed over the runs; ``nfev``: likelihood evaluations.
+    """
+
     theta: np.ndarray     # (m, Iz, d11, d22, d33, xg)
     cov: np.ndarray       # covariance of the free parameters
     free: tuple[str, ...]
@@ -25,6 +33,33 @@ class FilterErrorResult:
 
 def fit_filter_error(logs: list[FieldLog], vessel: Vessel, theta0, *, free_mask=None,
                      current: bool = True, max_iter: int = 200) -> FilterErrorResult:
+    """Fit the model parameters by maximising the dynamic EKF's innovation likelihood.
+
+    Parameters
+    ----------
+    logs : list of FieldLog
+        The runs (thrust, GNSS and compass channels).
+    vessel : Vessel
+        Thruster map and geometry turning the recorded commands into forces.
+    theta0 : array_like, shape (6,)
+        Starting m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m); fixed
+        parameters keep these values.
+    free_mask : array_like of bool, shape (6,), optional
+        Which parameters to fit (default all).
+    current : bool, default True
+        Estimate the water current as EKF states.
+    max_iter : int, default 200
+        Iteration limit of the BFGS search (positive parameters searched in log space).
+
+    Returns
+    -------
+    FilterErrorResult
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If a log lacks a channel the estimator needs.
+    """
     from ..estimate import EstimateSettings, build_problem  # noqa: PLC0415
     from ..estimate.core import forward_loglik, process_noise  # noqa: PLC0415
 

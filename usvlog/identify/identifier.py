@@ -30,7 +30,25 @@ EE_POS_S, EE_PSI_S, EE_ACC_S = 16.0, 6.0, 6.0
 
 @dataclass(frozen=True, kw_only=True)
 class Validation:
-    """Free run of the identified model through a run's recorded thrust."""
+    """Free run of the identified model through a run's recorded thrust.
+
+    Attributes
+    ----------
+    fit_percent : dict of str to float
+        NRMSE fit in % after the initial window, 100 (1 - |y - yhat| / |y - mean y|), for
+        ``u``, ``v``, ``r`` and ``track`` (north and east together); 100 is perfect.
+    t : numpy.ndarray, shape (N,)
+        Time in s from the run's first thrust sample (smoothed-state grid).
+    measured : numpy.ndarray, shape (N, 6)
+        n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s) from the smoothed
+        measurements (u, v relative to the water for ``current``).
+    simulated : numpy.ndarray, shape (N, 6)
+        The model's free run, same columns.
+    current : (float, float)
+        Current north, east in m/s used (fitted with the initial state).
+    init_window_s : float
+        Initial state (and current) fitted on [0, init_window_s] s of the run.
+    """
 
     fit_percent: dict            # "u", "v", "r", "track": 100 (1 - |y - yhat| / |y - mean y|)
     t: np.ndarray                # s from the run's start (smoothed-state grid)
@@ -40,6 +58,11 @@ class Validation:
     init_window_s: float         # initial state (and current) fitted on [0, init_window_s]
 
     def to_dataframe(self) -> pd.DataFrame:
+        """Measured and simulated states side by side, indexed by ``t_s`` (s).
+
+        Columns n_m, n_sim_m, e_m, e_sim_m, psi_rad, psi_sim_rad, u_mps, u_sim_mps, v_mps,
+        v_sim_mps, r_radps, r_sim_radps.
+        """
         cols = {}
         for i, (name, unit) in enumerate((("n", "m"), ("e", "m"), ("psi", "rad"), ("u", "mps"),
                                           ("v", "mps"), ("r", "radps"))):
@@ -48,6 +71,7 @@ class Validation:
         return pd.DataFrame(cols, index=pd.Index(self.t, name="t_s"))
 
     def to_dict(self) -> dict:
+        """JSON-ready summary: fit_percent, current_ne_mps, init_window_s, duration_s."""
         return {"fit_percent": dict(self.fit_percent), "current_ne_mps": list(self.current),
                 "init_window_s": self.init_window_s, "duration_s": float(self.t[-1] - self.t[0])}
 
@@ -108,6 +132,81 @@ class Identifier:
     innovation likelihood; slower, wider intervals). ``fix``: known values by name (e.g. a weighed
     mass). ``current``: fit a constant water current per run (two nuisance parameters).
     ``segment_s``: multiple-shooting segment length of the final output-error fit.
+
+    Follows the scikit-learn contract: :meth:`fit` returns the identifier, and what it
+    fitted is in attributes ending in ``_``.
+
+    Parameters
+    ----------
+    method : {"output-error", "equation-error", "filter-error"}, default "output-error"
+        Identification method (see above).
+    fix : dict of str to float, optional
+        Known parameters by paper symbol, SI units (e.g. ``{"m": 31.5}`` kg); they are
+        held at these values and get standard error 0.
+    current : bool, default True
+        Fit a constant water current (north, east) per run. Equation error never fits it.
+    segment_s : float, default 300.0
+        Output error: segment length in s of the final multiple-shooting fit, > 0.
+    warm_segment_s : float, default 60.0
+        Output error: a warm-up fit with segments this long (s) on the first 900 s of each
+        run precedes the final one when 0 < warm_segment_s < segment_s; 0 turns it off.
+    holdout : float, default 0.0
+        Fraction in [0, 0.9) of each run's end kept out of the fit; the first run's held
+        part is then validated (``validation_``).
+
+    Attributes
+    ----------
+    params_ : VesselParams
+        Identified parameters: m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
+    theta_ : numpy.ndarray, shape (6,)
+        The same as an array in the order m, Iz, d11, d22, d33, xg.
+    stderr_ : dict of str to float
+        One-sigma standard error of each parameter, in its unit (0 for fixed ones).
+    ci95_ : dict of str to (float, float)
+        95 % confidence interval of each parameter (value +- 1.96 stderr).
+    cov_ : numpy.ndarray
+        Covariance of the fitted quantities named in ``corr_`` (free parameters, and for
+        output error the currents ``current_n_<i>``, ``current_e_<i>`` in m/s).
+    corr_ : pandas.DataFrame
+        Correlation matrix of those quantities, labelled by name.
+    cond_ : float
+        Condition number of the (scaled) estimation problem; NaN for equation error.
+    current_ : list of (float, float)
+        Water current north, east in m/s per run ((0, 0) when not fitted; filter error:
+        the mean current its EKF estimates).
+    current_stderr_ : list of (float, float)
+        Standard errors of ``current_`` in m/s (NaN where not computed).
+    residual_rms_ : dict of str to float
+        Output error: RMS of the noise-weighted residuals per sensor (``gps``,
+        ``compass``; about 1 when the stated noise is right). Equation error: RMS
+        equation error ``surge_n`` (N), ``sway_n`` (N), ``yaw_nm`` (N m). Filter error: empty.
+    verdict_ : list of str
+        Warnings about identifiability, excitation, correlations and the thruster map
+        (empty when nothing stands out).
+    equation_error_ : EquationErrorResult
+        The equation-error fit (always computed: the output-error start and a comparison).
+    oe_ : OutputErrorResult or None
+        Full output-error result (None for the other methods).
+    fe_ : FilterErrorResult
+        Full filter-error result (only set by that method).
+    validation_ : Validation or None
+        Free run on the held-out part when ``holdout > 0``, else None.
+    vessel_in_ : Vessel
+        Vessel given to :meth:`fit` (thruster map and starting values).
+    runs_ : list of RunData
+        The fitted runs (without the held-out part).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown method, an unknown or non-finite fixed parameter, or segment
+        lengths or ``holdout`` out of range.
+
+    Examples
+    --------
+    >>> ident = Identifier(fix={"m": 33.0}).fit(log)        # doctest: +SKIP
+    >>> ident.params_, ident.stderr_["d11"]                  # doctest: +SKIP
+    >>> vessel = ident.to_vessel("my-boat")                  # doctest: +SKIP
     """
 
     def __init__(self, method: str = "output-error", *, fix: dict | None = None, current: bool = True,
@@ -133,6 +232,31 @@ class Identifier:
 
     # ------------------------------------------------------------------------------
     def fit(self, logs: list[FieldLog] | FieldLog, vessel: Vessel | None = None) -> "Identifier":
+        """Fit the model parameters to one or more runs.
+
+        Each log needs ``/thrust/command`` (forces in N, or commands through the
+        vessel's thruster map), ``/gnss/fix`` and ``/compass/heading``. Runs share the
+        model parameters; each has its own current and initial states.
+
+        Parameters
+        ----------
+        logs : FieldLog or list of FieldLog
+            The runs to fit (better: a zig-zag or other yaw-exciting manoeuvre).
+        vessel : Vessel, optional
+            Thruster map and geometry, and the fallback starting values; default the
+            first log's vessel, else the built-in :func:`~usvlog.model.vessel.default_vessel`.
+
+        Returns
+        -------
+        Identifier
+            ``self``, with the fitted attributes (``params_``, ``stderr_``, ...) set.
+
+        Raises
+        ------
+        usvlog.errors.InputError
+            If there are no logs, a log lacks a channel or has too few samples, or the
+            fit gives physically impossible parameters (poorly excited runs).
+        """
         if isinstance(logs, FieldLog):
             logs = [logs]
         if not logs:
@@ -306,12 +430,53 @@ class Identifier:
             raise ConfigError("Identifier is not fitted: call fit() first")
 
     def to_vessel(self, name: str | None = None) -> Vessel:
+        """The identified vessel: the fitted parameters with the input vessel's thrusters.
+
+        Parameters
+        ----------
+        name : str, optional
+            Name of the new vessel (default ``"<input vessel name>-identified"``).
+
+        Returns
+        -------
+        Vessel
+            Write it with :meth:`Vessel.to_toml` to use it in simulation or estimation.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the identifier is not fitted.
+        """
         self._check_fitted()
         v = self.vessel_in_
         return Vessel(name=name or f"{v.name}-identified", params=self.params_, thrusters=v.thrusters)
 
     def validate(self, log: FieldLog, *, init_window_s: float = 60.0) -> Validation:
-        """Free run of the identified model from ``log``'s thrust (a run it was not fitted on)."""
+        """Free run of the identified model from ``log``'s thrust (a run it was not fitted on).
+
+        The initial state (and the current, if the identifier fits currents) is fitted to
+        the first ``init_window_s`` seconds with the parameters held; the fit % is scored
+        after that window.
+
+        Parameters
+        ----------
+        log : FieldLog
+            A run with the same channels as for :meth:`fit`.
+        init_window_s : float, default 60.0
+            Length in s of the initial-state window (at most half the run).
+
+        Returns
+        -------
+        Validation
+            Measured and simulated states and the fit % of u, v, r and the track.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the identifier is not fitted.
+        usvlog.errors.InputError
+            If the log lacks a channel or has too few samples.
+        """
         self._check_fitted()
         run = run_data(log, self.vessel_in_)
         return self._validate_run(run, kinematic_states(log, run, self.vessel_in_), init_window_s=init_window_s)
@@ -334,7 +499,11 @@ class Identifier:
     def fit_frame(self, run_index: int = 0) -> tuple[np.ndarray, dict]:
         """(t_s, columns) of measured vs fitted-model states of a fitted run (``/identify/fit``):
         the output-error model from each segment's fitted initial state (equation error: a
-        free run)."""
+        free run).
+
+        ``t_s``: s from the run's first thrust sample; columns u_mps, u_sim_mps, v_mps,
+        v_sim_mps, r_radps, r_sim_radps, n_m, n_sim_m, e_m, e_sim_m, psi_rad, psi_sim_rad
+        (headings wrapped). Raises ConfigError if the identifier is not fitted."""
         self._check_fitted()
         run, ks = self.runs_[run_index], self._kin[run_index]
         cur = self.current_[run_index]
@@ -363,6 +532,27 @@ class Identifier:
                 "track": fit_percent(np.stack([c["n_m"], c["e_m"]], 1), np.stack([c["n_sim_m"], c["e_sim_m"]], 1))}
 
     def to_dict(self, validation: Validation | None = None) -> dict:
+        """JSON-ready report of the fit (what ``usvlog identify --json`` prints).
+
+        Parameters
+        ----------
+        validation : Validation, optional
+            Validation to report; default ``validation_`` (held-out part), else the fit %
+            is computed on the fitted runs.
+
+        Returns
+        -------
+        dict
+            method, params (SI), stderr, ci95, fit_percent and what it was computed on,
+            current_ne_mps, condition_number, correlation, verdict, fixed, the
+            equation-error params and stderr, Iz_minus_m_xg2 (kg m^2) and, with a
+            validation, its summary.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the identifier is not fitted.
+        """
         self._check_fitted()
         val = validation if validation is not None else self.validation_
         d = {"method": self.method,

@@ -28,6 +28,20 @@ OUTLIER_SIGMA = 5.0
 
 @dataclass(frozen=True, kw_only=True)
 class OutputErrorResult:
+    """Result of :func:`fit_output_error`.
+
+    ``theta``: all six parameters m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s),
+    xg (m), fixed ones included; ``free``: names of the fitted ones; ``currents``
+    (n_runs, 2): north, east in m/s (zeros when not fitted); ``cov``: covariance of
+    [free parameters, currents] with row names ``names`` (``current_n_<i>``,
+    ``current_e_<i>``); ``cond``: condition number of the column-scaled projected
+    Jacobian; ``sigma2``: residual variance factor (1 when the noise model is right);
+    ``rms``: RMS of the noise-weighted residuals per sensor (``gps``, ``compass``);
+    ``n_residuals``; ``x0s`` (n_segments, 6): each segment's fitted initial state
+    [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]; ``nfev``: model evaluations;
+    ``outliers``: measurements dropped as outliers, per sensor.
+    """
+
     theta: np.ndarray          # all six model parameters (fixed ones included)
     free: tuple[str, ...]      # names of fitted model parameters
     currents: np.ndarray       # (n_runs, 2) north, east m/s (zeros when not fitted)
@@ -115,9 +129,31 @@ class Problem:
         self.n_res = len(self.r_meas)
 
     def set_sensor_scale(self, scale_gps: float, scale_compass: float) -> None:
+        """Scale each sensor's stated noise (residual weight 1 / (sigma scale)), e.g. by its scatter."""
         self.r_w = 1.0 / (self.r_sig0 * np.where(self.r_sensor == 0, scale_gps, scale_compass))
 
     def simulate(self, theta, currents, x0s, sens=True):
+        """Integrate every segment and sample it at the measurement times.
+
+        Parameters
+        ----------
+        theta : array_like, shape (6,)
+            m, Iz, d11, d22, d33, xg (SI).
+        currents : array_like, shape (n_runs, 2)
+            Current north, east per run, m/s.
+        x0s : array_like, shape (n_seg, 6)
+            Initial state of each segment [n, e, psi, u, v, r] (m, rad, m/s, rad/s).
+        sens : bool, default True
+            Also integrate the sensitivities.
+
+        Returns
+        -------
+        out_x : numpy.ndarray, shape (n_meas, 6)
+            States at the measurement times.
+        out_S : numpy.ndarray, shape (n_meas, 6, NS)
+            Their sensitivities to [x0 (6), theta (6), current (2)] (shape (1, 6, NS)
+            when ``sens`` is False).
+        """
         seg_cur = np.ascontiguousarray(currents[self.seg_run], float)
         nm = len(self.meas_t)
         out_x = np.zeros((nm, 6))
@@ -127,6 +163,7 @@ class Problem:
         return out_x, out_S
 
     def residuals(self, out_x):
+        """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped."""
         sim = out_x[self.r_meas, self.r_state]
         d = self.r_val - sim
         d = np.where(self.r_state == 2, ssa(d), d)
@@ -137,6 +174,7 @@ class Problem:
         return -out_S[self.r_meas, self.r_state, :] * self.r_w[:, None]
 
     def seg_sum(self, a):
+        """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
         return np.add.reduceat(a, self.r_start[:-1], axis=0)
 
     def initial_states(self, states_fn):
@@ -270,6 +308,38 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
     initial-state guesses (n, e, psi, u, v, r) for segment starts.
+
+    Parameters
+    ----------
+    runs : list of RunData
+    theta0 : array_like, shape (6,)
+        Starting m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m); fixed
+        parameters keep these values.
+    x0_fn : callable
+        ``x0_fn(run_index, t_s)`` -> initial-state guess [n (m), e (m), psi (rad),
+        u (m/s), v (m/s), r (rad/s)] at ``t_s`` s of that run.
+    free_mask : array_like of bool, shape (6,), optional
+        Which parameters to fit (default all).
+    fit_current : bool, default True
+        Fit a constant current per run.
+    currents0 : array_like, shape (n_runs, 2), optional
+        Starting (or, unfitted, fixed) currents north, east in m/s (default zeros).
+    segment_s : float, default 300.0
+        Segment length in s of the final fit.
+    warm_segment_s : float, default 60.0
+        Segment length in s of a warm-up fit (used when 0 < warm_segment_s < segment_s).
+    reweight : bool, default True
+        After each stage weight each sensor by its robust residual scatter.
+    max_nfev : int, default 60
+        Evaluation limit of each least-squares stage.
+    verbose : int, default 0
+        Passed to :func:`scipy.optimize.least_squares`.
+    warm_span_s : float, optional
+        Fit the warm-up stage only on the first ``warm_span_s`` s of each run.
+
+    Returns
+    -------
+    OutputErrorResult
     """
     free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
     cur = np.zeros((len(runs), 2)) if currents0 is None else np.asarray(currents0, float)
@@ -414,7 +484,11 @@ class _SingleSeg:
 
 def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
     """Free run of the model from state ``x0`` at ``t0`` (s, on the run's thrust grid) through
-    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0)."""
+    the run's thrust; states (len(times), 6) at ``times`` (sorted, >= t0).
+
+    ``theta``: m, Iz, d11, d22, d33, xg (SI); ``current``: north, east in m/s; ``x0``:
+    [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]. Rows for times outside the
+    thrust record are NaN."""
     times = np.asarray(times, float)
     i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     out_x = np.full((len(times), 6), np.nan)
@@ -450,7 +524,11 @@ def predict_segments(runs: list[RunData], segment_s: float, x0s, theta, currents
 def fit_initial_state(run: RunData, theta, x0_guess, t0: float, t1: float, *, fit_current=True,
                       current0=(0.0, 0.0)):
     """Initial state at ``t0`` (and a constant current) of a run with the parameters held
-    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current)."""
+    fixed, fitted to the measurements in [t0, t1]. Returns (x0, current).
+
+    Times in s from the run's start; ``x0`` (6,) as [n (m), e (m), psi (rad), u (m/s),
+    v (m/s), r (rad/s)], ``current`` (2,) north, east in m/s (``current0`` when
+    ``fit_current`` is False)."""
     w = run.window(t0, t1)
     free = np.zeros(6, bool)
     prob = Problem([w], 1e12)

@@ -21,6 +21,13 @@ GRID_DT = 0.1
 
 @dataclass(frozen=True, kw_only=True)
 class KinStates:
+    """Smoothed over-ground states of a run on a uniform grid.
+
+    ``t``: s from the run's ``t0_ns``; ``n``, ``e``: position in m; ``psi``: heading in
+    rad, unwrapped; ``vn``, ``ve``: ground velocity north, east in m/s; ``r``: yaw rate in
+    rad/s; ``source``: the smoother used (``usvlog.estimate`` or ``savgol``).
+    """
+
     t: np.ndarray       # s from the run's t0, uniform grid
     n: np.ndarray
     e: np.ndarray
@@ -31,18 +38,43 @@ class KinStates:
     source: str
 
     def nu(self, current=(0.0, 0.0)):
-        """Body velocities relative to the water for a constant current (N, 3)."""
+        """Body velocities relative to the water for a constant current (N, 3).
+
+        Parameters
+        ----------
+        current : (float, float), default (0.0, 0.0)
+            Current north, east in m/s.
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, 3)
+            [u (m/s), v (m/s), r (rad/s)].
+        """
         c, s = np.cos(self.psi), np.sin(self.psi)
         wn, we = self.vn - current[0], self.ve - current[1]
         return np.stack([c * wn + s * we, -s * wn + c * we, self.r], -1)
 
     def at(self, t, current=(0.0, 0.0)):
-        """Interpolated state (n, e, psi, u, v, r) at time(s) t."""
+        """Interpolated state (n, e, psi, u, v, r) at time(s) t.
+
+        Parameters
+        ----------
+        t : float or array_like
+            Time(s) in s from the run's ``t0_ns``.
+        current : (float, float), default (0.0, 0.0)
+            Current north, east in m/s (u, v are relative to the water).
+
+        Returns
+        -------
+        numpy.ndarray, shape (..., 6)
+            n (m), e (m), psi (rad, unwrapped), u (m/s), v (m/s), r (rad/s).
+        """
         nu = self.nu(current)
         cols = [self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]]
         return np.stack([np.interp(t, self.t, c) for c in cols], -1)
 
     def window(self, t_lo, t_hi) -> "KinStates":
+        """The states with ``t_lo <= t <= t_hi`` (s)."""
         k = (self.t >= t_lo) & (self.t <= t_hi)
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
                          ve=self.ve[k], r=self.r[k], source=self.source)

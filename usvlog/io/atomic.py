@@ -25,6 +25,26 @@ def check_output(path, force: bool, *, parent: bool = False) -> Path:
     """Refuse an existing output without ``force``; with ``parent``, also a missing directory.
 
     Verbs call it (with ``parent=True``) before their work, so a bad ``--out`` fails at once.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output to be written.
+    force : bool
+        Allow overwriting an existing file.
+    parent : bool, default False
+        Also require the parent directory to exist.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    usvlog.errors.OutputExistsError
+        If ``path`` exists and ``force`` is False.
+    usvlog.errors.StorageError
+        If ``path`` is a directory, or (``parent``) its directory does not exist.
     """
     p = Path(path)
     if p.exists() and not force:
@@ -49,6 +69,25 @@ def atomic_path(path, *, force: bool = False):
     """Yield a temporary path; on success it replaces ``path`` atomically.
 
     On any error the temporary file is removed and ``path`` is left untouched.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final output path.
+    force : bool, default False
+        Allow replacing an existing file.
+
+    Yields
+    ------
+    pathlib.Path
+        Temporary file in the same directory; write the output there.
+
+    Raises
+    ------
+    usvlog.errors.OutputExistsError
+        If ``path`` exists (or appears meanwhile) and ``force`` is False.
+    usvlog.errors.StorageError
+        If the directory is missing or the file cannot be created or written.
     """
     p = check_output(path, force)
     parent = p.parent if str(p.parent) else Path(".")
@@ -81,9 +120,11 @@ def atomic_path(path, *, force: bool = False):
 
 
 def write_bytes_atomic(path, data: bytes, *, force: bool = False) -> None:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_path` for errors)."""
     with atomic_path(path, force=force) as tmp:
         tmp.write_bytes(data)
 
 
 def write_text_atomic(path, text: str, *, force: bool = False) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path` for errors)."""
     write_bytes_atomic(path, text.encode(), force=force)

@@ -11,6 +11,15 @@ from .atomic import reading
 
 
 def read_text(path) -> str:
+    """The text of a settings file.
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If the file is missing or unreadable.
+    usvlog.errors.ConfigError
+        If it is not text (not UTF-8).
+    """
     p = Path(path)
     try:
         with reading(p):
@@ -20,6 +29,15 @@ def read_text(path) -> str:
 
 
 def read_toml(path) -> dict:
+    """A TOML file parsed into a dict.
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If the file is missing or unreadable.
+    usvlog.errors.ConfigError
+        If it is not text or not valid TOML.
+    """
     try:
         return tomllib.loads(read_text(path))
     except tomllib.TOMLDecodeError as err:
@@ -27,14 +45,45 @@ def read_toml(path) -> dict:
 
 
 def load_vessel(path=None) -> Vessel:
-    """A vessel TOML file, or the paper's Section IV vessel when ``path`` is None."""
+    """A vessel TOML file, or the paper's Section IV vessel when ``path`` is None.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        Vessel file (``name``, ``[model]``, ``[thrusters]``; see README).
+
+    Returns
+    -------
+    Vessel
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If the file is missing or unreadable.
+    usvlog.errors.ConfigError
+        If it is not a valid vessel document.
+    """
     if path is None:
         return default_vessel()
     return vessel_from_toml(read_text(path), source=str(path))
 
 
 def load_vessel_or_scenario_vessel(path) -> Vessel:
-    """A vessel file, or the ``[vessel]`` of a scenario file."""
+    """A vessel file, or the ``[vessel]`` of a scenario file.
+
+    A scenario's ``[vessel] file = ...`` is read relative to the scenario.
+
+    Returns
+    -------
+    Vessel
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If a file is missing or unreadable.
+    usvlog.errors.ConfigError
+        If the file is neither a vessel file nor a scenario with ``[vessel]``, or invalid.
+    """
     from ..model.vessel import vessel_from_dict
 
     doc = read_toml(path)

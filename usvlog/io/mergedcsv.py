@@ -20,7 +20,30 @@ COLUMNS = {  # topic -> {canonical column: CSV header}
 
 
 def write_merged_csv(log: FieldLog, path, *, force: bool = False) -> pd.DataFrame:
-    """Merge the GNSS, compass and thrust channels on ``t_ns`` into one CSV; returns the frame."""
+    """Merge the GNSS, compass and thrust channels on ``t_ns`` into one CSV; returns the frame.
+
+    Parameters
+    ----------
+    log : FieldLog
+        Missing or empty channels are left out.
+    path : str or os.PathLike
+        Output CSV, written atomically.
+    force : bool, default False
+        Overwrite an existing file.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Indexed by ``t_ns`` (int ns since the Unix epoch); columns lat_deg, lon_deg,
+        heading_rad, thrust_left, thrust_right (empty where that stream has no sample).
+
+    Raises
+    ------
+    usvlog.errors.OutputExistsError
+        If ``path`` exists and ``force`` is False.
+    usvlog.errors.StorageError
+        If the file cannot be written.
+    """
     parts = []
     for topic, cols in COLUMNS.items():
         f = log.get(topic)

@@ -15,12 +15,22 @@ from .fieldlog import FieldLog, format_time
 
 @dataclass(frozen=True)
 class Gap:
+    """A gap in a channel: start (ns since the Unix epoch) and length (s)."""
+
     start_ns: int
     duration_s: float
 
 
 @dataclass(frozen=True)
 class ChannelSummary:
+    """Counts, nominal rate, time range and timing faults of one channel.
+
+    ``rate_hz`` comes from the median positive interval (None with fewer than two
+    distinct stamps); ``first_ns``/``last_ns`` are ns since the Unix epoch; ``gaps`` are
+    intervals longer than 3x the nominal period (the longest ones, in time order);
+    ``backwards`` and ``duplicates`` count stamps earlier than / equal to the previous one.
+    """
+
     topic: str
     schema: str
     count: int
@@ -35,6 +45,14 @@ class ChannelSummary:
 
 @dataclass(frozen=True)
 class LogSummary:
+    """What is in a log: its channels, overall time range, metadata, damage, skipped records.
+
+    ``first_ns``/``last_ns`` are ns since the Unix epoch over all channels, ``duration_s``
+    their distance in s; ``metadata`` the log's metadata records; ``recovery`` the
+    recovery report of a damaged file (None if intact); ``skipped`` counts of records
+    skipped at import, by kind.
+    """
+
     source: str | None
     channels: tuple[ChannelSummary, ...]
     first_ns: int | None
@@ -45,6 +63,8 @@ class LogSummary:
     skipped: dict                   # {what: count} from import provenance
 
     def to_dict(self) -> dict:
+        """JSON-ready dict (for ``--json``): the fields plus ``start_utc``/``end_utc``,
+        with ``channels`` keyed by topic."""
         d = asdict(self)
         d["start_utc"] = format_time(self.first_ns) if self.first_ns is not None else None
         d["end_utc"] = format_time(self.last_ns) if self.last_ns is not None else None
@@ -52,10 +72,26 @@ class LogSummary:
         return d
 
     def channel(self, topic: str) -> ChannelSummary:
+        """The summary of ``topic``; ``StopIteration`` if the log has no such channel."""
         return next(c for c in self.channels if c.topic == topic)
 
 
 def summarize_channel(topic: str, schema: str, t_ns: np.ndarray, max_gaps: int = 20) -> ChannelSummary:
+    """Summarise one channel from its time stamps.
+
+    Parameters
+    ----------
+    topic, schema : str
+        Channel name and schema title, copied into the summary.
+    t_ns : array_like of int
+        Message times, ns since the Unix epoch, in recorded order.
+    max_gaps : int, default 20
+        Keep at most this many gaps (the longest).
+
+    Returns
+    -------
+    ChannelSummary
+    """
     t = np.asarray(t_ns, dtype=np.int64)
     n = len(t)
     if n == 0:
@@ -77,6 +113,7 @@ def summarize_channel(topic: str, schema: str, t_ns: np.ndarray, max_gaps: int =
 
 
 def skipped_counts(log: FieldLog) -> dict:
+    """Records skipped at import, summed over the provenance records: {what: count}."""
     out: dict[str, int] = {}
     for rec in log.provenance:
         raw = rec.get("skipped")
@@ -93,6 +130,17 @@ def skipped_counts(log: FieldLog) -> dict:
 
 
 def summarize(log: FieldLog) -> LogSummary:
+    """Summarise a log (what ``usvlog inspect`` shows).
+
+    Parameters
+    ----------
+    log : FieldLog
+
+    Returns
+    -------
+    LogSummary
+        ``to_dict()`` for JSON, :func:`format_summary` for text.
+    """
     chans = []
     for topic in log.topics:
         schema = log.schemas.get(topic, {}).get("title", "")
@@ -112,6 +160,7 @@ def summarize(log: FieldLog) -> LogSummary:
 
 
 def format_summary(s: LogSummary) -> str:
+    """Human-readable multi-line text of a :class:`LogSummary` (times in UTC, durations in s)."""
     lines = []
     if s.source:
         lines.append(f"file      {s.source}")

@@ -23,7 +23,22 @@ from ..errors import ConfigError, InputError
 
 
 def require_finite(obj, names, kind: str) -> None:
-    """Every field in ``names`` of ``obj`` is a finite number (not a bool), else ConfigError."""
+    """Every field in ``names`` of ``obj`` is a finite number (not a bool), else ConfigError.
+
+    Parameters
+    ----------
+    obj : object
+        Object (usually a parameter dataclass) whose attributes are checked.
+    names : iterable of str
+        Attribute names to check.
+    kind : str
+        What the fields are, for the message (e.g. ``"vessel parameter"``).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On the first field that is a bool, not an int/float, NaN or infinite.
+    """
     for f in names:
         v = getattr(obj, f)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
@@ -37,7 +52,31 @@ THRUSTER_MAPS = ("identity", "linear", "quadratic")
 
 @dataclass(frozen=True, kw_only=True)
 class VesselParams:
-    """Model parameters of eq. (3), SI units, paper symbols."""
+    """Model parameters of eq. (3), SI units, paper symbols.
+
+    Defaults are the paper's Section IV vessel.
+
+    Parameters
+    ----------
+    m : float, default 33.0
+        Mass in kg, > 0.
+    Iz : float, default 10.0
+        Yaw moment of inertia about the body origin in kg m^2, > 0.
+    d11 : float, default 5.0
+        Linear surge damping in N s/m (kg/s), >= 0.
+    d22 : float, default 5.0
+        Linear sway damping in N s/m (kg/s), >= 0.
+    d33 : float, default 5.0
+        Linear yaw damping in N m s/rad (kg m^2/s), >= 0.
+    xg : float, default 0.1
+        Longitudinal position of the centre of gravity ahead of the body origin in m.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a value is not a finite number, ``m`` or ``Iz`` is not positive or a damping
+        coefficient is negative.
+    """
 
     m: float = 33.0
     Iz: float = 10.0
@@ -62,9 +101,17 @@ class VesselParams:
         return self.Iz - self.m * self.xg**2
 
     def as_array(self) -> np.ndarray:
+        """Parameters as a float array of shape (6,), in the order of ``PARAM_NAMES``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``[m (kg), Iz (kg m^2), d11 (kg/s), d22 (kg/s), d33 (kg m^2/s), xg (m)]``.
+        """
         return np.array([getattr(self, f) for f in PARAM_NAMES], dtype=float)
 
     def to_dict(self) -> dict[str, float]:
+        """Parameters by paper symbol (``m, Iz, d11, d22, d33, xg``) as Python floats, SI units."""
         return {f: float(getattr(self, f)) for f in PARAM_NAMES}
 
 
@@ -77,6 +124,28 @@ class Thrusters:
     with c the normalized command in [-1, 1]. PWM commands are first normalized with
     ``pwm_neutral_us`` and ``pwm_span_us`` (full command at neutral +- span).
     ``forward_n``/``reverse_n`` are also the force limits used for saturation.
+
+    Parameters
+    ----------
+    arm_m : float, default 0.3
+        Lateral distance of each thruster from the centre line in m, > 0.
+    map : {"identity", "linear", "quadratic"}, default "identity"
+        Command-to-force map (see above).
+    forward_n : float, default 20.0
+        Largest forward force of one thruster in N (full positive command), > 0.
+    reverse_n : float, default 12.0
+        Largest reverse force of one thruster in N, as a positive number, > 0.
+    pwm_neutral_us : float, default 1500.0
+        PWM pulse width giving zero thrust, in microseconds.
+    pwm_span_us : float, default 400.0
+        PWM offset from neutral giving full thrust, in microseconds, > 0.
+    known : bool, default True
+        False when the map is only a guess (identification reports it).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If ``map`` is unknown or a length, force or span is not positive.
     """
 
     arm_m: float = 0.3
@@ -99,7 +168,25 @@ class Thrusters:
 
     # -- command <-> force -------------------------------------------------------
     def normalize(self, command, unit: str):
-        """Recorded command -> normalized command in [-1, 1] (pwm_us or normalized)."""
+        """Recorded command -> normalized command in [-1, 1] (pwm_us or normalized).
+
+        Parameters
+        ----------
+        command : float or array_like
+            Thruster command(s) in ``unit``.
+        unit : {"normalized", "pwm_us"}
+            Unit of ``command``: already normalized, or a PWM pulse width in microseconds.
+
+        Returns
+        -------
+        numpy.ndarray
+            Normalized command, clipped to [-1, 1], of the input's shape.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            For any other unit (``newton`` commands have no normalized form).
+        """
         c = np.asarray(command, dtype=float)
         if unit == "normalized":
             return np.clip(c, -1.0, 1.0)
@@ -108,7 +195,28 @@ class Thrusters:
         raise ConfigError(f"thrust unit {unit!r} cannot be normalized")
 
     def command_to_force(self, command, unit: str):
-        """Recorded thruster command in ``unit`` -> force in newtons."""
+        """Recorded thruster command in ``unit`` -> force in newtons.
+
+        Parameters
+        ----------
+        command : float or array_like
+            Thruster command(s) as recorded.
+        unit : {"newton", "normalized", "pwm_us"}
+            Unit of ``command``: N, normalized [-1, 1], or PWM pulse width in microseconds.
+
+        Returns
+        -------
+        numpy.ndarray
+            Force of one thruster in N, of the input's shape. Newton commands are returned
+            as given (copied, not saturated); the others go through the thruster map and so
+            stay within [-reverse_n, forward_n].
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If ``unit`` is unknown, or if a normalized or PWM command meets the
+            ``identity`` map.
+        """
         if unit not in THRUST_UNITS:
             raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
         c = np.asarray(command, dtype=float)
@@ -122,7 +230,29 @@ class Thrusters:
         return np.where(c >= 0, self.forward_n * shape, self.reverse_n * shape)
 
     def force_to_command(self, force, unit: str):
-        """Force in newtons -> command in ``unit`` (saturated to the thruster limits)."""
+        """Force in newtons -> command in ``unit`` (saturated to the thruster limits).
+
+        Inverse of :meth:`command_to_force` within the limits.
+
+        Parameters
+        ----------
+        force : float or array_like
+            Force of one thruster in N.
+        unit : {"newton", "normalized", "pwm_us"}
+            Unit of the command to produce.
+
+        Returns
+        -------
+        numpy.ndarray
+            Command of the input's shape: N (saturated), normalized [-1, 1], or PWM pulse
+            width in microseconds.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If ``unit`` is unknown, or if a normalized or PWM command is asked of the
+            ``identity`` map.
+        """
         f = self.saturate(force)
         if unit == "newton":
             return f
@@ -139,16 +269,54 @@ class Thrusters:
         raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
 
     def saturate(self, force):
+        """Clip force(s) of one thruster to [-reverse_n, forward_n] N.
+
+        Parameters
+        ----------
+        force : float or array_like
+            Force in N.
+
+        Returns
+        -------
+        numpy.ndarray
+            Saturated force in N, float, of the input's shape.
+        """
         return np.clip(np.asarray(force, dtype=float), -self.reverse_n, self.forward_n)
 
     # -- geometry ----------------------------------------------------------------
     def tau_from_forces(self, f_left, f_right):
-        """(tau_u, tau_r): port thruster pushing harder gives positive (starboard) r."""
+        """(tau_u, tau_r): port thruster pushing harder gives positive (starboard) r.
+
+        Parameters
+        ----------
+        f_left, f_right : float or array_like
+            Port and starboard thruster forces in N.
+
+        Returns
+        -------
+        tau_u : numpy.ndarray
+            Surge force f_left + f_right in N.
+        tau_r : numpy.ndarray
+            Yaw moment arm_m (f_left - f_right) in N m.
+        """
         f_left, f_right = np.asarray(f_left, float), np.asarray(f_right, float)
         return f_left + f_right, self.arm_m * (f_left - f_right)
 
     def forces_from_tau(self, tau_u, tau_r):
-        """Inverse of :meth:`tau_from_forces` (no saturation)."""
+        """Inverse of :meth:`tau_from_forces` (no saturation).
+
+        Parameters
+        ----------
+        tau_u : float or array_like
+            Surge force in N.
+        tau_r : float or array_like
+            Yaw moment in N m.
+
+        Returns
+        -------
+        f_left, f_right : numpy.ndarray
+            Port and starboard thruster forces in N (may exceed the thruster limits).
+        """
         tau_u, tau_r = np.asarray(tau_u, float), np.asarray(tau_r, float)
         d = tau_r / self.arm_m
         return 0.5 * (tau_u + d), 0.5 * (tau_u - d)
@@ -156,11 +324,35 @@ class Thrusters:
 
 @dataclass(frozen=True, kw_only=True)
 class Vessel:
+    """A vessel: its name, model parameters and thrusters, as read from a vessel TOML.
+
+    Parameters
+    ----------
+    name : str, default "paper-section-iv"
+        Name stored in logs and reports.
+    params : VesselParams, default VesselParams()
+        Model parameters of eq. (3) (the paper's Section IV vessel by default).
+    thrusters : Thrusters, default Thrusters()
+        Thruster geometry and command-to-force map.
+
+    See Also
+    --------
+    vessel_from_toml, vessel_from_dict, default_vessel
+    """
+
     name: str = "paper-section-iv"
     params: VesselParams = field(default_factory=VesselParams)
     thrusters: Thrusters = field(default_factory=Thrusters)
 
     def to_toml(self) -> str:
+        """The vessel as a TOML document that :func:`vessel_from_toml` reads back exactly.
+
+        Returns
+        -------
+        str
+            ``name``, a ``[model]`` table (paper symbols, SI units) and a ``[thrusters]``
+            table; floats are written with ``repr`` (no rounding), infinities as ``inf``.
+        """
         p, t = self.params, self.thrusters
         lines = [f'name = "{self.name}"', "", "[model]"]
         lines += [f"{k} = {_toml_float(v)}" for k, v in p.to_dict().items()]
@@ -176,7 +368,14 @@ class Vessel:
         return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict[str, str]:
-        """Flat string map (MCAP metadata record)."""
+        """Flat string map (MCAP metadata record).
+
+        Returns
+        -------
+        dict of str to str
+            ``name``, ``model.<symbol>`` and ``thrusters.<field>`` entries; read back by
+            :meth:`from_dict`.
+        """
         d = {"name": self.name}
         d.update({f"model.{k}": repr(v) for k, v in self.params.to_dict().items()})
         d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()})
@@ -184,6 +383,26 @@ class Vessel:
 
     @classmethod
     def from_dict(cls, d: dict[str, str]) -> "Vessel":
+        """Vessel from the flat string map written by :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : mapping of str to str
+            ``name`` (default ``"vessel"``), ``model.<symbol>`` and ``thrusters.<field>``
+            entries; missing ones take the defaults of :class:`VesselParams` and
+            :class:`Thrusters`.
+
+        Returns
+        -------
+        Vessel
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If a value is out of range.
+        ValueError
+            If a numeric entry is not a number.
+        """
         model = {k.split(".", 1)[1]: float(v) for k, v in d.items() if k.startswith("model.")}
         thr: dict = {}
         for f in fields(Thrusters):
@@ -194,6 +413,19 @@ class Vessel:
         return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr))
 
     def with_params(self, **changes) -> "Vessel":
+        """A copy with some model parameters replaced.
+
+        Parameters
+        ----------
+        **changes : float
+            New values by paper symbol (``m``, ``Iz``, ``d11``, ``d22``, ``d33``, ``xg``),
+            SI units as in :class:`VesselParams`.
+
+        Returns
+        -------
+        Vessel
+            The same name and thrusters with the new parameters (checked again).
+        """
         return replace(self, params=replace(self.params, **changes))
 
 
@@ -204,7 +436,25 @@ def _toml_float(v: float) -> str:
 
 
 def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
-    """Parse a vessel TOML document (see README) into a :class:`Vessel`."""
+    """Parse a vessel TOML document (see README) into a :class:`Vessel`.
+
+    Parameters
+    ----------
+    text : str
+        The TOML document: ``name``, ``[model]`` (paper symbols, SI units) and
+        ``[thrusters]`` (fields of :class:`Thrusters`); missing keys take the defaults.
+    source : str, default "<vessel>"
+        Name of the document (usually its path), for error messages.
+
+    Returns
+    -------
+    Vessel
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If the text is not valid TOML, has an unknown key or a value out of range.
+    """
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
@@ -213,7 +463,24 @@ def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
 
 
 def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
-    """A parsed vessel document ({name, model: {...}, thrusters: {...}}) -> :class:`Vessel`."""
+    """A parsed vessel document ({name, model: {...}, thrusters: {...}}) -> :class:`Vessel`.
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed document; see :func:`vessel_from_toml`.
+    source : str, default "<vessel>"
+        Name of the document, for error messages.
+
+    Returns
+    -------
+    Vessel
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown key or a value that is not a number or out of range.
+    """
     model = doc.get("model", {})
     thr = doc.get("thrusters", {})
     known_m = set(PARAM_NAMES)
@@ -233,7 +500,14 @@ def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
 
 
 def default_vessel() -> Vessel:
-    """The paper's Section IV vessel: m = 33 kg, Iz = 10 kg m^2, d = 5, xg = 0.1 m."""
+    """The paper's Section IV vessel: m = 33 kg, Iz = 10 kg m^2, d = 5, xg = 0.1 m.
+
+    Returns
+    -------
+    Vessel
+        ``Vessel()``: the default :class:`VesselParams` and :class:`Thrusters`
+        (identity map, 0.3 m arm, 20 N forward / 12 N reverse).
+    """
     return Vessel()
 
 
@@ -242,12 +516,34 @@ def default_vessel() -> Vessel:
 # ---------------------------------------------------------------------------
 
 def mass_matrix(p: VesselParams) -> np.ndarray:
-    """M of eq. (4)."""
+    """M of eq. (4).
+
+    Parameters
+    ----------
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Rigid-body mass matrix, shape (3, 3), in kg, kg m and kg m^2.
+    """
     return np.array([[p.m, 0.0, 0.0], [0.0, p.m, p.m * p.xg], [0.0, p.m * p.xg, p.Iz]])
 
 
 def coriolis_matrix(nu, p: VesselParams) -> np.ndarray:
-    """C(nu) of eq. (5), shape (..., 3, 3)."""
+    """C(nu) of eq. (5), shape (..., 3, 3).
+
+    Parameters
+    ----------
+    nu : array_like, shape (..., 3)
+        Body velocity [u (m/s), v (m/s), r (rad/s)].
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Coriolis-centripetal matrix of shape ``nu.shape[:-1] + (3, 3)``.
+    """
     nu = np.asarray(nu, float)
     u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
     z = np.zeros_like(u)
@@ -257,7 +553,17 @@ def coriolis_matrix(nu, p: VesselParams) -> np.ndarray:
 
 
 def damping_matrix(p: VesselParams) -> np.ndarray:
-    """D of eq. (6)."""
+    """D of eq. (6).
+
+    Parameters
+    ----------
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Linear damping matrix diag(d11, d22, d33), shape (3, 3).
+    """
     return np.diag([p.d11, p.d22, p.d33])
 
 
@@ -276,7 +582,23 @@ def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
 
 
 def nu_dot(nu, tau_u, tau_r, p: VesselParams):
-    """nu_dot = M^-1 (tau - C(nu) nu - D nu), vectorised over leading axes."""
+    """nu_dot = M^-1 (tau - C(nu) nu - D nu), vectorised over leading axes.
+
+    Parameters
+    ----------
+    nu : array_like, shape (..., 3)
+        Body velocity relative to the water [u (m/s), v (m/s), r (rad/s)].
+    tau_u : float or array_like
+        Surge force in N, broadcast against ``nu[..., 0]``.
+    tau_r : float or array_like
+        Yaw moment in N m.
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        [u_dot (m/s^2), v_dot (m/s^2), r_dot (rad/s^2)].
+    """
     nu = np.asarray(nu, float)
     ud, vd, rd = nu_dot_terms(nu[..., 0], nu[..., 1], nu[..., 2], tau_u, tau_r,
                               p.m, p.Iz, p.d11, p.d22, p.d33, p.xg)
@@ -300,7 +622,19 @@ def nu_dot_jacobian_terms(u, v, r, m, Iz, d11, d22, d33, xg):
 
 
 def nu_dot_jacobian(nu, p: VesselParams):
-    """d(nu_dot)/d(nu), shape (..., 3, 3); tau enters linearly (see :func:`nu_dot_tau_matrix`)."""
+    """d(nu_dot)/d(nu), shape (..., 3, 3); tau enters linearly (see :func:`nu_dot_tau_matrix`).
+
+    Parameters
+    ----------
+    nu : array_like, shape (..., 3)
+        Body velocity [u (m/s), v (m/s), r (rad/s)].
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Jacobian of shape ``nu.shape[:-1] + (3, 3)``, rows u_dot, v_dot, r_dot.
+    """
     nu = np.asarray(nu, float)
     t = nu_dot_jacobian_terms(nu[..., 0], nu[..., 1], nu[..., 2],
                               p.m, p.Iz, p.d11, p.d22, p.d33, p.xg)
@@ -309,13 +643,38 @@ def nu_dot_jacobian(nu, p: VesselParams):
 
 
 def nu_dot_tau_matrix(p: VesselParams) -> np.ndarray:
-    """B such that nu_dot = ... + B @ [tau_u, tau_r] (the input matrix)."""
+    """B such that nu_dot = ... + B @ [tau_u, tau_r] (the input matrix).
+
+    Parameters
+    ----------
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (3, 2): columns for tau_u (N) and tau_r (N m).
+    """
     det = p.m * p.Iz - (p.m * p.xg) ** 2
     return np.array([[1.0 / p.m, 0.0], [0.0, -p.m * p.xg / det], [0.0, p.m / det]])
 
 
 def eta_dot(eta, nu, current_ne=(0.0, 0.0)):
-    """Eq. (1) plus a current in NED: eta_dot = R(psi) nu + [c_n, c_e, 0]."""
+    """Eq. (1) plus a current in NED: eta_dot = R(psi) nu + [c_n, c_e, 0].
+
+    Parameters
+    ----------
+    eta : array_like, shape (..., 3)
+        Pose [n (m), e (m), psi (rad)].
+    nu : array_like, shape (..., 3)
+        Body velocity relative to the water [u (m/s), v (m/s), r (rad/s)].
+    current_ne : (float, float), default (0.0, 0.0)
+        Water current, north and east, in m/s.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        [n_dot (m/s), e_dot (m/s), psi_dot (rad/s)].
+    """
     eta, nu = np.asarray(eta, float), np.asarray(nu, float)
     psi = eta[..., 2]
     c, s = np.cos(psi), np.sin(psi)
@@ -324,14 +683,44 @@ def eta_dot(eta, nu, current_ne=(0.0, 0.0)):
 
 
 def plant_rhs(x, tau_u, tau_r, p: VesselParams, current_ne=(0.0, 0.0)):
-    """State x = [n, e, psi, u, v, r] -> x_dot (eqs. (1) and (3))."""
+    """State x = [n, e, psi, u, v, r] -> x_dot (eqs. (1) and (3)).
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 6)
+        [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]; u, v relative to the water.
+    tau_u : float or array_like
+        Surge force in N.
+    tau_r : float or array_like
+        Yaw moment in N m.
+    p : VesselParams
+    current_ne : (float, float), default (0.0, 0.0)
+        Water current, north and east, in m/s.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 6)
+        Time derivative of ``x`` (SI units per second).
+    """
     x = np.asarray(x, float)
     return np.concatenate([eta_dot(x[..., :3], x[..., 3:], current_ne),
                            nu_dot(x[..., 3:], tau_u, tau_r, p)], -1)
 
 
 def plant_jacobian(x, p: VesselParams):
-    """d(plant_rhs)/dx, shape (..., 6, 6) (independent of tau and of a constant current)."""
+    """d(plant_rhs)/dx, shape (..., 6, 6) (independent of tau and of a constant current).
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 6)
+        State [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)].
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray
+        Jacobian of shape ``x.shape[:-1] + (6, 6)``.
+    """
     x = np.asarray(x, float)
     psi, u, v = x[..., 2], x[..., 3], x[..., 4]
     c, s = np.cos(psi), np.sin(psi)
@@ -346,7 +735,25 @@ def plant_jacobian(x, p: VesselParams):
 
 
 def model_residual(nu, nu_dot_meas, tau_u, tau_r, p: VesselParams):
-    """M nu_dot + C(nu) nu + D nu - tau for given accelerations (shape (..., 3))."""
+    """M nu_dot + C(nu) nu + D nu - tau for given accelerations (shape (..., 3)).
+
+    Parameters
+    ----------
+    nu : array_like, shape (..., 3)
+        Body velocity [u (m/s), v (m/s), r (rad/s)].
+    nu_dot_meas : array_like, shape (..., 3)
+        Measured or smoothed accelerations [m/s^2, m/s^2, rad/s^2].
+    tau_u : float or array_like
+        Surge force in N.
+    tau_r : float or array_like
+        Yaw moment in N m.
+    p : VesselParams
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        Equation error [N, N, N m]; zero where the data follow the model exactly.
+    """
     nu = np.asarray(nu, float)
     M, D = mass_matrix(p), damping_matrix(p)
     Cnu = np.einsum("...ij,...j->...i", coriolis_matrix(nu, p), nu)
@@ -356,7 +763,27 @@ def model_residual(nu, nu_dot_meas, tau_u, tau_r, p: VesselParams):
 
 
 def rk4_step(x, tau_u, tau_r, p: VesselParams, dt: float, current_ne=(0.0, 0.0)):
-    """One RK4 step of the plant with thrust held over the step."""
+    """One RK4 step of the plant with thrust held over the step.
+
+    Parameters
+    ----------
+    x : array_like, shape (..., 6)
+        State [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)].
+    tau_u : float or array_like
+        Surge force in N.
+    tau_r : float or array_like
+        Yaw moment in N m.
+    p : VesselParams
+    dt : float
+        Step in s.
+    current_ne : (float, float), default (0.0, 0.0)
+        Water current, north and east, in m/s.
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 6)
+        State after ``dt``.
+    """
     k1 = plant_rhs(x, tau_u, tau_r, p, current_ne)
     k2 = plant_rhs(x + 0.5 * dt * k1, tau_u, tau_r, p, current_ne)
     k3 = plant_rhs(x + 0.5 * dt * k2, tau_u, tau_r, p, current_ne)
@@ -365,11 +792,31 @@ def rk4_step(x, tau_u, tau_r, p: VesselParams, dt: float, current_ne=(0.0, 0.0))
 
 
 def euler_step(x, tau_u, tau_r, p: VesselParams, dt: float, current_ne=(0.0, 0.0)):
-    """First-order step, as the paper's Section IV simulation."""
+    """First-order step, as the paper's Section IV simulation.
+
+    Parameters are those of :func:`rk4_step`; returns the state after ``dt`` s,
+    x + dt plant_rhs(x).
+    """
     return x + dt * plant_rhs(x, tau_u, tau_r, p, current_ne)
 
 
 def check_finite(name: str, arr, source: str = "") -> None:
+    """Raise InputError if ``arr`` holds a NaN or an infinity.
+
+    Parameters
+    ----------
+    name : str
+        Name of the array (a column or channel), for the message.
+    arr : array_like
+        Values to check; rows are along the first axis.
+    source : str, default ""
+        File or channel the values come from, prefixed to the message.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        Naming the first row (first-axis index) with a non-finite value.
+    """
     a = np.asarray(arr, float)
     if not np.all(np.isfinite(a)):
         i = int(np.flatnonzero(~np.isfinite(a.reshape(len(a), -1)).any(-1))[0]) if a.ndim else 0

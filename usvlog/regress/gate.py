@@ -18,6 +18,26 @@ WORSE = ("larger", "smaller", "either")
 
 @dataclass(frozen=True, kw_only=True)
 class BaselineEntry:
+    """Accepted value of one metric and how far it may move before it counts as a change.
+
+    Parameters
+    ----------
+    value : float
+        Accepted value, in the metric's own unit.
+    worse : {"larger", "smaller", "either"}, default "larger"
+        Direction that is a regression.
+    abs_tol : float, default 0.0
+        Absolute allowance, in the metric's unit (>= 0).
+    rel_tol : float, default 0.0
+        Allowance relative to ``|value|`` (>= 0).
+    description : str, default ""
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown direction or a negative tolerance.
+    """
+
     value: float
     worse: str = "larger"
     abs_tol: float = 0.0
@@ -32,9 +52,11 @@ class BaselineEntry:
 
     @property
     def allowance(self) -> float:
+        """How far the metric may move: abs_tol + rel_tol |value|."""
         return self.abs_tol + self.rel_tol * abs(self.value)
 
     def to_dict(self) -> dict:
+        """Fields as a dict (the baseline file's table; ``description`` only if set)."""
         d = {"value": self.value, "worse": self.worse, "abs_tol": self.abs_tol, "rel_tol": self.rel_tol}
         if self.description:
             d["description"] = self.description
@@ -42,6 +64,13 @@ class BaselineEntry:
 
     @classmethod
     def from_dict(cls, name: str, d: dict) -> "BaselineEntry":
+        """Entry from a baseline file's table for metric ``name`` (named in errors).
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If ``value`` is missing or a field is invalid.
+        """
         try:
             return cls(value=float(d["value"]), worse=str(d.get("worse", "larger")),
                        abs_tol=float(d.get("abs_tol", 0.0)), rel_tol=float(d.get("rel_tol", 0.0)),
@@ -52,6 +81,13 @@ class BaselineEntry:
 
 @dataclass(frozen=True)
 class Check:
+    """Outcome of comparing one metric of one scenario with its baseline.
+
+    ``verdict`` is ``ok``, ``improved``, ``REGRESSED``, ``new`` (no baseline yet) or
+    ``missing`` (not produced); ``baseline`` and ``now`` are in the metric's unit;
+    ``message`` explains a regression.
+    """
+
     scenario: str
     metric: str
     baseline: float | None
@@ -61,21 +97,38 @@ class Check:
 
     @property
     def change(self) -> float | None:
+        """now - baseline, or None if either is missing."""
         if self.baseline is None or self.now is None:
             return None
         return self.now - self.baseline
 
     @property
     def failed(self) -> bool:
+        """True for ``REGRESSED`` and ``missing`` (the gate fails)."""
         return self.verdict in ("REGRESSED", "missing")
 
     def to_dict(self) -> dict:
+        """JSON-ready dict of the fields plus ``change``."""
         return {"scenario": self.scenario, "metric": self.metric, "baseline": self.baseline,
                 "now": self.now, "change": self.change, "verdict": self.verdict, "message": self.message}
 
 
 def compare(scenario: str, metrics: dict[str, float], baseline: dict[str, BaselineEntry]) -> list[Check]:
-    """Compare measured metrics with their baselines; one Check per metric."""
+    """Compare measured metrics with their baselines; one Check per metric.
+
+    Parameters
+    ----------
+    scenario : str
+        Scenario name, copied into the checks.
+    metrics : dict of str to float
+        Measured values (None or NaN: not produced).
+    baseline : dict of str to BaselineEntry
+
+    Returns
+    -------
+    list of Check
+        Sorted by metric name, over the union of measured and baseline metrics.
+    """
     out = []
     for name in sorted(set(metrics) | set(baseline)):
         now = metrics.get(name)
@@ -107,7 +160,23 @@ def compare(scenario: str, metrics: dict[str, float], baseline: dict[str, Baseli
 def updated_baseline(metrics: dict[str, float], old: dict[str, BaselineEntry],
                      default_worse: dict[str, str] | None = None,
                      default_tol: dict[str, tuple[float, float]] | None = None) -> dict[str, BaselineEntry]:
-    """New baseline: accepted values replaced, tolerances and directions kept."""
+    """New baseline: accepted values replaced, tolerances and directions kept.
+
+    Parameters
+    ----------
+    metrics : dict of str to float
+        Measured values; None or NaN ones are dropped.
+    old : dict of str to BaselineEntry
+        The current baseline.
+    default_worse : dict of str to str, optional
+        Direction for metrics new to the baseline (default ``larger``).
+    default_tol : dict of str to (float, float), optional
+        (abs_tol, rel_tol) for new metrics (default (0, 0.05)).
+
+    Returns
+    -------
+    dict of str to BaselineEntry
+    """
     new = {}
     for name, v in sorted(metrics.items()):
         if v is None or (isinstance(v, float) and math.isnan(v)):
@@ -125,7 +194,21 @@ def updated_baseline(metrics: dict[str, float], old: dict[str, BaselineEntry],
 
 def junit_xml(checks: list[Check], durations: dict[str, float] | None = None,
               errors: dict[str, str] | None = None) -> str:
-    """JUnit XML: one testsuite per scenario, one testcase per metric."""
+    """JUnit XML: one testsuite per scenario, one testcase per metric.
+
+    Parameters
+    ----------
+    checks : list of Check
+    durations : dict of str to float, optional
+        Run time of each scenario, s.
+    errors : dict of str to str, optional
+        Scenarios that failed to run, with the message (an ``error`` testcase each).
+
+    Returns
+    -------
+    str
+        The XML document.
+    """
     durations = durations or {}
     errors = errors or {}
     scen = sorted({c.scenario for c in checks} | set(errors))

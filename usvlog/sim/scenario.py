@@ -31,7 +31,41 @@ SECTIONS = {"scenario", "simulation", "vessel", "path", "gains", "guidance", "sp
 
 @dataclass(frozen=True, kw_only=True)
 class Scenario:
-    """A closed-loop scenario (TOML in ``replay/``; see README)."""
+    """A closed-loop scenario (TOML in ``replay/``; see README).
+
+    Usually built by :func:`load_scenario` or :func:`scenario_from_dict`.
+
+    Attributes
+    ----------
+    name, description : str
+    kind : str
+        Always ``"closed-loop"``.
+    sim : SimSettings
+        Vessel, duration, step, current, initial state and sensors.
+    seed : int
+        Seed of the sensor noise.
+    controller : {"full", "baseline"}
+        Control law (9)-(10), or the paper's baseline PI/PID.
+    controller_input : {"truth", "ekf"}
+        The controller sees the true state or an online EKF's estimate.
+    path_spec : dict
+        The ``[path]`` table (see :func:`usvlog.control.paths.path_from_spec`).
+    gains : Gains
+    guidance : GuidanceSettings
+    speed : tuple of tuple of float
+        Speed schedule rows (t in s, u_d in m/s[, delta_theta in m]); times increasing.
+    metrics_start_s : float
+        Tracking metrics are computed from this time on, s.
+    source : str
+        File the scenario came from (for messages).
+    doc : dict
+        The parsed document.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown controller or input, or an empty or invalid speed schedule.
+    """
 
     name: str
     description: str = ""
@@ -72,6 +106,22 @@ class Scenario:
                          for r in self.speed], dtype=float)
 
     def path(self, datum=None) -> Path:
+        """The compiled desired path.
+
+        Parameters
+        ----------
+        datum : Datum, optional
+            Datum for lat/lon waypoints (default the simulation's datum).
+
+        Returns
+        -------
+        usvlog.control.paths.Path
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the ``[path]`` table is invalid.
+        """
         return path_from_spec(self.path_spec, datum=datum if datum is not None else self.sim.datum,
                               source=self.source or self.name)
 
@@ -83,7 +133,30 @@ def _check_keys(table: dict, allowed, where: str) -> None:
 
 
 def scenario_from_dict(doc: dict, *, source: str = "scenario", vessel: Vessel | None = None) -> Scenario:
-    """Parsed scenario TOML -> :class:`Scenario`. ``vessel`` replaces ``[vessel] file = ...``."""
+    """Parsed scenario TOML -> :class:`Scenario`. ``vessel`` replaces ``[vessel] file = ...``.
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed document (sections scenario, simulation, vessel, path, gains,
+        guidance, speed, initial, metrics).
+    source : str, default "scenario"
+        Name of the document, for error messages.
+    vessel : Vessel, optional
+        Vessel to use instead of the document's ``[vessel]`` (default: that table, else
+        the built-in vessel).
+
+    Returns
+    -------
+    Scenario
+        With the path already checked.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown section or key, a missing ``[path]`` or ``[speed]``, an unresolved
+        ``[vessel] file``, or an invalid value.
+    """
     for k, v in doc.items():
         if k not in SECTIONS | RESERVED_SECTIONS:
             raise ConfigError(f"{source}: unknown section [{k}]")
@@ -153,7 +226,15 @@ def _tuples(v):
 
 
 def scenario_path(name_or_path) -> FilePath:
-    """A scenario file path, or a name resolved to ``replay/<name>.toml`` of the package."""
+    """A scenario file path, or a name resolved to ``replay/<name>.toml`` of the package.
+
+    Anything ending in ``.toml``, containing ``/`` or existing is taken as a path as is.
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If a bare name is not a shipped scenario.
+    """
     p = FilePath(name_or_path)
     if p.suffix == ".toml" or p.exists() or "/" in str(name_or_path):
         return p
@@ -178,7 +259,26 @@ def closed_loop_scenarios() -> list[str]:
 
 
 def load_scenario(name_or_path, *, vessel=None):
-    """Read a closed-loop scenario TOML (``[vessel] file = ...`` is relative to the scenario)."""
+    """Read a closed-loop scenario TOML (``[vessel] file = ...`` is relative to the scenario).
+
+    Parameters
+    ----------
+    name_or_path : str or os.PathLike
+        A file, or the name of a shipped scenario (see :func:`closed_loop_scenarios`).
+    vessel : Vessel, optional
+        Replaces the scenario's vessel.
+
+    Returns
+    -------
+    Scenario
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If the file cannot be found or read.
+    usvlog.errors.ConfigError
+        If it is not a valid closed-loop scenario (e.g. a regression scenario).
+    """
     path = scenario_path(name_or_path)
     doc = read_toml(path)
     if "dataset" in doc and "path" not in doc:
@@ -194,5 +294,17 @@ def load_scenario(name_or_path, *, vessel=None):
 
 
 def load_gains(path):
-    """``[gains]`` + ``[guidance]`` from a gains file or a scenario file."""
+    """``[gains]`` + ``[guidance]`` from a gains file or a scenario file.
+
+    Returns
+    -------
+    (Gains, GuidanceSettings)
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If the file cannot be read.
+    usvlog.errors.ConfigError
+        If it is not valid TOML or the tables are invalid.
+    """
     return gains_from_dict(read_toml(path), source=str(path))

@@ -28,7 +28,41 @@ DEFAULT_DATUM = Datum(lat_deg=43.4723, lon_deg=-80.5449, alt_m=0.0)  # a lake ne
 
 @dataclass(frozen=True, kw_only=True)
 class SensorSettings:
-    """Sensor models: rates, noise (one sigma), biases, faults."""
+    """Sensor models: rates, noise (one sigma), biases, faults.
+
+    Sensors sample the plant at its steps, so a rate is rounded to a whole number of
+    integration steps.
+
+    Parameters
+    ----------
+    gps_rate_hz : float, default 10.0
+        GNSS fix rate, Hz (> 0).
+    gps_noise_m : float, default 1.5
+        White GNSS noise per axis (north, east), one sigma in m (>= 0).
+    gps_bias_sigma_m : float, default 0.0
+        Stationary one sigma of a slowly wandering (Gauss-Markov) GNSS bias, m (>= 0).
+    gps_bias_tau_s : float, default 300.0
+        Correlation time of that bias, s (> 0).
+    gps_jumps : tuple of (float, float), default ()
+        Single-fix outliers: (time in s from the start, size in m), random direction.
+    gps_dropouts : tuple of (float, float), default ()
+        Gaps without fixes: (start in s from the start, duration in s).
+    compass_rate_hz : float, default 20.0
+        Compass rate, Hz (> 0).
+    compass_noise_deg : float, default 2.0
+        White compass noise, one sigma in degrees (>= 0).
+    compass_bias_deg : float, default 0.0
+        Constant compass bias, degrees.
+    thrust_rate_hz : float, default 100.0
+        Rate of the recorded thrust commands, Hz (> 0).
+    truth_rate_hz : float or None, default None
+        Rate of ``/truth/state``, Hz (None: every integration step).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a rate or time constant is not positive or a noise level is negative.
+    """
 
     gps_rate_hz: float = 10.0
     gps_noise_m: float = 1.5
@@ -55,7 +89,37 @@ class SensorSettings:
 
 @dataclass(frozen=True, kw_only=True)
 class SimSettings:
-    """What to simulate: vessel, duration, step, current, start time, datum, sensors."""
+    """What to simulate: vessel, duration, step, current, start time, datum, sensors.
+
+    Parameters
+    ----------
+    vessel : Vessel, default default_vessel()
+        Plant model and thrusters.
+    duration_s : float, default 600.0
+        Length of the run, s (> 0).
+    dt_s : float, default 0.01
+        Integration step, s, in (0, 1].
+    integrator : {"rk4", "euler"}, default "rk4"
+        ``euler`` is the paper's Section IV first-order integration.
+    current_mps : float, default 0.0
+        Water current speed, m/s (>= 0); the model acts on water-relative velocity.
+    current_dir_deg : float, default 0.0
+        Direction the water flows towards, degrees clockwise from north.
+    start_utc : str, default "2026-06-01T12:00:00+00:00"
+        ISO 8601 time of the first sample.
+    datum : Datum, default DEFAULT_DATUM
+        Origin of the local NED frame the positions are converted from.
+    sensors : SensorSettings, default SensorSettings()
+    eta0 : (float, float, float), default (0, 0, 0)
+        Initial pose n (m), e (m), psi (rad).
+    nu0 : (float, float, float), default (0, 0, 0)
+        Initial velocity u (m/s), v (m/s), r (rad/s), relative to the water.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a value is out of range or ``start_utc`` is not ISO 8601.
+    """
 
     vessel: Vessel = field(default_factory=default_vessel)
     duration_s: float = 600.0
@@ -82,15 +146,18 @@ class SimSettings:
 
     @property
     def current_ne(self) -> tuple[float, float]:
+        """Current as (north, east) velocity, m/s."""
         a = math.radians(self.current_dir_deg)
         return self.current_mps * math.cos(a), self.current_mps * math.sin(a)
 
     @property
     def n_steps(self) -> int:
+        """Number of integration steps, round(duration_s / dt_s)."""
         return int(round(self.duration_s / self.dt_s))
 
 
 def start_ns(iso: str) -> int:
+    """ISO 8601 time -> int ns since the Unix epoch (UTC); ConfigError if it does not parse."""
     from ..log.fieldlog import parse_time
 
     try:
@@ -146,6 +213,17 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     The zig-zag is the classic manoeuvre: full yaw moment one way until the heading is
     20 deg off the base course, then the other way; the base course turns by 90 deg
     every 150 s so the run covers all headings (which separates current from drag).
+
+    Parameters
+    ----------
+    settings : SimSettings
+    seed : int, default 0
+        Seed of the one random generator (multisine phases and sensor noise).
+
+    Returns
+    -------
+    FieldLog
+        See :func:`field_log_from_run` for the channels.
     """
     rng = np.random.default_rng(seed)
     st = settings
@@ -205,6 +283,20 @@ def draw_sensor_noise(st: SimSettings, t: np.ndarray, rng: np.random.Generator) 
 
     GPS: white noise, wandering bias, jumps (sample index, dn, de), dropouts (a keep mask);
     compass: white noise (rad). Indices are plant steps at which each sensor samples.
+
+    Parameters
+    ----------
+    st : SimSettings
+    t : numpy.ndarray
+        Plant step times, s from the start.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    dict
+        ``gps_index``, ``gps_noise`` (K, 2) m, ``gps_bias`` (K, 2) m, ``gps_keep`` (K,)
+        bool, ``gps_jumps`` list of (fix index, dn m, de m), ``compass_index``,
+        ``compass_noise`` (rad).
     """
     sn = st.sensors
     gi = _every(t, sn.gps_rate_hz, st.dt_s)
@@ -240,6 +332,33 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
 
     ``noise``: sensor noise drawn beforehand by :func:`draw_sensor_noise` (a closed loop
     whose estimator must see the very measurements the log records); None draws it here.
+
+    Parameters
+    ----------
+    st : SimSettings
+    t : numpy.ndarray, shape (N,)
+        Step times, s from ``st.start_utc``.
+    states : numpy.ndarray, shape (N, 6)
+        n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s) at ``t``.
+    tau_u, tau_r : numpy.ndarray, shape (N,)
+        Surge force (N) and yaw moment (N m) applied over each step.
+    rng : numpy.random.Generator
+    producer, scenario : str
+        Provenance: the producing command and the scenario name.
+    seed : int
+        Recorded in the provenance.
+    extra_settings : dict, optional
+        More provenance settings.
+    noise : dict, optional
+        From :func:`draw_sensor_noise`.
+
+    Returns
+    -------
+    FieldLog
+        Channels ``/truth/state``, ``/thrust/command`` (newtons for the identity map,
+        else normalized commands; forces in thrust_*_n), ``/gnss/fix`` and
+        ``/compass/heading`` (true heading), timestamps in ns since the Unix epoch;
+        the datum, the vessel and a provenance record.
     """
     t0 = start_ns(st.start_utc)
     t_ns = t0 + np.round(t * 1e9).astype(np.int64)
@@ -336,7 +455,9 @@ def _open_loop(settings: SimSettings, seed: int, tau_of_t, scenario: str) -> Fie
 def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     """Open-loop steps in surge thrust and turning circles both ways (a different manoeuvre
     from ``excitation``, for validation): every 40 s a new surge thrust (1.5-4.5 N) and a new
-    yaw moment (0, +-0.4 or +-0.9 N m), held."""
+    yaw moment (0, +-0.4 or +-0.9 N m), held.
+
+    Parameters and return as :func:`excitation_run`."""
     def tau(t, rng):
         k = (t // 40.0).astype(int)
         nseg = int(k.max()) + 1
@@ -348,7 +469,9 @@ def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
 
 def straight_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     """Straight line: steps in surge thrust with equal thrusters, no yaw moment at all
-    (the yaw dynamics are not excited: identification must say so)."""
+    (the yaw dynamics are not excited: identification must say so).
+
+    Parameters and return as :func:`excitation_run`."""
     def tau(t, rng):
         k = (t // 30.0).astype(int)
         tu = rng.uniform(1.5, 4.5, int(k.max()) + 1)
@@ -360,7 +483,34 @@ SCENARIOS = {"excitation": excitation_run, "turns": turns_run, "straight": strai
 
 
 def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) -> FieldLog:
-    """Run a built-in scenario by name."""
+    """Run a built-in scenario by name.
+
+    Parameters
+    ----------
+    scenario : {"excitation", "turns", "straight"}
+        Open-loop manoeuvre: :func:`excitation_run` (multisine surge and 20/20 zig-zag,
+        for identification), :func:`turns_run` (thrust steps and turning circles) or
+        :func:`straight_run` (no yaw excitation).
+    settings : SimSettings, optional
+        Vessel, duration, step, current, sensors (default ``SimSettings()``: the paper's
+        vessel, 600 s at 0.01 s, no current).
+    seed : int, default 0
+        A seed reproduces a run bit for bit.
+
+    Returns
+    -------
+    FieldLog
+        Sensors, thrust and ``/truth/state``; see :func:`field_log_from_run`.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown scenario name.
+
+    See Also
+    --------
+    usvlog.sim.closed_loop.simulate_scenario : closed-loop runs of a :class:`~usvlog.sim.scenario.Scenario`.
+    """
     try:
         fn = SCENARIOS[scenario]
     except KeyError:

@@ -58,6 +58,7 @@ def _times(frame) -> np.ndarray:
 
 
 def nonempty(log: FieldLog, topic: str):
+    """The channel's DataFrame (indexed by t_ns), or None if it is missing or empty."""
     f = log.get(topic)
     return f if f is not None and len(f) else None
 
@@ -184,6 +185,13 @@ def recorded_tau(log: FieldLog):
 
 @dataclass(frozen=True)
 class Event:
+    """One line of the event log.
+
+    ``t_ns``: ns since the Unix epoch; ``level``: ``INFO`` or ``WARN``; ``kind``:
+    ``gps_rejected``, ``<sensor>_rejected``, ``gps_dropout``, ``saturation_start``,
+    ``saturation_end`` or ``speed_step``; ``text``: the message.
+    """
+
     t_ns: int
     level: str   # "INFO" | "WARN"
     kind: str    # "gps_rejected" | "<sensor>_rejected" | "gps_dropout" | "saturation_start" | ... | "speed_step"

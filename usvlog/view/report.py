@@ -39,6 +39,20 @@ AXES_NOTE = {
 
 
 def check_report_outputs(out_dir, force: bool) -> Path:
+    """Check before any work that the report can be written into ``out_dir``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir`` (it may not exist yet).
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If ``out_dir`` exists and is not a directory.
+    usvlog.errors.OutputExistsError
+        If the page or a figure already exists and ``force`` is False.
+    """
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise StorageError(f"{out}: output is not a directory")
@@ -329,6 +343,41 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
 
     ``log`` may also be a pair ``[log, baseline]``. ``axes="paper"`` draws the plane figures
     as the paper does (X = north to the right, Y = east up); ``axes="map"`` draws them north up.
+
+    Figures in the style of the paper's Fig. 1, 2, 4 and 5 and the identification fit
+    are drawn from whatever channels the log holds (positions in m, speeds in m/s,
+    angles in degrees, time in s from the start); figures it cannot draw are listed on
+    the page with the channels they need. Every file is written atomically.
+
+    Parameters
+    ----------
+    log : FieldLog or list of FieldLog
+        The run, or ``[log]`` / ``[log, baseline]``.
+    out_dir : str or os.PathLike
+        Directory for ``report.html`` and the PNGs (created if missing).
+    force : bool, default False
+        Overwrite existing report files.
+    baseline : FieldLog, optional
+        A run to compare with in Fig. 2 (drawn solid, this log dashed, as in the paper).
+    axes : {"paper", "map"}, default "paper"
+        Orientation of the plane figures.
+
+    Returns
+    -------
+    pathlib.Path
+        Path of ``report.html``.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If more than two logs are given, or matplotlib is not installed (the ``report``
+        extra).
+    ValueError
+        If ``axes`` is not ``paper`` or ``map``.
+    usvlog.errors.OutputExistsError
+        If a report file exists and ``force`` is False.
+    usvlog.errors.StorageError
+        If ``out_dir`` is not a directory or cannot be created or written.
     """
     if isinstance(log, (list, tuple)):  # [log, baseline]
         if not 1 <= len(log) <= 2:

@@ -63,6 +63,8 @@ def _safe(name: str) -> str:
 
 
 def default_names(logs: list[FieldLog]) -> list[str]:
+    """Entity names of the logs: each file's stem made safe (``run<i>`` without a source),
+    with ``_2``, ``_3`` ... appended to repeats."""
     out: list[str] = []
     for i, log in enumerate(logs):
         base = _safe(Path(log.source).stem) if log.source else f"run{i}"
@@ -433,6 +435,12 @@ def map_zoom(boxes: np.ndarray, pixels: float = 500.0) -> float:
 
 
 def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
+    """The viewer layout for what the writers drew.
+
+    Left: map and local-NED tabs (plus side-by-side views for several runs) over the
+    event log; right: surge speed and heading series, the others in tabs. The time
+    panel starts on ``time`` for one log and ``elapsed`` for several.
+    """
     views: dict[str, list[str]] = defaultdict(list)
     for w in writers:
         for k, v in w.views.items():
@@ -517,6 +525,35 @@ def to_rrd(logs: list[FieldLog] | FieldLog, out_path, *, names: list[str] | None
 
     Several logs are overlaid under ``/runs/<name>/`` (names default to the files' stems)
     and also shown side by side; the time panel then starts on the ``elapsed`` timeline.
+
+    Parameters
+    ----------
+    logs : FieldLog or list of FieldLog
+        Raw, estimated, replayed or simulated logs; whatever channels they hold are drawn
+        (GPS and estimated/true tracks on a map and in local NED metres, controller
+        overlays, time series, events).
+    out_path : str or os.PathLike
+        The .rrd file to write (atomically).
+    names : list of str, optional
+        One distinct name per log (made safe for entity paths); default
+        :func:`default_names`.
+    force : bool, default False
+        Overwrite an existing file.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file; open it with :func:`spawn_viewer` or :func:`serve`.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        If no logs are given, a log has no data, or ``names`` are not distinct or do
+        not match the logs.
+    usvlog.errors.OutputExistsError
+        If ``out_path`` exists and ``force`` is False.
+    usvlog.errors.StorageError
+        If the file cannot be written.
     """
     logs, names = _prepare(logs, names)
     out = check_output(out_path, force)
