@@ -12,7 +12,7 @@ from scipy.optimize import minimize
 from scipy.stats import chi2
 
 from ..errors import ConfigError, InputError
-from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
@@ -443,7 +443,7 @@ def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray
         cols[c] = X[:, i].copy() if i < n_out else np.full(len(X), np.nan)
     for i, c in enumerate(STATE_COLUMNS):
         cols[c + "_std"] = SD[:, i].copy() if i < n_out else np.full(len(X), np.nan)
-    return frame_from_columns(cols, t_ns, codec_for_topic(STATE_TOPIC))
+    return frame_from_columns(cols, t_ns, channel_spec(STATE_TOPIC))
 
 
 @dataclass(frozen=True)
@@ -505,7 +505,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
          "accepted": raw.accepted > 0},
-        pb.m_t_ns, codec_for_topic(INNOVATION_TOPIC))
+        pb.m_t_ns, channel_spec(INNOVATION_TOPIC))
     reps = []
     for k in range(3):
         sel = pb.mkind == k

@@ -10,13 +10,10 @@ import numpy as np
 
 from ..._version import __version__
 from ...errors import InputError
-from ...log.channels import (
-    MESSAGE_ENCODING,
-    SCHEMA_ENCODING,
-    Codec,
-)
+from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
+from .codec import Codec
 from .format import (
     _REC,
     _U64,

@@ -17,14 +17,13 @@ from ...errors import InputError
 from ...log.channels import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
-    Codec,
     auto_schema,
-    codec_for_schema,
-    codec_for_topic,
     schema_for_topic,
 )
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
+from . import kernels as K
+from .codec import Codec, codec_for_schema, codec_for_topic
 from .format import (
     _REC,
     MAGIC,
@@ -80,7 +79,7 @@ class McapWriter:
     closed after the message that takes it past ``chunk_size``; then message
     indexes, and at :meth:`finish` the summary (schemas, channels, statistics, chunk
     and metadata indexes). Message records are built by compiled loops from the
-    packed output of :meth:`usvlog.log.fieldlog.channels.Codec.encode_packed`.
+    packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
     plus one batch) is held. Each message's ``sequence`` is its row number in its
@@ -164,8 +163,6 @@ class McapWriter:
     # -- messages ------------------------------------------------------------------------
     def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None) -> None:
         """Append one batch: every row of every frame (index: int64 log time ns) as a message."""
-        from . import kernels as K
-
         bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
         base = 0
         for topic, frame in frames.items():
