@@ -15,7 +15,7 @@ from ..errors import ConfigError, InputError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
 from ..model.frames import Datum, geodetic_to_ned, ssa
-from ..model.vessel import Vessel, default_vessel
+from ..model.vessel import Vessel, VesselParams, default_vessel
 from . import kernels
 from .kernels import (
     COMPASS,
@@ -27,6 +27,7 @@ from .kernels import (
     SENSORS,
     YAW_RATE,
 )
+from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -324,9 +325,6 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
-    from ..model.vessel import VesselParams
-    from .reference import run_reference
-
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
                         pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
