@@ -285,11 +285,11 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
     if comp == "":
         return bytes(raw)
     if comp == "zstd":
-        import zstandard
+        import zstandard  # only the decompressor the file uses is loaded
 
         return zstandard.ZstdDecompressor().decompress(bytes(raw), max_output_size=usize)
     if comp == "lz4":
-        import lz4.frame
+        import lz4.frame  # only the decompressor the file uses is loaded
 
         return lz4.frame.decompress(bytes(raw))
     raise ValueError(f"unsupported compression {comp!r}")

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import struct
+import zlib
 
 import numpy as np
 import pandas as pd
@@ -88,6 +89,7 @@ class McapWriter:
     """
 
     def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = 3):
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Header
 
         self._fh = fh
@@ -121,6 +123,7 @@ class McapWriter:
 
     @staticmethod
     def _record(rec) -> bytes:
+        # start-up: the mcap library loads on first write, not on read
         from mcap.data_stream import RecordBuilder
 
         rb = RecordBuilder()
@@ -131,6 +134,7 @@ class McapWriter:
     def add_channel(self, topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> int:
         """Register ``topic`` (once; its schema: the registered one, else ``schema``, else one
         generated from ``frame``); returns the channel id."""
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Channel, Schema
 
         known = self._topics.get(topic)
@@ -154,6 +158,7 @@ class McapWriter:
 
     def add_metadata(self, name: str, record: dict) -> None:
         """A metadata record (values stored as strings), after the messages written so far."""
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Metadata, MetadataIndex
 
         self.flush()
@@ -216,8 +221,7 @@ class McapWriter:
             self._close_chunk()
 
     def _close_chunk(self) -> None:
-        import zlib
-
+        # start-up: the mcap library loads on first write, not on read
         from mcap.opcode import Opcode
         from mcap.records import Chunk, ChunkIndex
 
@@ -228,11 +232,11 @@ class McapWriter:
         self._open = bytearray()
         self._open_msgs = []
         if self._comp == "zstd":
-            import zstandard
+            import zstandard  # only the compressor the file uses is loaded
 
             packed, cname = zstandard.ZstdCompressor(level=self._zstd_level).compress(data), "zstd"
         elif self._comp == "lz4":
-            import lz4.frame
+            import lz4.frame  # only the compressor the file uses is loaded
 
             packed, cname = lz4.frame.compress(data), "lz4"
         else:
@@ -261,8 +265,7 @@ class McapWriter:
     # -- the end ------------------------------------------------------------------------
     def finish(self) -> None:
         """Close the open chunk, write the summary and the footer (the file stays open)."""
-        import zlib
-
+        # start-up: the mcap library loads on first write, not on read
         from mcap.data_stream import RecordBuilder
         from mcap.opcode import Opcode
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
