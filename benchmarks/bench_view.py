@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-from usvlog.log.channels import codec_for_topic, frame_from_columns
+from usvlog.log.channels import channel_spec, frame_from_columns
 from usvlog.sim.simulate import SimSettings, simulate
 from usvlog.view.rrd import to_rrd
 
@@ -36,7 +36,7 @@ def hour_log(duration_s: float):
     for c in ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"):
         est[c] = tr[c].to_numpy() + rng.normal(0, 0.01, len(tr))
         est[c + "_std"] = np.full(len(tr), 0.05)
-    log.set("/estimate/state", frame_from_columns(est, tr.index.to_numpy(), codec_for_topic("/estimate/state")))
+    log.set("/estimate/state", frame_from_columns(est, tr.index.to_numpy(), channel_spec("/estimate/state")))
     # a replayed controller at 100 Hz (the volume of /replay/controller; values built from the truth)
     n = len(tr)
     z = np.zeros(n)
@@ -48,7 +48,7 @@ def hour_log(duration_s: float):
            "u_e_mps": tr["u_mps"].to_numpy() - 0.4, "psi_e_rad": z + 0.05, "cross_track_m": z + 1.0,
            "tau_u_n": tr["tau_u_n"].to_numpy(), "tau_r_nm": tr["tau_r_nm"].to_numpy(), "thrust_left_n": z,
            "thrust_right_n": z, "cmd_left": z, "cmd_right": z, "saturated": np.zeros(n, bool)}
-    log.set("/replay/controller", frame_from_columns(ctl, tr.index.to_numpy(), codec_for_topic("/replay/controller")))
+    log.set("/replay/controller", frame_from_columns(ctl, tr.index.to_numpy(), channel_spec("/replay/controller")))
     return log
 
 

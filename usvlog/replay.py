@@ -20,7 +20,7 @@ import numpy as np
 from .control.gains import Gains
 from .control.law import COL, Controller, speed_at
 from .errors import InputError
-from .log.channels import codec_for_topic, frame_from_columns
+from .log.channels import channel_spec, frame_from_columns
 from .log.fieldlog import FieldLog
 from .model.frames import ssa
 from .model.vessel import Vessel, default_vessel
@@ -234,7 +234,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         st_cols = {"n_m": s[:, 0], "e_m": s[:, 1], "psi_rad": ssa(s[:, 2]), "u_mps": s[:, 3], "v_mps": s[:, 4],
                    "r_radps": s[:, 5], "current_n_mps": np.full(len(s), cur[0]),
                    "current_e_mps": np.full(len(s), cur[1]), "tau_u_n": run.tau[:, 0], "tau_r_nm": run.tau[:, 1]}
-        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, codec_for_topic("/replay/whatif/state")))
+        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state")))
         out.set("/replay/whatif/controller",
                 controller_frame(run.ctrl, tw[run.tick], "/replay/whatif/controller", thr, unit))
         m_whatif = tracking_metrics(run.ctrl, run.t[run.tick], scen.metrics_start_s)

@@ -367,7 +367,8 @@ def test_simulated_run_through_merged_csv_is_exact(tmp_path, excitation_log):
 def test_column_encoder_matches_codec_bytes(topic):
     """The column-wise message encoder (Codec.encode, the one the importer and write_log use)
     writes exactly what one orjson.dumps per row writes (Codec.encode_reference)."""
-    from usvlog.log.channels import codec_for_topic, frame_from_columns
+    from usvlog.io.mcap.codec import codec_for_topic
+    from usvlog.log.channels import frame_from_columns
 
     codec = codec_for_topic(topic)
     rng = np.random.default_rng(7)
@@ -382,7 +383,7 @@ def test_column_encoder_matches_codec_bytes(topic):
             v = rng.normal(0, 1e3, n) * 10.0 ** rng.integers(-9, 9, n)
             v[rng.random(n) < 0.2] = np.nan
             cols[c] = v
-    frame = frame_from_columns(cols, np.arange(n, dtype=np.int64), codec)
+    frame = frame_from_columns(cols, np.arange(n, dtype=np.int64), codec.spec)
     assert codec.encode(frame, topic) == codec.encode_reference(frame, topic)
 
 

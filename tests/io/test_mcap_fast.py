@@ -21,8 +21,9 @@ from mcap.writer import CompressionType, Writer
 
 from usvlog.errors import InputError
 from usvlog.io.mcap import read_log, write_log
+from usvlog.io.mcap.codec import Codec, _decode_layout, codec_for_topic
 from usvlog.io.mcap.reference import _write_log_reference, read_log_reference
-from usvlog.log.channels import Codec, _decode_layout, auto_schema, codec_for_topic
+from usvlog.log.channels import auto_schema
 from usvlog.log.fieldlog import FieldLog
 
 T0 = 1_780_000_000 * 10**9

@@ -372,7 +372,7 @@ def test_to_log_round_trip(tmp_path):
     assert list(inn["sensor"].unique()) == ["gnss", "compass"] or set(inn["sensor"]) == {"gnss", "compass"}
     assert inn["accepted"].dtype == bool and len(inn) == len(res.innovations)
     # the messages validate against the schemas
-    from usvlog.log.channels import codec_for_topic
+    from usvlog.io.mcap.codec import codec_for_topic
     for topic in ("/estimate/state", "/estimate/innovations"):
         msg = orjson.loads(codec_for_topic(topic).encode(out[topic].iloc[:3], topic)[1])
         jsonschema.validate(msg, schema_for_topic(topic))

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from usvlog.io.mcap.codec import codec_for_topic
 from usvlog.io.nmea import (
     NmeaError,
     checksum,
@@ -15,7 +16,7 @@ from usvlog.io.nmea import (
     with_checksum,
 )
 from usvlog.io.record.timesync import OffsetEstimator
-from usvlog.log.channels import codec_for_topic, frame_from_columns, registered_topics
+from usvlog.log.channels import frame_from_columns, registered_topics
 
 
 def test_checksum_of_a_published_sentence():
@@ -118,7 +119,7 @@ def _row_frame(topic, rng):
             cols[c] = np.array([int(rng.integers(0, 2**62))])
         else:
             cols[c] = np.array([rng.normal()])
-    return codec, frame_from_columns(cols, np.array([5], dtype=np.int64), codec)
+    return codec, frame_from_columns(cols, np.array([5], dtype=np.int64), codec.spec)
 
 
 @pytest.mark.parametrize("topic", sorted(registered_topics()))

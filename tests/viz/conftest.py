@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from usvlog.io.mcap import write_log
-from usvlog.log.channels import codec_for_topic, frame_from_columns
+from usvlog.log.channels import channel_spec, frame_from_columns
 from usvlog.model.frames import ssa
 from usvlog.sim.simulate import (
     SensorSettings,
@@ -82,7 +82,7 @@ def make_view_log(duration_s: float = 90.0, seed: int = 4):
     log = field_log_from_run(st, t, states, tu, tr, rng, producer="test", scenario="view-test", seed=seed)
     truth = log["/truth/state"]
     t_ns = truth.index.to_numpy()
-    log.set("/control/state", frame_from_columns(ctl, t_ns, codec_for_topic("/control/state")))
+    log.set("/control/state", frame_from_columns(ctl, t_ns, channel_spec("/control/state")))
     # an estimate: truth plus small errors, with one-sigma columns
     est = {}
     for c in ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"):
@@ -90,7 +90,7 @@ def make_view_log(duration_s: float = 90.0, seed: int = 4):
         est[c + "_std"] = np.full(len(truth), 0.05)
     est["psi_rad"] = ssa(est["psi_rad"])
     est = {"t": t_ns / 1e9 - t_ns[0] / 1e9, **est}
-    log.set("/estimate/state", frame_from_columns(est, t_ns, codec_for_topic("/estimate/state")))
+    log.set("/estimate/state", frame_from_columns(est, t_ns, channel_spec("/estimate/state")))
     # innovations: GPS residuals against truth; the jump is rejected
     gps = log["/gnss/fix"]
     from usvlog.model.frames import geodetic_to_ned
@@ -111,15 +111,15 @@ def make_view_log(duration_s: float = 90.0, seed: int = 4):
            "nis": np.concatenate([nis, nisc])[order],
            "accepted": np.concatenate([nis < 13.8, nisc < 10.8])[order]}
     log.set("/estimate/innovations", frame_from_columns(inn, ti[order],
-                                                        codec_for_topic("/estimate/innovations")))
+                                                        channel_spec("/estimate/innovations")))
     # a what-if run with other gains
     t2, s2, tu2, tr2, ctl2 = _closed_loop(st, kp_psi=2.0, kd_psi=1.0, speed_step_s=45.0)
     cn, ce = st.current_ne
     wi = {"n_m": s2[:, 0], "e_m": s2[:, 1], "psi_rad": ssa(s2[:, 2]), "u_mps": s2[:, 3], "v_mps": s2[:, 4],
           "r_radps": s2[:, 5], "current_n_mps": np.full(len(t2), cn), "current_e_mps": np.full(len(t2), ce),
           "tau_u_n": tu2, "tau_r_nm": tr2}
-    log.set("/replay/whatif/state", frame_from_columns(wi, t_ns, codec_for_topic("/replay/whatif/state")))
-    log.set("/replay/whatif/controller", frame_from_columns(ctl2, t_ns, codec_for_topic("/replay/whatif/controller")))
+    log.set("/replay/whatif/state", frame_from_columns(wi, t_ns, channel_spec("/replay/whatif/state")))
+    log.set("/replay/whatif/controller", frame_from_columns(ctl2, t_ns, channel_spec("/replay/whatif/controller")))
     # identification fit: measured vs a slightly wrong model
     step = 10
     fit = {}
@@ -128,7 +128,7 @@ def make_view_log(duration_s: float = 90.0, seed: int = 4):
         y = truth[c].to_numpy()[::step]
         fit[c] = y
         fit[cs] = y * 1.03 + 0.002
-    log.set("/identify/fit", frame_from_columns(fit, t_ns[::step], codec_for_topic("/identify/fit")))
+    log.set("/identify/fit", frame_from_columns(fit, t_ns[::step], channel_spec("/identify/fit")))
     ang = np.linspace(0, 2 * np.pi, 181)
     poly = np.column_stack([R_PATH * np.cos(ang), R_PATH * np.sin(ang)]).round(6).tolist()
     log.meta["usvlog.path"] = {"spec": json.dumps({"type": "circle", "radius_m": R_PATH, "center_ne": [0, 0]}),

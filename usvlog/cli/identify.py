@@ -11,7 +11,7 @@ from ..identify import METHODS, Identifier
 from ..io.atomic import check_output, write_text_atomic
 from ..io.config import load_vessel
 from ..io.mcap import read_log, write_log
-from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.channels import channel_spec, frame_from_columns
 from ..model.vessel import PARAM_NAMES
 from .common import print_json, stage
 
@@ -62,7 +62,7 @@ def fit_log(idf: Identifier, log):
     t, cols = idf.fit_frame(0)
     t_ns = idf.runs_[0].t0_ns + np.round(t * 1e9).astype(np.int64)
     out = log.copy()
-    out.set(FIT_TOPIC, frame_from_columns(cols, t_ns, codec_for_topic(FIT_TOPIC)))
+    out.set(FIT_TOPIC, frame_from_columns(cols, t_ns, channel_spec(FIT_TOPIC)))
     out.add_provenance(producer="usvlog identify", source=str(log.source or ""),
                        settings={"method": idf.method, "fix": idf.fix, "current": idf.current,
                                  "params": idf.params_.to_dict()})

@@ -12,10 +12,10 @@ from scipy.optimize import minimize
 from scipy.stats import chi2
 
 from ..errors import ConfigError, InputError
-from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
 from ..model.frames import Datum, geodetic_to_ned, ssa
-from ..model.vessel import Vessel, default_vessel
+from ..model.vessel import Vessel, VesselParams, default_vessel
 from . import kernels
 from .kernels import (
     COMPASS,
@@ -27,6 +27,7 @@ from .kernels import (
     SENSORS,
     YAW_RATE,
 )
+from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -395,9 +396,6 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
     """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
-    from ..model.vessel import VesselParams
-    from .reference import run_reference
-
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
                         pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
@@ -577,7 +575,7 @@ def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray
         cols[c] = X[:, i].copy() if i < n_out else np.full(len(X), np.nan)
     for i, c in enumerate(STATE_COLUMNS):
         cols[c + "_std"] = SD[:, i].copy() if i < n_out else np.full(len(X), np.nan)
-    return frame_from_columns(cols, t_ns, codec_for_topic(STATE_TOPIC))
+    return frame_from_columns(cols, t_ns, channel_spec(STATE_TOPIC))
 
 
 @dataclass(frozen=True)
@@ -675,7 +673,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
          "accepted": raw.accepted > 0},
-        pb.m_t_ns, codec_for_topic(INNOVATION_TOPIC))
+        pb.m_t_ns, channel_spec(INNOVATION_TOPIC))
     reps = []
     for k in range(3):
         sel = pb.mkind == k

@@ -10,6 +10,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import minimize
 
+from ..estimate import EstimateSettings, build_problem
+from ..estimate.core import forward_loglik, process_noise
 from ..log.fieldlog import FieldLog
 from ..model.vessel import PARAM_NAMES, Vessel
 
@@ -60,9 +62,6 @@ def fit_filter_error(logs: list[FieldLog], vessel: Vessel, theta0, *, free_mask=
     usvlog.errors.InputError
         If a log lacks a channel the estimator needs.
     """
-    from ..estimate import EstimateSettings, build_problem  # noqa: PLC0415
-    from ..estimate.core import forward_loglik, process_noise  # noqa: PLC0415
-
     free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
     s = EstimateSettings(model="dynamic", current=current, gate_probability=1.0)
     pbs = [build_problem(log, s, vessel) for log in logs]

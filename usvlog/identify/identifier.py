@@ -9,11 +9,13 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ConfigError, InputError
+from ..estimate import EstimateSettings, estimate
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
+from .filter import fit_filter_error
 from .output import (
     fit_initial_state,
     fit_output_error,
@@ -105,8 +107,6 @@ def _ekf_current(log: FieldLog, vessel: Vessel, theta, current: bool) -> tuple[f
     """Mean water current the dynamic EKF estimates with the identified parameters."""
     if not current:
         return (0.0, 0.0)
-    from ..estimate import EstimateSettings, estimate  # noqa: PLC0415
-
     v = Vessel(name=vessel.name, params=VesselParams(**dict(zip(PARAM_NAMES, map(float, theta)))),
                thrusters=vessel.thrusters)
     st = estimate(log, EstimateSettings(model="dynamic", current=True, output_step_s=0.1), v).state
@@ -298,8 +298,6 @@ class Identifier:
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None
         elif self.method == "filter-error":
-            from .filter import fit_filter_error  # noqa: PLC0415
-
             fe = fit_filter_error(fit_logs, vessel, self._start(ee, vessel), free_mask=free,
                                   current=self.current)
             self.oe_ = None

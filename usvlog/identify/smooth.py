@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import savgol_filter
 
+from ..estimate import EstimateSettings, estimate
 from ..model.frames import ssa
 from .data import RunData
 
@@ -104,11 +105,7 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
 
 
 def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
-    """Smoothed over-ground states of a run (the estimator's kinematic smoother if available)."""
-    try:
-        from ..estimate import EstimateSettings, estimate  # noqa: PLC0415
-    except ImportError:
-        return savgol_states(run)
+    """Smoothed over-ground states of a run (the estimator's kinematic EKF + RTS smoother)."""
     st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT), vessel).state
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)

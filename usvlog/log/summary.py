@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .channels import schema_for_topic
 from .fieldlog import FieldLog, format_time
 
 
@@ -145,8 +146,6 @@ def summarize(log: FieldLog) -> LogSummary:
     for topic in log.topics:
         schema = log.schemas.get(topic, {}).get("title", "")
         if not schema:
-            from .channels import schema_for_topic
-
             schema = (schema_for_topic(topic) or {}).get("title", "")
         chans.append(summarize_channel(topic, schema, log.channels[topic].index.to_numpy()))
     firsts = [c.first_ns for c in chans if c.first_ns is not None]

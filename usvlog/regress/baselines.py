@@ -9,6 +9,7 @@ from ..errors import ConfigError
 from ..io.atomic import write_text_atomic
 from ..io.config import read_toml
 from .gate import BaselineEntry
+from .stages import regress_scenario_from_dict
 
 
 def read_baseline(path) -> dict[str, BaselineEntry]:
@@ -78,7 +79,5 @@ def find_regress_scenarios(paths) -> list[Path]:
 
 
 def load_regress_scenario(path):
-    from .stages import regress_scenario_from_dict
-
     p = Path(path).resolve()
     return regress_scenario_from_dict(read_toml(p), p)

@@ -17,9 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..control.gains import gains_from_dict
 from ..errors import ConfigError, UsvlogError
+from ..estimate import EstimateSettings, estimate
+from ..identify import Identifier
+from ..io.mcap import read_log
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
+from ..replay import replay_log
+from ..sim.scenario import load_scenario
 from .gate import BaselineEntry, Check, compare, updated_baseline
 
 STAGES = ("estimate", "identify", "replay")
@@ -99,8 +105,6 @@ def _truth_at(log: FieldLog, t_ns: np.ndarray):
 
 
 def stage_estimate(run: _Run) -> None:
-    from ..estimate import EstimateSettings, estimate
-
     try:
         settings = EstimateSettings(**run.scenario.estimate)
     except TypeError as err:
@@ -136,8 +140,6 @@ def stage_estimate(run: _Run) -> None:
 
 
 def stage_identify(run: _Run) -> None:
-    from ..identify import Identifier
-
     kw = dict(run.scenario.identify)
     try:
         ident = Identifier(**kw)
@@ -168,10 +170,6 @@ def stage_identify(run: _Run) -> None:
 
 
 def stage_replay(run: _Run) -> None:
-    from ..control.gains import gains_from_dict
-    from ..replay import replay_log
-    from ..sim.scenario import load_scenario
-
     cfg = dict(run.scenario.replay)
     name = cfg.pop("scenario")
     scen_path = run.scenario.path.parent / name
@@ -238,8 +236,6 @@ def run_stages(scn: RegressScenario, log: FieldLog) -> dict[str, float]:
 
 
 def run_scenario(scn: RegressScenario, baseline: dict[str, BaselineEntry]) -> ScenarioOutcome:
-    from ..io.mcap import read_log
-
     t0 = time.perf_counter()
     try:
         log = read_log(scn.dataset)

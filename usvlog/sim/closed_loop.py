@@ -17,7 +17,7 @@ from .._jit import njit
 from ..control.gains import Gains
 from ..control.law import COL, NOUT, Controller, control_tick, speed_at
 from ..control.paths import Path
-from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
 from ..model.vessel import Vessel
@@ -136,7 +136,7 @@ def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, 
     cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
     cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
     cols["saturated"] = rows[:, COL["saturated"]] != 0.0
-    return frame_from_columns(cols, t_ns, codec_for_topic(topic))
+    return frame_from_columns(cols, t_ns, channel_spec(topic))
 
 
 def command_unit(thrusters) -> str:
@@ -201,7 +201,7 @@ class EKFInTheLoop:
         cols = {c: X[:, i] for i, c in enumerate(names)}
         cols["psi_rad"] = ssa(cols["psi_rad"])
         cols.update({f"{c}_std": S[:, i] for i, c in enumerate(names)})
-        return frame_from_columns(cols, t_ns, codec_for_topic("/estimate/state"))
+        return frame_from_columns(cols, t_ns, channel_spec("/estimate/state"))
 
 
 def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: int | None = None,

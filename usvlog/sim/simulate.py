@@ -17,7 +17,7 @@ import pandas as pd
 from numba.extending import register_jitable
 
 from ..errors import ConfigError
-from ..log.channels import codec_for_topic, frame_from_columns
+from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, ned_to_geodetic, ssa
 from ..model.vessel import Vessel, default_vessel, nu_dot_terms
@@ -374,7 +374,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
              "u_mps": states[si, 3], "v_mps": states[si, 4], "r_radps": states[si, 5],
              "current_n_mps": np.full(len(si), cn), "current_e_mps": np.full(len(si), ce),
              "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
-    log.set("/truth/state", frame_from_columns(truth, t_ns[si], codec_for_topic("/truth/state")))
+    log.set("/truth/state", frame_from_columns(truth, t_ns[si], channel_spec("/truth/state")))
 
     # thrust commands as recorded
     thr = st.vessel.thrusters
@@ -387,7 +387,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
               "right": np.round(np.asarray(cmd_r, float), q), "unit": np.array([unit] * len(ti), dtype=object),
               "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
-    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], codec_for_topic("/thrust/command")))
+    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command")))
 
     # GPS
     if noise is None:
@@ -409,7 +409,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
     gps = {k: np.asarray(v)[keep] for k, v in gps.items()}
-    log.set("/gnss/fix", frame_from_columns(gps, t_ns[gi][keep], codec_for_topic("/gnss/fix")))
+    log.set("/gnss/fix", frame_from_columns(gps, t_ns[gi][keep], channel_spec("/gnss/fix")))
 
     # compass
     ci = noise["compass_index"]
@@ -417,7 +417,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
     comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]), "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
-    log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], codec_for_topic("/compass/heading")))
+    log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], channel_spec("/compass/heading")))
 
     settings = {"scenario": scenario, "seed": seed, "duration_s": st.duration_s, "dt_s": st.dt_s,
                 "integrator": st.integrator, "current_mps": st.current_mps,

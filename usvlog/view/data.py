@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..log.fieldlog import FieldLog
-from ..model.frames import geodetic_to_ned, ssa, unwrap
+from ..model.frames import Datum, geodetic_to_ned, ssa, unwrap
 
 META_PATH = "usvlog.path"
 
@@ -73,7 +73,6 @@ def gps(log: FieldLog):
     t, lat, lon = _times(f)[ok], lat[ok], lon[ok]
     datum = log.datum
     if datum is None and len(lat):
-        from ..model.frames import Datum
         datum = Datum(lat_deg=float(lat[0]), lon_deg=float(lon[0]))
     n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=datum) if len(lat) else (lat, lon, None)
     return t, lat, lon, np.asarray(n), np.asarray(e)

@@ -15,6 +15,8 @@ Figures whose channels the log lacks are left out and listed as such on the page
 from __future__ import annotations
 
 import html
+import io
+import json
 import math
 from pathlib import Path
 
@@ -65,12 +67,12 @@ def check_report_outputs(out_dir, force: bool) -> Path:
 
 def _plt():
     try:
-        import matplotlib
+        import matplotlib  # optional dependency: the report extra
     except ImportError as err:
         raise ConfigError("usvlog report needs matplotlib: pip install 'usvlog[report]'") from err
 
     matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # after choosing the non-interactive backend
 
     plt.rcParams.update({"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 110,
                          "savefig.bbox": "tight"})
@@ -146,8 +148,6 @@ class _Axes:
 
 def _run_label(log: FieldLog, default: str) -> str:
     """'full controller' / 'baseline PI/PID' from the log's provenance, else ``default``."""
-    import json
-
     for rec in reversed(log.provenance):
         try:
             ctl = json.loads(rec.get("settings", "{}")).get("controller")
@@ -327,8 +327,6 @@ def _fig_fit_track(plt, log, axes: _Axes):
 
 def _render(fig) -> bytes:
     """The figure as PNG bytes (the files are written only once every figure has rendered)."""
-    import io
-
     buf = io.BytesIO()
     try:
         fig.savefig(buf, format="png")

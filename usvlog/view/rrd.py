@@ -20,7 +20,9 @@ Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep ever
 from __future__ import annotations
 
 import math
+import os
 import re
+import signal
 import subprocess
 import sys
 import uuid
@@ -28,6 +30,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import rerun as rr
 import rerun.blueprint as rrb
 
@@ -378,8 +381,6 @@ def _col(frame, name) -> np.ndarray:
 
 
 def _frame_of(t_ns, x):
-    import pandas as pd
-
     return pd.DataFrame({"x": x}, index=pd.Index(t_ns, name="t_ns"))
 
 
@@ -599,9 +600,6 @@ def serve(rrd_path, *, host: str = DEFAULT_HOST, port: int | None = None, grpc_p
     ``python -m rerun`` starts the viewer binary as a child, so the server runs in its own
     process group and the whole group is stopped on Ctrl-C.
     """
-    import os
-    import signal
-
     proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port),
                             start_new_session=True)
     try:

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from ...errors import ConfigError
-from ...log.channels import codec_for_topic, frame_from_columns
+from ...log.channels import channel_spec, frame_from_columns
 from ...model.frames import Datum, ssa
 from ...model.vessel import Vessel
 
@@ -175,14 +175,14 @@ class Assembler:
         for k in _COV:
             cols[k] = np.asarray(c.get(k, np.zeros(n)), float)
         cols["cov_type"] = np.asarray(c.get("cov_type", np.zeros(n, np.int64)), np.int64)
-        return frame_from_columns(cols, c["t_ns"], codec_for_topic("/gnss/fix"))
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/gnss/fix"))
 
     def _frame_heading(self, c) -> pd.DataFrame:
         n = len(c["t_ns"])
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "heading_rad": ssa(c["heading_rad"]),
                 "reference": np.asarray(c.get("reference", np.full(n, "true", dtype=object)), dtype=object),
                 "std_rad": np.asarray(c.get("std_rad", np.full(n, np.nan)), float)}
-        return frame_from_columns(cols, c["t_ns"], codec_for_topic("/compass/heading"))
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/compass/heading"))
 
     def _frame_thrust(self, c) -> pd.DataFrame:
         n = len(c["t_ns"])
@@ -207,11 +207,11 @@ class Assembler:
             fr[m] = thr.command_to_force(right[m], u)
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "left": left, "right": right,
                 "unit": units, "thrust_left_n": fl, "thrust_right_n": fr}
-        return frame_from_columns(cols, c["t_ns"], codec_for_topic("/thrust/command"))
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/thrust/command"))
 
     def _frame_yaw_rate(self, c) -> pd.DataFrame:
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "r_radps": c["r_radps"].astype(float)}
-        return frame_from_columns(cols, c["t_ns"], codec_for_topic("/imu/yaw_rate"))
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/imu/yaw_rate"))
 
     def _frame_velocity(self, c) -> pd.DataFrame:
         n = len(c["t_ns"])
@@ -220,7 +220,7 @@ class Assembler:
             cog = np.where(np.isfinite(cog), ssa(cog), np.nan)
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "sog_mps": c["sog_mps"].astype(float),
                 "cog_rad": cog}
-        return frame_from_columns(cols, c["t_ns"], codec_for_topic("/gnss/velocity"))
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/gnss/velocity"))
 
 
 def guess_thrust_unit(left: np.ndarray, right: np.ndarray) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import pandas as pd
 
 from ...log.fieldlog import FieldLog
+from ..mcap import McapWriter
 
 
 class MemorySink:
@@ -35,8 +36,6 @@ class McapSink:
     chunk (or more) per batch: each batch is on the file before the next is read."""
 
     def __init__(self, fh, *, chunk_size: int = 1 << 20):
-        from ..mcap import McapWriter
-
         self._w = McapWriter(fh, chunk_size=chunk_size, zstd_level=1)
 
     def write(self, frames: dict[str, pd.DataFrame]) -> None:

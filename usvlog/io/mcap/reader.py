@@ -17,14 +17,11 @@ import numpy as np
 import pandas as pd
 
 from ...errors import FormatError, InputError
-from ...log.channels import (
-    MESSAGE_ENCODING,
-    SCHEMA_ENCODING,
-    codec_for_schema,
-    frame_from_columns,
-)
+from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING, frame_from_columns
 from ...log.fieldlog import FieldLog, RecoveryReport
 from ..atomic import reading
+from . import kernels as K
+from .codec import codec_for_schema
 from .format import (
     _CHUNK,
     _MSG,
@@ -173,8 +170,6 @@ def _scan_fast(data: bytes) -> _Scan:
     """The same reading as :func:`_scan_reference`, with the per-message work done by
     compiled loops: records are walked into arrays, and a message is kept when its
     channel was defined before it (compared by record ordinals)."""
-    from . import kernels as K
-
     scan = _Scan()
     buf = np.frombuffer(data, dtype=np.uint8)
     mv = memoryview(data)
@@ -290,11 +285,11 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
     if comp == "":
         return bytes(raw)
     if comp == "zstd":
-        import zstandard
+        import zstandard  # only the decompressor the file uses is loaded
 
         return zstandard.ZstdDecompressor().decompress(bytes(raw), max_output_size=usize)
     if comp == "lz4":
-        import lz4.frame
+        import lz4.frame  # only the decompressor the file uses is loaded
 
         return lz4.frame.decompress(bytes(raw))
     raise ValueError(f"unsupported compression {comp!r}")
@@ -365,7 +360,7 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
                 cols = codec.decode_spans(scan.arena, ch.starts[order], ch.ends[order], ch.topic)
         except InputError as err:
             raise InputError(f"{p} {err}") from err
-        log.channels[ch.topic] = frame_from_columns(cols, t[order], codec)
+        log.channels[ch.topic] = frame_from_columns(cols, t[order], codec.spec)
         log.schemas[ch.topic] = schema
         n_msgs += len(t)
         if len(t):

@@ -10,13 +10,10 @@ import numpy as np
 
 from ..._version import __version__
 from ...errors import InputError
-from ...log.channels import (
-    MESSAGE_ENCODING,
-    SCHEMA_ENCODING,
-    Codec,
-)
+from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
+from .codec import Codec
 from .format import (
     _REC,
     _U64,
@@ -42,6 +39,7 @@ from .writer import _codec_for, _compression
 def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, dict, Codec]]]:
     """(mcap Schema records, Channel records, both in registration order, and
     [(topic, schema, codec)] in channel-id order) -- for the reference writer."""
+    # start-up: the mcap library loads only for the reference paths
     from mcap.records import Channel, Schema
 
     schemas, channels, both, out, ids = [], [], [], [], {}
@@ -65,6 +63,7 @@ def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size
                          compression: str = "zstd") -> None:
     """Write ``log`` through the mcap library's Writer, one ``add_message`` per message
     (the reference :func:`write_log` is tested against)."""
+    # start-up: the mcap library loads only for the reference paths
     from mcap.writer import CompressionType, Writer
 
     comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import struct
+import zlib
 
 import numpy as np
 import pandas as pd
@@ -17,14 +18,13 @@ from ...errors import InputError
 from ...log.channels import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
-    Codec,
     auto_schema,
-    codec_for_schema,
-    codec_for_topic,
     schema_for_topic,
 )
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
+from . import kernels as K
+from .codec import Codec, codec_for_schema, codec_for_topic
 from .format import (
     _REC,
     MAGIC,
@@ -80,7 +80,7 @@ class McapWriter:
     closed after the message that takes it past ``chunk_size``; then message
     indexes, and at :meth:`finish` the summary (schemas, channels, statistics, chunk
     and metadata indexes). Message records are built by compiled loops from the
-    packed output of :meth:`usvlog.log.fieldlog.channels.Codec.encode_packed`.
+    packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
     plus one batch) is held. Each message's ``sequence`` is its row number in its
@@ -89,6 +89,7 @@ class McapWriter:
     """
 
     def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = 3):
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Header
 
         self._fh = fh
@@ -122,6 +123,7 @@ class McapWriter:
 
     @staticmethod
     def _record(rec) -> bytes:
+        # start-up: the mcap library loads on first write, not on read
         from mcap.data_stream import RecordBuilder
 
         rb = RecordBuilder()
@@ -132,6 +134,7 @@ class McapWriter:
     def add_channel(self, topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> int:
         """Register ``topic`` (once; its schema: the registered one, else ``schema``, else one
         generated from ``frame``); returns the channel id."""
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Channel, Schema
 
         known = self._topics.get(topic)
@@ -155,6 +158,7 @@ class McapWriter:
 
     def add_metadata(self, name: str, record: dict) -> None:
         """A metadata record (values stored as strings), after the messages written so far."""
+        # start-up: the mcap library loads on first write, not on read
         from mcap.records import Metadata, MetadataIndex
 
         self.flush()
@@ -164,8 +168,6 @@ class McapWriter:
     # -- messages ------------------------------------------------------------------------
     def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None) -> None:
         """Append one batch: every row of every frame (index: int64 log time ns) as a message."""
-        from . import kernels as K
-
         bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
         base = 0
         for topic, frame in frames.items():
@@ -219,8 +221,7 @@ class McapWriter:
             self._close_chunk()
 
     def _close_chunk(self) -> None:
-        import zlib
-
+        # start-up: the mcap library loads on first write, not on read
         from mcap.opcode import Opcode
         from mcap.records import Chunk, ChunkIndex
 
@@ -231,11 +232,11 @@ class McapWriter:
         self._open = bytearray()
         self._open_msgs = []
         if self._comp == "zstd":
-            import zstandard
+            import zstandard  # only the compressor the file uses is loaded
 
             packed, cname = zstandard.ZstdCompressor(level=self._zstd_level).compress(data), "zstd"
         elif self._comp == "lz4":
-            import lz4.frame
+            import lz4.frame  # only the compressor the file uses is loaded
 
             packed, cname = lz4.frame.compress(data), "lz4"
         else:
@@ -264,8 +265,7 @@ class McapWriter:
     # -- the end ------------------------------------------------------------------------
     def finish(self) -> None:
         """Close the open chunk, write the summary and the footer (the file stays open)."""
-        import zlib
-
+        # start-up: the mcap library loads on first write, not on read
         from mcap.data_stream import RecordBuilder
         from mcap.opcode import Opcode
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset

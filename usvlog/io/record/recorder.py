@@ -37,12 +37,12 @@ from ...errors import ConfigError, InputError, OutputExistsError, StorageError
 from ...log.channels import (
     MESSAGE_ENCODING,
     SCHEMA_ENCODING,
-    codec_for_topic,
     registered_topics,
     schema_for_topic,
 )
 from ...log.fieldlog import META_DATUM, META_PROVENANCE, META_VESSEL, format_time
 from ...model.frames import Datum, ssa
+from ..mcap.codec import codec_for_topic
 from ..nmea import NmeaError, parse_sentence, resolve_time_of_day
 from .timesync import OffsetEstimator
 
