@@ -6,7 +6,7 @@ import tomllib
 from pathlib import Path
 
 from ..errors import ConfigError
-from ..model.vessel import Vessel, default_vessel, vessel_from_toml
+from ..model.vessel import Vessel, default_vessel, vessel_from_dict, vessel_from_toml
 from .atomic import reading
 
 
@@ -84,7 +84,6 @@ def load_vessel_or_scenario_vessel(path) -> Vessel:
     usvlog.errors.ConfigError
         If the file is neither a vessel file nor a scenario with ``[vessel]``, or invalid.
     """
-    from ..model.vessel import vessel_from_dict
 
     doc = read_toml(path)
     if "model" in doc or "thrusters" in doc:
