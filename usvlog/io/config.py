@@ -84,7 +84,6 @@ def load_vessel_or_scenario_vessel(path) -> Vessel:
     usvlog.errors.ConfigError
         If the file is neither a vessel file nor a scenario with ``[vessel]``, or invalid.
     """
-
     doc = read_toml(path)
     if "model" in doc or "thrusters" in doc:
         return vessel_from_toml(read_text(path), source=str(path))
