@@ -313,23 +313,23 @@ def _sim_settings(*, duration_s, current_mps, current_dir_deg, vessel, gps_noise
     from .io.config import load_vessel  # heavy: numpy
     from .sim.simulate import SensorSettings, SimSettings
 
-    sens: dict[str, Any] = {}
+    sens: dict[str, Any] = {}  # numbers as floats, as the command line gives them (they go into the provenance)
     if gps_noise_m is not None:
-        sens["gps_noise_m"] = gps_noise_m
+        sens["gps_noise_m"] = float(gps_noise_m)
     if compass_noise_deg is not None:
-        sens["compass_noise_deg"] = compass_noise_deg
+        sens["compass_noise_deg"] = float(compass_noise_deg)
     if compass_bias_deg is not None:
-        sens["compass_bias_deg"] = compass_bias_deg
+        sens["compass_bias_deg"] = float(compass_bias_deg)
     if gps_bias_m is not None:
-        sens["gps_bias_sigma_m"] = gps_bias_m
+        sens["gps_bias_sigma_m"] = float(gps_bias_m)
     if truth_rate_hz is not None:
-        sens["truth_rate_hz"] = truth_rate_hz
+        sens["truth_rate_hz"] = float(truth_rate_hz)
     sens["gps_jumps"] = tuple((float(a), float(b)) for a, b in gps_jumps)
     sens["gps_dropouts"] = tuple((float(a), float(b)) for a, b in gps_dropouts)
-    kw: dict[str, Any] = dict(vessel=_vessel_file(vessel) or load_vessel(None), current_mps=current_mps,
-                              current_dir_deg=current_dir_deg, sensors=SensorSettings(**sens))
+    kw: dict[str, Any] = dict(vessel=_vessel_file(vessel) or load_vessel(None), current_mps=float(current_mps),
+                              current_dir_deg=float(current_dir_deg), sensors=SensorSettings(**sens))
     if duration_s is not None:
-        kw["duration_s"] = duration_s
+        kw["duration_s"] = float(duration_s)
     return SimSettings(**kw)
 
 
@@ -341,8 +341,9 @@ def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, tru
     from .sim.scenario import load_scenario
 
     scen = load_scenario(scenario, vessel=_vessel_file(vessel))
+    duration_s = None if duration_s is None else float(duration_s)
     if truth_rate_hz is not None:
-        sens = replace(scen.sim.sensors, truth_rate_hz=truth_rate_hz)
+        sens = replace(scen.sim.sensors, truth_rate_hz=float(truth_rate_hz))
         scen = replace(scen, sim=replace(scen.sim, sensors=sens))
     ctl = controller or scen.controller
     dur = duration_s or scen.sim.duration_s
