@@ -17,8 +17,10 @@ the library it needs when it is called, so that ``import usvlog`` and ``usvlog -
 
 from __future__ import annotations
 
+import difflib
 import os
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -335,8 +337,6 @@ def _sim_settings(*, duration_s, current_mps, current_dir_deg, vessel, gps_noise
 
 def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, truth_rate_hz, progress):
     """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
-    from dataclasses import replace
-
     from .sim.closed_loop import simulate_scenario  # heavy: the compiled closed loop
     from .sim.scenario import load_scenario
 
@@ -611,8 +611,6 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         ``log`` (input plus ``/replay/*``) and ``metrics`` (cross-track error in m, heading
         error in rad, surge error in m/s, time saturated in s, command differences).
     """
-    from dataclasses import replace as dc_replace
-
     from .io.atomic import check_output  # heavy: numpy, numba kernels
     from .io.config import load_vessel_or_scenario_vessel, read_toml
     from .replay import replay_log
@@ -625,7 +623,7 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         path = gains
         gains, guidance = load_gains(path)
         if "guidance" in read_toml(path):  # a [guidance] table there overrides the scenario's
-            scen = dc_replace(scen, guidance=guidance)
+            scen = replace(scen, guidance=guidance)
     if _is_path(vessel):
         vessel = load_vessel_or_scenario_vessel(vessel)
     if _is_path(log):
@@ -756,7 +754,7 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         One per scenario: metrics, the checks against the baseline, seconds, error; an outcome
         ``failed`` when a metric regressed or the run failed.
     """
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor  # loads multiprocessing: only regress needs it
 
     from .io.atomic import check_output, write_text_atomic  # heavy: the regression stages pull the library
     from .regress.baselines import (
@@ -793,8 +791,6 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
                 if on_outcome:
                     on_outcome(o)
     if update:
-        import difflib
-
         for p, o in zip(found, outcomes):
             if o.error:
                 continue

@@ -7,8 +7,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..choices import PARAM_NAMES
 from ..errors import StorageError
 from .common import stage
+from .replay import format_metrics
 
 
 def register(sub) -> None:
@@ -99,7 +101,6 @@ def _import_stage(log, out: Path, step) -> None:
 
 
 def identify_stage(log, out: Path) -> None:
-    from ..choices import PARAM_NAMES
     from ..identify import Identifier  # heavy: imported only when the verb runs
     from ..io.atomic import write_text_atomic
 
@@ -125,7 +126,6 @@ def _control_stages(out: Path, step) -> Path:
     from ..replay import replay_log
     from ..sim.closed_loop import simulate_scenario
     from ..sim.scenario import load_scenario
-    from .replay import format_metrics
 
     scen = load_scenario("paper-circle")
     circ = out / "paper-circle.mcap"

@@ -46,7 +46,7 @@ def format_table(outcomes: list[ScenarioOutcome]) -> str:
 
 def _progress(total: int):
     try:
-        from tqdm import tqdm
+        from tqdm import tqdm  # optional (a progress bar), and only when the verb runs
 
         return tqdm(total=total, desc="regress", unit="scenario", file=sys.stderr, leave=False)
     except ImportError:  # pragma: no cover
