@@ -8,7 +8,8 @@ The package namespace is the Python API, one function per command line verb (see
 Everything is imported on first use (PEP 562 module ``__getattr__``), so ``import usvlog``
 loads neither numpy nor pandas. ``usvlog.estimate``, ``usvlog.identify``, ``usvlog.replay``
 and ``usvlog.regress`` are the API functions even though subpackages of the same names
-exist: import those by their full name (``from usvlog.estimate import EstimateSettings``).
+exist: reach those with ``from usvlog.estimate import EstimateSettings`` or
+``importlib.import_module("usvlog.estimate")`` (``import usvlog.estimate as m`` binds the function).
 """
 
 from __future__ import annotations
