@@ -51,7 +51,7 @@ UNITS: dict[str, tuple[str, ...]] = {
     "control":  ("usvlog.control",),
     "log":      ("usvlog.log",),
     "model":    ("usvlog.model",),
-    "base":     ("usvlog.errors", "usvlog._version", "usvlog._jit", "usvlog.resources"),
+    "base":     ("usvlog.errors", "usvlog._version", "usvlog._jit", "usvlog.resources", "usvlog.choices"),
     "io":       ("usvlog.io",),
 }
 
@@ -157,12 +157,21 @@ def _comments(source: str) -> dict[int, tuple[str, bool]]:
     return out
 
 
-def _reason(comments: dict[int, tuple[str, bool]], first: int, last: int) -> str:
+def _reason(comments: dict[int, tuple[str, bool]], first: int, last: int,
+            import_lines: frozenset[int] = frozenset()) -> str:
     """The reason comment of a statement on lines first..last: a comment on those lines
-    or a comment-only line just above; tool pragmas (noqa, type: ignore) do not count."""
+    or a comment-only line just above it. One reason covers a block of imports: a
+    comment-only line above the run of import statements the statement belongs to, or a
+    comment on the run's first line, counts for every import of the run. Tool pragmas
+    (noqa, type: ignore) do not count."""
     found = [comments[r][0] for r in range(first, last + 1) if r in comments]
-    if first - 1 in comments and comments[first - 1][1]:
-        found.append(comments[first - 1][0])
+    above = first - 1
+    while above in import_lines:
+        above -= 1
+    if above in comments and comments[above][1]:
+        found.append(comments[above][0])
+    if above + 1 < first and above + 1 in comments:
+        found.append(comments[above + 1][0])
     for text in found:
         words = re.findall(r"[A-Za-z]{2,}", _NOT_A_REASON.sub("", text))
         if len(words) >= 2:
@@ -188,6 +197,8 @@ def imports_of(module: str, path: Path, known: set[str], package: str) -> list[I
     source = path.read_text()
     tree = ast.parse(source, str(path))
     comments = _comments(source)
+    import_lines = frozenset(r for n in ast.walk(tree) if isinstance(n, (ast.Import, ast.ImportFrom))
+                             for r in range(n.lineno, (n.end_lineno or n.lineno) + 1))
     is_pkg = path.name == "__init__.py"
     here = module.split(".") if is_pkg else module.split(".")[:-1]
     out: list[Import] = []
@@ -209,7 +220,7 @@ def imports_of(module: str, path: Path, known: set[str], package: str) -> list[I
             return
         seen.add((target, node.lineno))
         out.append(Import(module, target, path, node.lineno, in_func, tc,
-                          _reason(comments, node.lineno, node.end_lineno or node.lineno)))
+                          _reason(comments, node.lineno, node.end_lineno or node.lineno, import_lines)))
 
     def visit(node: ast.AST, in_func: bool, tc: bool) -> None:
         if isinstance(node, ast.Import):

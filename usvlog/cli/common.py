@@ -1,22 +1,17 @@
-"""Helpers shared by the verbs: JSON output, progress."""
+"""Helpers shared by the verbs: JSON output, progress (standard library only: the parser is built fast)."""
 
 from __future__ import annotations
 
 import json
 import sys
 
-import numpy as np
-
 
 def _default(o):
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
+    """JSON form of what ``json`` does not know: result objects, numpy scalars and arrays."""
     if hasattr(o, "to_dict"):
         return o.to_dict()
+    if hasattr(o, "tolist"):  # numpy integer/floating scalars -> int/float, arrays -> lists
+        return o.tolist()
     return str(o)
 
 

@@ -7,19 +7,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
+from ..choices import PARAM_NAMES
 from ..errors import StorageError
-from ..estimate import EstimateSettings, estimate
-from ..io.atomic import write_text_atomic
-from ..io.export import export_log
-from ..io.importers import import_file
-from ..io.mcap import read_log, write_log
-from ..io.mergedcsv import write_merged_csv
-from ..log.summary import format_summary, summarize
-from ..model.frames import ssa
-from ..sim.simulate import SimSettings, simulate
 from .common import stage
+from .replay import format_metrics
 
 
 def register(sub) -> None:
@@ -44,6 +35,12 @@ class _Stages:
 
 
 def run(args) -> int:
+    from ..estimate import EstimateSettings, estimate  # heavy: imported only when the verb runs
+    from ..io.export import export_log
+    from ..io.mcap import read_log, write_log
+    from ..log.summary import format_summary, summarize
+    from ..sim.simulate import SimSettings, simulate
+
     out = Path(args.out)
     settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)  # checked first
     if out.exists() and not out.is_dir():
@@ -78,6 +75,14 @@ def run(args) -> int:
 
 def _import_stage(log, out: Path, step) -> None:
     """The run as one merged logger CSV, imported again: the same samples come back."""
+    import numpy as np  # heavy: imported only when the verb runs
+
+    # heavy (numpy, pandas, numba): imported only when the verb runs
+    from ..io.importers import import_file
+    from ..io.mcap import read_log
+    from ..io.mergedcsv import write_merged_csv
+    from ..model.frames import ssa
+
     merged = out / "merged.csv"
     imported = out / "imported.mcap"
     step(f"import: the run as one merged logger CSV {merged} -> usvlog import -> {imported}")
@@ -97,8 +102,8 @@ def _import_stage(log, out: Path, step) -> None:
 
 
 def identify_stage(log, out: Path) -> None:
-    from ..identify import Identifier
-    from ..model.vessel import PARAM_NAMES
+    from ..identify import Identifier  # heavy: imported only when the verb runs
+    from ..io.atomic import write_text_atomic
 
     idf = Identifier("output-error").fit([log])
     write_text_atomic(out / "identified.toml", idf.to_vessel().to_toml(), force=True)
@@ -117,11 +122,11 @@ def identify_stage(log, out: Path) -> None:
 
 def _control_stages(out: Path, step) -> Path:
     """Section IV closed loop, gain check, replay with a baseline what-if."""
-    from ..control.gains import check_gains
+    from ..control.gains import check_gains  # heavy: imported only when the verb runs
+    from ..io.mcap import read_log, write_log
     from ..replay import replay_log
     from ..sim.closed_loop import simulate_scenario
     from ..sim.scenario import load_scenario
-    from .replay import format_metrics
 
     scen = load_scenario("paper-circle")
     circ = out / "paper-circle.mcap"
@@ -142,6 +147,7 @@ def _control_stages(out: Path, step) -> Path:
 
 def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
     """Rerun recordings of both runs and the report with the paper's figures."""
+    from ..io.mcap import read_log  # heavy: imported only when the verb runs
     from ..sim.closed_loop import simulate_scenario
     from ..sim.scenario import load_scenario
     from ..view.report import write_report

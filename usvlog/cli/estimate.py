@@ -4,10 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-from ..estimate import EstimateSettings, estimate
-from ..io.atomic import check_output
-from ..io.config import load_vessel
-from ..io.mcap import read_log, write_log
 from .common import print_json, stage
 
 
@@ -35,15 +31,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force, parent=True)
-    settings = EstimateSettings(model=args.model, current=args.current, tune=args.tune,
-                                gate_probability=args.gate, smoother=not args.no_smoother,
-                                sway_damping=args.sway_damping)
-    log = read_log(args.log)
-    vessel = load_vessel(args.vessel) if args.vessel else None
-    stage(f"estimating {args.log} ({args.model} model{', tuning' if args.tune else ''})")
-    result = estimate(log, settings, vessel)
-    write_log(result.to_log(log), args.out, force=args.force)
+    from .. import api  # heavy: imported only when the verb runs
+
+    result = api.estimate(args.log, args.out, model=args.model, vessel=args.vessel or None, current=args.current,
+                          tune=args.tune, sway_damping=args.sway_damping, gate=args.gate,
+                          smoother=not args.no_smoother, force=args.force, progress=stage)
     stage(f"wrote {args.out}")
     if args.json:
         print_json(result.report.to_dict())

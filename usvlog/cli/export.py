@@ -1,7 +1,6 @@
-from __future__ import annotations
+"""``usvlog export``: each channel of a log to CSV or Parquet."""
 
-from ..io.export import export_log
-from ..io.mcap import read_log
+from __future__ import annotations
 
 
 def register(sub) -> None:
@@ -14,6 +13,8 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    for path in export_log(read_log(args.log), args.out, fmt=args.format, force=args.force):
+    from .. import api  # heavy: imported only when the verb runs
+
+    for path in api.export(args.log, args.out, fmt=args.format, force=args.force):
         print(path)
     return 0

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-from ..control.gains import check_gains
 from ..errors import ConfigError
-from ..io.config import load_vessel, load_vessel_or_scenario_vessel, read_toml
-from ..sim.scenario import load_gains, scenario_path
 from .common import print_json
 
 
@@ -26,14 +23,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    args.gains = scenario_path(args.gains)
-    gains, _ = load_gains(args.gains)
-    if args.vessel:
-        vessel = load_vessel_or_scenario_vessel(args.vessel)
-    elif "vessel" in read_toml(args.gains):
-        vessel = load_vessel_or_scenario_vessel(args.gains)
-    else:
-        vessel = load_vessel(None)
+    from .. import api  # heavy: imported only when the verb runs
+
+    gains, vessel = api.gains_and_vessel(args.gains, args.vessel or None)
     q = None
     if args.q:
         try:
@@ -42,7 +34,7 @@ def run(args) -> int:
             raise ConfigError(f"--q {args.q!r}: not 6 comma-separated numbers") from err
         if len(q) != 6:
             raise ConfigError(f"--q {args.q!r}: needs 6 diagonal entries")
-    res = check_gains(vessel.params, gains, Q=q, delta=args.delta, theta=args.theta)
+    res = api.gains(gains, vessel=vessel, q=q, delta=args.delta, theta=args.theta)
     if args.json:
         print_json(res.to_dict())
     else:

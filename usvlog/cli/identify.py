@@ -4,18 +4,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
+from ..choices import IDENTIFY_METHODS, PARAM_NAMES
 from ..errors import ConfigError
-from ..identify import METHODS, Identifier
-from ..io.atomic import check_output, write_text_atomic
-from ..io.config import load_vessel
-from ..io.mcap import read_log, write_log
-from ..log.channels import channel_spec, frame_from_columns
-from ..model.vessel import PARAM_NAMES
 from .common import print_json, stage
-
-FIT_TOPIC = "/identify/fit"
 
 
 def register(sub) -> None:
@@ -23,7 +14,7 @@ def register(sub) -> None:
     p.add_argument("logs", nargs="+", help="canonical MCAP logs (fitted jointly)")
     p.add_argument("--vessel", default=None, help="vessel TOML: thruster map and geometry, start values "
                                                   "(default: the vessel stored in the first log)")
-    p.add_argument("--method", choices=METHODS, default="output-error",
+    p.add_argument("--method", choices=IDENTIFY_METHODS, default="output-error",
                    help="output-error (accurate, default), equation-error (fast, biased), filter-error "
                         "(dynamic EKF likelihood; slower)")
     g = p.add_mutually_exclusive_group()
@@ -40,6 +31,7 @@ def register(sub) -> None:
 
 
 def parse_fix(items: list[str]) -> dict[str, float]:
+    """``["NAME=VALUE", ...]`` of --fix -> {name: value}, each a possible value of that parameter."""
     out = {}
     for it in items:
         name, sep, value = it.partition("=")
@@ -57,34 +49,14 @@ def parse_fix(items: list[str]) -> dict[str, float]:
     return out
 
 
-def fit_log(idf: Identifier, log):
-    """A copy of the (first) fitted log with the /identify/fit channel added."""
-    t, cols = idf.fit_frame(0)
-    t_ns = idf.runs_[0].t0_ns + np.round(t * 1e9).astype(np.int64)
-    out = log.copy()
-    out.set(FIT_TOPIC, frame_from_columns(cols, t_ns, channel_spec(FIT_TOPIC)))
-    out.add_provenance(producer="usvlog identify", source=str(log.source or ""),
-                       settings={"method": idf.method, "fix": idf.fix, "current": idf.current,
-                                 "params": idf.params_.to_dict()})
-    return out
-
-
 def run(args) -> int:
-    check_output(args.out, args.force, parent=True)
-    if args.out_log:
-        check_output(args.out_log, args.force, parent=True)
+    from .. import api  # heavy: imported only when the verb runs
+
     fix = parse_fix(args.fix)
-    idf = Identifier(args.method, fix=fix, current=not args.no_current, holdout=args.holdout)
-    vessel = load_vessel(args.vessel) if args.vessel else None
-    logs = [read_log(p) for p in args.logs]
-    val_log = read_log(args.validate) if args.validate else None
-    stage(f"identifying ({args.method}) from {len(logs)} log(s)")
-    idf.fit(logs, vessel)
-    val = idf.validate(val_log) if val_log is not None else None
-    write_text_atomic(args.out, idf.to_vessel().to_toml(), force=args.force)
-    if args.out_log:
-        write_log(fit_log(idf, logs[0]), args.out_log, force=args.force)
-    d = idf.to_dict(validation=val)
+    idf = api.identify(args.logs, args.out, vessel=args.vessel or None, method=args.method,
+                       validate=args.validate or None, holdout=args.holdout, fix=fix, current=not args.no_current,
+                       out_log=args.out_log or None, force=args.force, progress=stage)
+    d = idf.to_dict()
     if args.json:
         print_json(d)
     else:

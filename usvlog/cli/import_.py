@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-from ..io.config import load_vessel
-from ..io.importers import FORMATS, import_file, parse_pairs
+from ..choices import IMPORT_FORMATS, THRUST_UNITS
 from .common import print_json, stage
 
 
@@ -11,7 +10,7 @@ def register(sub) -> None:
     p = sub.add_parser("import", help="import a field log (CSV, NMEA, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg)")
     p.add_argument("src", help="field log file (or ROS 2 bag directory)")
     p.add_argument("--out", required=True, help="output MCAP file")
-    p.add_argument("--format", default="auto", choices=("auto",) + FORMATS,
+    p.add_argument("--format", default="auto", choices=("auto",) + IMPORT_FORMATS,
                    help="input format (default: detected from the content)")
     p.add_argument("--vessel", default=None, help="vessel TOML (thruster map for non-newton commands)")
     p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
@@ -21,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
                    help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
                         "to a topic and field path; repeatable")
-    p.add_argument("--thrust-unit", choices=("newton", "normalized", "pwm_us"), default=None,
+    p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
     p.add_argument("--start-utc", default=None, metavar="ISO",
                    help="start time for relative time columns / line stamps, e.g. 2024-05-01T10:00:00Z")
@@ -38,10 +37,13 @@ def _print_mapping(report) -> None:
 
 
 def run(args) -> int:
-    vessel = load_vessel(args.vessel) if args.vessel else None
-    res = import_file(args.src, args.format, vessel=vessel, columns=parse_pairs(args.column, "--column"),
-                      topics=parse_pairs(args.topic, "--topic"), thrust_unit=args.thrust_unit,
-                      start_utc=args.start_utc, out=args.out, force=args.force, on_mapping=_print_mapping)
+    from .. import api  # heavy: imported only when the verb runs
+    from ..io.importers import parse_pairs
+
+    res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
+                         columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
+                         thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
+                         on_mapping=_print_mapping)
     r = res.report
     if args.json:
         print_json(res.to_dict())

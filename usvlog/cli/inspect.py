@@ -1,7 +1,7 @@
+"""``usvlog inspect``: channels, counts, rates, time range, gaps and damage of a log."""
+
 from __future__ import annotations
 
-from ..io.mcap import read_log
-from ..log.summary import format_summary, summarize
 from .common import print_json
 
 
@@ -13,7 +13,10 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    s = summarize(read_log(args.log))
+    from .. import api  # heavy: imported only when the verb runs
+    from ..log.summary import format_summary
+
+    s = api.inspect(args.log)
     if args.json:
         print_json(s.to_dict())
     else:

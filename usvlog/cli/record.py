@@ -1,16 +1,17 @@
+"""``usvlog record``: live GNSS/compass (NMEA) and thrust (JSON lines) into a power-loss-safe log."""
+
 from __future__ import annotations
 
 import signal
 import sys
 import threading
 
-from ..io.config import load_vessel
-from ..io.record import record
 from .common import print_json, stage
 
 
 def register(sub) -> None:
-    p = sub.add_parser("record", help="record live GNSS/compass (NMEA) and thrust (JSON lines) to a power-loss-safe log",
+    p = sub.add_parser("record",
+                       help="record live GNSS/compass (NMEA) and thrust (JSON lines) to a power-loss-safe log",
                        description="Sources: serial:///dev/ttyUSB0?baud=4800, udp://0.0.0.0:10110 (listen), "
                                    "tcp://host:port (connect). GNSS and compass may share one URL. "
                                    "SIGINT/SIGTERM finish the file cleanly; a SIGKILL or power cut loses at most "
@@ -31,6 +32,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..io.config import load_vessel  # heavy: imported only when the verb runs
+    from ..io.record import record
+
     vessel = load_vessel(args.vessel) if args.vessel else None
     stop = threading.Event()
 

@@ -2,20 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
-from ..io.atomic import check_output
-from ..io.config import load_vessel_or_scenario_vessel, read_toml
-from ..io.mcap import read_log, write_log
-from ..replay import replay_log
-from ..sim.scenario import load_gains, load_scenario
 from .common import print_json, stage
 
 
 def register(sub) -> None:
     p = sub.add_parser("replay", help="replay a recorded run through guidance + controller, and a what-if run")
     p.add_argument("log", help="recorded run (canonical MCAP)")
-    p.add_argument("--scenario", required=True, help="closed-loop scenario: a TOML file (path, gains, guidance, speed) or "
+    p.add_argument("--scenario", required=True,
+                   help="closed-loop scenario: a TOML file (path, gains, guidance, speed) or "
                         "a shipped name (paper-circle, paper-sine)")
     p.add_argument("--gains", default=None,
                    help="gains TOML overriding the scenario's [gains] (and [guidance] when it has one)")
@@ -34,21 +28,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    check_output(args.out, args.force, parent=True)
-    scen = load_scenario(args.scenario)
-    gains = None
-    if args.gains:
-        gains, guidance = load_gains(args.gains)
-        if "guidance" in read_toml(args.gains):  # a [guidance] table there overrides the scenario's
-            scen = replace(scen, guidance=guidance)
-    vessel = load_vessel_or_scenario_vessel(args.vessel) if args.vessel else None
-    stage(f"reading {args.log}")
-    log = read_log(args.log)
-    stage(f"replaying with scenario {scen.name}")
-    res = replay_log(log, scen, vessel=vessel, gains=gains, controller=args.controller,
-                     whatif=not args.no_whatif, whatif_controller=args.whatif_controller)
-    write_log(res.log, args.out, force=args.force)
-    stage(f"wrote {args.out}")
+    from .. import api  # heavy: imported only when the verb runs
+
+    res = api.replay(args.log, args.scenario, args.out, gains=args.gains or None, vessel=args.vessel or None,
+                     controller=args.controller, whatif=not args.no_whatif,
+                     whatif_controller=args.whatif_controller, force=args.force, progress=stage)
     m = res.metrics
     if args.json:
         print_json(m.to_dict())

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from ..io.mcap import read_log
 from .common import stage
 
 
@@ -20,12 +19,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..view.report import check_report_outputs, write_report
+    from .. import api  # heavy: imported only when the verb runs (matplotlib only when drawing)
 
-    check_report_outputs(args.out, args.force)  # fail before the work, not after
-    log = read_log(args.log)
-    base = read_log(args.baseline) if args.baseline else None
-    stage(f"writing report to {args.out}")
-    page = write_report(log, args.out, baseline=base, force=args.force, axes=args.axes)
-    print(page)
+    print(api.report(args.log, args.out, args.baseline or None, axes=args.axes, force=args.force, progress=stage))
     return 0

@@ -1,22 +1,15 @@
+"""``usvlog simulate``: a scenario of the paper's plant (open loop, or a closed-loop scenario) into a log."""
+
 from __future__ import annotations
 
-from dataclasses import replace as dc_replace
-from pathlib import Path
-
 from ..errors import ConfigError
-from ..io.atomic import check_output
-from ..io.config import load_vessel
-from ..io.mcap import write_log
-from ..resources import replay_dir
-from ..sim.scenario import closed_loop_scenarios
-from ..sim.simulate import SCENARIOS, SensorSettings, SimSettings, simulate
 from .common import stage
 
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a scenario of the paper's plant into a canonical log")
-    p.add_argument("scenario", help="built-in open-loop scenario (excitation, turns, straight), a closed-loop scenario name "
-                                    "in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
+    p.add_argument("scenario", help="built-in open-loop scenario (excitation, turns, straight), a closed-loop "
+                                    "scenario name in replay/ (paper-circle, paper-sine) or a scenario TOML file; a "
                                     "closed-loop scenario takes its settings from the file (only --duration-s, "
                                     "--seed, --vessel, --controller and --truth-rate-hz override them)")
     p.add_argument("--out", required=True, help="output MCAP file")
@@ -55,59 +48,13 @@ def _pairs(values: list[str], flag: str) -> list[tuple[float, float]]:
     return out
 
 
-def settings_from_args(args) -> SimSettings:
-    sens = {}
-    if args.gps_noise_m is not None:
-        sens["gps_noise_m"] = args.gps_noise_m
-    if args.compass_noise_deg is not None:
-        sens["compass_noise_deg"] = args.compass_noise_deg
-    if args.compass_bias_deg is not None:
-        sens["compass_bias_deg"] = args.compass_bias_deg
-    if args.gps_bias_m is not None:
-        sens["gps_bias_sigma_m"] = args.gps_bias_m
-    if args.truth_rate_hz is not None:
-        sens["truth_rate_hz"] = args.truth_rate_hz
-    sens["gps_jumps"] = tuple(_pairs(args.gps_jump, "--gps-jump"))
-    sens["gps_dropouts"] = tuple(_pairs(args.gps_dropout, "--gps-dropout"))
-    kw = dict(vessel=load_vessel(args.vessel), current_mps=args.current_mps,
-              current_dir_deg=args.current_dir_deg, sensors=SensorSettings(**sens))
-    if args.duration_s is not None:
-        kw["duration_s"] = args.duration_s
-    return SimSettings(**kw)
-
-
 def run(args) -> int:
-    check_output(args.out, args.force, parent=True)  # fail before the work, not after
-    if args.scenario not in SCENARIOS:
-        p = Path(args.scenario)
-        if not (p.suffix == ".toml" or p.exists() or "/" in args.scenario
-                or (replay_dir() / f"{args.scenario}.toml").exists()):
-            raise ConfigError(f"no scenario {args.scenario!r} (open loop: {', '.join(SCENARIOS)}; closed loop: "
-                              f"{', '.join(closed_loop_scenarios())}; or a scenario TOML file)")
-        return run_closed_loop(args)
-    settings = settings_from_args(args)
-    seed = 0 if args.seed is None else args.seed
-    stage(f"simulating {args.scenario} ({settings.duration_s:.0f} s, seed {seed})")
-    log = simulate(args.scenario, settings, seed=seed)
-    write_log(log, args.out, force=args.force)
-    stage(f"wrote {args.out}")
-    return 0
+    from .. import api  # heavy: imported only when the verb runs
 
-
-def run_closed_loop(args) -> int:
-    """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
-    from ..sim.closed_loop import simulate_scenario
-    from ..sim.scenario import load_scenario
-
-    scen = load_scenario(args.scenario, vessel=load_vessel(args.vessel) if args.vessel else None)
-    if args.truth_rate_hz is not None:
-        sens = dc_replace(scen.sim.sensors, truth_rate_hz=args.truth_rate_hz)
-        scen = dc_replace(scen, sim=dc_replace(scen.sim, sensors=sens))
-    ctl = args.controller or scen.controller
-    dur = args.duration_s or scen.sim.duration_s
-    stage(f"simulating {scen.name} closed loop ({dur:.0f} s, controller {ctl}, "
-          f"input {scen.controller_input})")
-    log = simulate_scenario(scen, controller=ctl, seed=args.seed, duration_s=args.duration_s)
-    write_log(log, args.out, force=args.force)
-    stage(f"wrote {args.out}")
+    api.simulate(args.scenario, args.out, seed=args.seed, controller=args.controller, duration_s=args.duration_s,
+                 current_mps=args.current_mps, current_dir_deg=args.current_dir_deg, vessel=args.vessel or None,
+                 gps_noise_m=args.gps_noise_m, compass_noise_deg=args.compass_noise_deg, gps_bias_m=args.gps_bias_m,
+                 gps_jumps=_pairs(args.gps_jump, "--gps-jump"), gps_dropouts=_pairs(args.gps_dropout, "--gps-dropout"),
+                 compass_bias_deg=args.compass_bias_deg, truth_rate_hz=args.truth_rate_hz, force=args.force,
+                 progress=stage)
     return 0

@@ -2,11 +2,7 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from ..errors import ConfigError, InputError
-from ..io.atomic import check_output
-from ..io.mcap import read_log
 from .common import stage
 
 
@@ -25,25 +21,21 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..view import rrd as viz  # rerun is imported only when a verb needs it
+    from .. import api  # heavy: imported only when the verb runs (rerun only when a recording is made)
 
-    out = Path(args.out) if args.out else Path(args.logs[0]).with_suffix(".rrd")
-    check_output(out, args.force, parent=True)  # fail before the work, not after
     if args.name is not None and len(args.name) != len(args.logs):
         raise InputError(f"--name given {len(args.name)} times for {len(args.logs)} logs")
     if args.port is not None and not 1 <= args.port <= 65535:
         raise ConfigError(f"--port {args.port}: not a TCP port (1 to 65535)")
-    logs = []
-    for path in args.logs:
-        stage(f"reading {path}")
-        logs.append(read_log(path))
-    stage(f"writing {out}")
-    viz.to_rrd(logs, out, names=args.name, force=args.force)
+    out = api.to_rrd(args.logs, args.out or None, names=args.name, force=args.force, progress=stage)
     print(out)
-    if args.spawn:
-        stage("opening the Rerun viewer")
-        viz.spawn_viewer(out)
-    if args.serve:
-        stage(f"serving {out} on {args.host} (Ctrl-C to stop)")
-        return viz.serve(out, host=args.host, port=args.port)
+    if args.spawn or args.serve:
+        from ..view import rrd as viz  # heavy: rerun
+
+        if args.spawn:
+            stage("opening the Rerun viewer")
+            viz.spawn_viewer(out)
+        if args.serve:
+            stage(f"serving {out} on {args.host} (Ctrl-C to stop)")
+            return viz.serve(out, host=args.host, port=args.port)
     return 0

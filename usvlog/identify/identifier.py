@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..choices import IDENTIFY_METHODS
 from ..errors import ConfigError, InputError
 from ..estimate import EstimateSettings, estimate
 from ..log.fieldlog import FieldLog
@@ -24,7 +25,7 @@ from .output import (
 )
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 
-METHODS = ("output-error", "equation-error", "filter-error")
+METHODS = IDENTIFY_METHODS
 Z95 = 1.959963984540054
 # equation-error smoothing (s): positions, heading, accelerations (thrust filtered alike)
 EE_POS_S, EE_PSI_S, EE_ACC_S = 16.0, 6.0, 6.0

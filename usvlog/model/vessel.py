@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 from numba.extending import register_jitable
 
+from ..choices import PARAM_NAMES, THRUST_UNITS
 from ..errors import ConfigError, InputError
 
 
@@ -45,8 +46,6 @@ def require_finite(obj, names, kind: str) -> None:
             raise ConfigError(f"{kind} {f} = {v!r} is not a finite number")
 
 
-PARAM_NAMES = ("m", "Iz", "d11", "d22", "d33", "xg")
-THRUST_UNITS = ("newton", "normalized", "pwm_us")
 THRUSTER_MAPS = ("identity", "linear", "quadratic")
 
 

@@ -18,6 +18,7 @@ import importlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ...choices import IMPORT_FORMATS
 from ...errors import ConfigError, FormatError, InputError, StorageError, UsvlogError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
@@ -26,7 +27,7 @@ from ..atomic import atomic_path, check_output, reading
 from .core import THRUST_UNITS, Assembler, ImportReport
 from .sink import McapSink, MemorySink
 
-FORMATS = ("csv", "nmea", "ros1", "ros2", "dataflash", "ulog")
+FORMATS = IMPORT_FORMATS
 _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
             "dataflash": "dataflash", "ulog": "ulog"}
 CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad",

@@ -1,0 +1,841 @@
+"""The Python API: one function per command line verb, with the verb's options and defaults.
+
+Every function here is reached as ``usvlog.<name>`` (``usvlog.simulate``, ``usvlog.estimate``,
+...). Each one is thin glue over the library (the same calls the verb of ``usvlog.cli`` makes,
+which in turn calls these functions), takes logs either as :class:`~usvlog.FieldLog` objects or as
+paths of canonical MCAP files, writes an output only when given one (atomically; an existing file
+is replaced only with ``force=True``), and returns a result object. Nothing here prints: the
+functions that take long accept ``progress``, a callable that receives a one-line description of
+each stage as it starts (the command line prints these on stderr).
+
+Errors a caller causes (a bad file, a wrong option) raise :class:`~usvlog.UsvlogError`
+subclasses with a one-line message.
+
+This module imports only the standard library at the top: each function imports the part of
+the library it needs when it is called, so that ``import usvlog`` and ``usvlog --help`` stay fast.
+"""
+
+from __future__ import annotations
+
+import difflib
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from .errors import ConfigError, InputError, StorageError
+
+if TYPE_CHECKING:  # for annotations only: importing these at run time pulls numpy and pandas
+    from .control.gains import GainCheck, Gains
+    from .estimate import EstimateResult
+    from .identify import Identifier
+    from .io.importers import ImportResult
+    from .log.fieldlog import FieldLog
+    from .log.summary import LogSummary
+    from .model.vessel import Vessel
+    from .regress.stages import ScenarioOutcome
+    from .replay import ReplayResult
+
+PathLike = str | os.PathLike
+Progress = Callable[[str], None] | None
+
+FIT_TOPIC = "/identify/fit"
+
+
+def _is_path(x: Any) -> bool:
+    return isinstance(x, (str, os.PathLike))
+
+
+def _say(progress: Progress, msg: str) -> None:
+    if progress is not None:
+        progress(msg)
+
+
+def _read(log):
+    """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded."""
+    if _is_path(log):
+        from .io.mcap import read_log  # heavy: imported only when a log is read
+
+        return read_log(log)
+    return log
+
+
+def _vessel_file(vessel):
+    """None, a Vessel as given, or a vessel TOML file loaded."""
+    if _is_path(vessel):
+        from .io.config import load_vessel  # heavy: imports numpy (the vessel model)
+
+        return load_vessel(vessel)
+    return vessel
+
+
+# -----------------------------------------------------------------------------
+# logs: load, save, import, inspect, export
+# -----------------------------------------------------------------------------
+
+def load(path, **kwargs) -> FieldLog:
+    """Load a canonical MCAP log, recovering what it can from a damaged file.
+
+    Parameters
+    ----------
+    path : str, os.PathLike or list of them
+        The MCAP file. A list of paths loads consecutive files of one run (a rotated
+        recording, ``run_000.mcap``, ``run_001.mcap``, ...) as one log.
+    **kwargs
+        ``topics`` (list of str): load only these channels. ``strict`` (bool, single file
+        only): raise instead of recovering a file cut short.
+
+    Returns
+    -------
+    FieldLog
+        One DataFrame per channel indexed by ``t_ns`` (int64 ns since the Unix epoch);
+        ``log.recovery`` says what was lost from a damaged file (None when nothing was).
+    """
+    from .io.mcap import read_log, read_logs  # heavy: the compiled MCAP reader (numpy, numba)
+
+    if isinstance(path, (list, tuple)):
+        return read_logs(path, **kwargs)
+    return read_log(path, **kwargs)
+
+
+def save(log: FieldLog, path: PathLike, force: bool = False, **kw) -> Path:
+    """Write ``log`` as a canonical MCAP file, atomically.
+
+    Parameters
+    ----------
+    log : FieldLog
+        The run to write.
+    path : str or os.PathLike
+        Output file; its directory must exist.
+    force : bool
+        Replace an existing file (else :class:`~usvlog.errors.OutputExistsError`).
+    **kw
+        ``chunk_size`` (bytes of messages per zstd chunk, default 1 MiB) and ``compression``
+        (``"zstd"``, default, or ``""`` for none).
+
+    Returns
+    -------
+    pathlib.Path
+        The path written.
+    """
+    from .io.mcap import write_log  # heavy: the compiled MCAP writer
+
+    write_log(log, path, force=force, **kw)
+    return Path(path)
+
+
+def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto", vessel=None,
+               columns: dict[str, str] | None = None, topics: dict[str, str] | None = None,
+               thrust_unit: str | None = None, start_utc: str | int | None = None, force: bool = False,
+               on_mapping: Callable | None = None) -> ImportResult:
+    """Import a field log (CSV, NMEA 0183, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg): ``usvlog import``.
+
+    Parameters
+    ----------
+    src : str or os.PathLike
+        The field log file (or ROS 2 bag directory).
+    out : str or os.PathLike, optional
+        Stream the canonical log into this MCAP file (then ``result.log`` is None); without it
+        the log is returned in memory.
+    fmt : str
+        ``"auto"`` (detected from the content, not the name) or one of
+        :data:`usvlog.choices.IMPORT_FORMATS` (``--format``).
+    vessel : Vessel or path, optional
+        Vessel (or vessel TOML) whose thruster map turns non-newton commands into forces.
+    columns : dict, optional
+        CSV: role -> column header (roles: ``time_s``, ``lat_deg``, ``heading_deg``,
+        ``thrust_left``, ...); what is not given is guessed.
+    topics : dict, optional
+        Bags: role -> ``/topic[.field.path]`` (roles: ``gnss``, ``heading``, ``yaw_rate``,
+        ``thrust_left``, ``thrust_right``, ``speed_mps``).
+    thrust_unit : str, optional
+        Unit of the recorded thruster commands (:data:`usvlog.choices.THRUST_UNITS`);
+        None guesses it from the values.
+    start_utc : str or int, optional
+        Start time of relative time columns: ISO 8601 text or ns since the Unix epoch.
+    force : bool
+        Replace an existing ``out``.
+    on_mapping : callable, optional
+        Called with the import report once the column/topic mapping is known, before the bulk
+        of the work.
+
+    Returns
+    -------
+    ImportResult
+        ``log`` (None when streamed to ``out``), ``report`` (mapping, guesses, counts, skipped
+        records) and ``out``.
+    """
+    from .io.importers import import_file  # heavy: the importers (numpy, pandas)
+
+    return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
+                       thrust_unit=thrust_unit, start_utc=start_utc, out=out, force=force,
+                       on_mapping=on_mapping)
+
+
+def inspect(log) -> LogSummary:
+    """What is in a log: channels, counts, rates, time range, gaps, damage (``usvlog inspect``).
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The log, or its MCAP file.
+
+    Returns
+    -------
+    LogSummary
+        Per channel: count, nominal rate (Hz), first/last time (ns), duration (s), gaps longer
+        than 3 periods, backwards and repeated time stamps; plus metadata, recovery and
+        skipped-record counts. ``format_summary`` of :mod:`usvlog.log.summary` prints it,
+        ``to_dict()`` gives the JSON form.
+    """
+    from .log.summary import summarize  # heavy: numpy, pandas
+
+    return summarize(_read(log))
+
+
+def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False) -> list[Path]:
+    """Write each channel of a log to ``out/<topic>.csv`` or ``.parquet`` (``usvlog export``).
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The log, or its MCAP file.
+    out : str or os.PathLike
+        Output directory (created when missing).
+    fmt : str
+        ``"csv"`` (default) or ``"parquet"`` (``--format``).
+    force : bool
+        Replace existing files (every output is checked before the first is written).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written, one per channel; the index ``t_ns`` (ns since the Unix epoch) is
+        the first column.
+    """
+    from .io.export import export_log  # heavy: pandas
+
+    return export_log(_read(log), out, fmt=fmt, force=force)
+
+
+# -----------------------------------------------------------------------------
+# simulate
+# -----------------------------------------------------------------------------
+
+def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | None = None,
+             controller: str | None = None, duration_s: float | None = None, current_mps: float = 0.0,
+             current_dir_deg: float = 0.0, vessel=None, gps_noise_m: float | None = None,
+             compass_noise_deg: float | None = None, gps_bias_m: float | None = None,
+             gps_jumps: Sequence[tuple[float, float]] = (), gps_dropouts: Sequence[tuple[float, float]] = (),
+             compass_bias_deg: float | None = None, truth_rate_hz: float | None = None, force: bool = False,
+             progress: Progress = None) -> FieldLog:
+    """Simulate the paper's plant and sensors into a field log (``usvlog simulate``).
+
+    Parameters
+    ----------
+    scenario : str or os.PathLike
+        A built-in open-loop scenario (``"excitation"``, ``"turns"``, ``"straight"``), the name
+        of a closed-loop scenario shipped in ``replay/`` (``"paper-circle"``, ``"paper-sine"``)
+        or a closed-loop scenario TOML file. A closed-loop scenario takes its settings from the
+        file: only ``duration_s``, ``seed``, ``vessel``, ``controller`` and ``truth_rate_hz``
+        override them (the sensor and current options below are for open-loop runs).
+    out : str or os.PathLike, optional
+        Also write the log to this MCAP file (checked before the simulation runs).
+    seed : int, optional
+        Random seed: same seed, same log. Default 0, or the closed-loop scenario's.
+    controller : str, optional
+        Closed loop: ``"full"`` (the paper's controller (9)-(10)) or ``"baseline"`` (PI/PID);
+        default the scenario's.
+    duration_s : float, optional
+        Run length in s (default 600 s open loop, else the scenario's).
+    current_mps : float
+        Water current speed in m/s (open loop).
+    current_dir_deg : float
+        Direction the current flows towards, degrees clockwise from north.
+    vessel : Vessel or path, optional
+        Vessel (or vessel TOML); default the paper's Section IV vessel (closed loop: the
+        scenario's).
+    gps_noise_m, compass_noise_deg : float, optional
+        One-sigma GPS noise per axis in m, compass noise in degrees (default 1.5 m, 2 deg).
+    gps_bias_m : float, optional
+        Standard deviation in m of a slowly wandering GPS bias (Gauss-Markov, 300 s).
+    gps_jumps : sequence of (t_s, size_m)
+        Single-fix GPS outliers of ``size_m`` m at ``t_s`` s.
+    gps_dropouts : sequence of (start_s, duration_s)
+        No GPS fixes for ``duration_s`` s from ``start_s`` s.
+    compass_bias_deg : float, optional
+        Constant compass bias in degrees.
+    truth_rate_hz : float, optional
+        Rate in Hz of ``/truth/state`` (default: every integration step).
+    force : bool
+        Replace an existing ``out``.
+    progress : callable, optional
+        Receives a line describing the run before it starts.
+
+    Returns
+    -------
+    FieldLog
+        GNSS, compass, thrust and truth channels (closed loop also ``/control/state`` and the
+        path), with the vessel, datum and provenance.
+    """
+    from .io.atomic import check_output  # heavy: the sim/io stack pulls numpy, pandas, numba
+    from .resources import replay_dir
+    from .sim.scenario import closed_loop_scenarios
+    from .sim.simulate import SCENARIOS
+    from .sim.simulate import simulate as simulate_open_loop
+
+    if out is not None:
+        check_output(out, force, parent=True)  # fail before the work, not after
+    name = str(scenario)
+    if name not in SCENARIOS:
+        p = Path(scenario)
+        if not (p.suffix == ".toml" or p.exists() or "/" in name or (replay_dir() / f"{name}.toml").exists()):
+            raise ConfigError(f"no scenario {name!r} (open loop: {', '.join(SCENARIOS)}; closed loop: "
+                              f"{', '.join(closed_loop_scenarios())}; or a scenario TOML file)")
+        log = _simulate_closed_loop(scenario, seed=seed, controller=controller, duration_s=duration_s,
+                                    vessel=vessel, truth_rate_hz=truth_rate_hz, progress=progress)
+    else:
+        settings = _sim_settings(duration_s=duration_s, current_mps=current_mps, current_dir_deg=current_dir_deg,
+                                 vessel=vessel, gps_noise_m=gps_noise_m, compass_noise_deg=compass_noise_deg,
+                                 gps_bias_m=gps_bias_m, gps_jumps=gps_jumps, gps_dropouts=gps_dropouts,
+                                 compass_bias_deg=compass_bias_deg, truth_rate_hz=truth_rate_hz)
+        seed = 0 if seed is None else seed
+        _say(progress, f"simulating {name} ({settings.duration_s:.0f} s, seed {seed})")
+        log = simulate_open_loop(name, settings, seed=seed)
+    if out is not None:
+        save(log, out, force=force)
+        _say(progress, f"wrote {out}")
+    return log
+
+
+def _sim_settings(*, duration_s, current_mps, current_dir_deg, vessel, gps_noise_m, compass_noise_deg,
+                  gps_bias_m, gps_jumps, gps_dropouts, compass_bias_deg, truth_rate_hz):
+    """SimSettings of an open-loop run (sensor defaults where an option is None)."""
+    from .io.config import load_vessel  # heavy: numpy
+    from .sim.simulate import SensorSettings, SimSettings
+
+    sens: dict[str, Any] = {}  # numbers as floats, as the command line gives them (they go into the provenance)
+    if gps_noise_m is not None:
+        sens["gps_noise_m"] = float(gps_noise_m)
+    if compass_noise_deg is not None:
+        sens["compass_noise_deg"] = float(compass_noise_deg)
+    if compass_bias_deg is not None:
+        sens["compass_bias_deg"] = float(compass_bias_deg)
+    if gps_bias_m is not None:
+        sens["gps_bias_sigma_m"] = float(gps_bias_m)
+    if truth_rate_hz is not None:
+        sens["truth_rate_hz"] = float(truth_rate_hz)
+    sens["gps_jumps"] = tuple((float(a), float(b)) for a, b in gps_jumps)
+    sens["gps_dropouts"] = tuple((float(a), float(b)) for a, b in gps_dropouts)
+    kw: dict[str, Any] = dict(vessel=_vessel_file(vessel) or load_vessel(None), current_mps=float(current_mps),
+                              current_dir_deg=float(current_dir_deg), sensors=SensorSettings(**sens))
+    if duration_s is not None:
+        kw["duration_s"] = float(duration_s)
+    return SimSettings(**kw)
+
+
+def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, truth_rate_hz, progress):
+    """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
+    from .sim.closed_loop import simulate_scenario  # heavy: the compiled closed loop
+    from .sim.scenario import load_scenario
+
+    scen = load_scenario(scenario, vessel=_vessel_file(vessel))
+    duration_s = None if duration_s is None else float(duration_s)
+    if truth_rate_hz is not None:
+        sens = replace(scen.sim.sensors, truth_rate_hz=float(truth_rate_hz))
+        scen = replace(scen, sim=replace(scen.sim, sensors=sens))
+    ctl = controller or scen.controller
+    dur = duration_s or scen.sim.duration_s
+    _say(progress, f"simulating {scen.name} closed loop ({dur:.0f} s, controller {ctl}, "
+                   f"input {scen.controller_input})")
+    return simulate_scenario(scen, controller=ctl, seed=seed, duration_s=duration_s)
+
+
+# -----------------------------------------------------------------------------
+# estimate, identify
+# -----------------------------------------------------------------------------
+
+def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vessel=None,
+             current: bool | None = None, tune: bool = False, sway_damping: bool | None = None,
+             gate: float = 0.9999, smoother: bool = True, force: bool = False,
+             progress: Progress = None) -> EstimateResult:
+    """Estimate the state of a run with an EKF and RTS smoother (``usvlog estimate``).
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The run, or its MCAP file.
+    out : str or os.PathLike, optional
+        Write the log plus ``/estimate/state`` and ``/estimate/innovations`` to this MCAP file
+        (checked before the work).
+    model : str
+        ``"kinematic"`` (no vessel parameters) or ``"dynamic"`` (the paper's model driven by the
+        recorded thrust).
+    vessel : Vessel or path, optional
+        Vessel (or vessel TOML) of the dynamic model; default the log's own, else the built-in.
+    current : bool, optional
+        Estimate the water current (m/s); default on for the dynamic model, off for the
+        kinematic one.
+    tune : bool
+        Pick the process noise by maximising the innovation likelihood.
+    sway_damping : bool, optional
+        Kinematic model in the body frame with an estimated sway damping (default on for the
+        kinematic model).
+    gate : float
+        Chi-square probability of the NIS gate on each measurement (1.0: no gate).
+    smoother : bool
+        Run the RTS smoother (False: the forward filter only).
+    force : bool
+        Replace an existing ``out``.
+    progress : callable, optional
+        Receives a line before the estimation starts.
+
+    Returns
+    -------
+    EstimateResult
+        ``state`` (n_m, e_m, psi_rad, u_mps, v_mps, r_radps, ... and their std on a 0.01 s
+        grid), ``forward``, ``innovations``, ``report`` (consistency, ``format()``,
+        ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
+    """
+    from .estimate import EstimateSettings  # heavy: numpy, numba kernels
+    from .estimate import estimate as run_estimate
+    from .io.atomic import check_output
+
+    if out is not None:
+        check_output(out, force, parent=True)
+    settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
+                                smoother=smoother, sway_damping=sway_damping)
+    src = log if _is_path(log) else log.source
+    log = _read(log)
+    ves = _vessel_file(vessel)
+    _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''})")
+    result = run_estimate(log, settings, ves)
+    if out is not None:
+        save(result.to_log(log), out, force=force)
+    return result
+
+
+def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "output-error",
+             validate=None, holdout: float = 0.0, fix: dict[str, float] | None = None, current: bool = True,
+             out_log: PathLike | None = None, force: bool = False, progress: Progress = None) -> Identifier:
+    """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
+
+    Parameters
+    ----------
+    logs : FieldLog, path, or a list of them
+        The runs, fitted jointly.
+    out : str or os.PathLike, optional
+        Write the identified vessel TOML here.
+    vessel : Vessel or path, optional
+        Thruster map and geometry, and start values (default: the vessel stored in the first log).
+    method : str
+        ``"output-error"`` (accurate, default), ``"equation-error"`` (fast, biased) or
+        ``"filter-error"`` (the dynamic EKF's likelihood; slower).
+    validate : FieldLog or path, optional
+        A run not fitted on: the identified model's free run is compared with it (fit %);
+        the result is the Identifier's ``validation_``.
+    holdout : float
+        Hold out this last fraction (0 to 0.9) of each run for validation instead.
+    fix : dict, optional
+        Known parameters by name in SI units, e.g. ``{"m": 33.0}`` (kg).
+    current : bool
+        Fit a constant water current per run (two nuisance parameters, m/s).
+    out_log : str or os.PathLike, optional
+        Write a copy of the first log with the ``/identify/fit`` channel (measured vs model).
+    force : bool
+        Replace existing outputs.
+    progress : callable, optional
+        Receives a line before the fit starts.
+
+    Returns
+    -------
+    Identifier
+        Fitted: ``params_``, ``stderr_``, ``ci95_``, ``corr_``, ``current_``, ``verdict_``,
+        ``validation_``; ``to_vessel()``, ``to_dict()``.
+    """
+    from .identify import Identifier  # heavy: numpy, scipy, numba kernels
+    from .io.atomic import check_output, write_text_atomic
+
+    if out is not None:
+        check_output(out, force, parent=True)
+    if out_log is not None:
+        check_output(out_log, force, parent=True)
+    if validate is not None and holdout:
+        raise ConfigError("validate on a log or hold out a fraction, not both")
+    idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout)
+    ves = _vessel_file(vessel)
+    runs = [_read(x) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
+    val_log = _read(validate) if validate is not None else None
+    _say(progress, f"identifying ({method}) from {len(runs)} log(s)")
+    idf.fit(runs, ves)
+    if val_log is not None:
+        idf.validation_ = idf.validate(val_log)
+    if out is not None:
+        write_text_atomic(out, idf.to_vessel().to_toml(), force=force)
+    if out_log is not None:
+        save(fit_log(idf, runs[0]), out_log, force=force)
+    return idf
+
+
+def fit_log(idf: Identifier, log: FieldLog) -> FieldLog:
+    """A copy of the first fitted log with the ``/identify/fit`` channel (measured vs model states).
+
+    Parameters
+    ----------
+    idf : Identifier
+        A fitted Identifier.
+    log : FieldLog
+        The first log it was fitted on.
+
+    Returns
+    -------
+    FieldLog
+        ``log``'s channels (shared, see :meth:`FieldLog.copy`) plus ``/identify/fit`` and a
+        provenance record of the fit.
+    """
+    import numpy as np  # heavy: only when a fit is written
+
+    from .log.channels import channel_spec, frame_from_columns  # heavy: pandas
+
+    t, cols = idf.fit_frame(0)
+    t_ns = idf.runs_[0].t0_ns + np.round(t * 1e9).astype(np.int64)
+    out = log.copy()
+    out.set(FIT_TOPIC, frame_from_columns(cols, t_ns, channel_spec(FIT_TOPIC)))
+    out.add_provenance(producer="usvlog identify", source=str(log.source or ""),
+                       settings={"method": idf.method, "fix": idf.fix, "current": idf.current,
+                                 "params": idf.params_.to_dict()})
+    return out
+
+
+# -----------------------------------------------------------------------------
+# control: gains, replay
+# -----------------------------------------------------------------------------
+
+def gains_and_vessel(gains="paper-circle", vessel=None) -> tuple[Gains, Vessel]:
+    """The gains and the vessel :func:`gains` checks, resolved as ``usvlog gains`` does.
+
+    Parameters
+    ----------
+    gains : Gains, str or os.PathLike
+        A Gains object, a gains TOML (``[gains]``, ``[guidance]``), a scenario file, or the name
+        of a shipped scenario.
+    vessel : Vessel or path, optional
+        A Vessel, a vessel TOML or a scenario file with ``[vessel]``. Default: the scenario's
+        ``[vessel]`` when ``gains`` is a file that has one, else the paper's Section IV vessel.
+
+    Returns
+    -------
+    (Gains, Vessel)
+    """
+    from .io.config import load_vessel, load_vessel_or_scenario_vessel, read_toml  # heavy: numpy
+    from .sim.scenario import load_gains, scenario_path
+
+    g = gains
+    path = None
+    if _is_path(gains):
+        path = scenario_path(gains)
+        g, _ = load_gains(path)
+    if _is_path(vessel):
+        vessel = load_vessel_or_scenario_vessel(vessel)
+    elif vessel is None:
+        vessel = load_vessel_or_scenario_vessel(path) if path is not None and "vessel" in read_toml(path) \
+            else load_vessel(None)
+    return g, vessel
+
+
+def gains(gains="paper-circle", *, vessel=None, q: Sequence[float] | None = None, delta: float | None = None,
+          theta: float = 0.5) -> GainCheck:
+    """Check controller gains against Theorem 3.1 and compute the bound (18) (``usvlog gains``).
+
+    Parameters
+    ----------
+    gains : Gains, str or os.PathLike
+        The gains: a Gains object, a gains TOML, a scenario file or a shipped scenario's name
+        (default ``"paper-circle"``, the paper's Section IV gains).
+    vessel : Vessel or path, optional
+        See :func:`gains_and_vessel` (default the scenario's, else the paper's vessel).
+    q : sequence of 6 floats or 6x6 array, optional
+        Q of the Lyapunov equation P A_e + A_e^T P = -Q (diagonal or full; default identity).
+    delta : float, optional
+        Bound on the perturbation g(t, x_e) of (13), in the units of the error state.
+    theta : float
+        theta of (18), 0 < theta < 1.
+
+    Returns
+    -------
+    GainCheck
+        ``conditions``, ``eigenvalues`` of A_e, ``hurwitz``, ``P``, c1..c4, ``bound_per_delta``,
+        ``bound``; ``ok`` is True when every condition holds, ``verdict`` says which fails.
+    """
+    from .control.gains import check_gains  # heavy: numpy, scipy
+
+    g, ves = gains_and_vessel(gains, vessel)
+    return check_gains(ves.params, g, Q=q, delta=delta, theta=theta)
+
+
+def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, vessel=None,
+           controller: str | None = None, whatif: bool = True, whatif_controller: str | None = None,
+           force: bool = False, progress: Progress = None) -> ReplayResult:
+    """Replay a recorded run through guidance and controller, plus a what-if run (``usvlog replay``).
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The recorded run (with ``/estimate/state`` or ``/truth/state``), or its MCAP file.
+    scenario : str or os.PathLike
+        Closed-loop scenario: a TOML file (path, gains, guidance, speed) or a shipped name
+        (``"paper-circle"``, ``"paper-sine"``).
+    out : str or os.PathLike, optional
+        Write the log plus the ``/replay/*`` channels to this MCAP file.
+    gains : Gains or path, optional
+        Gains overriding the scenario's ``[gains]``; a gains TOML with a ``[guidance]`` table
+        also overrides the scenario's guidance.
+    vessel : Vessel or path, optional
+        The controller's model and the what-if plant (a vessel TOML or a scenario with
+        ``[vessel]``); default the scenario's ``[vessel]``, else the log's.
+    controller : str, optional
+        ``"full"`` or ``"baseline"``, replayed open loop (default: the scenario's).
+    whatif : bool
+        Also simulate the closed loop from the recorded initial state (the what-if run).
+    whatif_controller : str, optional
+        Controller of the what-if run (default: as ``controller``).
+    force : bool
+        Replace an existing ``out``.
+    progress : callable, optional
+        Receives a line as reading and replaying start.
+
+    Returns
+    -------
+    ReplayResult
+        ``log`` (input plus ``/replay/*``) and ``metrics`` (cross-track error in m, heading
+        error in rad, surge error in m/s, time saturated in s, command differences).
+    """
+    from .io.atomic import check_output  # heavy: numpy, numba kernels
+    from .io.config import load_vessel_or_scenario_vessel, read_toml
+    from .replay import replay_log
+    from .sim.scenario import load_gains, load_scenario
+
+    if out is not None:
+        check_output(out, force, parent=True)
+    scen = load_scenario(scenario)
+    if _is_path(gains):
+        path = gains
+        gains, guidance = load_gains(path)
+        if "guidance" in read_toml(path):  # a [guidance] table there overrides the scenario's
+            scen = replace(scen, guidance=guidance)
+    if _is_path(vessel):
+        vessel = load_vessel_or_scenario_vessel(vessel)
+    if _is_path(log):
+        _say(progress, f"reading {log}")
+    log = _read(log)
+    _say(progress, f"replaying with scenario {scen.name}")
+    res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
+                     whatif_controller=whatif_controller)
+    if out is not None:
+        save(res.log, out, force=force)
+        _say(progress, f"wrote {out}")
+    return res
+
+
+# -----------------------------------------------------------------------------
+# view, report, regress
+# -----------------------------------------------------------------------------
+
+def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = None, force: bool = False,
+           progress: Progress = None) -> Path:
+    """Write logs to a Rerun ``.rrd`` recording with its blueprint inside (``usvlog view``).
+
+    Parameters
+    ----------
+    logs : FieldLog, path, or a list of them
+        The runs; several are overlaid.
+    out : str or os.PathLike, optional
+        Output ``.rrd`` (default: the first log's file with the suffix ``.rrd``).
+    names : sequence of str, optional
+        Name of each log in the viewer (default: the file names).
+    force : bool
+        Replace an existing ``out``.
+    progress : callable, optional
+        Receives a line as each log is read and as writing starts.
+
+    Returns
+    -------
+    pathlib.Path
+        The recording written (open it with ``rerun FILE``).
+    """
+    from .io.atomic import check_output  # heavy: numpy
+    from .view.rrd import to_rrd as write_rrd  # heavy: rerun is imported only when a recording is made
+
+    items = list(logs) if isinstance(logs, (list, tuple)) else [logs]
+    if not items:
+        raise InputError("nothing to view: no logs given")
+    if out is None:
+        first = items[0]
+        src = first if _is_path(first) else first.source
+        if not src:
+            raise ConfigError("out is needed for a log that was not loaded from a file")
+        out = Path(src).with_suffix(".rrd")
+    out = Path(out)
+    check_output(out, force, parent=True)  # fail before the work, not after
+    if names is not None and len(names) != len(items):
+        raise InputError(f"{len(names)} names for {len(items)} logs (one name per log)")
+    read = []
+    for x in items:
+        if _is_path(x):
+            _say(progress, f"reading {x}")
+        read.append(_read(x))
+    _say(progress, f"writing {out}")
+    return write_rrd(read, out, names=None if names is None else list(names), force=force)
+
+
+def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: bool = False,
+           progress: Progress = None) -> Path:
+    """Write an HTML report with PNG figures in the style of the paper (``usvlog report``).
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The run, or its MCAP file.
+    out : str or os.PathLike
+        Output directory (``report.html`` and the figures; created when missing).
+    baseline : FieldLog or path, optional
+        A second run (e.g. the PI/PID baseline) compared in Fig. 2.
+    axes : str
+        ``"paper"`` (X = north to the right, Y = east up, as in the paper) or ``"map"``
+        (north up).
+    force : bool
+        Replace existing files.
+    progress : callable, optional
+        Receives a line as writing starts.
+
+    Returns
+    -------
+    pathlib.Path
+        The page ``out/report.html``.
+    """
+    from .view.report import check_report_outputs, write_report  # heavy: matplotlib, numpy
+
+    check_report_outputs(out, force)  # fail before the work, not after
+    log = _read(log)
+    base = _read(baseline) if baseline is not None else None
+    _say(progress, f"writing report to {out}")
+    return write_report(log, out, baseline=base, force=force, axes=axes)
+
+
+def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, junit: PathLike | None = None,
+            jobs: int = 1, progress: Progress = None, on_start: Callable[[list[Path]], None] | None = None,
+            on_outcome: Callable[[ScenarioOutcome], None] | None = None) -> list[ScenarioOutcome]:
+    """Re-run recorded datasets through estimate/identify/replay and gate on baselines (``usvlog regress``).
+
+    Parameters
+    ----------
+    paths : sequence of str or os.PathLike, optional
+        Regression scenario files (TOML with ``[dataset]``) or directories of them
+        (default: the shipped ``replay/``).
+    update : bool
+        Accept the current metrics as the new baselines (rewrites the baseline files; the
+        differences go to ``progress``).
+    junit : str or os.PathLike, optional
+        Also write JUnit XML for a CI system (its place is checked before any scenario runs).
+    jobs : int
+        Run the scenarios in this many parallel processes.
+    progress : callable, optional
+        Receives the unified diff of each baseline that ``update`` changes.
+    on_start : callable, optional
+        Called with the list of scenario files once they are found and their datasets checked,
+        before the first runs.
+    on_outcome : callable, optional
+        Called with each scenario's outcome as it finishes.
+
+    Returns
+    -------
+    list of ScenarioOutcome
+        One per scenario: metrics, the checks against the baseline, seconds, error; an outcome
+        ``failed`` when a metric regressed or the run failed.
+    """
+    from concurrent.futures import ProcessPoolExecutor  # loads multiprocessing: only regress needs it
+
+    from .io.atomic import check_output, write_text_atomic  # heavy: the regression stages pull the library
+    from .regress.baselines import (
+        find_regress_scenarios,
+        format_baseline,
+        load_regress_scenario,
+        read_baseline,
+        write_baseline,
+    )
+    from .regress.gate import junit_xml
+    from .regress.stages import accept
+    from .resources import replay_dir
+
+    if jobs < 1:
+        raise ConfigError(f"--jobs {jobs} must be >= 1")
+    if junit:  # the report's place is checked before the scenarios run, not after
+        check_output(junit, True, parent=True)
+    found = find_regress_scenarios(list(paths) if paths else [replay_dir()])
+    if not found:
+        raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")
+    _check_datasets(found, shipped=not paths)
+    if on_start:
+        on_start(found)
+    outcomes: list[ScenarioOutcome] = []
+    if jobs == 1 or len(found) == 1:
+        for p in found:
+            outcomes.append(_regress_one(str(p)))
+            if on_outcome:
+                on_outcome(outcomes[-1])
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as ex:
+            for o in ex.map(_regress_one, [str(p) for p in found]):
+                outcomes.append(o)
+                if on_outcome:
+                    on_outcome(o)
+    if update:
+        for p, o in zip(found, outcomes):
+            if o.error:
+                continue
+            scn = load_regress_scenario(p)
+            old = read_baseline(scn.baseline)
+            new = accept(o, old)
+            before = format_baseline(old).splitlines()
+            after = format_baseline(new).splitlines()
+            if before != after:
+                _say(progress, "".join(difflib.unified_diff([x + "\n" for x in before], [x + "\n" for x in after],
+                                                            str(scn.baseline), str(scn.baseline) + " (new)")))
+                scn.baseline.parent.mkdir(parents=True, exist_ok=True)
+                write_baseline(scn.baseline, new, header=f"Accepted metrics of regression scenario {scn.name}.\n"
+                               f"Dataset: {scn.dataset.name}. Rewrite with: usvlog regress {p.name} --update")
+    if junit:
+        checks = [c for o in outcomes for c in o.checks]
+        write_text_atomic(junit, junit_xml(checks, {o.name: o.seconds for o in outcomes},
+                                           {o.name: o.error for o in outcomes if o.error}), force=True)
+    return outcomes
+
+
+def _regress_one(path: str) -> ScenarioOutcome:
+    """Load a scenario and its baseline, run it (top level: runs in worker processes)."""
+    from .regress.baselines import load_regress_scenario, read_baseline  # heavy: the regression stages
+    from .regress.stages import run_scenario
+
+    scn = load_regress_scenario(path)
+    return run_scenario(scn, read_baseline(scn.baseline))
+
+
+def _check_datasets(paths, *, shipped: bool) -> None:
+    """Every scenario's recorded run must exist: a missing one is the user's error, before any work."""
+    from .regress.baselines import load_regress_scenario  # heavy: the regression stages
+
+    scns = [load_regress_scenario(p) for p in paths]
+    missing = [s for s in scns if not s.dataset.exists()]
+    if not missing:
+        return
+    hint = ""
+    if shipped and len(missing) == len(scns):
+        hint = ("; the shipped scenarios' datasets are in tests/data/ of a source checkout, not in the installed "
+                "package: run usvlog regress in a checkout, or give your own scenarios")
+    raise StorageError(f"{missing[0].dataset}: dataset of scenario {missing[0].name} not found "
+                       f"({len(missing)} of {len(scns)} scenarios miss theirs){hint}")
+
+
+__all__ = ["estimate", "export", "fit_log", "gains", "gains_and_vessel", "identify", "import_log", "inspect",
+           "load", "regress", "replay", "report", "save", "simulate", "to_rrd"]
