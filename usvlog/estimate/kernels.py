@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import njit
 from ..model.vessel import nu_dot_jacobian_terms, nu_dot_terms
 
 KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
@@ -37,19 +37,19 @@ GNSS, COMPASS, YAW_RATE = 0, 1, 2
 SENSORS = ("gnss", "compass", "yaw_rate")
 SENSOR_DIM = (2, 1, 1)
 
-_nu_dot = njit(cache=True)(nu_dot_terms)
-_nu_jac = njit(cache=True)(nu_dot_jacobian_terms)
+_nu_dot = njit(nu_dot_terms)
+_nu_jac = njit(nu_dot_jacobian_terms)
 
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True)
+@njit
 def wrap(a):
     """ssa() for one float: [-pi, pi)."""
     return (a + math.pi) % _TWO_PI - math.pi
 
 
-@njit(cache=True)
+@njit
 def process(x, tau_u, tau_r, prm, model, f, F):
     """x_dot = f(x, tau) and F = df/dx into ``f``, ``F`` (eqs. (1)+(3), current in NED)."""
     nx = x.shape[0]
@@ -109,7 +109,7 @@ def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
     return u, v, np.sqrt(np.maximum(su, 0.0)), np.sqrt(np.maximum(sv, 0.0))
 
 
-@njit(cache=True)
+@njit
 def sparse_matmul(A, B, out):
     """out = A B, skipping the zero entries of A (the model Jacobians have a few a row)."""
     n = A.shape[0]
@@ -123,7 +123,7 @@ def sparse_matmul(A, B, out):
                     out[i, j] += a * B[k, j]
 
 
-@njit(cache=True)
+@njit
 def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
     """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P; ``qj`` is a
     variance added to the yaw acceleration of the kinematic model (a step of the yaw moment).
@@ -155,7 +155,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
         Po[8, 8] += qj
 
 
-@njit(cache=True)
+@njit
 def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     """Gated measurement update in place (Joseph form).
 
@@ -243,7 +243,7 @@ class Work:
         self.res = np.zeros(4)
 
 
-@njit(cache=True)
+@njit
 def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
             X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
@@ -309,7 +309,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     return ll
 
 
-@njit(cache=True)
+@njit
 def _chol_solve(L, inv, A, B, X):
     """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
     (reciprocals of the diagonal: no divisions in the loops)."""
@@ -337,7 +337,7 @@ def _chol_solve(L, inv, A, B, X):
             X[i, c] = s * inv[i]
 
 
-@njit(cache=True)
+@njit
 def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,

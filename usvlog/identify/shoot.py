@@ -14,17 +14,17 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from .._jit import njit
 from ..model.vessel import nu_dot_terms
 
 NS = 14
 
-_nd = numba.njit(cache=True)(nu_dot_terms)
+_nd = njit(nu_dot_terms)
 
 
-@numba.njit(cache=True)
+@njit
 def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     psi, u, v, r = x[2], x[3], x[4], x[5]
     c, s = math.cos(psi), math.sin(psi)
@@ -79,7 +79,7 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     Sd[1, 13] += 1.0
 
 
-@numba.njit(cache=True)
+@njit
 def _trial(x, S, h, k, K, sens, xt, St):
     """xt = x + h k (and St = S + h K): the state an RK4 stage is evaluated at."""
     for i in range(6):
@@ -90,7 +90,7 @@ def _trial(x, S, h, k, K, sens, xt, St):
                 St[i, c] = S[i, c] + h * K[i, c]
 
 
-@numba.njit(cache=True)
+@njit
 def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
     """One RK4 step of state and sensitivities; ``w6`` (5, 6) and ``W6`` (5, 6, NS) are scratch."""
     k1, k2, k3, k4, xt = w6[0], w6[1], w6[2], w6[3], w6[4]
@@ -111,7 +111,7 @@ def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
                 S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
 
 
-@numba.njit(cache=True)
+@njit
 def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr, max_dt, sens,
           out_x, out_S):
     """Integrate every segment k from ``x0s[k]`` at ``tg[seg_i0[k]]`` to ``tg[seg_i1[k]]``,

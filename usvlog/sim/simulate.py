@@ -14,8 +14,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
-from numba.extending import register_jitable
 
+from .._jit import jitable
 from ..errors import ConfigError
 from ..log.channels import codec_for_topic, frame_from_columns
 from ..log.fieldlog import FieldLog
@@ -103,18 +103,18 @@ def start_ns(iso: str) -> int:
 # plant integration
 # -----------------------------------------------------------------------------
 
-@register_jitable
+@jitable
 def _plant_rhs(n, e, psi, u, v, r, tau_u, tau_r, prm, cn, ce):
     c, s = math.cos(psi), math.sin(psi)
     ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
     return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
 
 
-@register_jitable
+@jitable
 def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
     """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path).
 
-    Plain Python, and also callable from numba-compiled loops (``register_jitable``).
+    Plain Python, and also callable from numba-compiled loops (:func:`usvlog._jit.jitable`).
     """
     x0, x1, x2, x3, x4, x5 = state
     k1 = _plant_rhs(x0, x1, x2, x3, x4, x5, tau_u, tau_r, prm, cn, ce)

@@ -9,7 +9,8 @@ path next to each fast path, and the tests check one against the other.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..._jit import njit
 
 # value kinds found by ``match_template``
 K_INT, K_FLOAT, K_STR, K_STR_ESC, K_TRUE, K_FALSE, K_NULL, K_INT_BIG = 0, 1, 2, 3, 4, 5, 6, 7
@@ -21,7 +22,7 @@ OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_DATA_END = 0x05, 0x06, 0x02, 0x0F
 # MCAP records
 # -----------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit
 def _u64(buf, p):
     v = np.uint64(0)
     for i in range(7, -1, -1):
@@ -29,13 +30,13 @@ def _u64(buf, p):
     return v
 
 
-@njit(cache=True)
+@njit
 def _u32(buf, p):
     return (np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16)
             | (np.int64(buf[p + 3]) << 24))
 
 
-@njit(cache=True)
+@njit
 def walk_records(buf, start, end, top_level):
     """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
 
@@ -77,7 +78,7 @@ def walk_records(buf, start, end, top_level):
     return ops[:n], offs[:n], lens[:n], off, complete
 
 
-@njit(cache=True)
+@njit
 def message_fields(buf, offs, lens):
     """(channel id, sequence, log time, payload start, payload end) of message records, and
     False if one is malformed (shorter than its header, or a log time past int64)."""
@@ -114,14 +115,14 @@ def message_fields(buf, offs, lens):
 # flat JSON messages
 # -----------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit
 def _digits(buf, q, end):
     while q < end and 48 <= buf[q] <= 57:
         q += 1
     return q
 
 
-@njit(cache=True)
+@njit
 def _scan_number(buf, p, end):
     """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
     q = p
@@ -149,7 +150,7 @@ def _scan_number(buf, p, end):
     return q, is_int
 
 
-@njit(cache=True)
+@njit
 def _lit(buf, p, end, word):
     n = len(word)
     if p + n > end:
@@ -190,7 +191,7 @@ _M32 = np.uint64(0xFFFFFFFF)
 _U = np.uint64
 
 
-@njit(cache=True)
+@njit
 def _mul64(a, b):
     """Full 128-bit product of two uint64: (hi, lo)."""
     a_lo, a_hi = a & _M32, a >> _U(32)
@@ -205,7 +206,7 @@ def _mul64(a, b):
     return hi, lo
 
 
-@njit(cache=True)
+@njit
 def _clz64(x):
     n = 0
     if x <= _U(0x00000000FFFFFFFF):
@@ -228,7 +229,7 @@ def _clz64(x):
     return n
 
 
-@njit(cache=True)
+@njit
 def _eisel_lemire(man, q, neg, pow10):
     """The bits of the double nearest man * 10**q, and whether that was decided."""
     sign = _U(0x8000000000000000) if neg else _U(0)
@@ -265,7 +266,7 @@ def _eisel_lemire(man, q, neg, pow10):
     return sign | (_U(ret_exp2) << _U(52)) | (mant & _U(0x000FFFFFFFFFFFFF)), True
 
 
-@njit(cache=True)
+@njit
 def _decimal_bits(buf, p, q, pow10):
     """A JSON number's text buf[p:q] (already checked) -> (double bits, decided)."""
     neg = buf[p] == 45
@@ -313,7 +314,7 @@ _FALSE = np.frombuffer(b"false", np.uint8).copy()
 _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
-@njit(cache=True)
+@njit
 def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fcol, icol, scol, pow10,
                    want_text):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
@@ -453,7 +454,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
     return kinds, -1, fbits, fund, iv, svs, sve, same, fdata[:fp], foff
 
 
-@njit(cache=True)
+@njit
 def assemble(lits, lit_off, data, vs, ve):
     """Build messages ``lit_0 v_0 lit_1 ... v_{S-1} lit_S`` where value k of row i is
     data[vs[i, k]:ve[i, k]]. Returns (bytes uint8, int64 offsets of the n messages)."""
@@ -483,7 +484,7 @@ def assemble(lits, lit_off, data, vs, ve):
     return out, offs
 
 
-@njit(cache=True)
+@njit
 def message_records(data, ps, pe, cid, seq, t):
     """MCAP Message records (publish time = log time) for payloads data[ps[i]:pe[i]].
 
@@ -518,7 +519,7 @@ def message_records(data, ps, pe, cid, seq, t):
     return out, offs
 
 
-@njit(cache=True)
+@njit
 def chunk_bounds(rec_offs, chunk_size, first_extra):
     """Split records into chunks the way the mcap Writer does: a chunk is closed right
     after the record that takes its size past ``chunk_size``. Returns the index one
