@@ -190,4 +190,4 @@ def jitable(fn):
     return _register_jitable(fn)
 
 
-__all__ = ["njit", "jitable", "source_hash", "cache_parent", "cache_dir"]
+__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "source_hash"]
