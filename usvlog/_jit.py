@@ -129,10 +129,14 @@ def cache_dir() -> str:
             os.makedirs(path, exist_ok=True)
             tempfile.TemporaryFile(dir=path).close()   # writable (numba checks the same)
             os.utime(path)                              # "used now", for pruning
-            if new:
-                _prune(parent, path)
         except OSError:
             path = ""
+            new = False
+        if new:
+            try:
+                _prune(parent, path)
+            except OSError:  # pruning is housekeeping only
+                pass
         _cache_dir = path
     return _cache_dir
 

@@ -92,3 +92,58 @@ def test_edit_in_called_file_is_what_runs(tmp_path):
     np.testing.assert_allclose(new, ref, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(edited["tau"], truth["tau"], rtol=1e-9, atol=1e-9)
     assert np.max(np.abs(new - old)) > 0.1   # the edit matters: the old kernel would be visibly off
+
+
+def test_source_hash_sees_every_file(tmp_path):
+    from usvlog._jit import source_hash
+
+    pkg = tmp_path / "p"
+    (pkg / "sub" / "__pycache__").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    (pkg / "notes.txt").write_text("not source")
+    h0 = source_hash(str(pkg))
+    (pkg / "sub" / "__pycache__" / "b.cpython-311.pyc").write_bytes(b"\0")   # not source
+    (pkg / "notes.txt").write_text("still not source")
+    assert source_hash(str(pkg)) == h0
+    seen = {h0}
+    (pkg / "sub" / "b.py").write_text("y = 3\n")                           # content
+    seen.add(source_hash(str(pkg)))
+    (pkg / "sub" / "b.py").rename(pkg / "sub" / "c.py")                    # name
+    seen.add(source_hash(str(pkg)))
+    (pkg / "d.py").write_text("")                                          # a new (empty) file
+    seen.add(source_hash(str(pkg)))
+    assert len(seen) == 4
+
+
+def _hash_dirs(parent, ages_h):
+    import time
+
+    now = time.time()
+    for i, age in enumerate(ages_h):
+        d = parent / f"h{i:02d}"
+        (d / "sub").mkdir(parents=True)
+        (d / "sub" / "f.nbi").write_bytes(b"x")
+        os.utime(d, (now - age * 3600, now - age * 3600))
+    (parent / "current").mkdir()
+    return str(parent / "current")
+
+
+AGES_H = [0.1, 0.5, 2, 3, 5, 8, 13, 21, 34, 55, 89]   # hours since each directory was last used
+
+
+def test_prune_keeps_the_most_recently_used(tmp_path):
+    from usvlog import _jit
+
+    _jit._prune(str(tmp_path), _hash_dirs(tmp_path, AGES_H))
+    # the current one plus the KEEP_DIRS - 1 most recently used others
+    assert _jit.KEEP_DIRS == 8
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["current"] + [f"h{i:02d}" for i in range(7)]
+
+
+def test_prune_never_deletes_a_directory_used_within_the_hour(tmp_path, monkeypatch):
+    from usvlog import _jit
+
+    monkeypatch.setattr(_jit, "KEEP_DIRS", 1)
+    _jit._prune(str(tmp_path), _hash_dirs(tmp_path, AGES_H))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["current", "h00", "h01"]
