@@ -1,21 +1,197 @@
-"""numba's ``njit`` when available, otherwise a no-op decorator (same results, slower)."""
+"""The one way usvlog compiles: numba's ``njit`` with an on-disk cache that cannot go stale.
+
+numba's own cache (``cache=True``) reloads a compiled function as long as the function's
+*own* source file is unchanged, even when a function it calls from another file has been
+edited (the closed loop calls :func:`usvlog.control.law.control_tick` and
+:func:`usvlog.sim.simulate.plant_step`; the EKF kernels call the vessel model). So every
+kernel of the package is compiled through :func:`njit` here, which keys the cache on the
+whole package: its directory is
+
+    <parent>/<sha256 of every usvlog/**/*.py file, sorted by path, first 16 hex digits>/
+
+with ``<parent>`` = ``$NUMBA_CACHE_DIR/usvlog`` when that is set, else the user cache
+directory (``~/.cache/usvlog/numba`` on Linux, honouring ``XDG_CACHE_HOME``). Any edit
+anywhere in the package gives a fresh directory, so a kernel never runs code compiled from
+an older source. The hash is computed once per process, at the first kernel decorated
+(a few ms: read and hash ~0.6 MB).
+
+Old directories: each process touches the one it uses; when a new directory is made,
+the others beyond the 8 most recently used are deleted, except any used in the last
+hour (a parallel checkout or a running process may still need it). A full set of
+kernels takes ~4 MB.
+
+If the directory cannot be written, kernels compile without a cache (never into numba's
+default ``__pycache__`` location, which is the stale-prone one). ``NUMBA_DISABLE_JIT=1``
+runs everything as plain Python, as numba documents.
+
+Functions meant to be called both from Python and from kernels are marked with
+:func:`jitable` (numba's ``register_jitable``): they are compiled into each calling
+kernel, so their callers' cache entries are covered by the same hash.
+"""
 
 from __future__ import annotations
 
-try:  # pragma: no cover - exercised implicitly
-    from numba import njit as _njit
+import hashlib
+import os
+import shutil
+import tempfile
+import time
 
-    def njit(fn=None, **kw):
-        kw.setdefault("cache", True)
-        if fn is None:
-            return lambda f: _njit(**kw)(f)
-        return _njit(**kw)(fn)
+from numba import njit as _numba_njit
+from numba.core import config as _numba_config
+from numba.extending import register_jitable as _register_jitable
 
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    def njit(fn=None, **kw):
-        if fn is None:
-            return lambda f: f
-        return fn
+_PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
+KEEP_DIRS = 8             # hash directories kept (most recently used first)
+KEEP_RECENT_S = 3600.0    # never delete a directory used this recently (s)
 
-    HAVE_NUMBA = False
+_cache_dir: str | None = None   # resolved on first use; "" when caching is off
+
+
+def source_hash(package_dir: str = _PACKAGE_DIR) -> str:
+    """SHA-256 (hex) of every ``*.py`` file under ``package_dir`` with its relative path.
+
+    Parameters
+    ----------
+    package_dir : str
+        Root of the package (default: the installed ``usvlog`` directory).
+
+    Returns
+    -------
+    str
+        64 hex digits; any change to any source file (content, name, added, removed)
+        changes it.
+    """
+    files = []
+    for root, dirs, names in os.walk(package_dir):
+        dirs[:] = [d for d in dirs if d != "__pycache__"]
+        rel = os.path.relpath(root, package_dir)
+        for n in names:
+            if n.endswith(".py"):
+                files.append((n if rel == "." else f"{rel}/{n}".replace(os.sep, "/"), os.path.join(root, n)))
+    files.sort()
+    h = hashlib.sha256()
+    for rel, full in files:
+        with open(full, "rb") as f:
+            data = f.read()
+        h.update(f"{rel}\0{len(data)}\0".encode())
+        h.update(data)
+    return h.hexdigest()
+
+
+def cache_parent() -> str:
+    """Directory holding the per-source-hash cache directories.
+
+    Returns
+    -------
+    str
+        ``$NUMBA_CACHE_DIR/usvlog`` when ``NUMBA_CACHE_DIR`` is set (as numba read it at
+        import), else ``<user cache dir>/usvlog/numba``.
+    """
+    if _numba_config.CACHE_DIR:
+        return os.path.join(_numba_config.CACHE_DIR, "usvlog")
+    from numba.misc.appdirs import AppDirs
+
+    return os.path.join(AppDirs("usvlog", appauthor=False).user_cache_dir, "numba")
+
+
+def _prune(parent: str, current: str) -> None:
+    """Delete hash directories beyond the KEEP_DIRS most recently used (see module doc)."""
+    now = time.time()
+    entries = []
+    with os.scandir(parent) as it:
+        for e in it:
+            if e.is_dir(follow_symlinks=False) and e.path != current:
+                try:
+                    entries.append((e.stat(follow_symlinks=False).st_mtime, e.path))
+                except OSError:
+                    pass
+    entries.sort(reverse=True)
+    for mtime, path in entries[KEEP_DIRS - 1:]:
+        if now - mtime > KEEP_RECENT_S:
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def cache_dir() -> str:
+    """The cache directory for this source tree ("" if it cannot be written: no cache).
+
+    Returns
+    -------
+    str
+        ``<cache_parent()>/<first 16 hex digits of source_hash()>``, created on first use.
+    """
+    global _cache_dir
+    if _cache_dir is None:
+        parent = cache_parent()
+        path = os.path.join(parent, source_hash()[:16])
+        try:
+            new = not os.path.isdir(path)
+            os.makedirs(path, exist_ok=True)
+            tempfile.TemporaryFile(dir=path).close()   # writable (numba checks the same)
+            os.utime(path)                              # "used now", for pruning
+        except OSError:
+            path = ""
+            new = False
+        if new:
+            try:
+                _prune(parent, path)
+            except OSError:  # pruning is housekeeping only
+                pass
+        _cache_dir = path
+    return _cache_dir
+
+
+def njit(fn=None, **kw):
+    """numba's ``njit`` with the cache keyed on the package source (see the module doc).
+
+    Use as ``@njit``, ``@njit(**options)`` or ``njit(fn)``; the options are numba's.
+    ``cache`` defaults to True.
+
+    Parameters
+    ----------
+    fn : callable, optional
+        The function to compile.
+    **kw
+        numba ``njit`` options.
+
+    Returns
+    -------
+    numba dispatcher (or ``fn`` itself with ``NUMBA_DISABLE_JIT=1``), or a decorator when
+    ``fn`` is None.
+    """
+    if fn is None:
+        return lambda f: njit(f, **kw)
+    kw.setdefault("cache", True)
+    if not kw["cache"] or _numba_config.DISABLE_JIT:
+        return _numba_njit(**kw)(fn)
+    path = cache_dir()
+    if not path:
+        kw["cache"] = False
+        return _numba_njit(**kw)(fn)
+    # numba's user-provided locator reads config.CACHE_DIR when the dispatcher's cache is
+    # made (inside the decorator): point it at our directory for just that moment
+    saved = _numba_config.CACHE_DIR
+    _numba_config.CACHE_DIR = path
+    try:
+        return _numba_njit(**kw)(fn)
+    finally:
+        _numba_config.CACHE_DIR = saved
+
+
+def jitable(fn):
+    """Mark ``fn`` as callable from kernels too (numba's ``register_jitable``).
+
+    Parameters
+    ----------
+    fn : callable
+        Plain-arithmetic Python function.
+
+    Returns
+    -------
+    callable
+        ``fn`` itself (unchanged in Python); kernels that call it compile it in.
+    """
+    return _register_jitable(fn)
+
+
+__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "source_hash"]

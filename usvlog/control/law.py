@@ -31,14 +31,26 @@ import numpy as np
 
 from .._jit import njit
 from ..model.vessel import Vessel
-from .gains import Gains, GuidanceSettings
+from .gains import GAIN_NAMES, Gains, GuidanceSettings
 from .guidance import guidance_step, initial_theta
 from .paths import Path
 from .prefilter import heading_filter_step, surge_filter_output, surge_filter_step, wrap
 
-# controller state vector layout
+# controller state vector ``ctrl_state`` layout (Controller.cs)
 CS_THETA, CS_PSI_D, CS_R_D, CS_A_D, CS_UF, CS_UDF, CS_UEI, CS_PSIEI, CS_INIT = range(9)
 CS_LEN = 9
+
+# gains array (Gains.as_array, GAIN_NAMES order)
+G_KPU, G_KIU, G_KPPSI, G_KIPSI, G_KDPSI = (GAIN_NAMES.index(g) for g in ("KPu", "KIu", "KPpsi", "KIpsi", "KDpsi"))
+
+# guidance/prefilter settings array (Controller.S)
+(S_DELTA_THETA, S_GAMMA, S_ITERATIONS, S_PSI_OMEGA, S_PSI_ZETA, S_SURGE_ORDER, S_U_OMEGA, S_U_ZETA,
+ S_FULL, S_ANTI_WINDUP, S_PREFILTER_INIT) = range(11)
+S_LEN = 11
+
+# thruster array (Controller.T)
+T_ARM, T_FORWARD, T_REVERSE = range(3)
+T_LEN = 3
 
 # one output row per tick
 OUT_COLUMNS = ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m", "psi_ref_rad",
@@ -47,48 +59,102 @@ OUT_COLUMNS = ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m"
                "saturated", "tau_u_demand_n", "tau_r_demand_nm", "u_e_int", "psi_e_int")
 NOUT = len(OUT_COLUMNS)
 COL = {c: i for i, c in enumerate(OUT_COLUMNS)}
+# the same positions as names the kernels can use (in OUT_COLUMNS order)
+(OUT_THETA, OUT_CLOSEST_N, OUT_CLOSEST_E, OUT_CARROT_N, OUT_CARROT_E, OUT_PSI_REF, OUT_PSI_D, OUT_R_D,
+ OUT_R_D_DOT, OUT_U_D, OUT_U_D_DOT, OUT_U_E, OUT_PSI_E, OUT_CROSS_TRACK, OUT_TAU_U, OUT_TAU_R,
+ OUT_THRUST_LEFT, OUT_THRUST_RIGHT, OUT_SATURATED, OUT_TAU_U_DEMAND, OUT_TAU_R_DEMAND, OUT_U_E_INT,
+ OUT_PSI_E_INT) = range(NOUT)
 
 
 @njit
-def control_law(full, G, P, ue, ueI, psie, psieI, re, u_d, u_d_dot, r_d, r_d_dot, v, r):
-    """(tau_u, tau_r) of (9)-(10) (``full``) or of the baseline PI/PID."""
-    tau_u = -G[0] * ue - G[1] * ueI
-    tau_r = -G[2] * psie - G[3] * psieI - G[4] * re
+def control_law(full, gains, params, u_err, u_err_int, psi_err, psi_err_int, r_err, u_d, u_d_dot, r_d,
+                r_d_dot, v_mps, r_radps):
+    """(tau_u, tau_r) of (9)-(10) (``full``) or of the baseline PI/PID.
+
+    Parameters
+    ----------
+    full : bool
+        True: control law (9)-(10) with the model terms; False: the baseline PI/PID.
+    gains : ndarray
+        Gains.as_array() (G_* positions).
+    params : ndarray
+        VesselParams.as_array(): m (kg), Iz (kg m^2), d11 (kg/s), d22 (kg/s), d33 (kg m^2/s), xg (m).
+    u_err, u_err_int : float
+        Surge error u - u_d (m/s) and its integral (m).
+    psi_err, psi_err_int : float
+        Heading error ssa(psi - psi_d) (rad) and its integral (rad s).
+    r_err : float
+        Yaw-rate error r - r_d (rad/s).
+    u_d, u_d_dot : float
+        Desired surge speed (m/s) and its derivative (m/s^2).
+    r_d, r_d_dot : float
+        Desired yaw rate (rad/s) and its derivative (rad/s^2).
+    v_mps, r_radps : float
+        Sway velocity v (m/s) and yaw rate r (rad/s).
+
+    Returns
+    -------
+    tau_u : float
+        Surge force demand, N.
+    tau_r : float
+        Yaw moment demand, N m.
+    """
+    tau_u = -gains[G_KPU] * u_err - gains[G_KIU] * u_err_int
+    tau_r = -gains[G_KPPSI] * psi_err - gains[G_KIPSI] * psi_err_int - gains[G_KDPSI] * r_err
     if full:
-        m, Iz, d11, d22, d33, xg = P[0], P[1], P[2], P[3], P[4], P[5]
-        tau_u += m * u_d_dot + d11 * u_d - m * r * (v + r * xg)
-        tau_r += (Iz - m * xg * xg) * r_d_dot + d33 * r_d - d22 * v * xg
+        m, Iz, d11, d22, d33, xg = params  # PARAM_NAMES order
+        tau_u += m * u_d_dot + d11 * u_d - m * r_radps * (v_mps + r_radps * xg)
+        tau_r += (Iz - m * xg * xg) * r_d_dot + d33 * r_d - d22 * v_mps * xg
     return tau_u, tau_r
 
 
 @njit
-def control_tick(x, u_ref, dtheta, dt, cs, kind, prm, G, P, S, T, out):
-    """One controller tick; updates ``cs`` in place and writes the decisions into ``out``.
+def control_tick(state, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gains, params, settings, thrusters,
+                 row):
+    """One controller tick; updates ``ctrl_state`` in place and writes the decisions into ``row``.
 
-    ``dtheta`` is the carrot distance delta_theta at this tick.
-    S = [delta_theta (default), gamma, iterations, psi_omega, psi_zeta, surge_order, u_omega, u_zeta,
-         full (1) / baseline (0), anti_windup, prefilter_init (0 reference, 1 state)]
-    T = [arm_m, forward_n, reverse_n]
+    Parameters
+    ----------
+    state : ndarray
+        Vessel state [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)] the controller sees.
+    u_ref : float
+        Speed reference, m/s.
+    dtheta : float
+        Carrot distance delta_theta at this tick, m.
+    dt : float
+        Controller step, s.
+    ctrl_state : ndarray
+        Controller state (CS_* positions), advanced to the next tick in place.
+    path_kind, path_prm :
+        The path (``Path.kind``, ``Path.prm``).
+    gains, params, settings, thrusters : ndarray
+        ``Controller.G`` (G_*), ``.P`` (PARAM_NAMES), ``.S`` (S_*), ``.T`` (T_*).
+    row : ndarray
+        Output row (NOUT, OUT_* positions), written in place.
     """
-    pn, pe, psi, u, v, r = x[0], x[1], x[2], x[3], x[4], x[5]
-    th, cpn, cpe, can, cae, psi_ref, xt = guidance_step(kind, prm, pn, pe, cs[0], S[1], int(S[2]), dtheta)
-    cs[0] = th
-    order = int(S[5])
-    if cs[8] == 0.0:
-        if S[10] == 0.0:
-            cs[1], cs[2], cs[3], cs[4], cs[5] = psi_ref, 0.0, 0.0, u_ref, 0.0
-        else:
-            cs[1], cs[2], cs[3], cs[4], cs[5] = psi, r, 0.0, u, 0.0
-        cs[8] = 1.0
-    u_d, u_d_dot = surge_filter_output(cs[4], cs[5], u_ref, order, S[6])
-    psi_d, r_d, r_d_dot = cs[1], cs[2], cs[3]
+    cs = ctrl_state
+    pn, pe, psi, u, v, r = state
+    th, cpn, cpe, can, cae, psi_ref, xt = guidance_step(path_kind, path_prm, pn, pe, cs[CS_THETA],
+                                                        settings[S_GAMMA], int(settings[S_ITERATIONS]), dtheta)
+    cs[CS_THETA] = th
+    order = int(settings[S_SURGE_ORDER])
+    u_omega = settings[S_U_OMEGA]
+    if cs[CS_INIT] == 0.0:
+        if settings[S_PREFILTER_INIT] == 0.0:  # start the prefilters at the reference
+            cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D], cs[CS_UF], cs[CS_UDF] = psi_ref, 0.0, 0.0, u_ref, 0.0
+        else:                                  # at the vessel's heading and speed
+            cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D], cs[CS_UF], cs[CS_UDF] = psi, r, 0.0, u, 0.0
+        cs[CS_INIT] = 1.0
+    u_d, u_d_dot = surge_filter_output(cs[CS_UF], cs[CS_UDF], u_ref, order, u_omega)
+    psi_d, r_d, r_d_dot = cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D]
     ue = u - u_d
     psie = wrap(psi - psi_d)
     re = r - r_d
-    full = S[8] != 0.0
-    tau_u, tau_r = control_law(full, G, P, ue, cs[6], psie, cs[7], re, u_d, u_d_dot, r_d, r_d_dot, v, r)
+    full = settings[S_FULL] != 0.0
+    tau_u, tau_r = control_law(full, gains, params, ue, cs[CS_UEI], psie, cs[CS_PSIEI], re, u_d, u_d_dot, r_d,
+                               r_d_dot, v, r)
     # allocation + saturation
-    arm, fwd, rev = T[0], T[1], T[2]
+    arm, fwd, rev = thrusters[T_ARM], thrusters[T_FORWARD], thrusters[T_REVERSE]
     d = tau_r / arm
     fl = 0.5 * (tau_u + d)
     fr = 0.5 * (tau_u - d)
@@ -100,47 +166,54 @@ def control_tick(x, u_ref, dtheta, dt, cs, kind, prm, G, P, S, T, out):
     # integrators (conditional integration while saturated)
     inc_u = dt * ue
     inc_p = dt * psie
-    if sat and S[9] != 0.0:
-        if (-G[1] * inc_u) * (tau_u - tua) > 0.0:
+    if sat and settings[S_ANTI_WINDUP] != 0.0:
+        if (-gains[G_KIU] * inc_u) * (tau_u - tua) > 0.0:
             inc_u = 0.0
-        if (-G[3] * inc_p) * (tau_r - tra) > 0.0:
+        if (-gains[G_KIPSI] * inc_p) * (tau_r - tra) > 0.0:
             inc_p = 0.0
-    out[0] = th
-    out[1] = cpn
-    out[2] = cpe
-    out[3] = can
-    out[4] = cae
-    out[5] = psi_ref
-    out[6] = wrap(psi_d)
-    out[7] = r_d
-    out[8] = r_d_dot
-    out[9] = u_d
-    out[10] = u_d_dot
-    out[11] = ue
-    out[12] = psie
-    out[13] = xt
-    out[14] = tua
-    out[15] = tra
-    out[16] = fls
-    out[17] = frs
-    out[18] = 1.0 if sat else 0.0
-    out[19] = tau_u
-    out[20] = tau_r
-    out[21] = cs[6]
-    out[22] = cs[7]
-    cs[6] += inc_u
-    cs[7] += inc_p
-    cs[1], cs[2], cs[3] = heading_filter_step(cs[1], cs[2], cs[3], psi_ref, dt, S[3], S[4])
-    cs[4], cs[5] = surge_filter_step(cs[4], cs[5], u_ref, dt, order, S[6], S[7])
+    row[OUT_THETA] = th
+    row[OUT_CLOSEST_N] = cpn
+    row[OUT_CLOSEST_E] = cpe
+    row[OUT_CARROT_N] = can
+    row[OUT_CARROT_E] = cae
+    row[OUT_PSI_REF] = psi_ref
+    row[OUT_PSI_D] = wrap(psi_d)
+    row[OUT_R_D] = r_d
+    row[OUT_R_D_DOT] = r_d_dot
+    row[OUT_U_D] = u_d
+    row[OUT_U_D_DOT] = u_d_dot
+    row[OUT_U_E] = ue
+    row[OUT_PSI_E] = psie
+    row[OUT_CROSS_TRACK] = xt
+    row[OUT_TAU_U] = tua
+    row[OUT_TAU_R] = tra
+    row[OUT_THRUST_LEFT] = fls
+    row[OUT_THRUST_RIGHT] = frs
+    row[OUT_SATURATED] = 1.0 if sat else 0.0
+    row[OUT_TAU_U_DEMAND] = tau_u
+    row[OUT_TAU_R_DEMAND] = tau_r
+    row[OUT_U_E_INT] = cs[CS_UEI]
+    row[OUT_PSI_E_INT] = cs[CS_PSIEI]
+    cs[CS_UEI] += inc_u
+    cs[CS_PSIEI] += inc_p
+    cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D] = heading_filter_step(cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D], psi_ref, dt,
+                                                               settings[S_PSI_OMEGA], settings[S_PSI_ZETA])
+    cs[CS_UF], cs[CS_UDF] = surge_filter_step(cs[CS_UF], cs[CS_UDF], u_ref, dt, order, u_omega,
+                                              settings[S_U_ZETA])
 
 
 @njit
-def run_open_loop(X, u_ref, dtheta, dt, cs, kind, prm, G, P, S, T):
-    """Controller decisions for a sequence of states X (N x 6) at ticks with steps dt (N)."""
-    n = X.shape[0]
-    out = np.empty((n, 23))
+def run_open_loop(states, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gains, params, settings, thrusters):
+    """Controller decisions for a sequence of states (N x 6) at ticks with steps ``dt`` (N, s).
+
+    Arguments as :func:`control_tick`, with ``u_ref``, ``dtheta`` and ``dt`` per tick
+    (arrays of N); returns the (N, NOUT) output rows.
+    """
+    n = states.shape[0]
+    out = np.empty((n, NOUT))
     for k in range(n):
-        control_tick(X[k], u_ref[k], dtheta[k], dt[k], cs, kind, prm, G, P, S, T, out[k])
+        control_tick(states[k], u_ref[k], dtheta[k], dt[k], ctrl_state, path_kind, path_prm, gains, params,
+                     settings, thrusters, out[k])
     return out
 
 
@@ -153,7 +226,13 @@ def speed_at(schedule: np.ndarray, t_rel, column: int = 1) -> np.ndarray:
 
 
 class Controller:
-    """The paper's controller (or the baseline) bound to a path, a vessel model and settings."""
+    """The paper's controller (or the baseline) bound to a path, a vessel model and settings.
+
+    The kernels take the settings as flat arrays: ``G`` gains (G_* positions), ``P`` vessel
+    parameters (PARAM_NAMES order, SI units), ``S`` guidance and prefilter settings (S_*),
+    ``T`` thrusters (T_*: arm m, forward and reverse force limits N); ``cs`` is the
+    controller state (CS_*).
+    """
 
     def __init__(self, path: Path, vessel: Vessel, gains: Gains, guidance: GuidanceSettings, *,
                  full: bool = True):
@@ -161,11 +240,16 @@ class Controller:
         g = guidance
         self.G = gains.as_array()
         self.P = vessel.params.as_array()
-        self.S = np.array([g.delta_theta, g.gamma, g.iterations, g.psi_omega, g.psi_zeta, g.surge_order,
-                           g.u_omega, g.u_zeta, 1.0 if full else 0.0, 1.0 if g.anti_windup else 0.0,
-                           0.0 if g.prefilter_init == "reference" else 1.0])
+        self.S = np.zeros(S_LEN)
+        self.S[S_DELTA_THETA], self.S[S_GAMMA], self.S[S_ITERATIONS] = g.delta_theta, g.gamma, g.iterations
+        self.S[S_PSI_OMEGA], self.S[S_PSI_ZETA] = g.psi_omega, g.psi_zeta
+        self.S[S_SURGE_ORDER], self.S[S_U_OMEGA], self.S[S_U_ZETA] = g.surge_order, g.u_omega, g.u_zeta
+        self.S[S_FULL] = 1.0 if full else 0.0
+        self.S[S_ANTI_WINDUP] = 1.0 if g.anti_windup else 0.0
+        self.S[S_PREFILTER_INIT] = 0.0 if g.prefilter_init == "reference" else 1.0
         t = vessel.thrusters
-        self.T = np.array([t.arm_m, t.forward_n, t.reverse_n])
+        self.T = np.zeros(T_LEN)
+        self.T[T_ARM], self.T[T_FORWARD], self.T[T_REVERSE] = t.arm_m, t.forward_n, t.reverse_n
         self.cs = np.zeros(CS_LEN)
 
     def reset(self, x0) -> None:

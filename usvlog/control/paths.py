@@ -37,36 +37,58 @@ CIRCLE, SINUSOID, LINE, SPLINE = 0, 1, 2, 3
 KINDS = {"circle": CIRCLE, "sinusoid": SINUSOID, "line": LINE, "waypoints": SPLINE}
 
 
+# spline prm layout: [nseg, knots (nseg + 1), coefficients nseg x SPLINE_NCOEF]; per segment the
+# cubic in s = theta - knot: n = an0 + an1 s + an2 s^2 + an3 s^3 (SPLINE_N + 0..3), e likewise (SPLINE_E)
+SPLINE_KNOTS = 1
+SPLINE_N, SPLINE_E, SPLINE_NCOEF = 0, 4, 8
+
+
 @njit
 def path_eval(kind, prm, theta):
-    """(n_d, e_d, dn_d/dtheta, de_d/dtheta) at ``theta``."""
-    if kind == 0:  # circle: [cn, ce, R, s, phi0]
-        R = prm[2]
-        s = prm[3]
-        a = prm[4] + s * theta / R
+    """(n_d, e_d, dn_d/dtheta, de_d/dtheta) at ``theta`` (m) of the path ``(kind, prm)``.
+
+    Parameters
+    ----------
+    kind : int
+        CIRCLE, SINUSOID, LINE or SPLINE.
+    prm : ndarray
+        The kind's parameters (see :func:`path_from_spec`), metres and radians.
+    theta : float
+        Path parameter, m.
+
+    Returns
+    -------
+    tuple of 4 floats
+        North and east of p_d(theta) (m) and their derivatives with respect to theta.
+    """
+    if kind == CIRCLE:
+        cn, ce, R, s, phi0 = prm  # centre (m), radius (m), +1 cw / -1 ccw, bearing of theta = 0 (rad)
+        a = phi0 + s * theta / R
         c = math.cos(a)
         sn = math.sin(a)
-        return prm[0] + R * c, prm[1] + R * sn, -s * sn, s * c
-    if kind == 1:  # sinusoid: [n0, e0, an, ae, A, period]
-        an = prm[2]
-        ae = prm[3]
-        k = 2.0 * math.pi / prm[5]
-        w = prm[4] * math.sin(k * theta)
-        dw = prm[4] * k * math.cos(k * theta)
+        return cn + R * c, ce + R * sn, -s * sn, s * c
+    if kind == SINUSOID:
+        n0, e0, an, ae, amp, period = prm  # start (m), unit axis, amplitude (m), period (m)
+        k = 2.0 * math.pi / period
+        w = amp * math.sin(k * theta)
+        dw = amp * k * math.cos(k * theta)
         # starboard normal of the axis (an, ae) is (-ae, an)
-        return (prm[0] + theta * an - w * ae, prm[1] + theta * ae + w * an,
+        return (n0 + theta * an - w * ae, e0 + theta * ae + w * an,
                 an - dw * ae, ae + dw * an)
-    if kind == 2:  # line: [n0, e0, an, ae]
-        return prm[0] + theta * prm[2], prm[1] + theta * prm[3], prm[2], prm[3]
-    # spline: [nseg, knots (nseg+1), coefficients nseg x 8 (an0..an3, ae0..ae3)]
+    if kind == LINE:
+        n0, e0, an, ae = prm  # start (m), unit axis
+        return n0 + theta * an, e0 + theta * ae, an, ae
+    # SPLINE
     nseg = int(prm[0])
-    k0 = 1
+    k0 = SPLINE_KNOTS
     c0 = k0 + nseg + 1
     t0 = prm[k0]
     tN = prm[k0 + nseg]
+    cn0 = c0 + SPLINE_N
+    ce0 = c0 + SPLINE_E
     if theta <= t0:  # straight on before the first waypoint
         g = theta - t0
-        return prm[c0] + g * prm[c0 + 1], prm[c0 + 4] + g * prm[c0 + 5], prm[c0 + 1], prm[c0 + 5]
+        return prm[cn0] + g * prm[cn0 + 1], prm[ce0] + g * prm[ce0 + 1], prm[cn0 + 1], prm[ce0 + 1]
     h = 0.0
     if theta >= tN:  # straight on beyond the last waypoint
         j = nseg - 1
@@ -83,11 +105,12 @@ def path_eval(kind, prm, theta):
                 hi = mid
         j = lo
         s = theta - prm[k0 + j]
-    b = c0 + 8 * j
-    n = prm[b] + s * (prm[b + 1] + s * (prm[b + 2] + s * prm[b + 3]))
-    e = prm[b + 4] + s * (prm[b + 5] + s * (prm[b + 6] + s * prm[b + 7]))
-    dn = prm[b + 1] + s * (2.0 * prm[b + 2] + 3.0 * s * prm[b + 3])
-    de = prm[b + 5] + s * (2.0 * prm[b + 6] + 3.0 * s * prm[b + 7])
+    bn = c0 + SPLINE_NCOEF * j + SPLINE_N
+    be = c0 + SPLINE_NCOEF * j + SPLINE_E
+    n = prm[bn] + s * (prm[bn + 1] + s * (prm[bn + 2] + s * prm[bn + 3]))
+    e = prm[be] + s * (prm[be + 1] + s * (prm[be + 2] + s * prm[be + 3]))
+    dn = prm[bn + 1] + s * (2.0 * prm[bn + 2] + 3.0 * s * prm[bn + 3])
+    de = prm[be + 1] + s * (2.0 * prm[be + 2] + 3.0 * s * prm[be + 3])
     return n + h * dn, e + h * de, dn, de
 
 

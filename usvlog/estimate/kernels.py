@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
+from .._jit import njit
 from ..model.vessel import nu_dot_jacobian_terms, nu_dot_terms
 
 KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
@@ -37,19 +37,40 @@ GNSS, COMPASS, YAW_RATE = 0, 1, 2
 SENSORS = ("gnss", "compass", "yaw_rate")
 SENSOR_DIM = (2, 1, 1)
 
-_nu_dot = njit(cache=True)(nu_dot_terms)
-_nu_jac = njit(cache=True)(nu_dot_jacobian_terms)
+# State positions. Every model starts with position and heading, and has the yaw rate at X_R.
+X_N, X_E, X_PSI = 0, 1, 2
+X_U, X_V, X_R = 3, 4, 5          # dynamic (water-relative) and kinematic-sway (over ground) body velocities
+X_CUR_N, X_CUR_E = 6, 7          # dynamic model with current: water current, NED (m/s)
+X_VN, X_VE = 3, 4                # kinematic: over-ground velocity, NED (m/s)
+X_AN, X_AE = 6, 7                # kinematic: its random-walk acceleration, NED (m/s^2)
+X_AX, X_AY = 6, 7                # kinematic-sway: over-ground acceleration, body frame (m/s^2)
+X_RDOT = 8                       # both kinematic models: yaw acceleration (rad/s^2)
+X_K = 9                          # kinematic-sway: sway damping constant k (1/s)
+NX_DYNAMIC_CURRENT = 8
+# covariance block stored per step (PB): psi and the two velocity states after it
+PB_FIRST, PB_SIZE = X_PSI, 3
+
+# columns of the per-step and per-measurement inputs
+TAU_U, TAU_R = 0, 1              # taus (N, 2): N, N m
+Z_0, Z_1 = 0, 1                  # mz (M, 2): measured value(s)
+R_00, R_01, R_11 = 0, 1, 2       # mR (M, 3): measurement covariance entries
+# measurement result (res, innov rows)
+RES_Y0, RES_Y1, RES_NIS, RES_LOGLIK = range(4)
+NRES = 4
+
+_nu_dot = njit(nu_dot_terms)
+_nu_jac = njit(nu_dot_jacobian_terms)
 
 _TWO_PI = 2.0 * math.pi
 
 
-@njit(cache=True)
+@njit
 def wrap(a):
     """ssa() for one float: [-pi, pi)."""
     return (a + math.pi) % _TWO_PI - math.pi
 
 
-@njit(cache=True)
+@njit
 def process(x, tau_u, tau_r, prm, model, f, F):
     """x_dot = f(x, tau) and F = df/dx into ``f``, ``F`` (eqs. (1)+(3), current in NED)."""
     nx = x.shape[0]
@@ -58,41 +79,44 @@ def process(x, tau_u, tau_r, prm, model, f, F):
         for j in range(nx):
             F[i, j] = 0.0
     if model == KINEMATIC:
-        # [n, e, psi, v_n, v_e, r] driven by random-walk accelerations [a_n, a_e, r_dot]
-        for i in range(6):
-            f[i] = x[3 + i]
-            F[i, 3 + i] = 1.0
+        # [n, e, psi, v_n, v_e, r] driven by random-walk accelerations [a_n, a_e, r_dot]:
+        # each of the first six states integrates the one three places later
+        for i in (X_N, X_E, X_PSI, X_VN, X_VE, X_R):
+            f[i] = x[i + 3]
+            F[i, i + 3] = 1.0
         return
-    psi, u, v, r = x[2], x[3], x[4], x[5]
+    psi, u, v, r = x[X_PSI], x[X_U], x[X_V], x[X_R]
     c, s = math.cos(psi), math.sin(psi)
-    f[0] = c * u - s * v
-    f[1] = s * u + c * v
-    f[2] = r
-    F[0, 2] = -s * u - c * v
-    F[1, 2] = c * u - s * v
-    F[0, 3], F[0, 4] = c, -s
-    F[1, 3], F[1, 4] = s, c
-    F[2, 5] = 1.0
+    f[X_N] = c * u - s * v
+    f[X_E] = s * u + c * v
+    f[X_PSI] = r
+    F[X_N, X_PSI] = -s * u - c * v
+    F[X_E, X_PSI] = c * u - s * v
+    F[X_N, X_U], F[X_N, X_V] = c, -s
+    F[X_E, X_U], F[X_E, X_V] = s, c
+    F[X_PSI, X_R] = 1.0
     if model == KINEMATIC_SWAY:  # body frame, over ground (see the module docstring)
-        f[3] = x[6] + r * v
-        f[4] = x[7] - x[9] * v - r * u
-        f[5] = x[8]
-        F[3, 4], F[3, 5], F[3, 6] = r, v, 1.0
-        F[4, 3], F[4, 4], F[4, 5], F[4, 7], F[4, 9] = -r, -x[9], -u, 1.0, -v
-        F[5, 8] = 1.0
+        k = x[X_K]
+        f[X_U] = x[X_AX] + r * v
+        f[X_V] = x[X_AY] - k * v - r * u
+        f[X_R] = x[X_RDOT]
+        F[X_U, X_V], F[X_U, X_R], F[X_U, X_AX] = r, v, 1.0
+        F[X_V, X_U], F[X_V, X_V], F[X_V, X_R], F[X_V, X_AY], F[X_V, X_K] = -r, -k, -u, 1.0, -v
+        F[X_R, X_RDOT] = 1.0
         return
-    if nx == 8:  # water current, NED
-        f[0] += x[6]
-        f[1] += x[7]
-        F[0, 6] = 1.0
-        F[1, 7] = 1.0
+    if nx == NX_DYNAMIC_CURRENT:  # water current, NED
+        f[X_N] += x[X_CUR_N]
+        f[X_E] += x[X_CUR_E]
+        F[X_N, X_CUR_N] = 1.0
+        F[X_E, X_CUR_E] = 1.0
     if model == DYNAMIC:
-        ud, vd, rd = _nu_dot(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
-        f[3], f[4], f[5] = ud, vd, rd
-        J = _nu_jac(u, v, r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+        m, Iz, d11, d22, d33, xg = prm  # PARAM_NAMES order
+        ud, vd, rd = _nu_dot(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg)
+        f[X_U], f[X_V], f[X_R] = ud, vd, rd
+        J = _nu_jac(u, v, r, m, Iz, d11, d22, d33, xg)  # d(u, v, r)_dot / d(u, v, r), row-major
         for i in range(3):
             for j in range(3):
-                F[3 + i, 3 + j] = J[3 * i + j]
+                F[X_U + i, X_U + j] = J[3 * i + j]
 
 
 def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
@@ -109,7 +133,7 @@ def body_velocity(psi, vn, ve, P_psi_vn_ve=None):
     return u, v, np.sqrt(np.maximum(su, 0.0)), np.sqrt(np.maximum(sv, 0.0))
 
 
-@njit(cache=True)
+@njit
 def sparse_matmul(A, B, out):
     """out = A B, skipping the zero entries of A (the model Jacobians have a few a row)."""
     n = A.shape[0]
@@ -123,7 +147,7 @@ def sparse_matmul(A, B, out):
                     out[i, j] += a * B[k, j]
 
 
-@njit(cache=True)
+@njit
 def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
     """One prediction over ``dt``: xo, Po (and Phi = I + dt F) from x, P; ``qj`` is a
     variance added to the yaw acceleration of the kinematic model (a step of the yaw moment).
@@ -137,7 +161,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
         for j in range(nx):
             Phi[i, j] = dt * F[i, j]
         Phi[i, i] += 1.0
-    xo[2] = wrap(xo[2])
+    xo[X_PSI] = wrap(xo[X_PSI])
     sparse_matmul(F, P, tmp)
     dt2 = dt * dt
     for i in range(nx):
@@ -151,25 +175,25 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
-    if qj != 0.0:  # r_dot is state 8 in both kinematic models
-        Po[8, 8] += qj
+    if qj != 0.0:  # r_dot, in both kinematic models
+        Po[X_RDOT, X_RDOT] += qj
 
 
-@njit(cache=True)
+@njit
 def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     """Gated measurement update in place (Joseph form).
 
-    Writes [res_0, res_1, nis, log-likelihood term] into ``res``; returns True when the
-    measurement was applied (NIS within ``gate`` or ``force``).
+    Writes [res_0, res_1, nis, log-likelihood term] into ``res`` (RES_* positions); returns
+    True when the measurement was applied (NIS within ``gate`` or ``force``).
     """
     nx = x.shape[0]
     m = 2 if kind == GNSS else 1
     if kind == GNSS:
-        i0, i1 = 0, 1
+        i0, i1 = X_N, X_E
     elif kind == COMPASS:
-        i0, i1 = 2, 2
+        i0, i1 = X_PSI, X_PSI
     else:
-        i0, i1 = 5, 5
+        i0, i1 = X_R, X_R
     S01 = S10 = S11 = 0.0
     I01 = I10 = I11 = 0.0
     y0 = z0 - x[i0]
@@ -191,8 +215,8 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
         I00 = 1.0 / S00
         nis = y0 * y0 * I00
         logdet = math.log(S00)
-    res[0], res[1], res[2] = y0, y1, nis
-    res[3] = -0.5 * (min(nis, gate) + logdet + m * math.log(_TWO_PI))
+    res[RES_Y0], res[RES_Y1], res[RES_NIS] = y0, y1, nis
+    res[RES_LOGLIK] = -0.5 * (min(nis, gate) + logdet + m * math.log(_TWO_PI))
     if nis > gate and not force:
         return False
     # K = P H^T S^-1
@@ -208,7 +232,7 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
             x[i] += K[i, 0] * y0 + K[i, 1] * y1
         else:
             x[i] += K[i, 0] * y0
-    x[2] = wrap(x[2])
+    x[X_PSI] = wrap(x[X_PSI])
     # Joseph form (I - K H) P (I - K H)^T + K R K^T, expanded for a selector H:
     # P - K (H P) - (H P)^T K^T + K (H P H^T + R) K^T, upper triangle mirrored
     for i in range(nx):
@@ -240,17 +264,17 @@ class Work:
         self.K = np.zeros((nx, 2))
         self.xo = np.zeros(nx)
         self.Po = np.zeros((nx, nx))
-        self.res = np.zeros(4)
+        self.res = np.zeros(NRES)
 
 
-@njit(cache=True)
+@njit
 def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
             X, PP, SD, PB, innov, accepted):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
     Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
-    covariance block of states 2..4 in PB[k] (PP, SD, PB may have length 1: not stored),
-    per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
+    covariance block of states PB_FIRST.. (PB_SIZE) in PB[k] (PP, SD, PB may have length 1:
+    not stored), per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
     the log-likelihood terms.
     """
@@ -267,14 +291,14 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     tmp = np.zeros((nx, nx))
     P2 = np.zeros((nx, nx))
     K = np.zeros((nx, 2))
-    res = np.zeros(4)
+    res = np.zeros(NRES)
     store = PP.shape[0] == N
     rej = np.zeros(3, np.int64)
     ll = 0.0
     j = 0
     for k in range(N):
         if k > 0 and dts[k] > 0.0:
-            predict(x, P, taus[k, 0], taus[k, 1], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
+            predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
@@ -282,11 +306,11 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
         while j < M and mstep[j] == k:
             kind = mkind[j]
             force = rej[kind] >= max_rej
-            ok = update(x, P, kind, mz[j, 0], mz[j, 1], mR[j, 0], mR[j, 1], mR[j, 2],
+            ok = update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
                         gates[kind], force, res, K, P2)
-            for a in range(4):
+            for a in range(NRES):
                 innov[j, a] = res[a]
-            ll += res[3]
+            ll += res[RES_LOGLIK]
             if ok:
                 accepted[j] = 2 if force else 1
                 rej[kind] = 0
@@ -303,13 +327,13 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
         if SD.shape[0] == N:
             for a in range(nx):
                 SD[k, a] = math.sqrt(max(P[a, a], 0.0))
-            for a in range(3):
-                for b in range(3):
-                    PB[k, a, b] = P[2 + a, 2 + b]
+            for a in range(PB_SIZE):
+                for b in range(PB_SIZE):
+                    PB[k, a, b] = P[PB_FIRST + a, PB_FIRST + b]
     return ll
 
 
-@njit(cache=True)
+@njit
 def _chol_solve(L, inv, A, B, X):
     """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
     (reciprocals of the diagonal: no divisions in the loops)."""
@@ -337,11 +361,11 @@ def _chol_solve(L, inv, A, B, X):
             X[i, c] = s * inv[i]
 
 
-@njit(cache=True)
+@njit
 def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,
-    their one-sigma in SD and the covariance block of states 2..4 in PB."""
+    their one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB."""
     N, nx = X.shape
     xp = np.zeros(nx)
     Pp = np.zeros((nx, nx))
@@ -359,14 +383,14 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     for a in range(nx):
         XS[N - 1, a] = X[N - 1, a]
         SD[N - 1, a] = math.sqrt(max(Ps[a, a], 0.0))
-    for a in range(3):
-        for b in range(3):
-            PB[N - 1, a, b] = Ps[2 + a, 2 + b]
+    for a in range(PB_SIZE):
+        for b in range(PB_SIZE):
+            PB[N - 1, a, b] = Ps[PB_FIRST + a, PB_FIRST + b]
     for k in range(N - 2, -1, -1):
         Pk = PP[k]
         xk = X[k]
         if dts[k + 1] > 0.0:
-            predict(xk, Pk, taus[k + 1, 0], taus[k + 1, 1], dts[k + 1], prm, model, q, qjump[k + 1],
+            predict(xk, Pk, taus[k + 1, TAU_U], taus[k + 1, TAU_R], dts[k + 1], prm, model, q, qjump[k + 1],
                     xp, Pp, Phi, f, F, tmp)
         else:
             for a in range(nx):
@@ -379,13 +403,13 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
         _chol_solve(L, inv, Pp, B, Ct)
         for a in range(nx):
             d[a] = XS[k + 1, a] - xp[a]
-        d[2] = wrap(d[2])
+        d[X_PSI] = wrap(d[X_PSI])
         for a in range(nx):
             acc = 0.0
             for c in range(nx):
                 acc += Ct[c, a] * d[c]
             XS[k, a] = xk[a] + acc
-        XS[k, 2] = wrap(XS[k, 2])
+        XS[k, X_PSI] = wrap(XS[k, X_PSI])
         # Ps_k = Pk + C (Ps - Pp) C^T
         for a in range(nx):
             for b in range(nx):
@@ -405,6 +429,6 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
                 Ps[b, a] = Ps[a, b]
         for a in range(nx):
             SD[k, a] = math.sqrt(max(Ps[a, a], 0.0))
-        for a in range(3):
-            for b in range(3):
-                PB[k, a, b] = Ps[2 + a, 2 + b]
+        for a in range(PB_SIZE):
+            for b in range(PB_SIZE):
+                PB[k, a, b] = Ps[PB_FIRST + a, PB_FIRST + b]

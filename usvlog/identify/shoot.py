@@ -14,28 +14,39 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-from ..model.vessel import nu_dot_terms
+from .._jit import njit
+from ..model.vessel import PARAM_NAMES, nu_dot_terms
 
+# plant state [n, e, psi, u, v, r]
+X_N, X_E, X_PSI, X_U, X_V, X_R = range(6)
+NX = 6
+# sensitivity columns: initial state (X_* + SENS_X0), parameters (PARAM_NAMES order + SENS_PARAM), current
+SENS_X0 = 0
+SENS_PARAM = 6
+SENS_CUR_N, SENS_CUR_E = 12, 13
 NS = 14
+# parameter positions, PARAM_NAMES order
+P_M, P_IZ, P_D11, P_D22, P_D33, P_XG = (PARAM_NAMES.index(p) for p in ("m", "Iz", "d11", "d22", "d33", "xg"))
+NP = len(PARAM_NAMES)
 
-_nd = numba.njit(cache=True)(nu_dot_terms)
+_nd = njit(nu_dot_terms)
 
 
-@numba.njit(cache=True)
+@njit
 def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
-    psi, u, v, r = x[2], x[3], x[4], x[5]
+    """State derivative into ``xd`` and, with ``sens``, sensitivity derivative into ``Sd`` (NX, NS)."""
+    psi, u, v, r = x[X_PSI], x[X_U], x[X_V], x[X_R]
     c, s = math.cos(psi), math.sin(psi)
-    m, Iz, d11, d22, d33, xg = prm[0], prm[1], prm[2], prm[3], prm[4], prm[5]
-    a = _nd(u, v, r, tu, tr, m, Iz, d11, d22, d33, xg)
-    xd[0] = c * u - s * v + cn
-    xd[1] = s * u + c * v + ce
-    xd[2] = r
-    xd[3] = a[0]
-    xd[4] = a[1]
-    xd[5] = a[2]
+    m, Iz, d11, d22, d33, xg = prm  # PARAM_NAMES order
+    ud, vd, rd = _nd(u, v, r, tu, tr, m, Iz, d11, d22, d33, xg)
+    xd[X_N] = c * u - s * v + cn
+    xd[X_E] = s * u + c * v + ce
+    xd[X_PSI] = r
+    xd[X_U] = ud
+    xd[X_V] = vd
+    xd[X_R] = rd
     if not sens:
         return
     a02 = -s * u - c * v
@@ -51,48 +62,47 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     A10, A11, A12 = i11 * g10 + i12 * g20, i11 * g11 + i12 * g21, i11 * g12 + i12 * g22
     A20, A21, A22 = i12 * g10 + i22 * g20, i12 * g11 + i22 * g21, i12 * g12 + i22 * g22
     for k in range(NS):
-        s2, s3, s4, s5 = S[2, k], S[3, k], S[4, k], S[5, k]
-        Sd[0, k] = a02 * s2 + c * s3 - s * s4
-        Sd[1, k] = a12 * s2 + s * s3 + c * s4
-        Sd[2, k] = s5
-        Sd[3, k] = A00 * s3 + A01 * s4 + A02 * s5
-        Sd[4, k] = A10 * s3 + A11 * s4 + A12 * s5
-        Sd[5, k] = A20 * s3 + A21 * s4 + A22 * s5
-    ud, vd, rd = a[0], a[1], a[2]
-    for j in range(6):
-        if j == 0:      # m (with xg held: m xg moves too)
+        s_psi, s_u, s_v, s_r = S[X_PSI, k], S[X_U, k], S[X_V, k], S[X_R, k]
+        Sd[X_N, k] = a02 * s_psi + c * s_u - s * s_v
+        Sd[X_E, k] = a12 * s_psi + s * s_u + c * s_v
+        Sd[X_PSI, k] = s_r
+        Sd[X_U, k] = A00 * s_u + A01 * s_v + A02 * s_r
+        Sd[X_V, k] = A10 * s_u + A11 * s_v + A12 * s_r
+        Sd[X_R, k] = A20 * s_u + A21 * s_v + A22 * s_r
+    for j in range(NP):  # (dF - dM nu_dot)/d(parameter j)
+        if j == P_M:      # m (with xg held: m xg moves too)
             q0, q1, q2 = xg * r * r + v * r - ud, -u * r - vd - xg * rd, -xg * u * r - xg * vd
-        elif j == 1:    # Iz
+        elif j == P_IZ:
             q0, q1, q2 = 0.0, 0.0, -rd
-        elif j == 2:    # d11
+        elif j == P_D11:
             q0, q1, q2 = -u, 0.0, 0.0
-        elif j == 3:    # d22
+        elif j == P_D22:
             q0, q1, q2 = 0.0, -v, 0.0
-        elif j == 4:    # d33
+        elif j == P_D33:
             q0, q1, q2 = 0.0, 0.0, -r
-        else:           # xg
+        else:             # P_XG
             q0, q1, q2 = m * r * r, -m * rd, -m * u * r - m * vd
-        Sd[3, 6 + j] += i00 * q0
-        Sd[4, 6 + j] += i11 * q1 + i12 * q2
-        Sd[5, 6 + j] += i12 * q1 + i22 * q2
-    Sd[0, 12] += 1.0
-    Sd[1, 13] += 1.0
+        Sd[X_U, SENS_PARAM + j] += i00 * q0
+        Sd[X_V, SENS_PARAM + j] += i11 * q1 + i12 * q2
+        Sd[X_R, SENS_PARAM + j] += i12 * q1 + i22 * q2
+    Sd[X_N, SENS_CUR_N] += 1.0
+    Sd[X_E, SENS_CUR_E] += 1.0
 
 
-@numba.njit(cache=True)
+@njit
 def _trial(x, S, h, k, K, sens, xt, St):
     """xt = x + h k (and St = S + h K): the state an RK4 stage is evaluated at."""
-    for i in range(6):
+    for i in range(NX):
         xt[i] = x[i] + h * k[i]
     if sens:
-        for i in range(6):
+        for i in range(NX):
             for c in range(NS):
                 St[i, c] = S[i, c] + h * K[i, c]
 
 
-@numba.njit(cache=True)
+@njit
 def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
-    """One RK4 step of state and sensitivities; ``w6`` (5, 6) and ``W6`` (5, 6, NS) are scratch."""
+    """One RK4 step of state and sensitivities; ``w6`` (5, NX) and ``W6`` (5, NX, NS) are scratch."""
     k1, k2, k3, k4, xt = w6[0], w6[1], w6[2], w6[3], w6[4]
     K1, K2, K3, K4, St = W6[0], W6[1], W6[2], W6[3], W6[4]
     _deriv(x, S, tu, tr, prm, cn, ce, k1, K1, sens)
@@ -103,15 +113,15 @@ def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
     _trial(x, S, dt, k3, K3, sens, xt, St)
     _deriv(xt, St, tu, tr, prm, cn, ce, k4, K4, sens)
     w = dt / 6.0
-    for i in range(6):
+    for i in range(NX):
         x[i] += w * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i])
     if sens:
-        for i in range(6):
+        for i in range(NX):
             for k in range(NS):
                 S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
 
 
-@numba.njit(cache=True)
+@njit
 def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr, max_dt, sens,
           out_x, out_S):
     """Integrate every segment k from ``x0s[k]`` at ``tg[seg_i0[k]]`` to ``tg[seg_i1[k]]``,
@@ -120,15 +130,15 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
     (sorted, linear interpolation inside a step)."""
     nseg = len(seg_i0)
     for k in range(nseg):
-        w6 = np.empty((5, 6))
-        W6 = np.zeros((5, 6, NS))
+        w6 = np.empty((5, NX))
+        W6 = np.zeros((5, NX, NS))
         x = x0s[k].copy()
-        S = np.zeros((6, NS))
-        for i in range(6):
-            S[i, i] = 1.0
+        S = np.zeros((NX, NS))
+        for i in range(NX):
+            S[i, SENS_X0 + i] = 1.0
         xa = x.copy()
         Sa = S.copy()
-        cn, ce = seg_cur[k, 0], seg_cur[k, 1]
+        cn, ce = seg_cur[k, 0], seg_cur[k, 1]   # current north, east (m/s)
         j = meas_ptr[k]
         jend = meas_ptr[k + 1]
         for i in range(seg_i0[k], seg_i1[k]):
@@ -149,10 +159,10 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
                 while j < jend and meas_t[j] <= tb + 1e-9:
                     w = (meas_t[j] - ta) / dt
                     w = min(max(w, 0.0), 1.0)
-                    for q in range(6):
+                    for q in range(NX):
                         out_x[j, q] = (1 - w) * xa[q] + w * x[q]
                     if sens:
-                        for q in range(6):
+                        for q in range(NX):
                             for c in range(NS):
                                 out_S[j, q, c] = (1 - w) * Sa[q, c] + w * S[q, c]
                     j += 1

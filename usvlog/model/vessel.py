@@ -17,9 +17,9 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
-from numba.extending import register_jitable
 
 from ..choices import PARAM_NAMES, THRUST_UNITS
+from .._jit import jitable
 from ..errors import ConfigError, InputError
 
 
@@ -566,12 +566,12 @@ def damping_matrix(p: VesselParams) -> np.ndarray:
     return np.diag([p.d11, p.d22, p.d33])
 
 
-@register_jitable
+@jitable
 def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
     """(u_dot, v_dot, r_dot) of eq. (3) in closed form.
 
     Plain arithmetic, so it serves scalars (the simulators' inner loops) and arrays alike,
-    in Python and inside numba-compiled loops (``register_jitable``).
+    in Python and inside numba-compiled loops (:func:`usvlog._jit.jitable`).
     """
     f1 = tau_u + m * (xg * r + v) * r - d11 * u
     f2 = -m * u * r - d22 * v

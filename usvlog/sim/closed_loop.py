@@ -15,7 +15,15 @@ import numpy as np
 
 from .._jit import njit
 from ..control.gains import Gains
-from ..control.law import COL, NOUT, Controller, control_tick, speed_at
+from ..control.law import (
+    COL,
+    NOUT,
+    OUT_TAU_R,
+    OUT_TAU_U,
+    Controller,
+    control_tick,
+    speed_at,
+)
 from ..control.paths import Path
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
@@ -61,28 +69,38 @@ class ClosedLoopRun:
 
 
 @njit
-def _closed_loop_kernel(x, n, every, dt, u_ref, dtheta, prm, cn, ce, rk4, cs, kind, pprm, G, P, S, T):
-    """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled."""
-    states = np.empty((n, 6))
-    tau = np.empty((n, 2))
-    ctrl = np.empty(((n + every - 1) // every, NOUT))
+def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, current_n, current_e, rk4, ctrl_state,
+                        path_kind, path_prm, gains, params, settings, thrusters):
+    """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled.
+
+    ``state0``: the initial plant state (6-tuple); the controller ticks every ``every`` plant
+    steps of ``dt`` (s); ``u_ref``, ``dtheta`` per plant step; ``plant_prm`` the plant's
+    parameters (PARAM_NAMES order), ``current_n``, ``current_e`` the current (m/s, NED);
+    the controller arguments as :func:`usvlog.control.law.control_tick`. Returns the plant
+    states (n_steps, 6), the applied (tau_u, tau_r) (n_steps, 2) and the controller rows.
+    """
+    x = state0
+    states = np.empty((n_steps, 6))
+    tau = np.empty((n_steps, 2))
+    ctrl = np.empty(((n_steps + every - 1) // every, NOUT))
     xa = np.empty(6)
     tu = 0.0
     tr = 0.0
     j = 0
-    for k in range(n):
+    for k in range(n_steps):
         if k % every == 0:
             for i in range(6):
                 xa[i] = x[i]
-            control_tick(xa, u_ref[k], dtheta[k], every * dt, cs, kind, pprm, G, P, S, T, ctrl[j])
-            tu = ctrl[j, 14]
-            tr = ctrl[j, 15]
+            control_tick(xa, u_ref[k], dtheta[k], every * dt, ctrl_state, path_kind, path_prm, gains, params,
+                         settings, thrusters, ctrl[j])
+            tu = ctrl[j, OUT_TAU_U]
+            tr = ctrl[j, OUT_TAU_R]
             j += 1
         for i in range(6):
             states[k, i] = x[i]
         tau[k, 0] = tu
         tau[k, 1] = tr
-        x = plant_step(x, tu, tr, prm, dt, cn, ce, rk4)
+        x = plant_step(x, tu, tr, plant_prm, dt, current_n, current_e, rk4)
     return states, tau, ctrl
 
 
@@ -100,10 +118,7 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
     cn, ce = float(current_ne[0]), float(current_ne[1])
     rk4 = integrator == "rk4"
     x = tuple(float(a) for a in (*eta0, *nu0))
-    states = np.empty((n, 6))
-    tau = np.empty((n, 2))
     ticks = np.arange(0, n, every)
-    ctrl = np.empty((len(ticks), NOUT))
     controller.reset(x)
     if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
         c = controller
@@ -111,20 +126,23 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
                                                 prm, cn, ce, rk4, c.cs, c.path.kind, c.path.prm,
                                                 c.G, c.P, c.S, c.T)
         return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth")
+    # the controller on an estimate: plant and controller stepped from Python
+    states = np.empty((n, 6))
+    tau = np.empty((n, 2))
+    ctrl = np.empty((len(ticks), NOUT))
     tu = tr = 0.0
     j = 0
     step = controller.step
     for k in range(n):
         if k % every == 0:
-            xh = np.array(x) if estimator is None else estimator(k, x, (tu, tr))
-            row = step(xh, u_ref[k], dt_ctrl, ctrl[j], dtheta[k])
-            tu, tr = float(row[14]), float(row[15])
+            row = step(estimator(k, x, (tu, tr)), u_ref[k], dt_ctrl, ctrl[j], dtheta[k])
+            tu, tr = float(row[OUT_TAU_U]), float(row[OUT_TAU_R])
             j += 1
         states[k] = x
         tau[k, 0] = tu
         tau[k, 1] = tr
         x = plant_step(x, tu, tr, prm, dt_s, cn, ce, rk4)
-    return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth" if estimator is None else "ekf")
+    return ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf")
 
 
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
-from numba.extending import register_jitable
 
+from .._jit import jitable
 from ..errors import ConfigError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
@@ -170,18 +170,41 @@ def start_ns(iso: str) -> int:
 # plant integration
 # -----------------------------------------------------------------------------
 
-@register_jitable
+@jitable
 def _plant_rhs(n, e, psi, u, v, r, tau_u, tau_r, prm, cn, ce):
+    """Time derivative of [n, e, psi, u, v, r] (eqs. (1)+(3), current (cn, ce) in NED)."""
     c, s = math.cos(psi), math.sin(psi)
-    ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5])
+    m, Iz, d11, d22, d33, xg = prm  # PARAM_NAMES order
+    ud, vd, rd = nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg)
     return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
 
 
-@register_jitable
+@jitable
 def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
     """One integration step of eqs. (1)+(3) on a 6-tuple of floats (fast scalar path).
 
-    Plain Python, and also callable from numba-compiled loops (``register_jitable``).
+    Plain Python, and also callable from numba-compiled loops (:func:`usvlog._jit.jitable`).
+    The stages combine the six components one by one (k[i] is the derivative of state[i]).
+
+    Parameters
+    ----------
+    state : tuple of 6 floats
+        [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)], u, v relative to the water.
+    tau_u, tau_r : float
+        Surge force (N) and yaw moment (N m), held over the step.
+    prm : tuple or ndarray
+        Vessel parameters in PARAM_NAMES order (m, Iz, d11, d22, d33, xg; SI units).
+    dt : float
+        Step, s.
+    cn, ce : float
+        Water current, north and east, m/s.
+    rk4 : bool
+        RK4 (True) or forward Euler (the paper's Section IV).
+
+    Returns
+    -------
+    tuple of 6 floats
+        The state after ``dt``.
     """
     x0, x1, x2, x3, x4, x5 = state
     k1 = _plant_rhs(x0, x1, x2, x3, x4, x5, tau_u, tau_r, prm, cn, ce)

@@ -9,19 +9,25 @@ path next to each fast path, and the tests check one against the other.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from ..._jit import njit
 
 # value kinds found by ``match_template``
 K_INT, K_FLOAT, K_STR, K_STR_ESC, K_TRUE, K_FALSE, K_NULL, K_INT_BIG = 0, 1, 2, 3, 4, 5, 6, 7
 
 OP_MESSAGE, OP_CHUNK, OP_FOOTER, OP_DATA_END = 0x05, 0x06, 0x02, 0x0F
 
+# MCAP record: opcode (uint8), body length (uint64 LE), body
+REC_OPCODE, REC_LENGTH, REC_HEADER = 0, 1, 9
+# Message record body: channel id (uint16), sequence (uint32), log time, publish time (uint64, ns), payload
+MSG_CHANNEL, MSG_SEQUENCE, MSG_LOG_TIME, MSG_PUBLISH_TIME, MSG_HEADER = 0, 2, 6, 14, 22
+
 
 # -----------------------------------------------------------------------------
 # MCAP records
 # -----------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit
 def _u64(buf, p):
     v = np.uint64(0)
     for i in range(7, -1, -1):
@@ -29,13 +35,13 @@ def _u64(buf, p):
     return v
 
 
-@njit(cache=True)
+@njit
 def _u32(buf, p):
     return (np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16)
             | (np.int64(buf[p + 3]) << 24))
 
 
-@njit(cache=True)
+@njit
 def walk_records(buf, start, end, top_level):
     """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
 
@@ -49,12 +55,12 @@ def walk_records(buf, start, end, top_level):
     n = 0
     off = start
     complete = False
-    while off + 9 <= end:
-        op = buf[off]
-        length = _u64(buf, off + 1)
-        if length > np.uint64(end - off - 9):
+    while off + REC_HEADER <= end:
+        op = buf[off + REC_OPCODE]
+        length = _u64(buf, off + REC_LENGTH)
+        if length > np.uint64(end - off - REC_HEADER):
             break
-        nxt = off + 9 + np.int64(length)
+        nxt = off + REC_HEADER + np.int64(length)
         if n == cap:
             cap *= 2
             ops2 = np.empty(cap, np.uint8)
@@ -66,7 +72,7 @@ def walk_records(buf, start, end, top_level):
             ops, offs, lens = ops2, offs2, lens2
         ops[n] = op
         offs[n] = off
-        lens[n] = nxt - off - 9
+        lens[n] = nxt - off - REC_HEADER
         n += 1
         off = nxt
         if top_level and (op == OP_FOOTER or op == OP_DATA_END):
@@ -77,7 +83,7 @@ def walk_records(buf, start, end, top_level):
     return ops[:n], offs[:n], lens[:n], off, complete
 
 
-@njit(cache=True)
+@njit
 def message_fields(buf, offs, lens):
     """(channel id, sequence, log time, payload start, payload end) of message records, and
     False if one is malformed (shorter than its header, or a log time past int64)."""
@@ -89,8 +95,8 @@ def message_fields(buf, offs, lens):
     pe = np.empty(n, np.int64)
     ok = True
     for i in range(n):
-        b = offs[i] + 9
-        if lens[i] < 22:
+        b = offs[i] + REC_HEADER
+        if lens[i] < MSG_HEADER:
             ok = False
             cid[i] = -1
             seq[i] = 0
@@ -98,14 +104,14 @@ def message_fields(buf, offs, lens):
             ps[i] = b
             pe[i] = b
             continue
-        cid[i] = np.int64(buf[b]) | (np.int64(buf[b + 1]) << 8)
-        seq[i] = _u32(buf, b + 2)
-        tu = _u64(buf, b + 6)
+        cid[i] = np.int64(buf[b + MSG_CHANNEL]) | (np.int64(buf[b + MSG_CHANNEL + 1]) << 8)
+        seq[i] = _u32(buf, b + MSG_SEQUENCE)
+        tu = _u64(buf, b + MSG_LOG_TIME)
         if tu > np.uint64(0x7FFFFFFFFFFFFFFF):  # not an int64 time: a malformed record
             ok = False
             cid[i] = -1
         t[i] = np.int64(tu & np.uint64(0x7FFFFFFFFFFFFFFF))
-        ps[i] = b + 22
+        ps[i] = b + MSG_HEADER
         pe[i] = b + lens[i]
     return cid, seq, t, ps, pe, ok
 
@@ -114,33 +120,40 @@ def message_fields(buf, offs, lens):
 # flat JSON messages
 # -----------------------------------------------------------------------------
 
-@njit(cache=True)
+# JSON bytes the scanners look at
+CH_QUOTE, CH_BACKSLASH, CH_PLUS, CH_MINUS, CH_DOT = ord('"'), ord("\\"), ord("+"), ord("-"), ord(".")
+CH_0, CH_9, CH_E, CH_E_UPPER = ord("0"), ord("9"), ord("e"), ord("E")
+CH_T, CH_F, CH_N = ord("t"), ord("f"), ord("n")          # first bytes of true, false, null
+CH_CONTROL_END = 0x20                                     # bytes below are not allowed raw in strings
+MAX_EXACT_DIGITS = 19                                     # decimal digits that always fit a uint64
+
+@njit
 def _digits(buf, q, end):
-    while q < end and 48 <= buf[q] <= 57:
+    while q < end and CH_0 <= buf[q] <= CH_9:
         q += 1
     return q
 
 
-@njit(cache=True)
+@njit
 def _scan_number(buf, p, end):
     """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
     q = p
-    if q < end and buf[q] == 45:  # '-'
+    if q < end and buf[q] == CH_MINUS:
         q += 1
-    if q >= end or not 48 <= buf[q] <= 57:
+    if q >= end or not CH_0 <= buf[q] <= CH_9:
         return -1, False
-    q = q + 1 if buf[q] == 48 else _digits(buf, q, end)  # no leading zeros
+    q = q + 1 if buf[q] == CH_0 else _digits(buf, q, end)  # no leading zeros
     is_int = True
-    if q < end and buf[q] == 46:  # '.'
+    if q < end and buf[q] == CH_DOT:
         is_int = False
         d0 = q + 1
         q = _digits(buf, d0, end)
         if q == d0:
             return -1, False
-    if q < end and (buf[q] == 101 or buf[q] == 69):  # e E
+    if q < end and (buf[q] == CH_E or buf[q] == CH_E_UPPER):
         is_int = False
         q += 1
-        if q < end and (buf[q] == 43 or buf[q] == 45):
+        if q < end and (buf[q] == CH_PLUS or buf[q] == CH_MINUS):
             q += 1
         d0 = q
         q = _digits(buf, d0, end)
@@ -149,7 +162,7 @@ def _scan_number(buf, p, end):
     return q, is_int
 
 
-@njit(cache=True)
+@njit
 def _lit(buf, p, end, word):
     n = len(word)
     if p + n > end:
@@ -190,7 +203,7 @@ _M32 = np.uint64(0xFFFFFFFF)
 _U = np.uint64
 
 
-@njit(cache=True)
+@njit
 def _mul64(a, b):
     """Full 128-bit product of two uint64: (hi, lo)."""
     a_lo, a_hi = a & _M32, a >> _U(32)
@@ -205,7 +218,7 @@ def _mul64(a, b):
     return hi, lo
 
 
-@njit(cache=True)
+@njit
 def _clz64(x):
     n = 0
     if x <= _U(0x00000000FFFFFFFF):
@@ -228,7 +241,7 @@ def _clz64(x):
     return n
 
 
-@njit(cache=True)
+@njit
 def _eisel_lemire(man, q, neg, pow10):
     """The bits of the double nearest man * 10**q, and whether that was decided."""
     sign = _U(0x8000000000000000) if neg else _U(0)
@@ -265,10 +278,10 @@ def _eisel_lemire(man, q, neg, pow10):
     return sign | (_U(ret_exp2) << _U(52)) | (mant & _U(0x000FFFFFFFFFFFFF)), True
 
 
-@njit(cache=True)
+@njit
 def _decimal_bits(buf, p, q, pow10):
     """A JSON number's text buf[p:q] (already checked) -> (double bits, decided)."""
-    neg = buf[p] == 45
+    neg = buf[p] == CH_MINUS
     if neg:
         p += 1
     man = _U(0)
@@ -277,16 +290,16 @@ def _decimal_bits(buf, p, q, pow10):
     seen_point = False
     while p < q:
         c = buf[p]
-        if c == 46:
+        if c == CH_DOT:
             seen_point = True
-        elif 48 <= c <= 57:
-            if nd == 0 and c == 48:
+        elif CH_0 <= c <= CH_9:
+            if nd == 0 and c == CH_0:
                 if seen_point:
                     exp10 -= 1
             else:
-                if nd == 19:
+                if nd == MAX_EXACT_DIGITS:
                     return _U(0), False
-                man = man * _U(10) + _U(c - 48)
+                man = man * _U(10) + _U(c - CH_0)
                 nd += 1
                 if seen_point:
                     exp10 -= 1
@@ -296,13 +309,13 @@ def _decimal_bits(buf, p, q, pow10):
     if p < q:
         p += 1
         eneg = False
-        if buf[p] == 43 or buf[p] == 45:
-            eneg = buf[p] == 45
+        if buf[p] == CH_PLUS or buf[p] == CH_MINUS:
+            eneg = buf[p] == CH_MINUS
             p += 1
         e = 0
         while p < q:
             if e < 100000:
-                e = e * 10 + np.int64(buf[p] - 48)
+                e = e * 10 + np.int64(buf[p] - CH_0)
             p += 1
         exp10 += -e if eneg else e
     return _eisel_lemire(man, exp10, neg, pow10)
@@ -313,7 +326,7 @@ _FALSE = np.frombuffer(b"false", np.uint8).copy()
 _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
-@njit(cache=True)
+@njit
 def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fcol, icol, scol, pow10,
                    want_text):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
@@ -366,49 +379,49 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
             c = buf[p]
             v0 = p
             ival = np.int64(0)
-            if c == 34:  # '"'
+            if c == CH_QUOTE:
                 q = p + 1
                 kind = K_STR
                 while q < end:
                     d = buf[q]
-                    if d == 34:
+                    if d == CH_QUOTE:
                         break
-                    if d < 32:
+                    if d < CH_CONTROL_END:
                         return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
-                    if d == 92:  # backslash
+                    if d == CH_BACKSLASH:
                         kind = K_STR_ESC
                         q += 1
                     q += 1
                 if q >= end:
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 p = q + 1
-            elif c == 116:
+            elif c == CH_T:
                 if not _lit(buf, p, end, w_true):
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
-                p += 4
+                p += len(w_true)
                 kind = K_TRUE
-            elif c == 102:
+            elif c == CH_F:
                 if not _lit(buf, p, end, w_false):
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
-                p += 5
+                p += len(w_false)
                 kind = K_FALSE
-            elif c == 110:
+            elif c == CH_N:
                 if not _lit(buf, p, end, w_null):
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
-                p += 4
+                p += len(w_null)
                 kind = K_NULL
             else:
                 q, is_int = _scan_number(buf, p, end)
                 if q < 0:
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 if is_int:
-                    neg = buf[p] == 45
+                    neg = buf[p] == CH_MINUS
                     d0 = p + 1 if neg else p
                     kind = K_INT_BIG
-                    if q - d0 <= 19:
+                    if q - d0 <= MAX_EXACT_DIGITS:
                         u = np.uint64(0)
                         for j in range(d0, q):
-                            u = u * np.uint64(10) + np.uint64(buf[j] - 48)
+                            u = u * np.uint64(10) + np.uint64(buf[j] - CH_0)
                         if u <= np.uint64(9223372036854775807):
                             ival = -np.int64(u) if neg else np.int64(u)
                             kind = K_INT
@@ -453,7 +466,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
     return kinds, -1, fbits, fund, iv, svs, sve, same, fdata[:fp], foff
 
 
-@njit(cache=True)
+@njit
 def assemble(lits, lit_off, data, vs, ve):
     """Build messages ``lit_0 v_0 lit_1 ... v_{S-1} lit_S`` where value k of row i is
     data[vs[i, k]:ve[i, k]]. Returns (bytes uint8, int64 offsets of the n messages)."""
@@ -483,7 +496,7 @@ def assemble(lits, lit_off, data, vs, ve):
     return out, offs
 
 
-@njit(cache=True)
+@njit
 def message_records(data, ps, pe, cid, seq, t):
     """MCAP Message records (publish time = log time) for payloads data[ps[i]:pe[i]].
 
@@ -492,33 +505,34 @@ def message_records(data, ps, pe, cid, seq, t):
     offs = np.empty(n + 1, np.int64)
     offs[0] = 0
     for i in range(n):
-        offs[i + 1] = offs[i] + 31 + (pe[i] - ps[i])
+        offs[i + 1] = offs[i] + REC_HEADER + MSG_HEADER + (pe[i] - ps[i])
     out = np.empty(offs[n], np.uint8)
     for i in range(n):
         p = offs[i]
-        out[p] = OP_MESSAGE
-        length = np.uint64(22 + pe[i] - ps[i])
+        out[p + REC_OPCODE] = OP_MESSAGE
+        length = np.uint64(MSG_HEADER + pe[i] - ps[i])
         for k in range(8):
-            out[p + 1 + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
+            out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
+        body = p + REC_HEADER
         c = np.uint64(cid[i])
-        out[p + 9] = np.uint8(c & np.uint64(255))
-        out[p + 10] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
+        out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
+        out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
         s = np.uint64(seq[i])
         for k in range(4):
-            out[p + 11 + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
+            out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
         tt = np.uint64(t[i])
         for k in range(8):
             b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
-            out[p + 15 + k] = b
-            out[p + 23 + k] = b
-        q = p + 31
+            out[body + MSG_LOG_TIME + k] = b
+            out[body + MSG_PUBLISH_TIME + k] = b
+        q = body + MSG_HEADER
         for j in range(ps[i], pe[i]):
             out[q] = data[j]
             q += 1
     return out, offs
 
 
-@njit(cache=True)
+@njit
 def chunk_bounds(rec_offs, chunk_size, first_extra):
     """Split records into chunks the way the mcap Writer does: a chunk is closed right
     after the record that takes its size past ``chunk_size``. Returns the index one
