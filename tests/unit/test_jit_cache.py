@@ -116,6 +116,30 @@ def test_source_hash_sees_every_file(tmp_path):
     assert len(seen) == 4
 
 
+def test_source_hash_leaves_out_only_what_kernels_cannot_reach(tmp_path):
+    from usvlog._jit import UNREACHABLE, source_hash
+
+    pkg = tmp_path / "p"
+    for d in ("cli", "view", "control", "sim"):
+        (pkg / d).mkdir(parents=True)
+        (pkg / d / "m.py").write_text("x = 1\n")
+    (pkg / "api.py").write_text("")
+    h0 = source_hash(str(pkg))
+    (pkg / "cli" / "m.py").write_text("x = 2\n")          # above the kernels: same hash
+    (pkg / "view" / "m.py").write_text("x = 2\n")
+    (pkg / "api.py").write_text("y = 1\n")
+    assert source_hash(str(pkg)) == h0
+    (pkg / "control" / "m.py").write_text("x = 2\n")      # reachable: a new hash
+    assert source_hash(str(pkg)) != h0
+    # every name left out is a layer above sim in the architecture test's table
+    from tests.test_architecture import LAYERS, UNITS
+
+    above = set().union(*(UNITS[u] for layer in LAYERS[:LAYERS.index(("sim",))] for u in layer))
+    for name in UNREACHABLE:
+        mod = "usvlog." + name.removesuffix(".py") if name not in ("__init__.py",) else "usvlog"
+        assert mod in above or mod == "usvlog.__main__", mod
+
+
 def _hash_dirs(parent, ages_h):
     import time
 

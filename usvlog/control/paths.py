@@ -32,6 +32,7 @@ import numpy as np
 
 from .._jit import njit
 from ..errors import ConfigError
+from ..model.frames import geodetic_to_ned
 
 CIRCLE, SINUSOID, LINE, SPLINE = 0, 1, 2, 3
 KINDS = {"circle": CIRCLE, "sinusoid": SINUSOID, "line": LINE, "waypoints": SPLINE}
@@ -304,8 +305,6 @@ def path_from_spec(spec: dict, *, datum=None, source: str = "path") -> Path:
     if frame == "latlon":
         if datum is None:
             raise ConfigError(f"{source}: [path] lat/lon waypoints need a datum (the log's usvlog.datum)")
-        from ..model.frames import geodetic_to_ned
-
         n, e, _ = geodetic_to_ned(pts[:, 0], pts[:, 1], 0.0, datum=datum)
         pts = np.column_stack([n, e])
     seg = np.hypot(*np.diff(pts, axis=0).T)

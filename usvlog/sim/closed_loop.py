@@ -18,6 +18,7 @@ from ..control.gains import Gains
 from ..control.law import (
     COL,
     NOUT,
+    OUT_COLUMNS,
     OUT_TAU_R,
     OUT_TAU_U,
     Controller,
@@ -25,6 +26,8 @@ from ..control.law import (
     speed_at,
 )
 from ..control.paths import Path
+from ..estimate import OnlineEKF
+from ..estimate.settings import EstimateSettings
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
@@ -61,9 +64,7 @@ class ClosedLoopRun:
 
     def controller_dataframe(self):
         """Controller rows at every tick (columns: usvlog.control.law.OUT_COLUMNS)."""
-        import pandas as pd
-
-        from ..control.law import OUT_COLUMNS
+        import pandas as pd  # only for this inspection helper
 
         return pd.DataFrame(self.ctrl, columns=list(OUT_COLUMNS), index=pd.Index(self.t[self.tick], name="t_s"))
 
@@ -177,9 +178,6 @@ class EKFInTheLoop:
     """
 
     def __init__(self, st: SimSettings, t: np.ndarray, noise: dict, dt_ctrl: float):
-        from ..estimate import OnlineEKF
-        from ..estimate.settings import EstimateSettings
-
         sn = st.sensors
         self.ekf = OnlineEKF(st.vessel, EstimateSettings(model="dynamic", current=True),
                              x0=np.array([*st.eta0, *st.nu0, 0.0, 0.0], float))

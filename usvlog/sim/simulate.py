@@ -18,7 +18,7 @@ import pandas as pd
 from .._jit import jitable
 from ..errors import ConfigError
 from ..log.channels import channel_spec, frame_from_columns
-from ..log.fieldlog import FieldLog
+from ..log.fieldlog import FieldLog, parse_time
 from ..model.frames import Datum, ned_to_geodetic, ssa
 from ..model.vessel import Vessel, default_vessel, nu_dot_terms
 
@@ -158,8 +158,6 @@ class SimSettings:
 
 def start_ns(iso: str) -> int:
     """ISO 8601 time -> int ns since the Unix epoch (UTC); ConfigError if it does not parse."""
-    from ..log.fieldlog import parse_time
-
     try:
         return parse_time(iso)
     except ValueError as err:
