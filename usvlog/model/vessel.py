@@ -31,7 +31,7 @@ def require_finite(obj, names, kind: str) -> None:
 
 
 PARAM_NAMES = ("m", "Iz", "d11", "d22", "d33", "xg")
-THRUST_UNITS = ("newton", "normalized", "pwm_us")
+THRUST_UNITS = ("newton", "normalized", "pwm_us")   # the one list of command units (importers, recorder)
 THRUSTER_MAPS = ("identity", "linear", "quadratic")
 
 

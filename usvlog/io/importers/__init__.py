@@ -21,9 +21,9 @@ from pathlib import Path
 from ...errors import ConfigError, FormatError, InputError, StorageError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
-from ...model.vessel import Vessel
+from ...model.vessel import THRUST_UNITS, Vessel
 from ..atomic import atomic_path, check_output, reading
-from .core import THRUST_UNITS, Assembler, ImportReport
+from .core import Assembler, ImportReport
 from .sink import McapSink, MemorySink
 
 FORMATS = ("csv", "nmea", "ros1", "ros2", "dataflash", "ulog")

@@ -40,7 +40,7 @@ import pandas as pd
 from ...errors import ConfigError, FormatError
 from ...log.channels import codec_for_topic, frame_from_columns
 from ...model.frames import Datum, ssa
-from ...model.vessel import Vessel
+from ...model.vessel import THRUST_UNITS, Vessel
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -50,7 +50,6 @@ STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
     "yaw_rate": ("/imu/yaw_rate", ("r_radps",)),
     "velocity": ("/gnss/velocity", ("sog_mps",)),
 }
-THRUST_UNITS = ("newton", "normalized", "pwm_us")
 _COV = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
         "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
 

@@ -7,8 +7,9 @@ ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL ->
 What is particular to a file is done here: the date comes from RMC (or
 ``--start-utc``); a time of day without a date is placed on the day nearest the
 previous sentence's time (:func:`usvlog.io.nmea.resolve_time_of_day`), so the time
-rolling past midnight moves to the next day. The same fix reported by GGA and RMC
-is kept once. Sentences without a checksum are accepted (some loggers strip it);
+rolling past midnight moves to the next day. One fix per epoch, from its best valid
+sentence (GGA, else RMC, else GLL: :class:`usvlog.io.nmea.FixSelector`, the rule the
+recorder follows too). Sentences without a checksum are accepted (some loggers strip it);
 lines with a bad checksum, garbage, unreadable fields and sentences that say
 "no fix" are skipped and counted.
 
@@ -31,6 +32,7 @@ from ...errors import InputError
 from ...log.fieldlog import parse_time
 from ..atomic import reading
 from ..nmea import (
+    FixSelector,
     NmeaChecksumError,
     NmeaError,
     NmeaFieldError,
@@ -156,7 +158,7 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     pending: list[tuple[str, tuple]] = []   # untimed samples waiting for the next timed sentence
     last_t: int | None = None
     last_dt = 100_000_000
-    last_fix_stamp: int | None = None
+    fixes = FixSelector()
     state: dict = {}
     n_lines = 0
 
@@ -215,24 +217,25 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
         if kind == "nofix":
             report.skip("gnss_no_fix", 1, where=f"line {lineno}: {typ} without a fix")
             continue
-        if kind == "gnss":
-            if stamp is not None and stamp == last_fix_stamp:
-                # the same fix from another sentence: GGA adds the altitude RMC/GLL lack
-                if typ == "GGA" and buf.gnss["stamp_ns"] and buf.gnss["stamp_ns"][-1] == stamp:
-                    buf.gnss["alt_m"][-1] = vals[2]
-                continue
-            last_fix_stamp = stamp
         t = t_prefix if t_prefix is not None else stamp
         if t is None:
             pending.append((kind, vals))
             continue
-        emit_pending(t)
-        if last_t is not None and t > last_t:
-            last_dt = t - last_t
-        last_t = t
-        _put(buf, kind, t, stamp if stamp is not None else t, vals)
+        if not (kind == "gnss" and fixes.same_epoch(smp)):   # the epoch's 2nd fix sentence: same time
+            emit_pending(t)
+            if last_t is not None and t > last_t:
+                last_dt = t - last_t
+            last_t = t
+        if kind == "gnss":
+            # one fix per epoch, from its best valid sentence (GGA, else RMC, else GLL)
+            for item in fixes.offer(smp, t, (t, stamp if stamp is not None else t, vals)):
+                _put(buf, "gnss", *item)
+        else:
+            _put(buf, kind, t, stamp if stamp is not None else t, vals)
         if len(buf.gnss["t_ns"]) + len(buf.heading["t_ns"]) + len(buf.velocity["t_ns"]) >= opts.chunk_rows:
             yield buf.batch()
+    for item in fixes.flush():
+        _put(buf, "gnss", *item)
     emit_pending(None)
     if n_lines == 0:
         raise InputError(f"{p}: empty file")

@@ -14,11 +14,8 @@ import orjson
 
 from ...errors import InputError, StorageError
 from ...log.channels import registered_topics
-from ..nmea import NmeaError, parse_sentence, resolve_time_of_day
+from ..nmea import POSITION_PRIORITY, NmeaError, parse_sentence, resolve_time_of_day
 from .topics import TOPIC_QUALITY, TOPIC_RAW_JSON, TOPIC_RAW_NMEA, TOPIC_STATUS
-
-_POSITION_PRIORITY = {"GGA": 0, "RMC": 1, "GLL": 2}  # one fix per epoch, from the best sentence a source sends
-_PREFER_WINDOW_NS = 2_000_000_000
 
 
 class LineInput:
@@ -61,17 +58,24 @@ class LineInput:
                                        "satellites": -1 if s.satellites is None else s.satellites,
                                        "hdop": s.hdop}, t)
             self._quality = (s.fix_quality, s.satellites, s.hdop)
-        if s.has_fix:
-            src.position_seen[s.kind] = t
-            prio = _POSITION_PRIORITY.get(s.kind, 9)
-            better = any(_POSITION_PRIORITY.get(k, 9) < prio and t - seen < _PREFER_WINDOW_NS
-                         for k, seen in src.position_seen.items())
-            if not better:
-                self.gnss(s.lat_deg, s.lon_deg, math.nan if s.alt_m is None else s.alt_m, t_ns=t,
-                          stamp_ns=stamp, source=source, _counted=True)
+        if s.has_fix and s.kind in POSITION_PRIORITY:
+            # one fix per epoch, from its best valid sentence (GGA, else RMC, else GLL)
+            for fix in src.fixes.offer(s, t, (s, t, stamp, source)):
+                self._write_fix(*fix)
         if s.heading_rad is not None:
             self.heading(s.heading_rad, s.reference, t_ns=t, source=source, _counted=True)
         return s
+
+    def _write_fix(self, s, t: int, stamp: int | None, source: str) -> None:
+        self.gnss(s.lat_deg, s.lon_deg, math.nan if s.alt_m is None else s.alt_m, t_ns=t,
+                  stamp_ns=stamp, source=source, _counted=True)
+
+    def _release_fixes(self, before_ns: int | None) -> None:
+        """Write the fixes held for a better sentence of their epoch that did not come
+        (every held one with ``before_ns`` None: closing)."""
+        for src in list(self._sources.values()):
+            for fix in (src.fixes.flush() if before_ns is None else src.fixes.release_older(before_ns)):
+                self._write_fix(*fix)
 
     def json_line(self, text: str, *, source: str = "json", t_ns: int | None = None) -> bool:
         """One JSON line (see the README for the message forms). Returns True when used;

@@ -52,6 +52,9 @@ from .topics import (
     TOPIC_THRUST,
 )
 
+# a fix held for a better sentence of its epoch (see usvlog.io.nmea.FixSelector) is written
+# by the next flush once it is this old: a receiver sends an epoch's sentences in one burst
+_EPOCH_BURST_NS = 250_000_000
 _UNKNOWN_COV = (0.0,) * 9  # LocationFix convention: zeros with covariance type 0 (unknown)
 _COV_COLUMNS = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
                 "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
@@ -348,6 +351,7 @@ class Recorder(LineInput):
     def _tick(self, fsync: bool = True) -> None:
         """Status rows, provenance now and then, the open chunk to the OS (and to disk)."""
         now = self.now_ns()
+        self._release_fixes(now - _EPOCH_BURST_NS)
         dt = max((now - self._last_status_ns) / 1e9, 1e-9)
         self._last_status_ns = now
         for s in list(self._sources.values()):
@@ -427,6 +431,7 @@ class Recorder(LineInput):
 
     def _tick_final(self) -> None:
         self._last_prov_ns = self.now_ns()  # _tick must not write it: the closing record follows
+        self._release_fixes(None)
         self._tick(fsync=False)
         self._finish_part()
         with contextlib.suppress(OSError):

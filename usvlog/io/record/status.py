@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..nmea import FixSelector
 from .timesync import OffsetEstimator
 
 
@@ -86,7 +87,7 @@ class SourceState:
     rate_hz: float = 0.0
     _last_messages: int = 0
     offset: OffsetEstimator = field(default_factory=OffsetEstimator)
-    position_seen: dict = field(default_factory=dict)  # sentence kind -> last receive time
+    fixes: FixSelector = field(default_factory=FixSelector)  # one fix per epoch from its NMEA sentences
 
     def count(self, garbage: bool = False) -> None:
         """One more message (``garbage``: malformed)."""
