@@ -20,6 +20,7 @@ import numpy as np
 from ..errors import ConfigError, UsvlogError
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
+from ..model.stats import rms
 from .gate import BaselineEntry, Check, compare, updated_baseline
 
 STAGES = ("estimate", "identify", "replay")
@@ -80,8 +81,8 @@ class _Run:
 
 
 def _rms(x) -> float:
-    x = np.asarray(x, float)
-    return float(np.sqrt(np.mean(x * x))) if len(x) else float("nan")
+    """RMS with NaN kept: an estimate with holes must show in the gate, not be averaged over."""
+    return rms(x, omit_nonfinite=False)
 
 
 def _truth_at(log: FieldLog, t_ns: np.ndarray):
