@@ -22,9 +22,17 @@ from ...errors import ConfigError, FormatError, InputError, StorageError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
 from ...model.vessel import THRUST_UNITS, Vessel
-from ..atomic import atomic_path, check_output, reading
+from ..atomic import atomic_path, check_output
 from .core import Assembler, ImportReport
 from .sink import McapSink, MemorySink
+from .sniff import (
+    DATAFLASH_MAGIC,
+    MCAP_MAGIC,
+    ROS1_MAGIC,
+    SQLITE_MAGIC,
+    ULOG_MAGIC,
+    file_head,
+)
 
 FORMATS = ("csv", "nmea", "ros1", "ros2", "dataflash", "ulog")
 _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
@@ -33,11 +41,6 @@ CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "he
              "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
 TOPIC_ROLES = ("gnss", "heading", "yaw_rate", "thrust_left", "thrust_right", "speed_mps")
 
-ULOG_MAGIC = b"ULog\x01\x12\x35"
-DATAFLASH_MAGIC = b"\xa3\x95\x80"
-ROS1_MAGIC = b"#ROSBAG V2.0"
-SQLITE_MAGIC = b"SQLite format 3\x00"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -108,8 +111,7 @@ def detect_format(path) -> str:
         if (p / "metadata.yaml").exists() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
             return "ros2"
         raise FormatError(f"{p}: a directory that is not a ROS 2 bag (no metadata.yaml)")
-    with reading(p), open(p, "rb") as fh:
-        head = fh.read(65536)
+    head = file_head(p, 65536)
     if not head:
         raise InputError(f"{p}: empty file")
     if head.startswith(ROS1_MAGIC):

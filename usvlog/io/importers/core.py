@@ -86,6 +86,16 @@ class ImportReport:
                 "channels": dict(sorted(self.counts.items()))}
 
 
+def clock_offset_fallback(opts, report, what: str) -> int:
+    """UTC offset (ns) of a log's own clock when the log has no GPS time: ``--start-utc``, else the epoch.
+
+    Records the guess and a note: ``"no GPS time in the log: {what} counted from ..."``.
+    """
+    report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
+    report.note(f"no GPS time in the log: {what} counted from " + report.guesses["time_base"])
+    return opts.start_utc_ns or 0
+
+
 def listing(names, limit: int = 30) -> str:
     """``a, b, c`` of names read from a file, on one line (whitespace inside a name collapsed)."""
     names = list(names)

@@ -23,8 +23,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import FormatError, InputError
-from ..atomic import reading
-from .core import foreign
+from .core import clock_offset_fallback, foreign
+from .sniff import DATAFLASH_MAGIC, file_head
 
 GPS_EPOCH_UNIX_S = 315_964_800
 LEAP_S = 18
@@ -119,9 +119,7 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
     without a usable TimeUS, are skipped and counted; pymavlink failing on the file as a
     whole is a :class:`~usvlog.errors.FormatError` ``from`` its exception.
     """
-    with reading(path), open(path, "rb") as fh:
-        head = fh.read(3)
-    if head != b"\xa3\x95\x80":
+    if file_head(path, len(DATAFLASH_MAGIC)) != DATAFLASH_MAGIC:
         raise FormatError(f"{path}: not an ArduPilot DataFlash log (no FMT header at byte 0)")
     # pass 1: servo functions and the UTC offset of the boot clock
     servo: dict[int, int] = {}
@@ -141,9 +139,7 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
                 gps_s = GPS_EPOCH_UNIX_S + int(week) * 604800 + int(gms) / 1000.0 - LEAP_S
                 offset_ns = round(gps_s * 1e9) - int(boot) * 1000
     if offset_ns is None:
-        offset_ns = opts.start_utc_ns or 0
-        report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
-        report.note("no GPS time in the log: boot time counted from " + report.guesses["time_base"])
+        offset_ns = clock_offset_fallback(opts, report, "boot time")
     left = [n for n, f in sorted(servo.items()) if f == FN_THROTTLE_LEFT]
     right = [n for n, f in sorted(servo.items()) if f == FN_THROTTLE_RIGHT]
     report.mapping["gnss"] = "GPS"

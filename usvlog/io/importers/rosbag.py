@@ -31,6 +31,7 @@ import numpy as np
 
 from ...errors import FormatError, InputError
 from .core import foreign, guarded, guess_thrust_unit, listing, yaw_from_quaternion_enu
+from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
 
 _FLOATS = {"std_msgs/msg/Float32", "std_msgs/msg/Float64"}
 _NAVSAT = "sensor_msgs/msg/NavSatFix"
@@ -50,9 +51,7 @@ def _open_path(path: Path, fmt: str, stack) -> Path:
         return path
     want = ".bag" if fmt == "ros1" else None
     if fmt == "ros2":
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-        want = ".mcap" if head.startswith(b"\x89MCAP") else ".db3"
+        want = ".mcap" if file_head(path, len(MCAP_MAGIC)).startswith(MCAP_MAGIC) else ".db3"
     if path.suffix == want:
         return path
     tmp = Path(tempfile.mkdtemp(prefix="usvlog-bag-"))
@@ -64,13 +63,10 @@ def _open_path(path: Path, fmt: str, stack) -> Path:
 
 def _check_kind(path: Path, fmt: str) -> None:
     """A forced format must match the content: ROS 1 is one file, ROS 2 a directory or .db3/.mcap file."""
-    head = b""
-    if path.is_file():
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-    if fmt == "ros1" and not head.startswith(b"#ROSBAG V2.0"):
+    head = file_head(path, 16)
+    if fmt == "ros1" and not head.startswith(ROS1_MAGIC):
         raise FormatError(f"{path}: not a ROS 1 bag (no '#ROSBAG V2.0' header)")
-    if fmt == "ros2" and path.is_file() and not head.startswith((b"SQLite format 3\x00", b"\x89MCAP")):
+    if fmt == "ros2" and path.is_file() and not head.startswith((SQLITE_MAGIC, MCAP_MAGIC)):
         raise FormatError(f"{path}: not a ROS 2 bag (neither a bag directory nor a sqlite3/mcap file)")
 
 

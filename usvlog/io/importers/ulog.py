@@ -20,8 +20,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import FormatError, InputError
-from ..atomic import reading
-from .core import foreign, listing
+from .core import clock_offset_fallback, foreign, listing
+from .sniff import ULOG_MAGIC, file_head
 
 
 def _topic(ulog, name):
@@ -60,9 +60,7 @@ def _first(data: dict, names: tuple[str, ...], n: int):
 def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
     from pyulog import ULog
 
-    with reading(path), open(path, "rb") as fh:
-        head = fh.read(7)
-    if head != b"ULog\x01\x12\x35":
+    if file_head(path, len(ULOG_MAGIC)) != ULOG_MAGIC:
         raise FormatError(f"{path}: not a PX4 ULog file (bad magic bytes)")
     sink = io.StringIO()
     wanted = ["vehicle_gps_position", "sensor_gps", "vehicle_attitude", "actuator_motors", "actuator_outputs"] + \
@@ -80,9 +78,7 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
             i = int(ok[0])
             offset_ns = (int(tu[i]) - int(ts[i])) * 1000
     if offset_ns is None:
-        offset_ns = opts.start_utc_ns or 0
-        report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
-        report.note("no GPS UTC time in the log: log time counted from " + report.guesses["time_base"])
+        offset_ns = clock_offset_fallback(opts, report, "log time")
     batch = {}
     if gps is not None:
         report.mapping["gnss"] = gps.name

@@ -162,7 +162,7 @@ class Recorder(LineInput):
     def _open_part(self) -> None:
         out = self._out
         out.open(self.now_ns())   # StorageError when the file cannot be made
-        try:
+        with self._storage():
             out.start(f"usvlog {__version__}")
             if self._vessel is not None:
                 out.add_metadata(META_VESSEL, self._vessel.to_dict())
@@ -174,9 +174,6 @@ class Recorder(LineInput):
             self._write_provenance()
             out.sync()
             out.sync_directory()
-        except OSError as err:
-            self._fail(err)
-            raise self._error from err
 
     def _provenance(self) -> dict[str, str]:
         offsets = {}
@@ -207,6 +204,15 @@ class Recorder(LineInput):
             self._error = StorageError(f"{self._error}; what was written before stays readable")
         self._out.abandon()
 
+    @contextlib.contextmanager
+    def _storage(self):
+        """An OS error on the files stops the recording: the one sticky StorageError, raised from it."""
+        try:
+            yield
+        except OSError as err:
+            self._fail(err)
+            raise self._error from err
+
     def _check(self) -> None:
         if self._error is not None:
             raise self._error
@@ -231,12 +237,9 @@ class Recorder(LineInput):
             raise InputError(f"channel {topic}: negative time {t}")
         with self._lock:
             self._check()
-            try:
-                seq = self._seq.get(topic, 0)
+            seq = self._seq.get(topic, 0)
+            with self._storage():
                 self._out.add_message(topic, data, t, seq)
-            except OSError as err:
-                self._fail(err)
-                raise self._error from err
             self._seq[topic] = seq + 1
             self._written += 1
 
@@ -295,12 +298,9 @@ class Recorder(LineInput):
         with self._lock:
             self._check()
             self._datum = datum
-            try:
+            with self._storage():
                 self._out.add_metadata(META_DATUM, datum.to_dict())
                 self._out.sync()
-            except OSError as err:
-                self._fail(err)
-                raise self._error from err
 
     def heading(self, heading_rad: float, reference: str = "true", *, t_ns: int | None = None,
                 stamp_ns: int | None = None, std_rad: float | None = None, source: str = "api",
@@ -342,11 +342,8 @@ class Recorder(LineInput):
         """Write the open chunk and fsync now (the background thread does this every ``flush_s``)."""
         with self._lock:
             self._check()
-            try:
+            with self._storage():
                 self._out.sync()
-            except OSError as err:
-                self._fail(err)
-                raise self._error from err
 
     def _tick(self, fsync: bool = True) -> None:
         """Status rows, provenance now and then, the open chunk to the OS (and to disk)."""
