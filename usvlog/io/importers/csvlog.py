@@ -266,6 +266,14 @@ def _count_malformed(caught: list, report) -> None:
     caught.clear()
 
 
+def _both(pres: dict, a: str, b: str, good_t: np.ndarray, report, reason: str) -> np.ndarray:
+    """Rows with a good time and both columns of a pair (lat/lon, left/right); rows with one are counted."""
+    none = np.zeros(len(good_t), bool)
+    pa, pb = pres.get(a, none) & good_t, pres.get(b, none) & good_t
+    report.skip(reason, int(np.sum(pa ^ pb)))
+    return pa & pb
+
+
 class _Chunker:
     """One chunk of rows -> a batch of role streams (state: relative time, thrust unit)."""
 
@@ -297,10 +305,7 @@ class _Chunker:
                         where=f"line {line0 + i}: time {str(chunk[mapping[time_role]].iloc[i])[:40]!r}")
         batch = {}
         if "lat_deg" in pres or "lon_deg" in pres:
-            pl = pres.get("lat_deg", np.zeros(n, bool)) & good_t
-            pn = pres.get("lon_deg", np.zeros(n, bool)) & good_t
-            both = pl & pn
-            report.skip("gnss_incomplete", int(np.sum(pl ^ pn)))
+            both = _both(pres, "lat_deg", "lon_deg", good_t, report, "gnss_incomplete")
             g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
             if "alt_m" in vals:
                 g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
@@ -323,10 +328,7 @@ class _Chunker:
                 v["cog_rad"] = np.where(pres["course_deg"][m], np.radians(vals["course_deg"][m]), np.nan)
             batch["velocity"] = v
         if "thrust_left" in pres or "thrust_right" in pres:
-            pl = pres.get("thrust_left", np.zeros(n, bool)) & good_t
-            pr = pres.get("thrust_right", np.zeros(n, bool)) & good_t
-            both = pl & pr
-            report.skip("thrust_incomplete", int(np.sum(pl ^ pr)))
+            both = _both(pres, "thrust_left", "thrust_right", good_t, report, "thrust_incomplete")
             left = vals["thrust_left"][both] if "thrust_left" in vals else np.zeros(0)
             right = vals["thrust_right"][both] if "thrust_right" in vals else np.zeros(0)
             if self.thrust_unit is None and both.any():
