@@ -23,6 +23,7 @@ from .errors import InputError
 from .log.channels import channel_spec, frame_from_columns
 from .log.fieldlog import FieldLog
 from .model.frames import ssa
+from .model.stats import rms
 from .model.vessel import Vessel, default_vessel
 from .sim.closed_loop import (
     closed_loop,
@@ -62,7 +63,7 @@ def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) ->
         sel = np.ones(len(t_s), bool)
     r = rows[sel]
     xt = np.abs(r[:, COL["cross_track_m"]])
-    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))  # noqa: E731
+    # NaN kept (omit_nonfinite=False): a diverged closed loop must show in the metrics
     return TrackingMetrics(n_ticks=int(sel.sum()), start_s=float(start_s), duration_s=float(dt[sel].sum()),
                            cross_track_rms_m=rms(xt), cross_track_p95_m=float(np.percentile(xt, 95)),
                            cross_track_max_m=float(xt.max()),
@@ -200,14 +201,14 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         ok = np.isfinite(d)
         n_cmp = int(ok.sum() // 2)
         if ok.any():
-            c_rms = float(np.sqrt(np.mean(d[ok] ** 2)))
+            c_rms = rms(d, omit_nonfinite=True)   # over the ticks both sides have
             c_max = float(np.max(np.abs(d[ok])))
         if {"thrust_left_n", "thrust_right_n"} <= set(rec.columns):
             df = np.concatenate([frame["thrust_left_n"].to_numpy() - rec["thrust_left_n"].to_numpy(dtype=float),
                                  frame["thrust_right_n"].to_numpy() - rec["thrust_right_n"].to_numpy(dtype=float)])
             okf = np.isfinite(df)
             if okf.any():
-                f_rms = float(np.sqrt(np.mean(df[okf] ** 2)))
+                f_rms = rms(df, omit_nonfinite=True)
     n_dec, dec_max = 0, None
     rec_cs = log.get("/control/state")
     if rec_cs is not None and len(rec_cs):

@@ -72,15 +72,8 @@ def make_csv(path: Path) -> None:
     write_merged_csv(_source_run(60.0, 21), path, force=True)
 
 
-def _dm(deg: float, lat: bool) -> tuple[str, str]:
-    hemi = ("N" if deg >= 0 else "S") if lat else ("E" if deg >= 0 else "W")
-    a = abs(deg)
-    d = int(a)
-    m = (a - d) * 60.0
-    return (f"{d:02d}" if lat else f"{d:03d}") + f"{m:010.7f}", hemi
-
-
 def make_nmea(path: Path) -> None:
+    from usvlog.io.nmea import format_deg_min
     from usvlog.io.nmea import with_checksum as _cs
 
     log = _source_run(90.0, 22)
@@ -93,8 +86,8 @@ def make_nmea(path: Path) -> None:
         stamp = ts.isoformat(timespec="milliseconds").replace("+00:00", "Z")
         if kind == "gps":
             hms = ts.strftime("%H%M%S") + f".{ts.microsecond // 10000:02d}"
-            la, lh = _dm(row.lat_deg, True)
-            lo, oh = _dm(row.lon_deg, False)
+            la, lh = format_deg_min(row.lat_deg, True, decimals=7)
+            lo, oh = format_deg_min(row.lon_deg, False, decimals=7)
             lines.append(f"{stamp} " + _cs(f"GPRMC,{hms},A,{la},{lh},{lo},{oh},0.0,0.0,{ts:%d%m%y},,,A"))
             lines.append(f"{stamp} " + _cs(f"GPGGA,{hms},{la},{lh},{lo},{oh},1,12,0.8,{row.alt_m:.3f},M,0.0,M,,"))
         else:

@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 from usvlog.errors import FormatError, InputError, UsvlogError
 from usvlog.io.importers import import_file
 from usvlog.io.mcap import read_log
+from usvlog.io.nmea import format_deg_min
+from usvlog.io.nmea import with_checksum as _cs
 from usvlog.log.summary import skipped_counts
 from usvlog.model.frames import ssa
 from usvlog.model.vessel import Thrusters, Vessel
@@ -201,21 +203,6 @@ def test_wrong_text_format_forced(tmp_path):
 
 # ------------------------------------------------------------------ NMEA
 
-def _cs(body: str) -> str:
-    c = 0
-    for ch in body:
-        c ^= ord(ch)
-    return f"${body}*{c:02X}"
-
-
-def _dm(deg: float, lat: bool) -> tuple[str, str]:
-    hemi = ("N" if deg >= 0 else "S") if lat else ("E" if deg >= 0 else "W")
-    a = abs(deg)
-    d = int(a)
-    m = (a - d) * 60.0
-    return (f"{d:02d}" if lat else f"{d:03d}") + f"{m:010.7f}", hemi
-
-
 def nmea_truth(n=50):
     k = np.arange(n)
     return dict(k=k, lat=-33.8561234 + 1.1e-6 * k, lon=151.2153456 - 1.3e-6 * k, hdg=(355.0 + 0.5 * k) % 360.0)
@@ -228,8 +215,8 @@ def nmea_lines(n=50, start=dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezon
     for i in range(n):
         ts = start + dt.timedelta(milliseconds=100 * i)
         hms = ts.strftime("%H%M%S") + f".{ts.microsecond // 10000:02d}"
-        la, lh = _dm(tr["lat"][i], True)
-        lo, oh = _dm(tr["lon"][i], False)
+        la, lh = format_deg_min(tr["lat"][i], True, decimals=7)
+        lo, oh = format_deg_min(tr["lon"][i], False, decimals=7)
         talker = ("GP", "GN")[i % 2]
         rows = [_cs(f"{talker}RMC,{hms},A,{la},{lh},{lo},{oh},3.9,90.0,{ts:%d%m%y},,,A"),
                 _cs(f"{talker}GGA,{hms},{la},{lh},{lo},{oh},1,10,0.8,5.0,M,20.0,M,,"),
@@ -422,8 +409,8 @@ def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):
     lines = []
     for i in range(20):
         ts = start + dt.timedelta(milliseconds=100 * i)
-        la, lh = _dm(tr["lat"][i], True)
-        lo, oh = _dm(tr["lon"][i], False)
+        la, lh = format_deg_min(tr["lat"][i], True, decimals=7)
+        lo, oh = format_deg_min(tr["lon"][i], False, decimals=7)
         lines.append(_cs(f"GPGGA,{ts:%H%M%S}.{ts.microsecond // 10000:02d},{la},{lh},{lo},{oh},1,10,0.8,5.0,M,,M,,"))
     p = tmp_path / "gga.nmea"
     p.write_text("\n".join(lines) + "\n")
@@ -431,3 +418,39 @@ def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):
     t0 = int(start.timestamp() * 10**3) * 10**6
     np.testing.assert_array_equal(g["stamp_ns"].to_numpy(), t0 + np.arange(20) * 100_000_000)
     np.testing.assert_allclose(g["alt_m"], 5.0)   # no geoid separation given: height above sea level kept
+
+
+@pytest.mark.parametrize("gga_first", [True, False])
+def test_nmea_epoch_with_a_bad_gga_keeps_the_rmc_fix(tmp_path, gga_first):
+    """One fix per epoch from its best valid sentence: GGA, else RMC (the recorder's rule too).
+
+    RMC reports each position 1e-5 deg north of its GGA, so the values show which sentence
+    gave the fix. Epoch 3's GGA has a bad checksum, epoch 6's says "no fix": RMC gives those.
+    """
+    tr = nmea_truth(10)
+    start = dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezone.utc)
+    lines = []
+    for i in range(10):
+        ts = start + dt.timedelta(milliseconds=100 * i)
+        hms = ts.strftime("%H%M%S") + f".{ts.microsecond // 10000:02d}"
+        lo, oh = format_deg_min(tr["lon"][i], False, decimals=7)
+        la, lh = format_deg_min(tr["lat"][i], True, decimals=7)
+        la_r, lh_r = format_deg_min(tr["lat"][i] + 1e-5, True, decimals=7)
+        rmc = _cs(f"GPRMC,{hms},A,{la_r},{lh_r},{lo},{oh},3.9,90.0,{ts:%d%m%y},,,A")
+        gga = _cs(f"GPGGA,{hms},{la},{lh},{lo},{oh},1,10,0.8,5.0,M,20.0,M,,")
+        if i == 3:
+            gga = gga[:-2] + ("00" if gga[-2:] != "00" else "01")
+        if i == 6:
+            gga = _cs(f"GPGGA,{hms},,,,,0,00,99.9,,M,,M,,")
+        lines += [gga, rmc] if gga_first else [rmc, gga]
+    p = tmp_path / "bad_gga.nmea"
+    p.write_text("\n".join(lines) + "\n")
+    res = import_file(p)
+    g = res.log["/gnss/fix"]
+    t0 = int(start.timestamp()) * 10**9
+    np.testing.assert_array_equal(g.index.to_numpy(), t0 + tr["k"] * 100_000_000)   # every epoch has its fix
+    from_rmc = np.isin(tr["k"], [3, 6])
+    np.testing.assert_allclose(g["lat_deg"], tr["lat"] + np.where(from_rmc, 1e-5, 0.0), atol=1e-8, rtol=0)
+    np.testing.assert_allclose(g["lon_deg"], tr["lon"], atol=1e-8, rtol=0)
+    np.testing.assert_allclose(g["alt_m"].to_numpy()[~from_rmc], 25.0)   # GGA: 5 m MSL + 20 m geoid
+    assert res.report.skipped == {"nmea_bad_checksum": 1, "gnss_no_fix": 1}

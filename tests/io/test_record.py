@@ -141,6 +141,66 @@ def test_recorded_file_is_standard_mcap_and_every_message_validates(tmp_path):
     assert math.isnan(fix.alt_m.iloc[0]) and fix.alt_m.iloc[1] == pytest.approx(43.0)
 
 
+def _epoch_sentences(i: int, lat_gga: float, lat_rmc: float, gga: str = "ok") -> tuple[str, str]:
+    """GGA and RMC of epoch ``i`` (10 Hz from T0, 2025-06-15T15:06:40Z); ``gga``: ok, corrupt or nofix."""
+    from usvlog.io.nmea import format_deg_min
+
+    hms = f"1506{40 + i // 10:02d}.{i % 10}0"
+    la, lh = format_deg_min(lat_gga, True)
+    lr, lhr = format_deg_min(lat_rmc, True)
+    g = with_checksum(f"GPGGA,{hms},{la},{lh},01042.000000,E,1,07,1.2,3.0,M,40.0,M,,")
+    if gga == "corrupt":
+        g = g[:-2] + ("00" if g[-2:] != "00" else "01")
+    elif gga == "nofix":
+        g = with_checksum(f"GPGGA,{hms},,,,,0,00,,,M,,M,,")
+    return g, with_checksum(f"GPRMC,{hms},A,{lr},{lhr},01042.000000,E,1.0,90.0,150625,,")
+
+
+@pytest.mark.parametrize("gga_first", [True, False])
+def test_epoch_with_a_bad_gga_keeps_the_rmc_fix(tmp_path, gga_first):
+    """One fix per epoch from its best valid sentence: GGA, else RMC (the importer's rule too).
+
+    RMC reports each position 1e-5 deg north of its GGA, so the values show which sentence
+    gave the fix. Epoch 3's GGA is corrupt, epoch 6's says "no fix", the last epoch's is
+    corrupt too (its RMC fix is written when the recorder closes)."""
+    out = tmp_path / "fix.mcap"
+    n, bad = 10, {3: "corrupt", 6: "nofix", 9: "corrupt"}
+    lat = 59.9 + 1e-4 * np.arange(n)
+    with Recorder(out, flush_s=60.0) as rec:     # no background flush: only the rule decides
+        for i in range(n):
+            gga, rmc = _epoch_sentences(i, lat[i], lat[i] + 1e-5, bad.get(i, "ok"))
+            first, second = (gga, rmc) if gga_first else (rmc, gga)
+            t = T0 + i * 100_000_000
+            rec.nmea(first, source="gnss", t_ns=t)
+            rec.nmea(second, source="gnss", t_ns=t + 5_000_000)
+    fix = read_log(out)["/gnss/fix"]
+    from_rmc = np.isin(np.arange(n), list(bad))
+    assert len(fix) == n                         # every epoch has its fix, once
+    np.testing.assert_allclose(fix.lat_deg, lat + np.where(from_rmc, 1e-5, 0.0), atol=1e-8, rtol=0)
+    assert np.isnan(fix.alt_m.to_numpy()[from_rmc]).all()
+    np.testing.assert_allclose(fix.alt_m.to_numpy()[~from_rmc], 43.0)
+    # the receive time of the sentence that gave the fix; the GPS time of its epoch
+    t_gga = T0 + np.arange(n) * 100_000_000 + (0 if gga_first else 5_000_000)
+    t_rmc = T0 + np.arange(n) * 100_000_000 + (5_000_000 if gga_first else 0)
+    np.testing.assert_array_equal(fix.index.to_numpy(), np.where(from_rmc, t_rmc, t_gga))
+    np.testing.assert_array_equal(fix.stamp_ns.to_numpy(), T0 + np.arange(n) * 100_000_000)
+
+
+def test_held_rmc_fix_is_written_by_the_background_flush(tmp_path):
+    out = tmp_path / "held.mcap"
+    rec = Recorder(out, flush_s=0.1)
+    try:
+        for i, gga in enumerate(("ok", "corrupt")):
+            g, r = _epoch_sentences(i, 59.9, 59.9 + 1e-5, gga)
+            rec.nmea(g, source="gnss")
+            rec.nmea(r, source="gnss")
+        time.sleep(0.6)                          # > the epoch burst (0.25 s) + 2 flush intervals
+        snap = read_log(_snapshot(out, tmp_path / "s.mcap"))
+    finally:
+        rec.close()
+    np.testing.assert_allclose(snap["/gnss/fix"].lat_deg, [59.9, 59.9 + 1e-5], atol=1e-9, rtol=0)
+
+
 def test_flushed_chunks_and_datum_survive_a_kill(tmp_path):
     out = tmp_path / "k.mcap"
     rec = Recorder(out, flush_s=60.0)          # only explicit flushes here

@@ -9,8 +9,10 @@ import pytest
 
 from usvlog.io.mcap.codec import codec_for_topic
 from usvlog.io.nmea import (
+    FixSelector,
     NmeaError,
     checksum,
+    format_deg_min,
     parse_sentence,
     resolve_time_of_day,
     with_checksum,
@@ -206,3 +208,74 @@ def test_parse_time_is_exact_to_the_nanosecond(text, dt_utc, extra_ns):
     assert parse_time(text) == parse_start_utc(text) == start_ns(text) == want
     with pytest.raises(ValueError):
         parse_time("yesterday-ish")
+
+
+@pytest.mark.parametrize("deg, lat, decimals, text", [
+    (59.99999999999, True, 6, ("6000.000000", "N")),    # minutes round to 60 as printed: carried
+    (-10.5, False, 6, ("01030.000000", "W")),
+    (12.3456789, True, 7, ("1220.7407340", "N")),
+    (-0.0000001, True, 3, ("0000.000", "S")),
+    (179.999999999, False, 4, ("18000.0000", "E")),
+])
+def test_format_deg_min_round_trips_through_pynmea2(deg, lat, decimals, text):
+    import pynmea2
+
+    assert format_deg_min(deg, lat, decimals) == text
+    field, hemi = text
+    body = f"GPGLL,{field},{hemi},00000.0,E,120000.00,A,A" if lat else f"GPGLL,0000.0,N,{field},{hemi},120000.00,A,A"
+    ref = pynmea2.parse(with_checksum(body))
+    got = parse_sentence(with_checksum(body))
+    assert (got.lat_deg if lat else got.lon_deg) == pytest.approx(ref.latitude if lat else ref.longitude, abs=1e-12)
+    assert (got.lat_deg if lat else got.lon_deg) == pytest.approx(deg, abs=0.6 * 10.0**-decimals / 60.0)
+
+
+def _fix(kind, tod_s, lat=59.0):
+    """A parsed position sentence of ``kind`` at time of day ``tod_s`` (None: no time)."""
+    hms = "" if tod_s is None else f"{int(tod_s) // 3600:02d}{int(tod_s) % 3600 // 60:02d}{tod_s % 60:05.2f}"
+    la, lh = format_deg_min(lat, True)
+    body = {"GGA": f"GPGGA,{hms},{la},{lh},01000.000,E,1,08,0.9,1.0,M,0.0,M,,",
+            "RMC": f"GPRMC,{hms},A,{la},{lh},01000.000,E,0.0,0.0,010624,,",
+            "GLL": f"GPGLL,{la},{lh},01000.000,E,{hms},A"}[kind]
+    return parse_sentence(with_checksum(body))
+
+
+def _run(selector, sentences, dt_ns=10_000_000):
+    """Offer (kind, time of day s) in order, one every ``dt_ns``; the winners' (kind, tod) in order."""
+    out = []
+    for i, (kind, tod) in enumerate(sentences):
+        out += selector.offer(_fix(kind, tod), i * dt_ns, (kind, tod))
+    return out + selector.flush()
+
+
+@pytest.mark.parametrize("order", [("GGA", "RMC"), ("RMC", "GGA"), ("RMC", "GLL", "GGA"), ("GLL", "GGA", "RMC")])
+def test_fix_selector_one_fix_per_epoch_from_gga(order):
+    sentences = [(k, 10.0 + 0.1 * e) for e in range(5) for k in order]
+    assert _run(FixSelector(), sentences) == [("GGA", 10.0 + 0.1 * e) for e in range(5)]
+
+
+def test_fix_selector_keeps_rmc_when_the_epoch_has_no_valid_gga():
+    # epoch 2's GGA is corrupt (never offered); epoch 4 only has GLL
+    sentences = [("GGA", 1.0), ("RMC", 1.0), ("GGA", 2.0), ("RMC", 2.0), ("RMC", 3.0), ("GLL", 3.0),
+                 ("GGA", 4.0), ("GLL", 5.0), ("RMC", 6.0), ("GGA", 6.0)]
+    assert _run(FixSelector(), sentences) == [("GGA", 1.0), ("GGA", 2.0), ("RMC", 3.0), ("GGA", 4.0),
+                                              ("GLL", 5.0), ("GGA", 6.0)]
+
+
+def test_fix_selector_decides_at_once_for_the_best_kind_a_source_sends():
+    sel = FixSelector(window_ns=2 * 10**9)
+    # an RMC-only source: the first RMC waits for its epoch to end (GGA might follow), later ones do not
+    assert sel.offer(_fix("RMC", 1.0), 0, "r1") == []
+    assert sel.offer(_fix("RMC", 2.0), 10**9, "r2") == ["r1", "r2"]
+    assert sel.offer(_fix("RMC", 3.0), 2 * 10**9, "r3") == ["r3"]
+    # a GGA appears: from then on an RMC waits for its epoch's GGA, which wins at once
+    assert sel.offer(_fix("GGA", 4.0), 3 * 10**9, "g4") == ["g4"]
+    assert sel.offer(_fix("RMC", 5.0), 4 * 10**9, "r5") == []
+    assert sel.offer(_fix("GGA", 5.0), 4 * 10**9 + 1, "g5") == ["g5"]
+    # an RMC whose GGA never comes: released once it is old enough, and its epoch is closed
+    assert sel.offer(_fix("RMC", 6.0), 5 * 10**9, "r6") == []
+    assert sel.release_older(5 * 10**9) == [] and sel.release_older(5 * 10**9 + 1) == ["r6"]
+    assert sel.offer(_fix("GGA", 6.0), 5 * 10**9 + 2, "g6") == []
+    # sentences without a time of day cannot be matched: each one is a fix
+    assert sel.offer(_fix("GLL", None), 6 * 10**9, "l1") == ["l1"]
+    assert sel.offer(_fix("GLL", None), 6 * 10**9 + 1, "l2") == ["l2"]
+    assert sel.flush() == []

@@ -16,18 +16,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from usvlog.io.nmea import NmeaChecksumError, NmeaError, parse_sentence, with_checksum
+from usvlog.io.nmea import (
+    NmeaChecksumError,
+    NmeaError,
+    format_deg_min,
+    parse_sentence,
+    with_checksum,
+)
 from usvlog.model.frames import ssa
 
 TALKERS = st.sampled_from(["GP", "GN", "GL", "GA", "HE", "HC", "II"])
-
-
-def _dm(deg: float, lat: bool) -> tuple[str, str]:
-    hemi = ("N" if deg >= 0 else "S") if lat else ("E" if deg >= 0 else "W")
-    a = round(abs(deg) * 60.0, 6)          # minutes, rounded as printed (59.9999996 -> next degree)
-    d, m = divmod(a, 60.0)
-    d = int(d)
-    return (f"{d:02d}" if lat else f"{d:03d}") + f"{m:09.6f}", hemi
 
 
 positions = st.tuples(st.floats(-89.9, 89.9), st.floats(-179.9, 179.9))
@@ -42,8 +40,8 @@ def _hms(t) -> str:
 @given(TALKERS, positions, times, st.floats(-50, 3000), st.floats(-100, 100), st.integers(0, 8),
        st.integers(0, 40), st.floats(0.5, 9.9))
 def test_gga_agrees(talker, pos, t, alt, sep, qual, sats, hdop):
-    la, lh = _dm(pos[0], True)
-    lo, oh = _dm(pos[1], False)
+    la, lh = format_deg_min(pos[0], True)
+    lo, oh = format_deg_min(pos[1], False)
     s = with_checksum(f"{talker}GGA,{_hms(t)},{la},{lh},{lo},{oh},{qual},{sats:02d},{hdop:.1f},"
                       f"{alt:.2f},M,{sep:.2f},M,,")
     ref = pynmea2.parse(s)
@@ -66,8 +64,8 @@ def test_gga_agrees(talker, pos, t, alt, sep, qual, sats, hdop):
 @settings(max_examples=100, deadline=None)
 @given(TALKERS, positions, times, st.dates(dt.date(2000, 1, 1), dt.date(2079, 12, 31)), st.booleans())
 def test_rmc_and_gll_agree(talker, pos, t, date, valid):
-    la, lh = _dm(pos[0], True)
-    lo, oh = _dm(pos[1], False)
+    la, lh = format_deg_min(pos[0], True)
+    lo, oh = format_deg_min(pos[1], False)
     status = "A" if valid else "V"
     for s in (with_checksum(f"{talker}RMC,{_hms(t)},{status},{la},{lh},{lo},{oh},0.5,54.7,{date:%d%m%y},,,A"),
               with_checksum(f"{talker}GLL,{la},{lh},{lo},{oh},{_hms(t)},{status},A")):

@@ -13,6 +13,7 @@ from ..errors import ConfigError, InputError
 from ..estimate import EstimateSettings, estimate
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
+from ..model.stats import fit_percent
 from ..model.vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
@@ -77,15 +78,6 @@ class Validation:
         """JSON-ready summary: fit_percent, current_ne_mps, init_window_s, duration_s."""
         return {"fit_percent": dict(self.fit_percent), "current_ne_mps": list(self.current),
                 "init_window_s": self.init_window_s, "duration_s": float(self.t[-1] - self.t[0])}
-
-
-def fit_percent(y, yhat) -> float:
-    """NRMSE fit: 100 (1 - ||y - yhat|| / ||y - mean(y)||) (columns of 2-D y stacked)."""
-    y, yhat = np.asarray(y, float), np.asarray(yhat, float)
-    ok = np.all(np.isfinite(y.reshape(len(y), -1)) & np.isfinite(yhat.reshape(len(y), -1)), axis=1)
-    y, yhat = y[ok], yhat[ok]
-    den = np.linalg.norm(y - y.mean(axis=0))
-    return float(100.0 * (1.0 - np.linalg.norm(y - yhat) / den)) if den > 0 else float("nan")
 
 
 def _ee_inputs(run: RunData, ks: KinStates, current=(0.0, 0.0)):

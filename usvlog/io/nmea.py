@@ -106,6 +106,34 @@ def with_checksum(body: str) -> str:
     return f"${body}*{checksum(body)}"
 
 
+def format_deg_min(value_deg: float, lat: bool, decimals: int = 6) -> tuple[str, str]:
+    """Signed degrees -> an NMEA position field and its hemisphere letter.
+
+    Parameters
+    ----------
+    value_deg : float
+        Latitude or longitude, degrees (north / east positive).
+    lat : bool
+        Latitude (``ddmm.mmmm``, N/S) or longitude (``dddmm.mmmm``, E/W).
+    decimals : int
+        Decimals of the minutes.
+
+    Returns
+    -------
+    (str, str)
+        The field and ``N``/``S`` or ``E``/``W``. Minutes that round to 60 as printed
+        (59.9999996 with 6 decimals) carry into the degree: ``0100.000000``, never
+        ``0060.000000``, which a reader rejects.
+    """
+    a = abs(value_deg)
+    d = int(a)
+    m = (a - d) * 60.0
+    if round(m, decimals) >= 60.0:
+        d, m = d + 1, 0.0
+    hemi = ("N" if value_deg >= 0 else "S") if lat else ("E" if value_deg >= 0 else "W")
+    return f"{d:0{2 if lat else 3}d}{m:0{decimals + 3}.{decimals}f}", hemi
+
+
 def date_ns(d: _dt.date) -> int:
     """ns since the epoch of the UTC midnight starting ``d``."""
     return (d - _dt.date(1970, 1, 1)).days * _DAY_NS
@@ -319,3 +347,85 @@ def resolve_time_of_day(time_of_day_ns: int, reference_ns: int) -> int:
         if best is None or abs(cand - reference_ns) < abs(best - reference_ns):
             best = cand
     return int(best)
+
+
+# -- one fix per epoch ---------------------------------------------------------------
+
+POSITION_PRIORITY = {"GGA": 0, "RMC": 1, "GLL": 2}   # the best sentence for a fix first
+
+
+class FixSelector:
+    """One position fix per epoch, from the best valid sentence: GGA, else RMC, else GLL.
+
+    The rule the recorder and the importer share. Receivers send several position
+    sentences per epoch (same UTC time of day); only valid fixes (``has_fix``) are
+    offered, so a corrupt or no-fix GGA leaves the epoch's RMC (or GLL) to give the fix.
+
+    When the winner is known: a sentence of the best kind the source sent in earlier
+    epochs within ``window_ns`` (GGA at the start, before anything is known) wins at once and is
+    returned by :meth:`offer`; a lesser one is held until a better one of the same epoch
+    replaces it, or the epoch ends (a position sentence with another time of day,
+    :meth:`release_older`, :meth:`flush`), and is returned then. A sentence without a
+    time of day is an epoch of its own. Items are whatever the caller passes (returned
+    as they were given); times are the caller's clock (ns).
+
+    Parameters
+    ----------
+    window_ns : int
+        How long a sentence kind the source sent counts as "sent by this source", ns.
+    """
+
+    def __init__(self, window_ns: int = 2 * _NS):
+        self.window_ns = int(window_ns)
+        self._seen: dict[str, tuple] = {}   # kind -> (caller time, time of day) it was last offered
+        self._epoch: int | None = None      # time of day of the current epoch
+        self._held = None                   # (priority, t_ns, item) waiting for a better sentence
+        self._done = False                  # the current epoch's fix was returned
+
+    def offer(self, sample: NmeaSample, t_ns: int, item) -> list:
+        """Offer a valid position sentence (GGA, RMC or GLL with ``has_fix``) received at ``t_ns``.
+
+        Returns the items whose fix is decided now, in order (none, this one, the held
+        one of the previous epoch, or both).
+        """
+        prio = POSITION_PRIORITY[sample.kind]
+        tod = sample.time_of_day_ns
+        # the best kind this source sent lately, in earlier epochs (GGA while nothing is known)
+        expected = min((POSITION_PRIORITY[k] for k, (seen, epoch) in self._seen.items()
+                        if t_ns - seen < self.window_ns and (epoch is None or epoch != tod)), default=0)
+        self._seen[sample.kind] = (t_ns, tod)
+        out = []
+        if tod is None or tod != self._epoch:
+            out += self._end_epoch()
+            self._epoch = tod
+        if self._done:
+            return out                       # this epoch's fix is decided: a later sentence adds nothing
+        if self._held is None or prio < self._held[0]:
+            self._held = (prio, t_ns, item)
+        if self._held[0] <= expected or tod is None:
+            out += self._end_epoch()
+            self._done = True
+        return out
+
+    def same_epoch(self, sample: NmeaSample) -> bool:
+        """``sample`` belongs to the epoch of the last offered sentence."""
+        return sample.time_of_day_ns is not None and sample.time_of_day_ns == self._epoch
+
+    def release_older(self, t_ns: int) -> list:
+        """The held item if it was offered before ``t_ns`` (a live source's epoch is over by then)."""
+        if self._held is not None and self._held[1] < t_ns:
+            out = self._end_epoch()
+            self._done = True
+            return out
+        return []
+
+    def flush(self) -> list:
+        """The held item, if any (end of the stream)."""
+        out = self._end_epoch()
+        self._done = True
+        return out
+
+    def _end_epoch(self) -> list:
+        held, self._held = self._held, None
+        self._done = False
+        return [] if held is None else [held[2]]

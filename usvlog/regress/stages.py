@@ -24,6 +24,7 @@ from ..identify import Identifier
 from ..io.mcap import read_log
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
+from ..model.stats import rms
 from ..replay import replay_log
 from ..sim.scenario import load_scenario
 from .gate import BaselineEntry, Check, compare, updated_baseline
@@ -86,8 +87,8 @@ class _Run:
 
 
 def _rms(x) -> float:
-    x = np.asarray(x, float)
-    return float(np.sqrt(np.mean(x * x))) if len(x) else float("nan")
+    """RMS with NaN kept: an estimate with holes must show in the gate, not be averaged over."""
+    return rms(x, omit_nonfinite=False)
 
 
 def _truth_at(log: FieldLog, t_ns: np.ndarray):

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, geodetic_to_ned, ssa, unwrap
+from ..model.stats import fit_percent, rms
 
 META_PATH = "usvlog.path"
 
@@ -291,18 +292,9 @@ def events(log: FieldLog) -> list[Event]:
 # metrics
 # -----------------------------------------------------------------------------
 
-def _rms(a):
-    a = np.asarray(a, float)
-    a = a[np.isfinite(a)]
-    return float(np.sqrt(np.mean(a * a))) if len(a) else math.nan
-
-
-def fit_percent(y, y_sim) -> float:
-    """Normalised fit, 100 (1 - |y - y_sim| / |y - mean(y)|), over the samples where both are finite."""
-    y, y_sim = np.asarray(y, float), np.asarray(y_sim, float)
-    ok = np.isfinite(y) & np.isfinite(y_sim)
-    den = np.linalg.norm(y[ok] - y[ok].mean()) if ok.any() else 0.0
-    return float(100.0 * (1.0 - np.linalg.norm(y[ok] - y_sim[ok]) / den)) if den > 0 else math.nan
+def _rms(a) -> float:
+    """RMS over the finite samples: report channels have gaps (sparse rows, dropouts)."""
+    return rms(a, omit_nonfinite=True)
 
 
 def metrics(log: FieldLog) -> list[tuple[str, str, str]]:

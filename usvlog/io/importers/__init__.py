@@ -19,13 +19,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...choices import IMPORT_FORMATS
-from ...errors import ConfigError, FormatError, InputError, StorageError, UsvlogError
+from ...errors import ConfigError, FormatError, InputError, StorageError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
-from ...model.vessel import Vessel
-from ..atomic import atomic_path, check_output, reading
-from .core import THRUST_UNITS, Assembler, ImportReport
+from ...model.vessel import THRUST_UNITS, Vessel
+from ..atomic import atomic_path, check_output
+from .core import Assembler, ImportReport
 from .sink import McapSink, MemorySink
+from .sniff import (
+    DATAFLASH_MAGIC,
+    MCAP_MAGIC,
+    ROS1_MAGIC,
+    SQLITE_MAGIC,
+    ULOG_MAGIC,
+    file_head,
+)
 
 FORMATS = IMPORT_FORMATS
 _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
@@ -34,11 +42,6 @@ CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "he
              "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
 TOPIC_ROLES = ("gnss", "heading", "yaw_rate", "thrust_left", "thrust_right", "speed_mps")
 
-ULOG_MAGIC = b"ULog\x01\x12\x35"
-DATAFLASH_MAGIC = b"\xa3\x95\x80"
-ROS1_MAGIC = b"#ROSBAG V2.0"
-SQLITE_MAGIC = b"SQLite format 3\x00"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -109,8 +112,7 @@ def detect_format(path) -> str:
         if (p / "metadata.yaml").exists() or any(p.glob("*.db3")) or any(p.glob("*.mcap")):
             return "ros2"
         raise FormatError(f"{p}: a directory that is not a ROS 2 bag (no metadata.yaml)")
-    with reading(p), open(p, "rb") as fh:
-        head = fh.read(65536)
+    head = file_head(p, 65536)
     if not head:
         raise InputError(f"{p}: empty file")
     if head.startswith(ROS1_MAGIC):
@@ -157,12 +159,47 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
                 on_mapping=None) -> ImportResult:
     """Import one field log.
 
-    ``fmt``: ``auto`` (from the content) or one of :data:`FORMATS`. ``columns`` maps CSV
-    roles to headers, ``topics`` maps bag roles to ``/topic[.field.path]``; what is not
-    given is guessed and the guesses are in the report. With ``out`` the log is streamed
-    into that MCAP file (atomically, refusing to overwrite unless ``force``) and
-    ``result.log`` is None. ``on_mapping(report)`` is called once the mapping is known,
-    before the bulk of the work (the CLI prints it there).
+    Parameters
+    ----------
+    src : path-like
+        The source file (a directory for a ROS 2 bag).
+    fmt : str
+        ``auto`` (detected from the content) or one of :data:`FORMATS`.
+    vessel : usvlog.model.vessel.Vessel, optional
+        Its thruster map turns commands that are not newtons into forces (N).
+    columns : dict, optional
+        CSV role -> header (roles: :data:`CSV_ROLES`); what is not given is guessed.
+    topics : dict, optional
+        Bag role -> ``/topic[.field.path]`` (roles: :data:`TOPIC_ROLES`); guessed otherwise.
+    thrust_unit : str, optional
+        ``newton``, ``normalized`` or ``pwm_us``; guessed from the values when None.
+    start_utc : str or int, optional
+        Start of relative times: ISO 8601 text or ns since the Unix epoch.
+    datum : usvlog.model.frames.Datum, optional
+        Origin of the local NED frame; the first kept fix when None.
+    out : path-like, optional
+        Stream the log into this MCAP file (written atomically) instead of memory.
+    force : bool
+        Overwrite ``out`` if it exists.
+    chunk_rows : int
+        Source records per batch (memory stays flat).
+    on_mapping : callable, optional
+        ``on_mapping(report)`` once the mapping is known, before the bulk of the work.
+
+    Returns
+    -------
+    ImportResult
+        The log (None with ``out``), the :class:`ImportReport` (records read, kept,
+        skipped by reason, guesses) and the output path.
+
+    Raises
+    ------
+    UsvlogError
+        One line naming the file: :class:`~usvlog.errors.InputError` for unusable content,
+        :class:`~usvlog.errors.FormatError` for a file the format's parser cannot read
+        (chained ``from`` the parser's exception), ``StorageError`` / ``OutputExistsError``
+        / ``ConfigError`` for paths and settings. Any other exception is a bug in usvlog
+        and propagates as it is.
     """
     p = Path(src)
     if not p.exists():
@@ -184,18 +221,13 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     module = importlib.import_module(f".{_MODULES[fmt]}", __name__)
 
     def run(sink):
-        try:
-            for batch in module.read(p, opts, report, fmt=fmt, on_mapping=on_mapping):
-                sink.write(asm.process(batch))
-        except UsvlogError:
-            raise
-        except (MemoryError, KeyboardInterrupt):
-            raise
-        except Exception as err:  # a third-party parser choking on a damaged or foreign file
-            raise FormatError(f"{p}: not a readable {fmt} file ({type(err).__name__}: {err})") from err
+        # no catch-all here: each reader wraps its third-party parser's exceptions where it
+        # calls it (FormatError from the library's error); anything else is a bug in usvlog
+        for batch in module.read(p, opts, report, fmt=fmt, on_mapping=on_mapping):
+            sink.write(asm.process(batch))
         if sum(report.counts.values()) == 0:
             sk = ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())) or "none"
-            first = "; first: " + next(iter(report.first_bad.values())) if report.first_bad else ""
+            first = "; first: " + " ".join(next(iter(report.first_bad.values())).split()) if report.first_bad else ""
             raise InputError(f"{p}: nothing imported as {fmt} ({report.records} records read, skipped: {sk}{first})")
         meta = FieldLog()
         if asm.datum is not None:

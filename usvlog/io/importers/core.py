@@ -17,21 +17,30 @@ their unit are kept. The datum is the first kept fix unless one is given.
 
 Pure numpy/pandas: no file is opened here (the sinks that write live in
 ``usvlog.io.importers.sink``).
+
+Errors: the readers turn what they find wrong in a file into one-line
+:class:`~usvlog.errors.InputError` / :class:`~usvlog.errors.FormatError` themselves,
+by checking what they read. Exceptions of the third-party parsers they call
+(pandas, rosbags, pymavlink, pyulog) are wrapped where the call is made, with
+:func:`foreign` / :func:`guarded`, ``from`` the library's exception; anything else
+(a bug in usvlog) propagates as it is.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from ...errors import ConfigError
+from ...errors import ConfigError, FormatError
 from ...log.channels import channel_spec, frame_from_columns
 from ...model.frames import Datum, ssa
-from ...model.vessel import Vessel
+from ...model.vessel import THRUST_UNITS, Vessel
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -41,7 +50,6 @@ STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
     "yaw_rate": ("/imu/yaw_rate", ("r_radps",)),
     "velocity": ("/gnss/velocity", ("sog_mps",)),
 }
-THRUST_UNITS = ("newton", "normalized", "pwm_us")
 _COV = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
         "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
 
@@ -76,6 +84,76 @@ class ImportReport:
                 "skipped": dict(sorted(self.skipped.items())), "first_bad": dict(self.first_bad),
                 "guesses": dict(self.guesses), "mapping": dict(self.mapping), "notes": list(self.notes),
                 "channels": dict(sorted(self.counts.items()))}
+
+
+def clock_offset_fallback(opts, report, what: str) -> int:
+    """UTC offset (ns) of a log's own clock when the log has no GPS time: ``--start-utc``, else the epoch.
+
+    Records the guess and a note: ``"no GPS time in the log: {what} counted from ..."``.
+    """
+    report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
+    report.note(f"no GPS time in the log: {what} counted from " + report.guesses["time_base"])
+    return opts.start_utc_ns or 0
+
+
+def listing(names, limit: int = 30) -> str:
+    """``a, b, c`` of names read from a file, on one line (whitespace inside a name collapsed)."""
+    names = list(names)
+    text = ", ".join(" ".join(str(x).split()) for x in names[:limit])
+    return text + (f", ... ({len(names)} in all)" if len(names) > limit else "")
+
+
+def foreign_error(path, what: str, err: BaseException) -> FormatError:
+    """A one-line :class:`FormatError` for an exception a third-party reader raised on ``path``.
+
+    Parameters
+    ----------
+    path : path-like
+        The file being read (named first in the message).
+    what : str
+        What could not be done, with the channel/topic or time when known
+        (``"not a readable ROS 1 bag"``, ``"unreadable message after t_ns 17..."``).
+    err : BaseException
+        The library's exception; raise the result ``from err``.
+    """
+    text = " ".join(str(err).split())[:200]
+    return FormatError(f"{path}: {what} ({type(err).__name__}{': ' + text if text else ''})")
+
+
+@contextlib.contextmanager
+def foreign(path, what):
+    """Wrap the exceptions of third-party parser calls on ``path`` in a :class:`FormatError`.
+
+    Put only calls into the library inside (``AnyReader.open()``, ``ULog(...)``): those
+    parsers have no single error type for a damaged or foreign file (rosbags raises its
+    ``*Error`` classes but also ``AssertionError``, ``UnicodeDecodeError``, apsw's
+    ``CorruptError``; pymavlink ``struct.error``, ``IndexError``, ...), so whatever the
+    library raises is the file's fault; usvlog's own code stays outside, and a bug there
+    propagates as itself. ``MemoryError`` is not a bad file and passes through.
+    """
+    try:
+        yield
+    except MemoryError:
+        raise
+    except Exception as err:
+        raise foreign_error(path, what() if callable(what) else what, err) from err
+
+
+def guarded(items: Iterable, path, what) -> Iterator:
+    """Iterate a third-party iterator, wrapping its exceptions as :func:`foreign` does.
+
+    Only the library's ``next()`` is guarded: what the caller does with each item (usvlog
+    code) runs outside the ``try``. ``what`` is a text or a function returning one (called
+    on failure, so it can say how far the reading got).
+    """
+    it = iter(items)
+    while True:
+        with foreign(path, what):
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+        yield item
 
 
 def _time_filter(t: np.ndarray, last: int | None) -> tuple[np.ndarray, int, int]:

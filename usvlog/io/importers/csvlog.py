@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from ...errors import InputError
-from .core import guess_thrust_unit
+from .core import guess_thrust_unit, listing
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {
@@ -117,6 +117,19 @@ def _numeric(col: pd.Series, role: str, header: str, line0: int, report) -> tupl
     return v, ~empty & ~bad
 
 
+_NS_PER = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+
+
+def _datetimes_ns(arr: np.ndarray) -> np.ndarray:
+    """datetime64 values (any of s/ms/us/ns: pandas picks the resolution) -> int64 ns since
+    the epoch; -1 for NaT and for times before 1970 or past what int64 ns holds (2262)."""
+    unit = np.datetime_data(arr.dtype)[0]
+    per = _NS_PER[unit]
+    v = arr.view(np.int64)
+    ok = ~np.isnat(arr) & (v >= 0) & (v < np.iinfo(np.int64).max // per)
+    return np.where(ok, np.where(ok, v, 0) * per, -1).astype(np.int64)
+
+
 def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str, line0: int,
            state: dict) -> np.ndarray:
     """Record times in ns (int64); rows with no usable time get -1."""
@@ -128,9 +141,7 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
             return _times(num, "time_s", start_ns, report, header, line0, state)
         state["iso"] = True
         ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
-        naive = ts.dt.tz_localize(None).dt.as_unit("ns")
-        arr = naive.to_numpy(dtype="datetime64[ns]").view(np.int64)
-        return np.where(naive.isna().to_numpy() | (arr < 0), -1, arr).astype(np.int64)
+        return _datetimes_ns(ts.dt.tz_localize(None).to_numpy())
     if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype):
         t = col.to_numpy(dtype=np.int64)
         return np.where(t >= 0, t, -1)
@@ -160,7 +171,34 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
     return ti
 
 
+def _parser_message(err: BaseException) -> str:
+    """The first line of a pandas parser error (its messages can span lines)."""
+    lines = str(err).strip().splitlines()
+    return lines[0] if lines else type(err).__name__
+
+
 def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
+    """Batches of role streams from a CSV file (see :mod:`usvlog.io.importers.core`).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The CSV file.
+    opts : usvlog.io.importers.ImportOptions
+        Column roles, thrust unit, start time (ns) for relative times, rows per chunk.
+    report : usvlog.io.importers.core.ImportReport
+        Filled with records read, skipped rows by reason, the mapping and the guesses.
+    fmt : str
+        Unused (one signature for every reader).
+    on_mapping : callable, optional
+        Called with ``report`` once the column mapping is known.
+
+    Raises
+    ------
+    InputError
+        No header, no time column, no usable column, a role mapped to a missing
+        column, or a file pandas' parser cannot read (``from`` its error).
+    """
     p = path
     try:
         with open(p, "r", encoding="utf-8", errors="replace", newline="") as fh:
@@ -173,103 +211,129 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     try:
         headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
-        raise InputError(f"{p} line 1: not a CSV header ({str(err).strip().splitlines()[0]})") from err
+        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
     missing = {r: h for r, h in opts.columns.items() if h not in headers}
     if missing:
         r, h = next(iter(missing.items()))
         raise InputError(f"{p}: column {h!r} for role {r} is not in the header "
-                         f"(columns: {', '.join(map(str, headers[:30]))})")
+                         f"(columns: {listing(headers)})")
     mapping, guessed = guess_mapping(headers, opts.columns)
     report.mapping.update(mapping)
     report.guesses.update({f"column {k}": v for k, v in guessed.items()})
     time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
     if time_role is None:
         raise InputError(f"{p}: no time column found (give --column time_s=HEADER; columns: "
-                         f"{', '.join(map(str, headers[:30]))})")
+                         f"{listing(headers)})")
     if not any(r in mapping for r in _VALUE_ROLES):
         raise InputError(f"{p}: no column maps to a role (give --column ROLE=HEADER; columns: "
-                         f"{', '.join(map(str, headers[:30]))})")
+                         f"{listing(headers)})")
     if on_mapping is not None:
         on_mapping(report)
-    thrust_unit = opts.thrust_unit
-    state: dict = {}
+    chunker = _Chunker(mapping, time_role, opts, report)
     line0 = 2
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", pd.errors.ParserWarning)
+        for chunk in _chunks(p, sep, opts.chunk_rows):
+            report.records += len(chunk)
+            _count_malformed(caught, report)
+            batch = chunker.batch(chunk, line0)
+            line0 += len(chunk)
+            yield batch
+        _count_malformed(caught, report)
+
+
+def _chunks(p, sep: str, chunk_rows: int) -> Iterator[pd.DataFrame]:
+    """pandas' chunked reader; its parser errors become one-line InputErrors naming the file."""
     try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", pd.errors.ParserWarning)
-            reader = pd.read_csv(p, sep=sep, chunksize=opts.chunk_rows,
-                                 keep_default_na=False, na_values=[""], on_bad_lines="warn",
-                                 encoding_errors="replace", skip_blank_lines=False, low_memory=True)
-            for chunk in reader:
-                n = len(chunk)
-                report.records += n
-                for w in caught:
-                    msg = str(w.message)
-                    k = msg.count("Skipping line")
-                    if k:
-                        m = re.search(r"Skipping line (\d+)", msg)
-                        report.skip("csv_malformed_row", k, where=f"line {m.group(1)}: wrong number of fields")
-                caught.clear()
-                t = _times(chunk[mapping[time_role]], time_role, opts.start_utc_ns, report,
-                           mapping[time_role], line0, state)
-                good_t = t >= 0
-                vals, pres = {}, {}
-                for role in _VALUE_ROLES:
-                    if role in mapping:
-                        vals[role], pres[role] = _numeric(chunk[mapping[role]], role, mapping[role], line0, report)
-                any_val = np.zeros(n, bool)
-                for role in pres:
-                    any_val |= pres[role]
-                bad_t = ~good_t & any_val
-                if bad_t.any():
-                    i = int(np.flatnonzero(bad_t)[0])
-                    report.skip("csv_bad_time", int(bad_t.sum()),
-                                where=f"line {line0 + i}: time {str(chunk[mapping[time_role]].iloc[i])[:40]!r}")
-                batch = {}
-                if "lat_deg" in pres or "lon_deg" in pres:
-                    pl = pres.get("lat_deg", np.zeros(n, bool)) & good_t
-                    pn = pres.get("lon_deg", np.zeros(n, bool)) & good_t
-                    both = pl & pn
-                    report.skip("gnss_incomplete", int(np.sum(pl ^ pn)))
-                    g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
-                    if "alt_m" in vals:
-                        g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
-                    batch["gnss"] = g
-                for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
-                    if role in pres:
-                        m = pres[role] & good_t
-                        batch["heading"] = {"t_ns": t[m], "heading_rad": vals[role][m] * scale,
-                                            "reference": np.full(int(m.sum()), "true", dtype=object)}
-                        break
-                for role, scale in (("yaw_rate_degps", np.pi / 180.0), ("yaw_rate_radps", 1.0)):
-                    if role in pres:
-                        m = pres[role] & good_t
-                        batch["yaw_rate"] = {"t_ns": t[m], "r_radps": vals[role][m] * scale}
-                        break
-                if "speed_mps" in pres:
-                    m = pres["speed_mps"] & good_t
-                    v = {"t_ns": t[m], "sog_mps": vals["speed_mps"][m]}
-                    if "course_deg" in pres:
-                        v["cog_rad"] = np.where(pres["course_deg"][m], np.radians(vals["course_deg"][m]), np.nan)
-                    batch["velocity"] = v
-                if "thrust_left" in pres or "thrust_right" in pres:
-                    pl = pres.get("thrust_left", np.zeros(n, bool)) & good_t
-                    pr = pres.get("thrust_right", np.zeros(n, bool)) & good_t
-                    both = pl & pr
-                    report.skip("thrust_incomplete", int(np.sum(pl ^ pr)))
-                    left = vals["thrust_left"][both] if "thrust_left" in vals else np.zeros(0)
-                    right = vals["thrust_right"][both] if "thrust_right" in vals else np.zeros(0)
-                    if thrust_unit is None and both.any():
-                        thrust_unit = guess_thrust_unit(left, right)
-                        report.guesses["thrust_unit"] = thrust_unit
-                    batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
-                                       "unit": np.full(int(both.sum()), thrust_unit or "newton", dtype=object)}
-                line0 += n
-                yield batch
-            for w in caught:
-                k = str(w.message).count("Skipping line")
-                report.skip("csv_malformed_row", k)
+        reader = pd.read_csv(p, sep=sep, chunksize=chunk_rows, keep_default_na=False, na_values=[""],
+                             on_bad_lines="warn", encoding_errors="replace", skip_blank_lines=False,
+                             low_memory=True)
+        yield from reader   # usvlog's work on each chunk runs in the caller, outside this try
     except pd.errors.EmptyDataError as err:
         raise InputError(f"{p}: empty file (no rows)") from err
     except pd.errors.ParserError as err:
-        raise InputError(f"{p}: {str(err).strip().splitlines()[0]}") from err
+        raise InputError(f"{p}: {_parser_message(err)}") from err
+
+
+def _count_malformed(caught: list, report) -> None:
+    """Rows pandas skipped for a wrong field count (its ParserWarnings), counted once each."""
+    for w in caught:
+        msg = str(w.message)
+        k = msg.count("Skipping line")
+        if k:
+            m = re.search(r"Skipping line (\d+)", msg)
+            report.skip("csv_malformed_row", k, where=f"line {m.group(1)}: wrong number of fields")
+    caught.clear()
+
+
+def _both(pres: dict, a: str, b: str, good_t: np.ndarray, report, reason: str) -> np.ndarray:
+    """Rows with a good time and both columns of a pair (lat/lon, left/right); rows with one are counted."""
+    none = np.zeros(len(good_t), bool)
+    pa, pb = pres.get(a, none) & good_t, pres.get(b, none) & good_t
+    report.skip(reason, int(np.sum(pa ^ pb)))
+    return pa & pb
+
+
+class _Chunker:
+    """One chunk of rows -> a batch of role streams (state: relative time, thrust unit)."""
+
+    def __init__(self, mapping: dict, time_role: str, opts, report):
+        self.mapping = mapping
+        self.time_role = time_role
+        self.start_ns = opts.start_utc_ns
+        self.thrust_unit = opts.thrust_unit
+        self.report = report
+        self.state: dict = {}
+
+    def batch(self, chunk: pd.DataFrame, line0: int) -> dict:
+        mapping, time_role, report = self.mapping, self.time_role, self.report
+        n = len(chunk)
+        t = _times(chunk[mapping[time_role]], time_role, self.start_ns, report, mapping[time_role], line0,
+                   self.state)
+        good_t = t >= 0
+        vals, pres = {}, {}
+        for role in _VALUE_ROLES:
+            if role in mapping:
+                vals[role], pres[role] = _numeric(chunk[mapping[role]], role, mapping[role], line0, report)
+        any_val = np.zeros(n, bool)
+        for role in pres:
+            any_val |= pres[role]
+        bad_t = ~good_t & any_val
+        if bad_t.any():
+            i = int(np.flatnonzero(bad_t)[0])
+            report.skip("csv_bad_time", int(bad_t.sum()),
+                        where=f"line {line0 + i}: time {str(chunk[mapping[time_role]].iloc[i])[:40]!r}")
+        batch = {}
+        if "lat_deg" in pres or "lon_deg" in pres:
+            both = _both(pres, "lat_deg", "lon_deg", good_t, report, "gnss_incomplete")
+            g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
+            if "alt_m" in vals:
+                g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
+            batch["gnss"] = g
+        for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
+            if role in pres:
+                m = pres[role] & good_t
+                batch["heading"] = {"t_ns": t[m], "heading_rad": vals[role][m] * scale,
+                                    "reference": np.full(int(m.sum()), "true", dtype=object)}
+                break
+        for role, scale in (("yaw_rate_degps", np.pi / 180.0), ("yaw_rate_radps", 1.0)):
+            if role in pres:
+                m = pres[role] & good_t
+                batch["yaw_rate"] = {"t_ns": t[m], "r_radps": vals[role][m] * scale}
+                break
+        if "speed_mps" in pres:
+            m = pres["speed_mps"] & good_t
+            v = {"t_ns": t[m], "sog_mps": vals["speed_mps"][m]}
+            if "course_deg" in pres:
+                v["cog_rad"] = np.where(pres["course_deg"][m], np.radians(vals["course_deg"][m]), np.nan)
+            batch["velocity"] = v
+        if "thrust_left" in pres or "thrust_right" in pres:
+            both = _both(pres, "thrust_left", "thrust_right", good_t, report, "thrust_incomplete")
+            left = vals["thrust_left"][both] if "thrust_left" in vals else np.zeros(0)
+            right = vals["thrust_right"][both] if "thrust_right" in vals else np.zeros(0)
+            if self.thrust_unit is None and both.any():
+                self.thrust_unit = guess_thrust_unit(left, right)
+                report.guesses["thrust_unit"] = self.thrust_unit
+            batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
+                               "unit": np.full(int(both.sum()), self.thrust_unit or "newton", dtype=object)}
+        return batch

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 import os
 import sys
 from collections.abc import Iterator
@@ -22,11 +23,14 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import FormatError, InputError
+from .core import clock_offset_fallback, foreign
+from .sniff import DATAFLASH_MAGIC, file_head
 
 GPS_EPOCH_UNIX_S = 315_964_800
 LEAP_S = 18
 FN_THROTTLE_LEFT = 73
 FN_THROTTLE_RIGHT = 74
+_T_MAX_NS = 2**63
 
 
 @contextlib.contextmanager
@@ -57,45 +61,85 @@ def _quiet_fds():
 
 
 def _messages(path, types):
+    """pymavlink's messages of ``types``; its exceptions on a damaged file -> FormatError.
+
+    Only the library calls are inside :func:`~usvlog.io.importers.core.foreign`; the
+    caller's work on each message runs outside it.
+    """
     from pymavlink.DFReader import DFReader_binary
 
-    with _quiet_fds(), _quiet():
+    with foreign(path, "not a readable DataFlash log"), _quiet_fds(), _quiet():
         log = DFReader_binary(str(path), zero_time_base=True)
+    last = None
+
+    def damaged() -> str:
+        return "damaged DataFlash log" + (f" after {last.get_type()} at TimeUS {getattr(last, 'TimeUS', '?')}"
+                                          if last is not None else "")
+
     try:
         while True:
-            with _quiet():
+            with foreign(path, damaged), _quiet():
                 m = log.recv_match(type=types)
             if m is None:
                 return
+            last = m
             yield m
     finally:
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(OSError):
             log.filehandle.close()
 
 
+def _fields(m) -> dict | None:
+    """A message's fields as a dict; None when pymavlink cannot decode them (damaged bytes).
+
+    pymavlink decodes fields lazily, on attribute access, and raises whatever its
+    decoder meets (``IndexError``, ``struct.error``, ...); this is the one place it does
+    that, so the caller can skip and count the message and work on plain values.
+    """
+    try:
+        return m.to_dict()
+    except Exception:  # noqa: BLE001 -- pymavlink decoding one damaged message: skipped and counted
+        return None
+
+
+def _num(f: dict, name: str) -> float | None:
+    """Field ``name`` as a finite float, None when the message has no such number."""
+    v = f.get(name)
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
 def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[dict]:
-    with open(path, "rb") as fh:
-        head = fh.read(3)
-    if head != b"\xa3\x95\x80":
+    """Batches of role streams from an ArduPilot DataFlash log (see :mod:`usvlog.io.importers.core`).
+
+    Two passes through pymavlink: PARM/GPS for the thruster channels and the UTC offset
+    of the boot clock, then GPS/ATT/AHRS2/RCOU. Messages pymavlink cannot decode, or
+    without a usable TimeUS, are skipped and counted; pymavlink failing on the file as a
+    whole is a :class:`~usvlog.errors.FormatError` ``from`` its exception.
+    """
+    if file_head(path, len(DATAFLASH_MAGIC)) != DATAFLASH_MAGIC:
         raise FormatError(f"{path}: not an ArduPilot DataFlash log (no FMT header at byte 0)")
     # pass 1: servo functions and the UTC offset of the boot clock
     servo: dict[int, int] = {}
     offset_ns = None
     for m in _messages(path, ["PARM", "GPS"]):
-        if m.get_type() == "PARM":
-            name = str(m.Name)
-            if name.startswith("SERVO") and name.endswith("_FUNCTION"):
-                try:
-                    servo[int(name[5:-9])] = int(round(float(m.Value)))
-                except ValueError:
-                    pass
-        elif offset_ns is None and int(getattr(m, "GWk", 0) or 0) > 0 and int(getattr(m, "Status", 0)) >= 3:
-            gps_s = GPS_EPOCH_UNIX_S + int(m.GWk) * 604800 + int(m.GMS) / 1000.0 - LEAP_S
-            offset_ns = int(round(gps_s * 1e9)) - int(m.TimeUS) * 1000
+        f = _fields(m)
+        if f is None:
+            continue   # counted in pass 2
+        if f["mavpackettype"] == "PARM":
+            name, value = str(f.get("Name", "")), _num(f, "Value")
+            num = name[5:-9]
+            if name.startswith("SERVO") and name.endswith("_FUNCTION") and num.isdigit() and value is not None:
+                servo[int(num)] = round(value)
+        elif offset_ns is None:
+            week, gms, status, boot = (_num(f, k) for k in ("GWk", "GMS", "Status", "TimeUS"))
+            if None not in (week, gms, status, boot) and week > 0 and status >= 3:
+                gps_s = GPS_EPOCH_UNIX_S + int(week) * 604800 + int(gms) / 1000.0 - LEAP_S
+                offset_ns = round(gps_s * 1e9) - int(boot) * 1000
     if offset_ns is None:
-        offset_ns = opts.start_utc_ns or 0
-        report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
-        report.note("no GPS time in the log: boot time counted from " + report.guesses["time_base"])
+        offset_ns = clock_offset_fallback(opts, report, "boot time")
     left = [n for n, f in sorted(servo.items()) if f == FN_THROTTLE_LEFT]
     right = [n for n, f in sorted(servo.items()) if f == FN_THROTTLE_RIGHT]
     report.mapping["gnss"] = "GPS"
@@ -113,30 +157,49 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
     th = {k: [] for k in ("t_ns", "left", "right")}
     for m in _messages(path, ["GPS", "ATT", "AHRS2", "RCOU"]):
         report.records += 1
-        typ = m.get_type()
-        try:
-            t = int(m.TimeUS) * 1000 + offset_ns
-        except (AttributeError, TypeError, ValueError):
+        f = _fields(m)
+        if f is None:
+            report.skip("dataflash_bad_message", 1, where=f"a {m.get_type()} message pymavlink cannot decode")
+            continue
+        typ = f["mavpackettype"]
+        boot = _num(f, "TimeUS")
+        if boot is None:
             report.skip("dataflash_bad_message", 1, where=f"{typ} without TimeUS")
             continue
+        t = int(boot) * 1000 + offset_ns
+        if not 0 <= t < _T_MAX_NS:   # a damaged TimeUS: not a time int64 ns can hold
+            report.skip("dataflash_bad_time", 1, where=f"{typ} at TimeUS {int(boot)}")
+            continue
+        at = f"{typ} at TimeUS {int(boot)}"
         if typ == "GPS":
-            if int(getattr(m, "Status", 0)) < 3:
-                report.skip("gnss_no_fix", 1, where=f"GPS at TimeUS {m.TimeUS}: status {m.Status}")
+            status = _num(f, "Status")
+            if status is None or status < 3:
+                report.skip("gnss_no_fix", 1, where=f"{at}: status {f.get('Status')}")
+                continue
+            lat, lon, alt = _num(f, "Lat"), _num(f, "Lng"), _num(f, "Alt")
+            if lat is None or lon is None:
+                report.skip("dataflash_bad_message", 1, where=f"{at} without Lat/Lng")
                 continue
             g["t_ns"].append(t)
-            g["lat_deg"].append(float(m.Lat))
-            g["lon_deg"].append(float(m.Lng))
-            g["alt_m"].append(float(getattr(m, "Alt", np.nan)))
+            g["lat_deg"].append(lat)
+            g["lon_deg"].append(lon)
+            g["alt_m"].append(np.nan if alt is None else alt)
         elif typ in ("ATT", "AHRS2"):
+            yaw = _num(f, "Yaw")
+            if yaw is None:
+                report.skip("dataflash_bad_message", 1, where=f"{at} without Yaw")
+                continue
             d = h if typ == "ATT" else h2
             d["t_ns"].append(t)
-            d["heading_rad"].append(np.radians(float(m.Yaw)))
+            d["heading_rad"].append(np.radians(yaw))
         elif typ == "RCOU" and left and right:
-            try:
-                lv = float(getattr(m, f"C{left[0]}"))
-                rv = float(getattr(m, f"C{right[0]}"))
-            except AttributeError as err:
-                raise InputError(f"{path}: RCOU has no channel for SERVO{left[0]}/SERVO{right[0]}") from err
+            ch_l, ch_r = f"C{left[0]}", f"C{right[0]}"
+            if ch_l not in f or ch_r not in f:
+                raise InputError(f"{path}: {at} has no channel for SERVO{left[0]}/SERVO{right[0]}")
+            lv, rv = _num(f, ch_l), _num(f, ch_r)
+            if lv is None or rv is None:
+                report.skip("thrust_nan", 1, where=at)
+                continue
             th["t_ns"].append(t)
             th["left"].append(lv)
             th["right"].append(rv)

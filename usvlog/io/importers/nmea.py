@@ -7,8 +7,9 @@ ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL ->
 What is particular to a file is done here: the date comes from RMC (or
 ``--start-utc``); a time of day without a date is placed on the day nearest the
 previous sentence's time (:func:`usvlog.io.nmea.resolve_time_of_day`), so the time
-rolling past midnight moves to the next day. The same fix reported by GGA and RMC
-is kept once. Sentences without a checksum are accepted (some loggers strip it);
+rolling past midnight moves to the next day. One fix per epoch, from its best valid
+sentence (GGA, else RMC, else GLL: :class:`usvlog.io.nmea.FixSelector`, the rule the
+recorder follows too). Sentences without a checksum are accepted (some loggers strip it);
 lines with a bad checksum, garbage, unreadable fields and sentences that say
 "no fix" are skipped and counted.
 
@@ -29,7 +30,9 @@ import numpy as np
 
 from ...errors import InputError
 from ...log.fieldlog import parse_time
+from ..atomic import reading
 from ..nmea import (
+    FixSelector,
     NmeaChecksumError,
     NmeaError,
     NmeaFieldError,
@@ -97,19 +100,28 @@ def _prefix_ns(prefix: str, start_ns: int | None, report, state: dict) -> int | 
 
 def _first_date(path, limit: int = 20000) -> int | None:
     """Date of the first RMC sentence near the start of the file (for sentences before it)."""
-    with open(path, "r", encoding="ascii", errors="replace") as fh:
-        for i, line in enumerate(fh):
-            if i >= limit:
-                break
-            m = _SENTENCE.search(line) if "RMC," in line else None
-            if m is not None:
-                try:
-                    s = parse_sentence(line[m.start():], require_checksum=False)
-                except NmeaError:
-                    continue
-                if s.date is not None:
-                    return date_ns(s.date)
+    for i, line in enumerate(_lines(path)):
+        if i >= limit:
+            break
+        m = _SENTENCE.search(line) if "RMC," in line else None
+        if m is not None:
+            try:
+                s = parse_sentence(line[m.start():], require_checksum=False)
+            except NmeaError:
+                continue
+            if s.date is not None:
+                return date_ns(s.date)
     return None
+
+
+def _lines(path) -> Iterator[str]:
+    """The file's lines (undecodable bytes replaced); OS errors -> one-line StorageError.
+
+    A generator, so the ``try`` of :func:`usvlog.io.atomic.reading` covers the file
+    reads only, not what the caller does with each line.
+    """
+    with reading(path), open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+        yield from fh
 
 
 class _Buf:
@@ -146,7 +158,7 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     pending: list[tuple[str, tuple]] = []   # untimed samples waiting for the next timed sentence
     last_t: int | None = None
     last_dt = 100_000_000
-    last_fix_stamp: int | None = None
+    fixes = FixSelector()
     state: dict = {}
     n_lines = 0
 
@@ -169,66 +181,62 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             _put(buf, kind, t, t, vals)
         pending = []
 
-    try:
-        fh = open(p, "r", encoding="ascii", errors="replace", newline=None)
-    except OSError as err:
-        raise InputError(f"{p}: cannot read ({err})") from err
-    with fh:
-        for lineno, line in enumerate(fh, 1):
-            n_lines += 1
-            report.records += 1
-            line = line.strip()
-            if not line:
-                report.records -= 1
-                continue
-            m = _SENTENCE.search(line)
-            if m is None:
-                report.skip("nmea_garbage", 1, where=f"line {lineno}: {line[:40]!r}")
-                continue
-            prefix = line[:m.start()]
-            body = line[m.start():]
-            t_prefix = _prefix_ns(prefix, start_ns, report, state) if prefix else None
-            if t_prefix is not None and t_prefix < 0:
-                report.skip("nmea_bad_time", 1, where=f"line {lineno}: time {prefix.strip()[:40]!r}")
-                continue
-            try:
-                smp = parse_sentence(body, require_checksum=False)
-            except NmeaChecksumError:
-                report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
-                continue
-            except NmeaFieldError:
-                report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
-                continue
-            except NmeaError:
-                report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
-                continue
-            typ = smp.kind
-            if typ not in _USED:
-                report.skip("nmea_unsupported", 1)
-                continue
-            kind, vals, stamp = _values(smp, clock)
-            if kind == "nofix":
-                report.skip("gnss_no_fix", 1, where=f"line {lineno}: {typ} without a fix")
-                continue
-            if kind == "gnss":
-                if stamp is not None and stamp == last_fix_stamp:
-                    # the same fix from another sentence: GGA adds the altitude RMC/GLL lack
-                    if typ == "GGA" and buf.gnss["stamp_ns"] and buf.gnss["stamp_ns"][-1] == stamp:
-                        buf.gnss["alt_m"][-1] = vals[2]
-                    continue
-                last_fix_stamp = stamp
-            t = t_prefix if t_prefix is not None else stamp
-            if t is None:
-                pending.append((kind, vals))
-                continue
+    for lineno, line in enumerate(_lines(p), 1):
+        n_lines += 1
+        report.records += 1
+        line = line.strip()
+        if not line:
+            report.records -= 1
+            continue
+        m = _SENTENCE.search(line)
+        if m is None:
+            report.skip("nmea_garbage", 1, where=f"line {lineno}: {line[:40]!r}")
+            continue
+        prefix = line[:m.start()]
+        body = line[m.start():]
+        t_prefix = _prefix_ns(prefix, start_ns, report, state) if prefix else None
+        if t_prefix is not None and t_prefix < 0:
+            report.skip("nmea_bad_time", 1, where=f"line {lineno}: time {prefix.strip()[:40]!r}")
+            continue
+        try:
+            smp = parse_sentence(body, require_checksum=False)
+        except NmeaChecksumError:
+            report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
+            continue
+        except NmeaFieldError:
+            report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
+            continue
+        except NmeaError:
+            report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
+            continue
+        typ = smp.kind
+        if typ not in _USED:
+            report.skip("nmea_unsupported", 1)
+            continue
+        kind, vals, stamp = _values(smp, clock)
+        if kind == "nofix":
+            report.skip("gnss_no_fix", 1, where=f"line {lineno}: {typ} without a fix")
+            continue
+        t = t_prefix if t_prefix is not None else stamp
+        if t is None:
+            pending.append((kind, vals))
+            continue
+        if not (kind == "gnss" and fixes.same_epoch(smp)):   # the epoch's 2nd fix sentence: same time
             emit_pending(t)
             if last_t is not None and t > last_t:
                 last_dt = t - last_t
             last_t = t
+        if kind == "gnss":
+            # one fix per epoch, from its best valid sentence (GGA, else RMC, else GLL)
+            for item in fixes.offer(smp, t, (t, stamp if stamp is not None else t, vals)):
+                _put(buf, "gnss", *item)
+        else:
             _put(buf, kind, t, stamp if stamp is not None else t, vals)
-            if len(buf.gnss["t_ns"]) + len(buf.heading["t_ns"]) + len(buf.velocity["t_ns"]) >= opts.chunk_rows:
-                yield buf.batch()
-        emit_pending(None)
+        if len(buf.gnss["t_ns"]) + len(buf.heading["t_ns"]) + len(buf.velocity["t_ns"]) >= opts.chunk_rows:
+            yield buf.batch()
+    for item in fixes.flush():
+        _put(buf, "gnss", *item)
+    emit_pending(None)
     if n_lines == 0:
         raise InputError(f"{p}: empty file")
     yield buf.batch()

@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import FormatError, InputError
-from .core import guess_thrust_unit, yaw_from_quaternion_enu
+from .core import foreign, guarded, guess_thrust_unit, listing, yaw_from_quaternion_enu
+from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
 
 _FLOATS = {"std_msgs/msg/Float32", "std_msgs/msg/Float64"}
 _NAVSAT = "sensor_msgs/msg/NavSatFix"
@@ -50,9 +51,7 @@ def _open_path(path: Path, fmt: str, stack) -> Path:
         return path
     want = ".bag" if fmt == "ros1" else None
     if fmt == "ros2":
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-        want = ".mcap" if head.startswith(b"\x89MCAP") else ".db3"
+        want = ".mcap" if file_head(path, len(MCAP_MAGIC)).startswith(MCAP_MAGIC) else ".db3"
     if path.suffix == want:
         return path
     tmp = Path(tempfile.mkdtemp(prefix="usvlog-bag-"))
@@ -64,24 +63,38 @@ def _open_path(path: Path, fmt: str, stack) -> Path:
 
 def _check_kind(path: Path, fmt: str) -> None:
     """A forced format must match the content: ROS 1 is one file, ROS 2 a directory or .db3/.mcap file."""
-    head = b""
-    if path.is_file():
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-    if fmt == "ros1" and not head.startswith(b"#ROSBAG V2.0"):
+    head = file_head(path, 16)
+    if fmt == "ros1" and not head.startswith(ROS1_MAGIC):
         raise FormatError(f"{path}: not a ROS 1 bag (no '#ROSBAG V2.0' header)")
-    if fmt == "ros2" and path.is_file() and not head.startswith((b"SQLite format 3\x00", b"\x89MCAP")):
+    if fmt == "ros2" and path.is_file() and not head.startswith((SQLITE_MAGIC, MCAP_MAGIC)):
         raise FormatError(f"{path}: not a ROS 2 bag (neither a bag directory nor a sqlite3/mcap file)")
 
 
-def _field(msg, path: str):
+def _field(msg, fpath: str, where: str):
+    """The field at dotted path ``fpath`` of a message (``a.b.0.c``: index 0 of a sequence).
+
+    ``where`` names the file and topic for the InputError raised when the path does
+    not exist in the message.
+    """
     obj = msg
-    for part in [x for x in path.split(".") if x]:
+    for part in [x for x in fpath.split(".") if x]:
         if isinstance(obj, (list, tuple, np.ndarray)) and part.isdigit():
+            if int(part) >= len(obj):
+                raise InputError(f"{where}: no field {fpath!r} (index {part} of {len(obj)} elements)")
             obj = obj[int(part)]
+        elif part.startswith("_") or not hasattr(obj, part):
+            raise InputError(f"{where}: no field {fpath!r} ({type(obj).__name__} has no {part!r})")
         else:
             obj = getattr(obj, part)
     return obj
+
+
+def _number(obj, where: str) -> float:
+    """A message field as a float; InputError when the mapped field is not a number."""
+    if isinstance(obj, (bool, np.bool_)) or not isinstance(obj, (int, float, np.integer, np.floating)):
+        raise InputError(f"{where}: the field is a {type(obj).__name__}, not a number "
+                         "(map a numeric field with --topic ROLE=/topic.field)")
+    return float(obj)
 
 
 def _stamp(msg) -> int | None:
@@ -135,7 +148,7 @@ def _parse_spec(spec: str, topics: list[str], path, role: str) -> tuple[str, str
         if spec.startswith(t + "."):
             return t, spec[len(t) + 1:]
     raise InputError(f"{path}: topic {spec.split('.')[0]!r} for role {role} is not in the bag "
-                     f"(topics: {', '.join(sorted(topics)) or 'none'})")
+                     f"(topics: {listing(sorted(topics)) or 'none'})")
 
 
 def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
@@ -147,12 +160,9 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
     try:
         bag = _open_path(Path(path), fmt, tmpdirs)
         store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
-        try:
+        with foreign(path, f"not a readable {'ROS 1' if fmt == 'ros1' else 'ROS 2'} bag"):
             reader = AnyReader([bag], default_typestore=store)
             reader.open()
-        except Exception as err:  # rosbags' own errors: damaged, truncated or foreign file
-            raise FormatError(f"{path}: not a readable {'ROS 1' if fmt == 'ros1' else 'ROS 2'} bag "
-                              f"({type(err).__name__}: {str(err).strip()[:200]})") from err
         try:
             yield from _read_open(reader, path, opts, report, on_mapping)
         finally:
@@ -176,7 +186,7 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
     report.guesses.update({f"topic {r}": t + ("." + f if f else "") for r, (t, f) in guessed.items()})
     if not roles:
         raise InputError(f"{path}: no topic maps to a role (give --topic ROLE=/topic[.field]; topics: "
-                         f"{', '.join(f'{c.topic} [{c.msgtype}]' for c in conns) or 'none'})")
+                         f"{listing(f'{c.topic} [{c.msgtype}]' for c in conns) or 'none'})")
     if on_mapping is not None:
         on_mapping(report)
     wanted = {t for t, _ in roles.values()}
@@ -188,22 +198,25 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
     held = {"thrust_left": math.nan, "thrust_right": math.nan}
     heading_deg: bool | None = None
     thrust_unit = opts.thrust_unit
-    for conn, t_ns, raw in reader.messages(connections=sel):
+    last_t = None
+
+    def damaged() -> str:
+        return "damaged bag" + (f" after t_ns {last_t}" if last_t is not None else "")
+
+    for conn, t_ns, raw in guarded(reader.messages(connections=sel), path, damaged):
         report.records += 1
+        last_t = t_ns
         try:
             msg = reader.deserialize(raw, conn.msgtype)
-        except Exception:
+        except Exception:  # noqa: BLE001 -- rosbags' deserializer on one damaged message: skip it, count it
             report.skip("ros_bad_message", 1, where=f"topic {conn.topic} at t_ns {t_ns}")
             continue
         stamp = _stamp(msg)
         stamp = int(t_ns) if stamp is None else stamp
+        where = f"{path}: topic {conn.topic} at t_ns {t_ns}"
         for role in by_topic[conn.topic]:
             fpath = roles[role][1]
-            try:
-                obj = _field(msg, fpath) if fpath else msg
-            except (AttributeError, IndexError, TypeError) as err:
-                raise InputError(f"{path}: topic {conn.topic}: no field {fpath!r} in {conn.msgtype} "
-                                 f"({err})") from err
+            obj = _field(msg, fpath, f"{path}: topic {conn.topic} ({conn.msgtype})") if fpath else msg
             if role == "gnss":
                 lat = getattr(obj, "latitude", getattr(obj, "lat", None))
                 lon = getattr(obj, "longitude", getattr(obj, "lon", None))
@@ -216,8 +229,8 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
                     continue
                 cov = getattr(obj, "position_covariance", None)
                 ctype = int(getattr(obj, "position_covariance_type", 0))
-                buf.gnss(t_ns, stamp, float(lat), float(lon), float(getattr(obj, "altitude", math.nan)),
-                         cov, ctype, conn.topic)
+                buf.gnss(t_ns, stamp, _number(lat, where), _number(lon, where),
+                         _number(getattr(obj, "altitude", math.nan), where), cov, ctype, conn.topic)
             elif role == "heading":
                 q = getattr(obj, "orientation", obj)
                 if all(hasattr(q, a) for a in ("x", "y", "z", "w")):
@@ -227,19 +240,19 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
                         continue
                     buf.heading(t_ns, stamp, float(yaw_from_quaternion_enu(q.x, q.y, q.z, q.w)))
                 else:
-                    v = float(obj)
+                    v = _number(obj, where)
                     if heading_deg is None and math.isfinite(v):
                         heading_deg = abs(v) > 2 * math.pi + 0.1
                         report.guesses["heading_unit"] = "deg" if heading_deg else "rad"
                     buf.heading(t_ns, stamp, math.radians(v) if heading_deg else v)
             elif role == "yaw_rate":
                 w = getattr(obj, "angular_velocity", None)
-                r = -float(w.z) if w is not None else float(obj)  # FLU z up -> FRD z down
+                r = -_number(w.z, where) if w is not None else _number(obj, where)  # FLU z up -> FRD z down
                 buf.yaw_rate(t_ns, stamp, r)
             elif role == "speed_mps":
-                buf.velocity(t_ns, stamp, float(obj))
+                buf.velocity(t_ns, stamp, _number(obj, where))
             else:
-                held[role] = float(obj)
+                held[role] = _number(obj, where)
                 if role == "thrust_left" and math.isfinite(held["thrust_right"]):
                     buf.thrust(t_ns, stamp, held["thrust_left"], held["thrust_right"])
                 elif role == "thrust_left":

@@ -20,6 +20,8 @@ from collections.abc import Iterator
 import numpy as np
 
 from ...errors import FormatError, InputError
+from .core import clock_offset_fallback, foreign, listing
+from .sniff import ULOG_MAGIC, file_head
 
 
 def _topic(ulog, name):
@@ -28,11 +30,22 @@ def _topic(ulog, name):
 
 
 def _col(d, key, path):
-    try:
-        return np.asarray(d.data[key])
-    except KeyError:
+    """Field ``key`` of ULog topic ``d`` as an array; InputError naming the topic when absent."""
+    if key not in d.data:
         raise InputError(f"{path}: topic {d.name} has no field {key!r} "
-                         f"(fields: {', '.join(sorted(d.data)[:20])})") from None
+                         f"(fields: {listing(sorted(d.data), 20)})")
+    return np.asarray(d.data[key])
+
+
+_US_MAX = 2**62 // 1000   # microsecond times beyond this (146 years) are damaged: no int64 ns holds them with an offset
+
+
+def _time_ns(d, path, offset_ns: int) -> np.ndarray:
+    """The topic's ``timestamp`` (us since boot) as UTC ns; -1 (dropped, counted) where it is damaged."""
+    us = _col(d, "timestamp", path)
+    ok = (us >= 0) & (us < _US_MAX)
+    t = np.where(ok, us, 0).astype(np.int64) * 1000 + offset_ns
+    return np.where(ok & (t >= 0), t, -1)
 
 
 def _first(data: dict, names: tuple[str, ...], n: int):
@@ -47,34 +60,29 @@ def _first(data: dict, names: tuple[str, ...], n: int):
 def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
     from pyulog import ULog
 
-    with open(path, "rb") as fh:
-        head = fh.read(7)
-    if head != b"ULog\x01\x12\x35":
+    if file_head(path, len(ULOG_MAGIC)) != ULOG_MAGIC:
         raise FormatError(f"{path}: not a PX4 ULog file (bad magic bytes)")
     sink = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(sink), contextlib.redirect_stderr(sink):
-            ulog = ULog(str(path), ["vehicle_gps_position", "sensor_gps", "vehicle_attitude",
-                                    "actuator_motors", "actuator_outputs"] +
-                        [s.split(".", 1)[0].lstrip("/") for s in opts.topics.values()])
-    except Exception as err:  # pyulog's own errors on damaged files
-        raise FormatError(f"{path}: not a readable ULog file ({type(err).__name__}: {err})") from err
+    wanted = ["vehicle_gps_position", "sensor_gps", "vehicle_attitude", "actuator_motors", "actuator_outputs"] + \
+        [s.split(".", 1)[0].lstrip("/") for s in opts.topics.values()]
+    with foreign(path, "not a readable ULog file"), contextlib.redirect_stdout(sink), \
+            contextlib.redirect_stderr(sink):
+        ulog = ULog(str(path), wanted)
     gps = _topic(ulog, "vehicle_gps_position") or _topic(ulog, "sensor_gps")
     offset_ns = None
     if gps is not None and "time_utc_usec" in gps.data:
-        tu = np.asarray(gps.data["time_utc_usec"], dtype=np.int64)
-        ok = np.flatnonzero(tu > 0)
+        tu = _col(gps, "time_utc_usec", path)
+        ts = _col(gps, "timestamp", path)
+        ok = np.flatnonzero((tu > 0) & (tu < _US_MAX) & (ts >= 0) & (ts < _US_MAX))
         if len(ok):
             i = int(ok[0])
-            offset_ns = (int(tu[i]) - int(gps.data["timestamp"][i])) * 1000
+            offset_ns = (int(tu[i]) - int(ts[i])) * 1000
     if offset_ns is None:
-        offset_ns = opts.start_utc_ns or 0
-        report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
-        report.note("no GPS UTC time in the log: log time counted from " + report.guesses["time_base"])
+        offset_ns = clock_offset_fallback(opts, report, "log time")
     batch = {}
     if gps is not None:
         report.mapping["gnss"] = gps.name
-        t = np.asarray(gps.data["timestamp"], np.int64) * 1000 + offset_ns
+        t = _time_ns(gps, path, offset_ns)
         if "latitude_deg" in gps.data:
             lat, lon = _col(gps, "latitude_deg", path).astype(float), _col(gps, "longitude_deg", path).astype(float)
             alt = np.asarray(_first(gps.data, ("altitude_ellipsoid_m", "altitude_msl_m"), len(t)), float)
@@ -94,7 +102,7 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
         w, x, y, z = (_col(att, f"q[{i}]", path).astype(float) for i in range(4))
         psi = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
         report.records += len(w)
-        batch["heading"] = {"t_ns": np.asarray(att.data["timestamp"], np.int64) * 1000 + offset_ns,
+        batch["heading"] = {"t_ns": _time_ns(att, path, offset_ns),
                             "heading_rad": psi}
     thr = None
     if "thrust_left" in opts.topics or "thrust_right" in opts.topics:
@@ -108,7 +116,7 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
         d = _topic(ulog, specs[0][0])
         if d is None:
             raise InputError(f"{path}: topic {specs[0][0]} is not in the log "
-                             f"(topics: {', '.join(sorted({x.name for x in ulog.data_list}))})")
+                             f"(topics: {listing(sorted({x.name for x in ulog.data_list}))})")
         thr = (d, specs[0][1], specs[1][1], opts.thrust_unit or ("pwm_us" if d.name == "actuator_outputs"
                                                                   else "normalized"))
     else:
@@ -126,7 +134,7 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
         report.mapping["thrust_right"] = f"{d.name}.{kr}"
         left, right = _col(d, kl, path).astype(float), _col(d, kr, path).astype(float)
         report.records += len(left)
-        batch["thrust"] = {"t_ns": np.asarray(d.data["timestamp"], np.int64) * 1000 + offset_ns,
+        batch["thrust"] = {"t_ns": _time_ns(d, path, offset_ns),
                            "left": left, "right": right, "unit": np.full(len(left), unit, dtype=object)}
     if on_mapping is not None:
         on_mapping(report)

@@ -21,18 +21,9 @@ from dataclasses import dataclass, field
 
 import orjson
 
-from ..nmea import with_checksum
+from ..nmea import format_deg_min, with_checksum
 
 _M_PER_DEG = 111_320.0
-
-
-def _deg_min(value: float, pos: str, neg: str, width: int) -> tuple[str, str]:
-    a = abs(value)
-    d = int(a)
-    m = (a - d) * 60.0
-    if round(m, 6) >= 60.0:
-        d, m = d + 1, 0.0
-    return f"{d:0{width}d}{m:09.6f}", pos if value >= 0 else neg
 
 
 def _hms(gps_ns: int) -> str:
@@ -50,14 +41,14 @@ def _dmy(gps_ns: int) -> str:
 
 def gga(gps_ns: int, lat: float, lon: float, alt_m: float, sats: int = 9, hdop: float = 0.8) -> str:
     """A GGA sentence (geoid separation 0, so altitude is the ellipsoid height)."""
-    la, ns = _deg_min(lat, "N", "S", 2)
-    lo, ew = _deg_min(lon, "E", "W", 3)
+    la, ns = format_deg_min(lat, True)
+    lo, ew = format_deg_min(lon, False)
     return with_checksum(f"GPGGA,{_hms(gps_ns)},{la},{ns},{lo},{ew},1,{sats:02d},{hdop:.1f},{alt_m:.2f},M,0.0,M,,")
 
 
 def rmc(gps_ns: int, lat: float, lon: float, sog_kn: float = 0.0, cog_deg: float = 0.0) -> str:
-    la, ns = _deg_min(lat, "N", "S", 2)
-    lo, ew = _deg_min(lon, "E", "W", 3)
+    la, ns = format_deg_min(lat, True)
+    lo, ew = format_deg_min(lon, False)
     return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},{_dmy(gps_ns)},,")
 
 

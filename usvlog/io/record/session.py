@@ -8,8 +8,10 @@ import time
 from dataclasses import dataclass
 
 from ...errors import ConfigError
-from .recorder import Recorder, RecorderStatus, check_outputs
+from .output import check_outputs
+from .recorder import Recorder
 from .sources import Source, parse_source
+from .status import RecorderStatus
 
 
 @dataclass(frozen=True)
