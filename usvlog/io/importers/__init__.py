@@ -25,6 +25,8 @@ from ...model.frames import Datum
 from ...model.vessel import THRUST_UNITS, Vessel
 from ..atomic import atomic_path, check_output
 from .core import Assembler, ImportReport
+from .csvlog import looks_like_csv
+from .nmea import looks_like_nmea
 from .sink import McapSink, MemorySink
 from .sniff import (
     DATAFLASH_MAGIC,
@@ -127,9 +129,6 @@ def detect_format(path) -> str:
         return "ulog"
     if head.startswith(DATAFLASH_MAGIC):
         return "dataflash"
-    from .csvlog import looks_like_csv
-    from .nmea import looks_like_nmea
-
     text = head.decode("utf-8", errors="replace")
     if looks_like_nmea(text):
         return "nmea"

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import orjson
 
 from ..nmea import format_deg_min, with_checksum
+from .sources import parse_source
 
 _M_PER_DEG = 111_320.0
 
@@ -69,8 +70,6 @@ class Sent:
 def udp_target(url_or_addr):
     """A send(bytes) callable for ``udp://host:port`` or a (host, port) pair."""
     if isinstance(url_or_addr, str):
-        from .sources import parse_source
-
         spec = parse_source(url_or_addr)
         addr = (spec.host, spec.port)
     else:
