@@ -36,7 +36,8 @@ def test_output_error_accuracy_fast():
     # intervals contain the truth here, and are not absurdly wide
     for k in PARAM_NAMES:
         lo, hi = idf.ci95_[k]
-        assert lo < getattr(TRUE, k) < hi or abs(getattr(TRUE, k) - idf.theta_[PARAM_NAMES.index(k)]) < 3 * idf.stderr_[k]
+        true = getattr(TRUE, k)
+        assert lo < true < hi or abs(true - idf.theta_[PARAM_NAMES.index(k)]) < 3 * idf.stderr_[k]
         assert idf.stderr_[k] < TARGET[k] * abs(getattr(TRUE, k))
     # equation error beside it is far worse in the inertia terms (noise in the regressors)
     ee = idf.equation_error_.theta

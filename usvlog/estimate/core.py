@@ -339,7 +339,8 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
     Searched in log10 space with Nelder-Mead on the first ``max_steps`` steps."""
     if len(pb.dts) > max_steps:
         k = max_steps
-        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
+        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                      qjump=pb.qjump[:k],
                       m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
                       mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
     else:

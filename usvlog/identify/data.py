@@ -57,7 +57,6 @@ class RunData:
 
 def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(t_ns, f_left, f_right, how): per-thruster forces in newtons."""
-    src = log.source or "log"
     fr = log["/thrust/command"]
     t_ns = np.asarray(fr.index, dtype=np.int64)
     fl = np.full(len(fr), np.nan)

@@ -373,7 +373,8 @@ class Identifier:
              "fit_percent_on": "validation" if val is not None else "fitted runs",
              "current_ne_mps": [list(c) for c in self.current_],
              "condition_number": self.cond_ if math.isfinite(self.cond_) else None,
-             "correlation": {k: {j: float(x) for j, x in row.items()} for k, row in self.corr_.to_dict("index").items()},
+             "correlation": {k: {j: float(x) for j, x in row.items()}
+                             for k, row in self.corr_.to_dict("index").items()},
              "verdict": list(self.verdict_),
              "fixed": dict(self.fix),
              "equation_error": {"params": self.equation_error_.to_dict(),

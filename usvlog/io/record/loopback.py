@@ -58,7 +58,8 @@ def gga(gps_ns: int, lat: float, lon: float, alt_m: float, sats: int = 9, hdop: 
 def rmc(gps_ns: int, lat: float, lon: float, sog_kn: float = 0.0, cog_deg: float = 0.0) -> str:
     la, ns = _deg_min(lat, "N", "S", 2)
     lo, ew = _deg_min(lon, "E", "W", 3)
-    return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},{_dmy(gps_ns)},,")
+    return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},"
+                         f"{_dmy(gps_ns)},,")
 
 
 def hdt(heading_deg: float) -> str:
