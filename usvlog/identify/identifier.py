@@ -168,8 +168,8 @@ class Identifier:
             se = np.array([ee.stderr[k] for k in PARAM_NAMES])
             names = [k for k in PARAM_NAMES if k not in fixv]
             cov = np.diag([ee.stderr[k] ** 2 for k in names])
-            self.current_ = [(0.0, 0.0)] * len(runs)
-            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
+            self.current_: list[tuple[float, ...]] = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_: list[tuple[float, ...]] = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None

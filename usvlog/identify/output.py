@@ -39,7 +39,7 @@ class OutputErrorResult:
     n_residuals: int
     x0s: np.ndarray            # per-segment initial states
     nfev: int
-    outliers: dict = None      # measurements dropped as outliers, per sensor
+    outliers: dict | None = None  # measurements dropped as outliers, per sensor
 
 
 class Problem:
@@ -47,7 +47,9 @@ class Problem:
 
     def __init__(self, runs: list[RunData], segment_s: float):
         tg, tu, tr = [], [], []
-        seg_i0, seg_i1, seg_run = [], [], []
+        seg_i0: list[int] = []
+        seg_i1: list[int] = []
+        seg_run: list[int] = []
         m_t, m_kind, m_val, m_sig, m_seg = [], [], [], [], []
         off = 0
         for ri, run in enumerate(runs):
@@ -69,13 +71,13 @@ class Problem:
                 seg_i1.append(off + b)
                 seg_run.append(ri)
                 # measurement times relative to the concatenated grid
-                for kind, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
-                                            run.sigma_gps[g]),
-                                           (1, run.t_compass[c],
-                                            np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
-                                            run.sigma_compass[c])):
+                for sensor, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
+                                              run.sigma_gps[g]),
+                                             (1, run.t_compass[c],
+                                              np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
+                                              run.sigma_compass[c])):
                     m_t.append(tt)
-                    m_kind.append(np.full(len(tt), kind))
+                    m_kind.append(np.full(len(tt), sensor))
                     m_val.append(val)
                     m_sig.append(sig)
                     m_seg.append(np.full(len(tt), k))
