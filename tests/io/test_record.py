@@ -320,7 +320,6 @@ def test_live_serial_tcp_udp_5s(tmp_path):
     check_live(log, sent, summary, 5.0)
 
 
-@pytest.mark.slow
 def test_live_serial_tcp_udp_30s(tmp_path):
     log, sent, summary = _live(tmp_path, 30.0)
     check_live(log, sent, summary, 30.0)
@@ -381,7 +380,6 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
     check_kill_after(tmp_path, 4.0)
 
 
-@pytest.mark.slow
 def test_sigkill_after_20s_holds_19s(tmp_path):
     check_kill_after(tmp_path, 20.0)
 

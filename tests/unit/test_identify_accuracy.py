@@ -45,7 +45,6 @@ def test_output_error_accuracy_fast():
     assert idf.params_.Iz_eff > 0
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("current", [0.0, 0.2])
 def test_output_error_accuracy_ten_minutes(current):
     """The issue's setting: 10-minute excitation run, GPS 1.5 m at 10 Hz, compass 2 deg at 20 Hz."""
@@ -61,7 +60,6 @@ def test_output_error_accuracy_ten_minutes(current):
     assert val.fit_percent["r"] > 80 and val.fit_percent["track"] > 90, val.fit_percent
 
 
-@pytest.mark.slow
 def test_straight_line_run_warns_yaw_not_excited():
     log = simulate("straight", SimSettings(duration_s=150.0), seed=3)
     idf = Identifier("output-error", segment_s=150.0).fit([log])
