@@ -3,8 +3,8 @@
     python benchmarks/accuracy_estimate.py [--duration-s 300]
 
 Runs (seeded, as in tests/unit/test_estimate.py): kinematic, without and with sway
-damping, on a still-water excitation run (seed 3); dynamic with current states on a run with a 0.2 m/s current towards 60 deg
-(seed 4); kinematic on a run with four 30 m GPS jumps and a 20 s dropout (seed 6).
+damping, on a still-water excitation run (seed 3); dynamic with current states on a run with a
+0.2 m/s current towards 60 deg (seed 4); kinematic on a run with four 30 m GPS jumps and a 20 s dropout (seed 6).
 """
 
 from __future__ import annotations

@@ -115,7 +115,8 @@ def test_ctrl_c_inside_compiled_code_is_an_interruption():
         try:
             raise KeyboardInterrupt
         except KeyboardInterrupt:
-            raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set")
+            # chained implicitly (no `from`), as numba's dispatcher does
+            raise SystemError("CPUDispatcher(<function f>) returned a result with an exception set")  # noqa: B904
     except SystemError as err:
         assert interrupted(err)
     assert not interrupted(SystemError("a real bug"))

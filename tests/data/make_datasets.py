@@ -122,7 +122,8 @@ def make_ros2(path: Path) -> None:
         q = Q(x=0.0, y=0.0, z=math.sin(yaw_enu / 2), w=math.cos(yaw_enu / 2))
         msgs.append(("/imu/data", "sensor_msgs/msg/Imu", int(t), T["sensor_msgs/msg/Imu"](
             header=hdr, orientation=q, orientation_covariance=np.zeros(9), angular_velocity=V3(x=0.0, y=0.0, z=wz),
-            angular_velocity_covariance=np.diag([0.0, 0.0, 0.005**2]).ravel(), linear_acceleration=V3(x=0.0, y=0.0, z=9.81),
+            angular_velocity_covariance=np.diag([0.0, 0.0, 0.005**2]).ravel(),
+            linear_acceleration=V3(x=0.0, y=0.0, z=9.81),
             linear_acceleration_covariance=np.zeros(9))))
     F64 = T["std_msgs/msg/Float64"]
     th = log["/thrust/command"]

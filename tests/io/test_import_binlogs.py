@@ -113,6 +113,8 @@ def test_ulog_role_mapped_to_missing_topic_or_field(tmp_path):
     p = tmp_path / "f.ulg"
     p.write_bytes(build_ulog()[0])
     with pytest.raises(InputError, match="f.ulg: topic actuator_motors is not in the log"):
-        import_file(p, topics={"thrust_left": "actuator_motors.control[0]", "thrust_right": "actuator_motors.control[1]"})
+        import_file(p, topics={"thrust_left": "actuator_motors.control[0]",
+                               "thrust_right": "actuator_motors.control[1]"})
     with pytest.raises(InputError, match=r"f.ulg: topic actuator_outputs has no field 'output\[40\]'"):
-        import_file(p, topics={"thrust_left": "actuator_outputs.output[40]", "thrust_right": "actuator_outputs.output[1]"})
+        import_file(p, topics={"thrust_left": "actuator_outputs.output[40]",
+                               "thrust_right": "actuator_outputs.output[1]"})

@@ -59,9 +59,8 @@ def test_every_message_validates_against_its_schema(excitation_file):
 
 def test_location_fix_is_foxglove_layout(excitation_file):
     with open(excitation_file, "rb") as fh:
-        for schema, channel, message in make_reader(fh).iter_messages(topics=["/gnss/fix"]):
-            msg = json.loads(message.data)
-            break
+        schema, _channel, message = next(iter(make_reader(fh).iter_messages(topics=["/gnss/fix"])))
+        msg = json.loads(message.data)
     assert schema.name == "foxglove.LocationFix"
     assert set(msg) == {"timestamp", "frame_id", "latitude", "longitude", "altitude",
                         "position_covariance", "position_covariance_type"}

@@ -16,7 +16,8 @@ def test_within_tolerance_is_ok_and_direction_matters():
     checks = {c.metric: c for c in compare("s", {"cross_track_rms_m": 0.105, "fit_u_pct": 89.5, "m_kg": 33.5}, B)}
     assert all(c.verdict == "ok" for c in checks.values())
     checks = {c.metric: c for c in compare("s", {"cross_track_rms_m": 0.12, "fit_u_pct": 95.0, "m_kg": 34.0}, B)}
-    assert checks["cross_track_rms_m"].verdict == "REGRESSED" and "rose from 0.1 to 0.12" in checks["cross_track_rms_m"].message
+    xt = checks["cross_track_rms_m"]
+    assert xt.verdict == "REGRESSED" and "rose from 0.1 to 0.12" in xt.message
     assert checks["fit_u_pct"].verdict == "improved" and not checks["fit_u_pct"].failed
     assert checks["m_kg"].verdict == "REGRESSED"  # 34 is 3% off 33 > 2%
     assert checks["cross_track_rms_m"].change == pytest.approx(0.02)

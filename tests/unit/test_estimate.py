@@ -336,7 +336,8 @@ def test_time_backwards_and_missing_channels_are_one_line_errors():
     bad = log.copy()
     bad.set("/gnss/fix", g.set_axis(pd.Index(t, name="t_ns")))
     bad.source = "run.mcap"
-    with pytest.raises(InputError, match=r"run.mcap: channel /gnss/fix: time goes backwards at message 31 \(2026-06-01T12:00:03"):
+    with pytest.raises(InputError,
+                       match=r"run.mcap: channel /gnss/fix: time goes backwards at message 31 \(2026-06-01T12:00:03"):
         estimate(bad)
     missing = log.copy()
     del missing.channels["/compass/heading"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Literal, overload
 
 import numpy as np
 import pandas as pd
@@ -108,6 +109,10 @@ def _where(log: FieldLog) -> str:
     return f"{log.source}: " if log.source else ""
 
 
+@overload
+def _channel(log: FieldLog, topic: str, required: Literal[True] = True) -> pd.DataFrame: ...
+@overload
+def _channel(log: FieldLog, topic: str, required: bool) -> pd.DataFrame | None: ...
 def _channel(log: FieldLog, topic: str, required: bool = True) -> pd.DataFrame | None:
     frame = log.get(topic)
     if frame is None or len(frame) == 0:
@@ -278,7 +283,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
 
     # GNSS gaps bridged by prediction: longer than 5 typical intervals and 1 s
     dtg = np.diff(tg)
-    drop = ()
+    drop: tuple[tuple[int, float], ...] = ()
     if len(dtg):
         thr = max(5 * float(np.median(dtg)), 1e9)
         gi = np.flatnonzero(dtg > thr)
@@ -399,7 +404,8 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool)
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
                         pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
-    return RawRun(*out[:8], float(out[8]))
+    X, SDf, PBf, XS, SDs, PBs, innov, acc, ll = out
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
 
 
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
@@ -423,7 +429,8 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
     """
     if len(pb.dts) > max_steps:
         k = max_steps
-        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
+        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                      qjump=pb.qjump[:k],
                       m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
                       mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
     else:

@@ -7,6 +7,8 @@ vessel model of :mod:`usvlog.model.vessel`; the compiled kernels must agree with
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
@@ -57,6 +59,8 @@ def _residual_angle(a, b):
 
 class VesselEKF(ExtendedKalmanFilter):
     """filterpy EKF with the vessel's nonlinear prediction (Euler step over ``dt``)."""
+
+    x: np.ndarray  # state column (nx, 1), set by filterpy
 
     def __init__(self, nx: int, params: VesselParams, dynamic: bool, q):
         super().__init__(dim_x=nx, dim_z=2)
@@ -139,7 +143,9 @@ def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynami
     ekf = VesselEKF(nx, params, dynamic, q)
     ekf.x = np.asarray(x0, float).reshape(-1, 1).copy()
     ekf.P = np.asarray(P0, float).copy()
-    xs_prior, Ps_prior, Fs = [None] * N, [None] * N, [None] * N
+    xs_prior: list[Any] = [None] * N
+    Ps_prior: list[Any] = [None] * N
+    Fs: list[Any] = [None] * N
     X = np.zeros((N, nx))
     Ppost = np.zeros((N, nx, nx))
     innov = np.zeros((M, 4))

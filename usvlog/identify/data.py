@@ -91,7 +91,6 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     usvlog.errors.ConfigError
         If commands cannot be converted with the vessel's thruster map.
     """
-    src = log.source or "log"
     fr = log["/thrust/command"]
     t_ns = np.asarray(fr.index, dtype=np.int64)
     fl = np.full(len(fr), np.nan)

@@ -190,6 +190,6 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
         g[i_x] = 1.0 / theta[0]
         if i_m is not None:
             g[i_m] = -lin["mxg"] / theta[0] ** 2
-        stderr["xg"] = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        stderr["xg"] = float(np.sqrt(max(float(g @ cov @ g), 0.0)))
     stderr = {k: stderr[k] for k in PARAM_NAMES}
     return EquationErrorResult(theta=theta, stderr=stderr, rms=rms, n=n)

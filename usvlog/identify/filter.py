@@ -108,7 +108,8 @@ def fit_filter_error(logs: list[FieldLog], vessel: Vessel, theta0, *, free_mask=
             if i == j:
                 H[i, i] = (f(x + ei) - 2 * f0 + f(x - ei)) / h[i] ** 2
             else:
-                H[i, j] = H[j, i] = (f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej)) / (4 * h[i] * h[j])
+                H[i, j] = H[j, i] = ((f(x + ei + ej) - f(x + ei - ej) - f(x - ei + ej) + f(x - ei - ej))
+                                     / (4 * h[i] * h[j]))
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:

@@ -285,8 +285,8 @@ class Identifier:
             se = np.array([ee.stderr[k] for k in PARAM_NAMES])
             names = [k for k in PARAM_NAMES if k not in fixv]
             cov = np.diag([ee.stderr[k] ** 2 for k in names])
-            self.current_ = [(0.0, 0.0)] * len(runs)
-            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
+            self.current_: list[tuple[float, ...]] = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_: list[tuple[float, ...]] = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": ee.rms[0], "sway_n": ee.rms[1], "yaw_nm": ee.rms[2]}
             self.oe_ = None
@@ -554,7 +554,8 @@ class Identifier:
              "fit_percent_on": "validation" if val is not None else "fitted runs",
              "current_ne_mps": [list(c) for c in self.current_],
              "condition_number": self.cond_ if math.isfinite(self.cond_) else None,
-             "correlation": {k: {j: float(x) for j, x in row.items()} for k, row in self.corr_.to_dict("index").items()},
+             "correlation": {k: {j: float(x) for j, x in row.items()}
+                             for k, row in self.corr_.to_dict("index").items()},
              "verdict": list(self.verdict_),
              "fixed": dict(self.fix),
              "equation_error": {"params": self.equation_error_.to_dict(),

@@ -53,7 +53,7 @@ class OutputErrorResult:
     n_residuals: int
     x0s: np.ndarray            # per-segment initial states
     nfev: int
-    outliers: dict = None      # measurements dropped as outliers, per sensor
+    outliers: dict | None = None  # measurements dropped as outliers, per sensor
 
 
 class Problem:
@@ -61,7 +61,9 @@ class Problem:
 
     def __init__(self, runs: list[RunData], segment_s: float):
         tg, tu, tr = [], [], []
-        seg_i0, seg_i1, seg_run = [], [], []
+        seg_i0: list[int] = []
+        seg_i1: list[int] = []
+        seg_run: list[int] = []
         m_t, m_kind, m_val, m_sig, m_seg = [], [], [], [], []
         off = 0
         for ri, run in enumerate(runs):
@@ -83,12 +85,13 @@ class Problem:
                 seg_i1.append(off + b)
                 seg_run.append(ri)
                 # measurement times relative to the concatenated grid
-                for kind, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
-                                            run.sigma_gps[g]),
-                                           (1, run.t_compass[c], np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
-                                            run.sigma_compass[c])):
+                for sensor, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
+                                              run.sigma_gps[g]),
+                                             (1, run.t_compass[c],
+                                              np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
+                                              run.sigma_compass[c])):
                     m_t.append(tt)
-                    m_kind.append(np.full(len(tt), kind))
+                    m_kind.append(np.full(len(tt), sensor))
                     m_val.append(val)
                     m_sig.append(sig)
                     m_seg.append(np.full(len(tt), k))
@@ -110,7 +113,8 @@ class Problem:
         sig = np.concatenate(m_sig)
         seg = np.concatenate(m_seg)
         order = np.lexsort((t, seg))
-        self.meas_t, self.kind, self.val, self.sig, self.meas_seg = t[order], kind[order], val[order], sig[order], seg[order]
+        self.meas_t, self.kind, self.val = t[order], kind[order], val[order]
+        self.sig, self.meas_seg = sig[order], seg[order]
         self.meas_ptr = np.searchsorted(self.meas_seg, np.arange(len(seg_i0) + 1)).astype(np.int64)
         self.n_seg = len(seg_i0)
         gi = np.flatnonzero(self.kind == 0)
@@ -383,7 +387,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         # capture initial states for the next stage
         x0_prev = (prob, vp.x0s.copy())
 
-        def x0_fn(run, t, _p=x0_prev, _theta=theta.copy(), _cur=cur.copy()):
+        theta_prev, cur_prev = theta.copy(), cur.copy()
+
+        def x0_fn(run, t, _p=x0_prev, _theta=theta_prev, _cur=cur_prev):
             if t > _p[0].runs[run].t_thrust[-1] - 1.0:
                 return x0_kin(run, t)
             return _state_at(_p[0], _p[1], _theta, _cur, run, t)
@@ -458,7 +464,6 @@ def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[li
 
 def _state_at(prob: Problem, x0s, theta, cur, run, t):
     """State of the fitted multiple-shooting model at time t of a run (simulated from its segment)."""
-    off = sum(len(r.t_thrust) for r in prob.runs[:run])
     segs = np.flatnonzero(prob.seg_run == run)
     t_start = prob.tg[prob.seg_i0[segs]]
     k = segs[max(int(np.searchsorted(t_start, t + 1e-9)) - 1, 0)]

@@ -145,7 +145,7 @@ def thrust_on_grid(run: RunData, t):
         dt = np.diff(run.t_thrust)
         cum = np.concatenate([[0.0], np.cumsum(tau[:-1] * dt)])
 
-        def integral(x):
+        def integral(x, cum=cum, tau=tau):  # called within this iteration only
             i = np.clip(np.searchsorted(run.t_thrust, x, side="right") - 1, 0, len(run.t_thrust) - 1)
             return cum[i] + tau[i] * (x - run.t_thrust[i])
         h = 0.5 * GRID_DT

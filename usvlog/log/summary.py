@@ -169,7 +169,8 @@ def format_summary(s: LogSummary) -> str:
     lines.append(f"{'channel':<24} {'schema':<28} {'messages':>9} {'rate Hz':>8} {'gaps':>5} {'backwd':>6} {'dup':>5}")
     for c in s.channels:
         rate = f"{c.rate_hz:.2f}" if c.rate_hz else "-"
-        lines.append(f"{c.topic:<24} {c.schema:<28} {c.count:>9} {rate:>8} {len(c.gaps):>5} {c.backwards:>6} {c.duplicates:>5}")
+        lines.append(f"{c.topic:<24} {c.schema:<28} {c.count:>9} {rate:>8} {len(c.gaps):>5} {c.backwards:>6} "
+                     f"{c.duplicates:>5}")
     for c in s.channels:
         for g in c.gaps[:5]:
             lines.append(f"  gap in {c.topic}: {g.duration_s:.2f} s from {format_time(g.start_ns)}")

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -492,7 +493,8 @@ def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
             raise ConfigError(f"{source}: [thrusters] has unknown key {k!r}")
     try:
         params = VesselParams(**{k: float(v) for k, v in model.items()})
-        thrusters = Thrusters(**{k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in thr.items()})
+        tvals: dict[str, Any] = {k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in thr.items()}
+        thrusters = Thrusters(**tvals)
     except (ConfigError, TypeError, ValueError) as err:
         raise ConfigError(f"{source}: {err}") from err
     return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters)

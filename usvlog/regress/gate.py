@@ -230,7 +230,8 @@ def junit_xml(checks: list[Check], durations: dict[str, float] | None = None,
             if c.failed:
                 parts.append(f'      <failure message={quoteattr(c.message)}>{escape(c.message)}</failure>')
             else:
-                parts.append(f'      <system-out>{escape(f"{c.verdict}: now={c.now} baseline={c.baseline}")}</system-out>')
+                out = escape(f"{c.verdict}: now={c.now} baseline={c.baseline}")
+                parts.append(f"      <system-out>{out}</system-out>")
             parts.append("    </testcase>")
         parts.append("  </testsuite>")
     parts.append("</testsuites>")

@@ -277,7 +277,7 @@ def events(log: FieldLog) -> list[Event]:
                 ev.append(Event(int(t), "WARN", f"{s}_rejected", f"{s} measurement rejected (NIS {nis:.1f})"))
     for a, b in gps_dropouts(log):
         ev.append(Event(a, "WARN", "gps_dropout", f"GPS dropout: no fix for {(b - a) / 1e9:.1f} s"))
-    for topic, label, f, _, desc in controllers(log):
+    for _topic, _label, f, _, desc in controllers(log):
         for a, b in saturation_spans(f):
             ev.append(Event(a, "WARN", "saturation_start", f"{desc}: thrusters saturated"))
             ev.append(Event(b, "INFO", "saturation_end",
@@ -317,7 +317,7 @@ def metrics(log: FieldLog) -> list[tuple[str, str, str]]:
             nis = nis[np.isfinite(nis)]
             if len(nis):
                 rows.append((f"mean NIS, {sensor}", f"{nis.mean():.2f}", ""))
-    for topic, label, f, sf, desc in controllers(log):
+    for _topic, _label, f, _sf, desc in controllers(log):
         ct = _col(f, "cross_track_m")
         if ct is not None:
             rows.append((f"{desc}: RMS cross-track error", f"{_rms(ct):.3f}", "m"))

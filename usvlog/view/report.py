@@ -89,7 +89,7 @@ def _col(frame, name):
 
 def _main_controller(log: FieldLog):
     """(label, controller frame, steered state frame, description) the report speaks of."""
-    for topic, label, f, sf, desc in vd.controllers(log):
+    for _topic, label, f, sf, desc in vd.controllers(log):
         if label != "whatif":
             return label, f, sf, desc
     return None
@@ -235,7 +235,7 @@ def _fig_errors(plt, log, baseline):
     fig, axes = plt.subplots(3, 1, figsize=(7.0, 6.4), sharex=True)
     names = {"log": _run_label(log, "this log"), "baseline": _run_label(baseline, "baseline") if baseline else ""}
     colors = {"log": "C0", "baseline": "C3"}
-    for key, lg, (label, f, sf, desc), ls in series:
+    for key, lg, (_label, f, sf, desc), ls in series:
         t0 = f.index[0]
         t = _seconds(f.index.to_numpy(), t0)
         nm = names[key] if baseline is not None else _run_label(lg, desc)
@@ -433,8 +433,9 @@ def _html(log, baseline, shown, missing, axes_note: str) -> str:
              "td.num{text-align:right;font-variant-numeric:tabular-nums}</style></head><body>",
              f"<h1>{e(title)}</h1>"]
     if tr:
-        parts.append(f"<p>{e(format_time(tr[0]))} to {e(format_time(tr[1]))} UTC"
-                     f"{' &middot; baseline: ' + e(Path(baseline.source).name) if baseline is not None and baseline.source else ''}</p>")
+        base = (" &middot; baseline: " + e(Path(baseline.source).name)
+                if baseline is not None and baseline.source else "")
+        parts.append(f"<p>{e(format_time(tr[0]))} to {e(format_time(tr[1]))} UTC{base}</p>")
     parts.append("<h2>Metrics</h2><table><tr><th>metric</th><th>value</th><th>unit</th></tr>")
     for name, value, unit in vd.metrics(log):
         parts.append(f"<tr><td>{e(name)}</td><td class='num'>{e(value)}</td><td>{e(unit)}</td></tr>")

@@ -176,7 +176,7 @@ class _Writer:
                                                               radii=rr.Radius.ui_points(2.0), colors=[c]))
             self.static("local", "local/path", rr.LineStrips2D([np.column_stack([path[:, 1], -path[:, 0]])],
                                                                radii=rr.Radius.ui_points(1.5), colors=[c]))
-        for topic, label, f in vd.state_tracks(log):
+        for _topic, label, f in vd.state_tracks(log):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             k = _thin(t, OVERLAY_HZ)
             n, e = np.asarray(f["n_m"].to_numpy(), float)[k], np.asarray(f["e_m"].to_numpy(), float)[k]
@@ -220,7 +220,7 @@ class _Writer:
     def draw_controllers(self) -> None:
         ext = _extent(self.log)
         arrow = float(np.clip(0.08 * ext, 0.5, 10.0))
-        for topic, label, f, sf, desc in vd.controllers(self.log):
+        for _topic, label, f, sf, _desc in vd.controllers(self.log):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             k = _thin(t, OVERLAY_HZ)
             tk = t[k]
@@ -280,7 +280,7 @@ class _Writer:
         log = self.log
         states = vd.state_tracks(log)
         unwrapped = {}
-        for topic, label, f in states:
+        for _topic, label, f in states:
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             var = {"truth": "dark", "whatif": "light"}.get(label, "")
             c = self.color(label, var)
@@ -320,7 +320,7 @@ class _Writer:
             c = self.color("recorded", "dark")
             self.scalars("tau_u", "tau_u/recorded", t, tu, name="tau_u recorded", color=c, step=True)
             self.scalars("tau_r", "tau_r/recorded", t, tr, name="tau_r recorded", color=c, step=True)
-        for topic, label, f, sf, desc in vd.controllers(log):
+        for _topic, label, f, sf, desc in vd.controllers(log):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             c = self.color(label, "light")
             if "u_d_mps" in f.columns:

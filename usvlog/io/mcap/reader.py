@@ -393,7 +393,8 @@ def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:
     if all(r is not None for r in rec):
         runs = {r.get("run_id") for r in rec}
         if len(runs) != 1:
-            raise InputError(f"{paths[0]}: files belong to different recordings (run ids {', '.join(sorted(map(str, runs)))})")
+            ids = ", ".join(sorted(map(str, runs)))
+            raise InputError(f"{paths[0]}: files belong to different recordings (run ids {ids})")
         order = sorted(range(len(logs)), key=lambda i: int(rec[i].get("part", 0)))
         parts = [int(rec[i].get("part", 0)) for i in order]
         for a, b, i in zip(parts, parts[1:], order[1:]):

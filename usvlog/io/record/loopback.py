@@ -50,7 +50,8 @@ def gga(gps_ns: int, lat: float, lon: float, alt_m: float, sats: int = 9, hdop: 
 def rmc(gps_ns: int, lat: float, lon: float, sog_kn: float = 0.0, cog_deg: float = 0.0) -> str:
     la, ns = format_deg_min(lat, True)
     lo, ew = format_deg_min(lon, False)
-    return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},{_dmy(gps_ns)},,")
+    return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},"
+                         f"{_dmy(gps_ns)},,")
 
 
 def hdt(heading_deg: float) -> str:
