@@ -82,7 +82,7 @@ def make_nmea(path: Path) -> None:
     events = [(int(t), "gps", row) for t, row in zip(gps.index, gps.itertuples())]
     events += [(int(t), "hdg", row) for t, row in zip(hd.index, hd.itertuples())]
     for t, kind, row in sorted(events, key=lambda e: (e[0], e[1])):
-        ts = dt.datetime.fromtimestamp(t / 1e9, tz=dt.timezone.utc)
+        ts = dt.datetime.fromtimestamp(t / 1e9, tz=dt.UTC)
         stamp = ts.isoformat(timespec="milliseconds").replace("+00:00", "Z")
         if kind == "gps":
             hms = ts.strftime("%H%M%S") + f".{ts.microsecond // 10000:02d}"

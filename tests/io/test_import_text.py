@@ -208,7 +208,7 @@ def nmea_truth(n=50):
     return dict(k=k, lat=-33.8561234 + 1.1e-6 * k, lon=151.2153456 - 1.3e-6 * k, hdg=(355.0 + 0.5 * k) % 360.0)
 
 
-def nmea_lines(n=50, start=dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezone.utc), prefix=False):
+def nmea_lines(n=50, start=dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.UTC), prefix=False):
     """10 Hz GGA+RMC (mixed talkers), 20 Hz HDT; optionally an ISO time stamp before every line."""
     tr = nmea_truth(n)
     out = []
@@ -236,7 +236,7 @@ def test_nmea_round_trip_midnight_rollover(tmp_path):
     res = import_file(p)
     tr = nmea_truth()
     g = res.log["/gnss/fix"]
-    start = int(dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    start = int(dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.UTC).timestamp()) * 10**9
     np.testing.assert_array_equal(g.index.to_numpy(), start + tr["k"] * 100_000_000)  # crosses midnight
     np.testing.assert_allclose(g["lat_deg"], tr["lat"], atol=1e-7, rtol=0)
     np.testing.assert_allclose(g["lon_deg"], tr["lon"], atol=1e-7, rtol=0)
@@ -257,7 +257,7 @@ def test_nmea_prefixed_times_and_bad_lines(tmp_path):
     res = import_file(p)
     h = res.log["/compass/heading"]
     tr = nmea_truth()
-    start = int(dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    start = int(dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.UTC).timestamp()) * 10**9
     hdt = h[(h.index.to_numpy() - start) % 100_000_000 == 20_000_000]
     assert len(hdt) >= 48
     k = (hdt.index.to_numpy() - start - 20_000_000) // 100_000_000
@@ -404,7 +404,7 @@ def test_imported_messages_validate_against_their_schemas(tmp_path):
 
 def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):
     """No RMC: the day comes from --start-utc and a time of day is placed nearest the previous one."""
-    start = dt.datetime(2024, 5, 1, 23, 59, 59, 500000, tzinfo=dt.timezone.utc)
+    start = dt.datetime(2024, 5, 1, 23, 59, 59, 500000, tzinfo=dt.UTC)
     tr = nmea_truth(20)
     lines = []
     for i in range(20):
@@ -428,7 +428,7 @@ def test_nmea_epoch_with_a_bad_gga_keeps_the_rmc_fix(tmp_path, gga_first):
     gave the fix. Epoch 3's GGA has a bad checksum, epoch 6's says "no fix": RMC gives those.
     """
     tr = nmea_truth(10)
-    start = dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.timezone.utc)
+    start = dt.datetime(2024, 5, 1, 23, 59, 57, tzinfo=dt.UTC)
     lines = []
     for i in range(10):
         ts = start + dt.timedelta(milliseconds=100 * i)

@@ -42,12 +42,12 @@ def test_gga_values_and_quality():
 def test_rmc_zda_dates_and_gll():
     r = parse_sentence(with_checksum("GPRMC,235959.90,A,5954.000,N,01042.000,E,1.0,90.0,311224,,"))
     assert r.date == dt.date(2024, 12, 31) and r.has_fix
-    midnight = int(dt.datetime(2024, 12, 31, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    midnight = int(dt.datetime(2024, 12, 31, tzinfo=dt.UTC).timestamp()) * 10**9
     assert r.gps_time_ns == midnight + 86_399 * 10**9 + 900_000_000
     void = parse_sentence(with_checksum("GPRMC,000000,V,,,,,,,010125,,"))
     assert not void.has_fix and void.date == dt.date(2025, 1, 1)
     z = parse_sentence(with_checksum("GPZDA,201530.00,04,07,2002,00,00"))
-    assert z.gps_time_ns == int(dt.datetime(2002, 7, 4, 20, 15, 30, tzinfo=dt.timezone.utc).timestamp()) * 10**9
+    assert z.gps_time_ns == int(dt.datetime(2002, 7, 4, 20, 15, 30, tzinfo=dt.UTC).timestamp()) * 10**9
     g = parse_sentence(with_checksum("GPGLL,4916.45,N,12311.12,W,225444,A,"))
     assert g.has_fix and g.lat_deg == pytest.approx(49 + 16.45 / 60) and g.lon_deg == pytest.approx(-(123 + 11.12 / 60))
 
@@ -193,10 +193,10 @@ def test_vtg_both_layouts():
 
 
 @pytest.mark.parametrize("text, dt_utc, extra_ns", [
-    ("2024-05-01T10:00:00Z", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),
-    ("2024-05-01T12:00:00.25+02:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 250_000_000),
-    ("2024-05-01 10:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.timezone.utc), 0),          # no zone: UTC
-    ("1999-12-31T23:59:59.123456789Z", dt.datetime(1999, 12, 31, 23, 59, 59, tzinfo=dt.timezone.utc), 123_456_789),
+    ("2024-05-01T10:00:00Z", dt.datetime(2024, 5, 1, 10, tzinfo=dt.UTC), 0),
+    ("2024-05-01T12:00:00.25+02:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.UTC), 250_000_000),
+    ("2024-05-01 10:00", dt.datetime(2024, 5, 1, 10, tzinfo=dt.UTC), 0),          # no zone: UTC
+    ("1999-12-31T23:59:59.123456789Z", dt.datetime(1999, 12, 31, 23, 59, 59, tzinfo=dt.UTC), 123_456_789),
 ])
 def test_parse_time_is_exact_to_the_nanosecond(text, dt_utc, extra_ns):
     """The one ISO 8601 reader (import --start-utc, NMEA line prefixes, simulate start_utc)."""

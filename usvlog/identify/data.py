@@ -54,7 +54,7 @@ class RunData:
         """Length of the thrust record in s."""
         return float(self.t_thrust[-1] - self.t_thrust[0])
 
-    def window(self, t_lo: float, t_hi: float) -> "RunData":
+    def window(self, t_lo: float, t_hi: float) -> RunData:
         """The part of the run in [t_lo, t_hi] (s), same time origin."""
         k = (self.t_thrust >= t_lo) & (self.t_thrust <= t_hi)
         g = (self.t_gps >= t_lo) & (self.t_gps <= t_hi)

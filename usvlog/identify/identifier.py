@@ -224,7 +224,7 @@ class Identifier:
         self.holdout = float(holdout)
 
     # ------------------------------------------------------------------------------
-    def fit(self, logs: list[FieldLog] | FieldLog, vessel: Vessel | None = None) -> "Identifier":
+    def fit(self, logs: list[FieldLog] | FieldLog, vessel: Vessel | None = None) -> Identifier:
         """Fit the model parameters to one or more runs.
 
         Each log needs ``/thrust/command`` (forces in N, or commands through the

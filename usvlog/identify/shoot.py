@@ -153,7 +153,7 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
                     Sa[:, :] = S
             nsub = max(1, int(math.ceil(dt / max_dt - 1e-9)))
             h = dt / nsub
-            for q in range(nsub):
+            for _ in range(nsub):
                 _rk4(x, S, tau_u[i], tau_r[i], prm, cn, ce, h, sens, w6, W6)
             if need:
                 while j < jend and meas_t[j] <= tb + 1e-9:

@@ -74,7 +74,7 @@ class KinStates:
         cols = [self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]]
         return np.stack([np.interp(t, self.t, c) for c in cols], -1)
 
-    def window(self, t_lo, t_hi) -> "KinStates":
+    def window(self, t_lo, t_hi) -> KinStates:
         """The states with ``t_lo <= t <= t_hi`` (s)."""
         k = (self.t >= t_lo) & (self.t <= t_hi)
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],

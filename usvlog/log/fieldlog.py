@@ -51,11 +51,11 @@ class RecoveryReport:
 
 def format_time(t_ns: int) -> str:
     """ns since the Unix epoch -> ISO 8601 UTC text with milliseconds."""
-    return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.UTC).isoformat(timespec="milliseconds")
 
 
 _FRACTION = re.compile(r"(?<=\d)[.,](\d+)")
-_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
+_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.UTC)
 
 
 def parse_time(text: str) -> int:
@@ -69,7 +69,7 @@ def parse_time(text: str) -> int:
         s = s[:frac.start()] + s[frac.end():]
     t = _dt.datetime.fromisoformat(s)
     if t.tzinfo is None:
-        t = t.replace(tzinfo=_dt.timezone.utc)
+        t = t.replace(tzinfo=_dt.UTC)
     d = t - _EPOCH
     return (d.days * 86_400 + d.seconds) * 1_000_000_000 + ns
 

@@ -120,7 +120,7 @@ class Datum:
                 "alt_m": repr(float(self.alt_m))}
 
     @classmethod
-    def from_dict(cls, d: dict[str, str]) -> "Datum":
+    def from_dict(cls, d: dict[str, str]) -> Datum:
         """Datum from the strings written by :meth:`to_dict`.
 
         Parameters

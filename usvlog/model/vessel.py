@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from ..choices import PARAM_NAMES, THRUST_UNITS
 from .._jit import jitable
+from ..choices import PARAM_NAMES, THRUST_UNITS
 from ..errors import ConfigError, InputError
 
 
@@ -382,7 +382,7 @@ class Vessel:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, str]) -> "Vessel":
+    def from_dict(cls, d: dict[str, str]) -> Vessel:
         """Vessel from the flat string map written by :meth:`to_dict`.
 
         Parameters
@@ -412,7 +412,7 @@ class Vessel:
                 thr[f.name] = v if f.type == "str" else (v == "True") if f.type == "bool" else float(v)
         return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr))
 
-    def with_params(self, **changes) -> "Vessel":
+    def with_params(self, **changes) -> Vessel:
         """A copy with some model parameters replaced.
 
         Parameters

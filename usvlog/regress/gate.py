@@ -63,7 +63,7 @@ class BaselineEntry:
         return d
 
     @classmethod
-    def from_dict(cls, name: str, d: dict) -> "BaselineEntry":
+    def from_dict(cls, name: str, d: dict) -> BaselineEntry:
         """Entry from a baseline file's table for metric ``name`` (named in errors).
 
         Raises

@@ -436,7 +436,8 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     ci = noise["compass_index"]
     std = math.radians(sn.compass_noise_deg)
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
-    comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]), "reference": np.array(["true"] * len(ci), dtype=object),
+    comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]),
+            "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
     log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], channel_spec("/compass/heading")))
 

@@ -201,7 +201,7 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     """
     p = path
     try:
-        with open(p, "r", encoding="utf-8", errors="replace", newline="") as fh:
+        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
             header_line = fh.readline()
     except OSError as err:
         raise InputError(f"{p}: cannot read ({err})") from err

@@ -120,7 +120,7 @@ def _lines(path) -> Iterator[str]:
     A generator, so the ``try`` of :func:`usvlog.io.atomic.reading` covers the file
     reads only, not what the caller does with each line.
     """
-    with reading(path), open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+    with reading(path), open(path, encoding="ascii", errors="replace", newline=None) as fh:
         yield from fh
 
 

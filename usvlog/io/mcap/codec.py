@@ -266,7 +266,8 @@ class Codec:
                 elif f.kind == "array":
                     k = len(f.columns)
                     rows = [o.get(p) or [None] * k for o in objs]
-                    arr = np.array([[np.nan if x is None else x for x in r] for r in rows], dtype=float).reshape(len(objs), k)
+                    arr = np.array([[np.nan if x is None else x for x in r] for r in rows],
+                                   dtype=float).reshape(len(objs), k)
                     for j, c in enumerate(f.columns):
                         out[c] = arr[:, j].copy()
                 elif f.kind == "float":

@@ -185,7 +185,7 @@ class Source(threading.Thread):
         while not self._stop_ev.is_set():
             try:
                 data = sock.recv(65535)
-            except socket.timeout:
+            except TimeoutError:
                 rec.set_dropped(self.source_name, self.dropped)
                 continue
             t = rec.now_ns()
@@ -218,7 +218,7 @@ class Source(threading.Thread):
                 while not self._stop_ev.is_set():
                     try:
                         data = sock.recv(65536)
-                    except socket.timeout:
+                    except TimeoutError:
                         continue
                     if not data:
                         break
