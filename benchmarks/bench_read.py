@@ -40,7 +40,7 @@ def mcap_loop(path):
 PEAK = """
 import resource, sys
 sys.path.insert(0, sys.argv[1])
-from usvlog.io.mcapio import read_log
+from usvlog.io.mcap import read_log
 import numba, pyarrow.compute
 if sys.argv[3] == "load":
     log = read_log(sys.argv[2])
