@@ -88,7 +88,7 @@ def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size
         encoded.append((t, codec.encode_reference(frame, topic)))
     with atomic_path(path, force=force) as tmp:
         with open(tmp, "wb") as fh:
-            w = Writer(fh, chunk_size=chunk_size, compression=comp)
+            w = Writer(fh, chunk_size=chunk_size, compression=comp, enable_data_crcs=True)
             w.start(profile="", library=f"usvlog {__version__}")
             for name in sorted(log.meta):
                 w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
