@@ -91,6 +91,7 @@ class _Scan:
     data_end: int = 0                               # end of the data section (or of the file)
     mcap_end: int = 0                               # end of the closing magic (or of the file)
     footer: bool = False                            # a footer and closing magic were found
+    footer_at: int = -1
     summary: _Summary | None = None
     data_end_at: int = -1                           # offset of the Data End record, if read
     regions: list = field(default_factory=list)     # damaged byte ranges: (start, end, reason)
@@ -298,7 +299,7 @@ def _layout(scan: _Scan, data: bytes) -> None:
     scan.size = len(data)
     f = _find_footer(data)
     if f >= 0:
-        scan.footer, scan.mcap_end = True, f + 37
+        scan.footer, scan.mcap_end, scan.footer_at = True, f + 37, f
         scan.summary = _read_summary(data, f)
         scan.data_end = scan.summary.start if scan.summary is not None else f
     else:
@@ -445,10 +446,31 @@ def _finish(scan: _Scan, data: bytes) -> None:
                 scan.metadata[name] = pr[2]
             else:
                 scan.metadata_lost.append(name)
+    if scan.data_end_at >= 0:
+        # the footer that closes this data section (not one in bytes appended after it)
+        off, found = scan.data_end_at + 13, -1
+        try:
+            while off + 9 <= len(data):
+                op, length = _REC.unpack_from(mv, off)
+                if op == OP_FOOTER and length == 20 and data[off + 29:off + 37] == MAGIC:
+                    found = off
+                    break
+                off += 9 + length
+        except struct.error:
+            pass
+        if found < 0:
+            scan.notes.append("the summary or footer after the data is damaged or missing"
+                              " (the data section was read in full)")
+        else:
+            scan.footer, scan.mcap_end = True, found + 37
+            if (scan.summary is None if found == scan.footer_at else _read_summary(data, found) is None) \
+                    and _FOOTER.unpack_from(data, found)[2] != 0:
+                scan.notes.append("the summary section is damaged (its CRC fails; the data section was read in full)")
     if not scan.regions and scan.data_end_at >= 0:
         crc = _U32.unpack_from(mv, scan.data_end_at + 9)[0]
         if crc and zlib.crc32(mv[:scan.data_end_at]) != crc:
-            scan.notes.append("data section CRC mismatch (a record outside the chunks is damaged)")
+            scan.notes.append("data section CRC mismatch: a record outside the chunks (header, metadata or"
+                              " an index) is damaged, the metadata may be wrong")
 
 
 def _summary_channel(scan: _Scan, cid: int) -> _Channel | None:
