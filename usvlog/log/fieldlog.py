@@ -115,7 +115,8 @@ class RecoveryReport:
         if self.lost_chunks:
             s += f"; {len(self.lost_chunks)} chunk(s) lost: " + "; ".join(
                 f"byte {c.offset} ({c.size} bytes, {c.reason})"
-                + (f" {format_time(c.start_ns)} to {format_time(c.end_ns)}" if c.start_ns is not None else "")
+                + (f" {format_time(c.start_ns)} to {format_time(c.end_ns)}"
+                   if c.start_ns is not None and c.end_ns is not None else "")
                 + (f" on {', '.join(c.topics)}" if c.topics else " channels unknown" if c.topics is None else "")
                 for c in self.lost_chunks)
         if self.lost_from_ns is not None and not self.lost_chunks:
@@ -140,7 +141,7 @@ class RecoveryReport:
             head = "input damaged"
         spans = []
         for c in self.lost_chunks:
-            when = (f"{_hms(c.start_ns)}-{_hms(c.end_ns)}" if c.start_ns is not None
+            when = (f"{_hms(c.start_ns)}-{_hms(c.end_ns)}" if c.start_ns is not None and c.end_ns is not None
                     else f"after {_hms(self.lost_from_ns)}" if self.lost_from_ns is not None and c is self.lost_chunks[-1]
                     else "at unknown times")
             spans.append(f"{when} on {', '.join(c.topics) if c.topics else 'unknown channels'}")

@@ -1,7 +1,14 @@
 """Reading canonical MCAP logs, recovering what a damaged file still holds.
 
-Records are walked here rather than through the mcap library's per-record objects: a
-file cut short keeps every complete chunk and the loss is reported. ``_scan_fast`` walks
+Records are walked here rather than through the mcap library's per-record objects.
+Every chunk's CRC is checked (and the data section CRC in the Data End record, when
+set); a chunk that fails, does not decompress or whose records do not parse is never
+loaded. After any damaged record the walk resumes at the next chunk that checks out
+(the summary's chunk index gives every chunk's offset when the footer and summary
+survive; else the bytes are searched for a chunk header whose fields agree and whose
+CRC checks out), so every intact chunk is kept wherever the damage is. A message that
+does not decode costs that message only. What was lost is reported
+(:class:`usvlog.log.fieldlog.RecoveryReport`). ``_scan_fast`` walks
 records and messages into arrays with compiled loops (:mod:`.kernels`);
 :func:`.reference._scan_reference` is the plain reading the tests compare it with.
 """
@@ -271,12 +278,13 @@ def _read_summary(data: bytes, footer_at: int) -> _Summary | None:
             body, nxt = off + 9, off + 9 + length
             if nxt > stop:
                 return None
-            if op == OP_SCHEMA:
+            if op in (OP_SCHEMA, OP_CHANNEL):
                 pr = _parse(op, mv[body:nxt])
-                s.schemas[pr[1]] = pr[2:]
-            elif op == OP_CHANNEL:
-                pr = _parse(op, mv[body:nxt])
-                s.channels[pr[1]] = (pr[3], pr[2], pr[4])
+                assert pr is not None
+                if op == OP_SCHEMA:
+                    s.schemas[pr[1]] = pr[2:]
+                else:
+                    s.channels[pr[1]] = (pr[3], pr[2], pr[4])
             elif op == OP_CHUNK_INDEX:
                 t0, t1, at, size = struct.unpack_from("<QQQQ", mv, body)
                 n = _U32.unpack_from(mv, body + 32)[0]
@@ -821,16 +829,13 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         else:
             t, seq = ch.t, ch.seq
         order = np.argsort(seq, kind="stable")
-        if scan.arena is None:
-            payloads = [ch.payloads[i] for i in order.tolist()]
+        payloads = [ch.payloads[i] for i in order.tolist()] if scan.arena is None else None
+        starts, ends = (ch.starts[order], ch.ends[order]) if scan.arena is not None else (None, None)
 
-            def decode(ix, payloads=payloads, codec=codec, topic=ch.topic):
+        def decode(ix, payloads=payloads, starts=starts, ends=ends, codec=codec, topic=ch.topic):
+            if payloads is not None:
                 return codec.decode_reference([payloads[i] for i in ix.tolist()], topic)
-        else:
-            starts, ends = ch.starts[order], ch.ends[order]
-
-            def decode(ix, starts=starts, ends=ends, codec=codec, topic=ch.topic):
-                return codec.decode_spans(scan.arena, starts[ix], ends[ix], topic)
+            return codec.decode_spans(scan.arena, starts[ix], ends[ix], topic)
         try:
             cols, bad = _decode_tolerant(decode, len(order))
         except InputError as err:
