@@ -188,12 +188,17 @@ def test_truncated_file_fast_equals_reference_and_library(tmp_path, excitation_l
 
 
 def test_corrupt_chunk_fast_equals_reference(tmp_path, excitation_log):
+    """Zeros inside one chunk: that chunk alone is lost and reported (offset, size, time
+    range and channels from the chunk index); every other chunk loads."""
     full = tmp_path / "full.mcap"
     write_log(excitation_log, full, chunk_size=64 * 1024)
-    data = bytearray(full.read_bytes())
+    clean = full.read_bytes()
+    data = bytearray(clean)
     with open(full, "rb") as fh:
-        chunks = make_reader(fh).get_summary().chunk_indexes
-    bad = chunks[len(chunks) // 2]
+        summary = make_reader(fh).get_summary()
+    chunks, topic_of = summary.chunk_indexes, {c.id: c.topic for c in summary.channels.values()}
+    k = len(chunks) // 2
+    bad, after = chunks[k], chunks[k + 1]
     mid = bad.chunk_start_offset + bad.chunk_length // 2
     data[mid:mid + 64] = bytes(64)
     p = tmp_path / "bad.mcap"
@@ -201,12 +206,19 @@ def test_corrupt_chunk_fast_equals_reference(tmp_path, excitation_log):
     fast, ref = read_log(p), read_log_reference(p)
     assert_logs_equal(fast, ref)
     rec = fast.recovery
-    assert "corrupt" in rec.reason
-    assert rec.bytes_recovered == bad.chunk_start_offset
-    assert rec.lost_to_ns == bad.message_end_time
-    before = library_messages(bytes(data[:bad.chunk_start_offset]))
-    assert 0 < len(before) == rec.messages_recovered
-    assert sorted(our_messages(fast)) == sorted(before)
+    assert "corrupt" in rec.reason and rec.messages_skipped == 0
+    start, nxt = bad.chunk_start_offset, after.chunk_start_offset
+    assert rec.damaged_ranges == ((start, nxt - start),) and rec.bytes_lost == nxt - start
+    [lost] = rec.lost_chunks
+    assert (lost.offset, lost.size, lost.start_ns, lost.end_ns) == (
+        start, bad.chunk_length, bad.message_start_time, bad.message_end_time)
+    assert lost.topics == tuple(sorted(topic_of[c] for c in bad.message_index_offsets))
+    assert (rec.lost_from_ns, rec.lost_to_ns) == (bad.message_start_time, bad.message_end_time)
+    # every other chunk: the library's messages of the clean file with the bad chunk cut out
+    others = library_messages(clean[:start] + clean[nxt:])
+    assert 0 < len(others) == rec.messages_recovered < len(library_messages(clean))
+    # (topic, time, payload): row numbers after the gap differ from the sequence numbers
+    assert sorted((a, b, d) for a, b, _, d in our_messages(fast)) == sorted((a, b, d) for a, b, _, d in others)
 
 
 def _plain_writer_file(compression, use_chunking=True) -> bytes:

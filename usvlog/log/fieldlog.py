@@ -25,28 +25,157 @@ META_PROVENANCE = "usvlog.provenance"  # stored as usvlog.provenance/0, /1, ... 
 
 
 @dataclass(frozen=True)
+class LostChunk:
+    """A chunk of a damaged file that was not loaded.
+
+    Attributes
+    ----------
+    offset, size : int
+        Where the chunk record starts in the file and its length (bytes; the length
+        is the damaged range's when the record's own length is not trustworthy).
+    start_ns, end_ns : int or None
+        The time range of its messages (ns since the Unix epoch): from the summary's
+        chunk index, else from the chunk's header when plausible, else None.
+    topics : tuple of str or None
+        The channels that had messages in it (from the chunk index, or the message
+        indexes that follow the chunk), None when unknown.
+    reason : str
+        Why it was not loaded (e.g. "CRC mismatch").
+    """
+
+    offset: int
+    size: int
+    start_ns: int | None
+    end_ns: int | None
+    topics: tuple[str, ...] | None
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"offset": self.offset, "size": self.size, "start_ns": self.start_ns, "end_ns": self.end_ns,
+                "topics": None if self.topics is None else list(self.topics), "reason": self.reason}
+
+
+@dataclass(frozen=True)
 class RecoveryReport:
-    """What was recovered from a damaged (truncated) file."""
+    """What was recovered from a damaged file (truncated, corrupted, or with bytes after its end).
+
+    Attributes
+    ----------
+    file_size : int
+        Size of the file (bytes).
+    bytes_recovered : int
+        Bytes of the file that were used: ``file_size - bytes_lost - trailing_bytes``.
+    bytes_lost : int
+        Bytes in damaged ranges (chunks that failed, records that did not parse, a cut-off end).
+    messages_recovered : int
+        Messages loaded.
+    lost_from_ns, lost_to_ns : int or None
+        For a file cut short: the end of the recovered data and the end of the cut
+        chunk (when its header survived). Otherwise the earliest start and latest end
+        of the lost chunks whose time range is known (ns since the Unix epoch).
+    reason : str
+        The first damage found (and how many more).
+    lost_chunks : tuple of LostChunk
+        Every chunk not loaded, with its time range and channels where known.
+    damaged_ranges : tuple of (offset, length)
+        The byte ranges skipped (bytes).
+    messages_skipped : int
+        Messages in loaded chunks that could not be read (malformed record, payload
+        not valid for its channel's schema, or a channel whose definition was lost).
+    skipped_by_topic : dict
+        ``messages_skipped`` by channel.
+    trailing_bytes : int
+        Bytes after the footer's closing magic (not part of the MCAP file).
+    metadata_lost : tuple of str
+        Names of metadata records the summary lists that could not be read.
+    """
 
     file_size: int
     bytes_recovered: int     # bytes of the file that were used (complete records)
-    bytes_lost: int          # bytes after the last complete chunk
+    bytes_lost: int          # bytes in damaged ranges
     messages_recovered: int
     lost_from_ns: int | None  # earliest time that may be missing (end of recovered data)
     lost_to_ns: int | None    # latest time known to be missing, when known (else None)
     reason: str
+    lost_chunks: tuple[LostChunk, ...] = ()
+    damaged_ranges: tuple[tuple[int, int], ...] = ()
+    messages_skipped: int = 0
+    skipped_by_topic: dict[str, int] = field(default_factory=dict)
+    trailing_bytes: int = 0
+    metadata_lost: tuple[str, ...] = ()
+
+    @property
+    def nothing_recovered(self) -> bool:
+        """True when no message could be loaded (``inspect`` exits 1 on such a file)."""
+        return self.messages_recovered == 0
 
     def describe(self) -> str:
         s = (f"recovered {self.messages_recovered} messages; {self.bytes_lost} of {self.file_size} bytes lost"
              f" ({self.reason})")
-        if self.lost_from_ns is not None:
+        if self.lost_chunks:
+            s += f"; {len(self.lost_chunks)} chunk(s) lost: " + "; ".join(
+                f"byte {c.offset} ({c.size} bytes, {c.reason})"
+                + (f" {format_time(c.start_ns)} to {format_time(c.end_ns)}"
+                   if c.start_ns is not None and c.end_ns is not None else "")
+                + (f" on {', '.join(c.topics)}" if c.topics else " channels unknown" if c.topics is None else "")
+                for c in self.lost_chunks)
+        if self.lost_from_ns is not None and not self.lost_chunks:
             s += f"; data after {format_time(self.lost_from_ns)} lost"
+        if self.messages_skipped:
+            s += f"; {self.messages_skipped} message(s) skipped (" + ", ".join(
+                f"{k} {v}" for k, v in self.skipped_by_topic.items()) + ")"
+        if self.metadata_lost:
+            s += f"; metadata lost: {', '.join(self.metadata_lost)}"
+        if self.trailing_bytes:
+            s += f"; {self.trailing_bytes} bytes of garbage after the footer"
         return s
+
+    def one_line(self) -> str:
+        """One line for a verb to print (and store in provenance) when its input was damaged, e.g.
+        ``input damaged: 48213 bytes / 2 chunks lost, data missing 12:01:03-12:01:09 on /gnss/fix``."""
+        if self.nothing_recovered:
+            head = f"input damaged: nothing recovered ({self.reason})"
+        elif self.bytes_lost or self.lost_chunks:
+            head = f"input damaged: {self.bytes_lost} bytes / {len(self.lost_chunks)} chunk(s) lost"
+        else:
+            head = "input damaged"
+        spans = []
+        for c in self.lost_chunks:
+            last = c is self.lost_chunks[-1]
+            when = (f"{_hms(c.start_ns)}-{_hms(c.end_ns)}" if c.start_ns is not None and c.end_ns is not None
+                    else f"after {_hms(self.lost_from_ns)}" if self.lost_from_ns is not None and last
+                    else "at unknown times")
+            spans.append(f"{when} on {', '.join(c.topics) if c.topics else 'unknown channels'}")
+        if not self.lost_chunks and self.lost_from_ns is not None:
+            spans.append(f"after {_hms(self.lost_from_ns)}")
+        if spans and not self.nothing_recovered:
+            head += ", data missing " + "; ".join(spans[:3]) + (f" (+{len(spans) - 3} more)" if len(spans) > 3 else "")
+        tail = []
+        if self.messages_skipped:
+            tail.append(f"{self.messages_skipped} message(s) unreadable")
+        if self.metadata_lost:
+            tail.append(f"metadata lost: {', '.join(self.metadata_lost)}")
+        if self.trailing_bytes:
+            tail.append(f"{self.trailing_bytes} bytes of garbage after the end")
+        if not tail and head == "input damaged":
+            tail.append(self.reason)
+        return head + (": " if head == "input damaged" else "; ") + "; ".join(tail) if tail else head
 
     def to_dict(self) -> dict:
         return {"file_size": self.file_size, "bytes_recovered": self.bytes_recovered,
                 "bytes_lost": self.bytes_lost, "messages_recovered": self.messages_recovered,
-                "lost_from_ns": self.lost_from_ns, "lost_to_ns": self.lost_to_ns, "reason": self.reason}
+                "lost_from_ns": self.lost_from_ns, "lost_to_ns": self.lost_to_ns, "reason": self.reason,
+                "lost_chunks": [c.to_dict() for c in self.lost_chunks],
+                "damaged_ranges": [list(r) for r in self.damaged_ranges],
+                "messages_skipped": self.messages_skipped, "skipped_by_topic": dict(self.skipped_by_topic),
+                "trailing_bytes": self.trailing_bytes, "metadata_lost": list(self.metadata_lost),
+                "nothing_recovered": self.nothing_recovered, "summary": self.one_line()}
+
+
+def _hms(t_ns: int) -> str:
+    """UTC time of day, to 0.1 s."""
+    d = _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.UTC)
+    return d.strftime("%H:%M:%S.") + f"{d.microsecond // 100000}"
 
 
 def format_time(t_ns: int) -> str:

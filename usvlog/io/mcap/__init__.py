@@ -12,9 +12,11 @@ Writing builds the message and index records with compiled loops
 (``_write_log_reference``, kept to test against).
 
 Reading walks the records itself rather than through the mcap library's
-per-record objects: it stops at the first incomplete record of a file cut short
-(or the first corrupt chunk), keeps every complete chunk, and reports what was
-lost. ``_scan_fast`` walks records and messages into arrays with compiled loops;
+per-record objects and checks every chunk's CRC (and the data section's): a chunk
+that fails is never loaded; after a damaged record the walk resumes at the next
+chunk that checks out (from the summary's chunk index, else by looking for chunk
+headers), so every intact chunk is kept wherever the damage is, and what was lost
+is reported (``FieldLog.recovery``). ``_scan_fast`` walks records and messages into arrays with compiled loops;
 ``_scan_reference`` is the plain one-record-at-a-time reading, kept as the
 reference the tests compare it with.
 """

@@ -6,6 +6,12 @@ MAGIC = b"\x89MCAP0\r\n"
 
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 OP_METADATA, OP_DATA_END = 0x0C, 0x0F
+OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_METADATA_INDEX = 0x07, 0x08, 0x0D
+
+# a chunk record's body without its compression name and data: start/end time, uncompressed
+# size, CRC, name length, data length (bytes)
+CHUNK_FIXED = 8 + 8 + 8 + 4 + 4 + 8
+COMPRESSIONS = (b"", b"lz4", b"zstd")
 
 _U16 = struct.Struct("<H")
 _U32 = struct.Struct("<I")
@@ -13,3 +19,4 @@ _U64 = struct.Struct("<Q")
 _REC = struct.Struct("<BQ")
 _MSG = struct.Struct("<HIQQ")
 _CHUNK = struct.Struct("<QQQI")
+_FOOTER = struct.Struct("<BQQQI")  # opcode, length 20, summary start, summary offset start, CRC

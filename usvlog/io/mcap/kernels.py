@@ -84,6 +84,43 @@ def walk_records(buf, start, end, top_level):
 
 
 @njit
+def find_chunk(buf, start, end):
+    """First offset p >= start where a chunk record with a consistent header begins, or -1.
+
+    Consistent: opcode 0x06, the record fits in buf[:end], start time <= end time <
+    2**63, compression "" / "lz4" / "zstd", and the data length agrees with the record
+    length (and with the uncompressed size when not compressed). Used to find the next
+    chunk after a damaged region; the caller still checks the chunk's CRC.
+    """
+    top = np.uint64(0x7FFFFFFFFFFFFFFF)
+    p = start
+    while p + 49 <= end:
+        if buf[p] == OP_CHUNK:
+            length = _u64(buf, p + 1)
+            if np.uint64(40) <= length <= np.uint64(end - p - 9):
+                t0 = _u64(buf, p + 9)
+                t1 = _u64(buf, p + 17)
+                clen = _u32(buf, p + 37)
+                ok = t0 <= t1 <= top and np.uint64(40 + clen) <= length
+                if ok and clen == 3:
+                    ok = buf[p + 41] == 108 and buf[p + 42] == 122 and buf[p + 43] == 52     # lz4
+                elif ok and clen == 4:
+                    ok = (buf[p + 41] == 122 and buf[p + 42] == 115 and buf[p + 43] == 116
+                          and buf[p + 44] == 100)                                            # zstd
+                elif clen != 0:
+                    ok = False
+                if ok:
+                    rlen = _u64(buf, p + 41 + clen)
+                    ok = rlen == length - np.uint64(40 + clen)
+                    if ok and clen == 0:
+                        ok = _u64(buf, p + 25) == rlen
+                    if ok:
+                        return p
+        p += 1
+    return -1
+
+
+@njit
 def message_fields(buf, offs, lens):
     """(channel id, sequence, log time, payload start, payload end) of message records, and
     False if one is malformed (shorter than its header, or a log time past int64)."""

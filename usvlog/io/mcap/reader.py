@@ -1,15 +1,24 @@
 """Reading canonical MCAP logs, recovering what a damaged file still holds.
 
-Records are walked here rather than through the mcap library's per-record objects: a
-file cut short keeps every complete chunk and the loss is reported. ``_scan_fast`` walks
+Records are walked here rather than through the mcap library's per-record objects.
+Every chunk's CRC is checked (and the data section CRC in the Data End record, when
+set); a chunk that fails, does not decompress or whose records do not parse is never
+loaded. After any damaged record the walk resumes at the next chunk that checks out
+(the summary's chunk index gives every chunk's offset when the footer and summary
+survive; else the bytes are searched for a chunk header whose fields agree and whose
+CRC checks out), so every intact chunk is kept wherever the damage is. A message that
+does not decode costs that message only. What was lost is reported
+(:class:`usvlog.log.fieldlog.RecoveryReport`). ``_scan_fast`` walks
 records and messages into arrays with compiled loops (:mod:`.kernels`);
 :func:`.reference._scan_reference` is the plain reading the tests compare it with.
 """
 
 from __future__ import annotations
 
+import bisect
 import json
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,22 +27,29 @@ import pandas as pd
 
 from ...errors import FormatError, InputError
 from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING, frame_from_columns
-from ...log.fieldlog import FieldLog, RecoveryReport
+from ...log.fieldlog import FieldLog, LostChunk, RecoveryReport
 from ..atomic import reading
 from . import kernels as K
 from .codec import codec_for_schema
 from .format import (
     _CHUNK,
+    _FOOTER,
     _MSG,
     _REC,
     _U16,
     _U32,
     _U64,
+    COMPRESSIONS,
     MAGIC,
     OP_CHANNEL,
     OP_CHUNK,
+    OP_CHUNK_INDEX,
+    OP_DATA_END,
+    OP_FOOTER,
     OP_MESSAGE,
+    OP_MESSAGE_INDEX,
     OP_METADATA,
+    OP_METADATA_INDEX,
     OP_SCHEMA,
 )
 
@@ -58,15 +74,48 @@ class _Channel:
 
 
 @dataclass
+class _Summary:
+    """The summary section, when the footer and the summary CRC check out."""
+
+    start: int                                      # summary start = end of the data section
+    schemas: dict = field(default_factory=dict)     # id -> (name, encoding, data)
+    channels: dict = field(default_factory=dict)    # id -> (topic, schema id, encoding)
+    chunks: dict = field(default_factory=dict)      # offset -> (record length, t0, t1, channel ids)
+    chunk_offsets: list = field(default_factory=list)
+    metadata: dict = field(default_factory=dict)    # offset -> (record length, name)
+
+
+@dataclass
 class _Scan:
     schemas: dict = field(default_factory=dict)     # id -> (name, encoding, data)
     channels: dict = field(default_factory=dict)    # id -> _Channel
     metadata: dict = field(default_factory=dict)
-    end_offset: int = 8                             # end of the last complete top-level record
-    complete: bool = False                          # Data End or Footer reached
-    reason: str = ""
-    lost_chunk_range: tuple[int, int] | None = None
     arena: np.ndarray | None = None                 # fast scan: every message's bytes
+    size: int = 0                                   # file size (bytes)
+    data_end: int = 0                               # end of the data section (or of the file)
+    mcap_end: int = 0                               # end of the closing magic (or of the file)
+    footer: bool = False                            # a footer and closing magic were found
+    footer_at: int = -1
+    summary: _Summary | None = None
+    data_end_at: int = -1                           # offset of the Data End record, if read
+    regions: list = field(default_factory=list)     # damaged byte ranges: (start, end, reason)
+    lost_chunks: list = field(default_factory=list)  # (offset, size, t0, t1, channel ids, trusted, why)
+    bad_messages: dict = field(default_factory=dict)  # channel id (-1 unknown) -> malformed records
+    orphans: dict = field(default_factory=dict)     # channel id -> messages on a channel never defined
+    notes: list = field(default_factory=list)       # other damage (e.g. data section CRC mismatch)
+    metadata_lost: list = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Nothing damaged or missing in the data section."""
+        return not self.regions and not self.notes and not self.bad_messages
+
+    @property
+    def reason(self) -> str:
+        why = [r[2] for r in self.regions] + self.notes
+        if not why:
+            return ""
+        return why[0] + (f" (and {len(why) - 1} more damaged region(s))" if len(why) > 1 else "")
 
 
 def _string(buf, off):
@@ -123,22 +172,41 @@ def _apply(scan: _Scan, parsed: tuple, in_chunk: bool) -> None:
         scan.metadata[parsed[1]] = parsed[2]
 
 
-def _chunk_header(buf, body: int, end: int):
-    t0, t1, usize, _crc = _CHUNK.unpack_from(buf, body)
-    comp, p = _string(buf, body + 28)
-    rlen = _U64.unpack_from(buf, p)[0]
-    if p + 8 + rlen > end:
-        raise struct.error("chunk data runs past the end of its record")
-    return t0, t1, usize, comp, buf[p + 8:p + 8 + rlen]
-
-
 _PAST_CHUNK = "a record runs past the end of the chunk"
-_BAD_MESSAGE = "a message record is too short or its log time past int64"
+_MAX_CHUNK = 1 << 32     # an uncompressed size above this is taken as a damaged header (bytes)
+_DAY_NS = 86_400 * 10**9
+
+
+def _chunk_data(buf, body: int, nxt: int) -> tuple[int, int, bytes]:
+    """A chunk record's (start time, end time, uncompressed records), checked.
+
+    Raises _CorruptChunk when the header does not parse, the data do not fill the
+    record, cannot be decompressed, have another size than the header says, or fail
+    the CRC (a CRC of 0 means "not set" in MCAP and is not checked)."""
+    try:
+        t0, t1, usize, crc = _CHUNK.unpack_from(buf, body)
+        comp, p = _string(buf, body + 28)
+        rlen = _U64.unpack_from(buf, p)[0]
+    except (struct.error, UnicodeDecodeError) as err:
+        raise _CorruptChunk(f"bad header: {err}") from err
+    if p + 8 + rlen != nxt:
+        raise _CorruptChunk("its data length disagrees with its record length")
+    if usize > _MAX_CHUNK:
+        raise _CorruptChunk(f"implausible uncompressed size {usize}")
+    try:
+        out = _decompress(comp, buf[p + 8:nxt], usize)
+    except Exception as err:  # any decompressor failure: the chunk is damaged
+        raise _CorruptChunk(f"cannot decompress: {err}") from err
+    if len(out) != usize:
+        raise _CorruptChunk(f"{len(out)} bytes uncompressed, header says {usize}")
+    if crc and zlib.crc32(out) != crc:
+        raise _CorruptChunk("CRC mismatch")
+    return t0, t1, out
 
 
 def _chunk_records(data) -> list[tuple[int, int, int]]:
     """(op, body start, body end) of every record in a decompressed chunk; a chunk
-    whose records do not fit it exactly, or holds a bad message record, is corrupt."""
+    whose records do not fit it exactly is corrupt."""
     out, off, end = [], 0, len(data)
     while off < end:
         if off + 9 > end:
@@ -149,102 +217,401 @@ def _chunk_records(data) -> list[tuple[int, int, int]]:
             raise _CorruptChunk(_PAST_CHUNK)
         out.append((op, off + 9, nxt))
         off = nxt
-    for op, b, e in out:
-        if op == OP_MESSAGE and (e - b < 22 or _U64.unpack_from(data, b + 6)[0] >= 1 << 63):
-            raise _CorruptChunk(_BAD_MESSAGE)
     return out
 
 
+def _check_message_index(buf, body: int, length: int) -> None:
+    """A Message Index record must be its channel id, a byte count and 16-byte entries."""
+    if length < 6 or _U32.unpack_from(buf, body + 2)[0] != length - 6 or (length - 6) % 16:
+        raise struct.error("bad message index record")
+
+
 def _add_message(scan: _Scan, buf, body: int, nxt: int) -> None:
+    """The reference reading of one message record (a malformed one is counted, not kept;
+    one on a channel not defined yet waits in ``scan.orphans``)."""
+    if nxt - body < 22 or _U64.unpack_from(buf, body + 6)[0] >= 1 << 63:
+        scan.bad_messages[-1] = scan.bad_messages.get(-1, 0) + 1
+        return
     cid, seq, log_time, _pub = _MSG.unpack_from(buf, body)
-    if log_time >= 1 << 63:
-        raise struct.error("message log time past int64")
     ch = scan.channels.get(cid)
     if ch is not None:
         ch.times.append(log_time)
         ch.seqs.append(seq)
         ch.payloads.append(bytes(buf[body + 22:nxt]))
+    else:
+        scan.orphans.setdefault(cid, []).append((log_time, seq, bytes(buf[body + 22:nxt])))
+
+
+# -- the file's layout: footer, summary, where the data section ends --------------------
+
+def _find_footer(data: bytes) -> int:
+    """Offset of the last Footer record followed by the closing magic, or -1."""
+    end = len(data)
+    while True:
+        m = data.rfind(MAGIC, 8, end)
+        if m < 0:
+            return -1
+        f = m - 29
+        if f >= 8 and data[f] == OP_FOOTER and _U64.unpack_from(data, f + 1)[0] == 20:
+            return f
+        end = m + len(MAGIC) - 1
+
+
+def _read_summary(data: bytes, footer_at: int) -> _Summary | None:
+    """The summary section named by the footer at ``footer_at``; None when there is none,
+    its CRC fails, or a record in it does not parse."""
+    _op, _len, start, offsets_at, crc = _FOOTER.unpack_from(data, footer_at)
+    if start == 0 or not 8 <= start <= footer_at:
+        return None
+    mv = memoryview(data)
+    if crc and zlib.crc32(mv[start:footer_at + 25]) != crc:
+        return None
+    stop = offsets_at if start <= offsets_at <= footer_at and offsets_at else footer_at
+    s = _Summary(start=start)
+    off = start
+    try:
+        while off < stop:
+            op, length = _REC.unpack_from(mv, off)
+            body, nxt = off + 9, off + 9 + length
+            if nxt > stop:
+                return None
+            if op in (OP_SCHEMA, OP_CHANNEL):
+                pr = _parse(op, mv[body:nxt])
+                assert pr is not None
+                if op == OP_SCHEMA:
+                    s.schemas[pr[1]] = pr[2:]
+                else:
+                    s.channels[pr[1]] = (pr[3], pr[2], pr[4])
+            elif op == OP_CHUNK_INDEX:
+                t0, t1, at, size = struct.unpack_from("<QQQQ", mv, body)
+                n = _U32.unpack_from(mv, body + 32)[0]
+                if n % 10 or body + 36 + n > nxt:
+                    return None
+                cids = tuple(_U16.unpack_from(mv, body + 36 + k)[0] for k in range(0, n, 10))
+                s.chunks[at] = (size, t0, t1, cids)
+            elif op == OP_METADATA_INDEX:
+                at, size = struct.unpack_from("<QQ", mv, body)
+                s.metadata[at] = (size, _string(mv, body + 16)[0])
+            off = nxt
+    except (struct.error, UnicodeDecodeError, IndexError, TypeError):
+        return None
+    s.chunk_offsets = sorted(s.chunks)
+    return s
+
+
+def _layout(scan: _Scan, data: bytes) -> None:
+    """Find the footer and summary; set where the data section ends."""
+    scan.size = len(data)
+    f = _find_footer(data)
+    if f >= 0:
+        scan.footer, scan.mcap_end, scan.footer_at = True, f + 37, f
+        scan.summary = _read_summary(data, f)
+        scan.data_end = scan.summary.start if scan.summary is not None else f
+    else:
+        scan.mcap_end = scan.data_end = len(data)
+    if data[:8] != MAGIC:
+        scan.regions.append((0, 8, "bad magic bytes at the start"))
+
+
+def _unexpected(scan: _Scan, op: int, off: int, length: int) -> str | None:
+    """With a summary, a chunk or metadata record must be one its indexes list."""
+    s = scan.summary
+    if s is None:
+        return None
+    if op == OP_CHUNK and s.chunks and s.chunks.get(off, (-1,))[0] != length + 9:
+        return f"chunk record at byte {off} is not in the chunk index"
+    if op == OP_METADATA and s.metadata and s.metadata.get(off, (-1,))[0] != length + 9:
+        return f"metadata record at byte {off} is not in the metadata index"
+    return None
+
+
+def _chunk_shape(data: bytes, p: int, end: int) -> int:
+    """Length of the chunk record at p if its header is consistent (see
+    :func:`.kernels.find_chunk`, which this is the reference of), else -1."""
+    if p + 49 > end or data[p] != OP_CHUNK:
+        return -1
+    length = _U64.unpack_from(data, p + 1)[0]
+    if not 40 <= length <= end - p - 9:
+        return -1
+    t0, t1, usize, _crc = _CHUNK.unpack_from(data, p + 9)
+    clen = _U32.unpack_from(data, p + 37)[0]
+    if t0 > t1 or t1 >= 1 << 63 or 40 + clen > length or data[p + 41:p + 41 + clen] not in COMPRESSIONS:
+        return -1
+    rlen = _U64.unpack_from(data, p + 41 + clen)[0]
+    if rlen != length - 40 - clen or (clen == 0 and usize != rlen):
+        return -1
+    return length
+
+
+def _next_chunk_reference(data: bytes, start: int, end: int) -> int:
+    """First offset >= start where a chunk record with a consistent header begins, or -1."""
+    p = data.find(b"\x06", start, end)
+    while p >= 0:
+        if _chunk_shape(data, p, end) >= 0:
+            return p
+        p = data.find(b"\x06", p + 1, end)
+    return -1
+
+
+def _resync(scan: _Scan, start: int, verify, find_next) -> int | None:
+    """Offset of the first chunk after ``start`` that passes ``verify`` (the chunk
+    index's offsets when the summary survived, else chunk headers found by
+    ``find_next``), or None."""
+    s = scan.summary
+    if s is not None and s.chunks:
+        for off in s.chunk_offsets[bisect.bisect_right(s.chunk_offsets, start):]:
+            if off >= scan.data_end:
+                break
+            if verify(off) is None:
+                return off
+        return None
+    p = start + 1
+    while True:
+        c = find_next(p)
+        if c < 0:
+            return None
+        if verify(c) is None:
+            return c
+        p = c + 1
+
+
+def _index_channels(data: bytes, p: int, end: int) -> tuple | None:
+    """Channel ids of the Message Index records that follow a chunk ending at p."""
+    cids = []
+    while p + 15 <= end and data[p] == OP_MESSAGE_INDEX:
+        length = _U64.unpack_from(data, p + 1)[0]
+        if length < 6 or p + 9 + length > end:
+            break
+        cid, n = struct.unpack_from("<HI", data, p + 9)
+        if n != length - 6 or n % 16:
+            break
+        cids.append(cid)
+        p += 9 + length
+    return tuple(cids) or None
+
+
+def _note_region(scan: _Scan, data: bytes, start: int, end: int, reason: str, verify) -> None:
+    """Record the damaged range [start, end) and the chunks lost in it: the chunk
+    index's when the summary survived (time range and channels exact), else the
+    chunk headers found in the range (times as written, channels from the message
+    indexes that follow, when they survive)."""
+    scan.regions.append((start, end, reason))
+    s = scan.summary
+    if s is not None and s.chunks:
+        for off in s.chunk_offsets[bisect.bisect_left(s.chunk_offsets, start):]:
+            if off >= end:
+                break
+            size, t0, t1, cids = s.chunks[off]
+            why = reason if off == start else (verify(off) or "damaged")
+            scan.lost_chunks.append((off, size, t0, t1, cids, True, why))
+        return
+    p = start + 1
+    if start + 9 <= len(data) and data[start] == OP_CHUNK:
+        length = _U64.unpack_from(data, start + 1)[0]
+        t0, t1 = struct.unpack_from("<QQ", data, start + 9) if start + 25 <= len(data) else (None, None)
+        if 40 <= length <= end - start - 9:
+            size, p = 9 + length, start + 9 + length
+            cids = _index_channels(data, p, scan.data_end)
+        else:
+            size, p, cids = end - start, end, None
+        scan.lost_chunks.append((start, size, t0, t1, cids, False, reason))
+    while p < end:
+        c = _next_chunk_reference(data, p, end)
+        if c < 0:
+            break
+        length = _U64.unpack_from(data, c + 1)[0]
+        t0, t1 = struct.unpack_from("<QQ", data, c + 9)
+        cids = _index_channels(data, c + 9 + length, scan.data_end)
+        scan.lost_chunks.append((c, 9 + length, t0, t1, cids, False, verify(c) or "damaged"))
+        p = c + 9 + length
+
+
+def _region_reason(scan: _Scan, off: int, resumed: bool) -> str:
+    if not scan.footer and not resumed:
+        return "file ends inside a record (cut short)"
+    return f"malformed record at byte {off} (runs past the end of the data section)"
+
+
+def _finish(scan: _Scan, data: bytes) -> None:
+    """After the walk: metadata and schemas the summary still has, the data section CRC."""
+    s = scan.summary
+    mv = memoryview(data)
+    if s is not None:
+        for sid, rec in s.schemas.items():
+            scan.schemas.setdefault(sid, rec)
+        for off, (size, name) in s.metadata.items():
+            if name in scan.metadata:
+                continue
+            try:
+                op, length = _REC.unpack_from(mv, off)
+                pr = _parse(op, mv[off + 9:off + 9 + length]) if op == OP_METADATA and length + 9 == size else None
+            except (struct.error, UnicodeDecodeError, IndexError):
+                pr = None
+            if pr is not None and pr[1] == name and off + size <= scan.data_end:
+                scan.metadata[name] = pr[2]
+            else:
+                scan.metadata_lost.append(name)
+    if scan.data_end_at >= 0:
+        # the footer that closes this data section (not one in bytes appended after it)
+        off, found = scan.data_end_at + 13, -1
+        try:
+            while off + 9 <= len(data):
+                op, length = _REC.unpack_from(mv, off)
+                if op == OP_FOOTER and length == 20 and data[off + 29:off + 37] == MAGIC:
+                    found = off
+                    break
+                off += 9 + length
+        except struct.error:
+            pass
+        if found < 0:
+            scan.notes.append("the summary or footer after the data is damaged or missing"
+                              " (the data section was read in full)")
+        else:
+            scan.footer, scan.mcap_end = True, found + 37
+            if (scan.summary is None if found == scan.footer_at else _read_summary(data, found) is None) \
+                    and _FOOTER.unpack_from(data, found)[2] != 0:
+                scan.notes.append("the summary section is damaged (its CRC fails; the data section was read in full)")
+    if not scan.regions and scan.data_end_at >= 0:
+        crc = _U32.unpack_from(mv, scan.data_end_at + 9)[0]
+        if crc and zlib.crc32(mv[:scan.data_end_at]) != crc:
+            scan.notes.append("data section CRC mismatch: a record outside the chunks (header, metadata or"
+                              " an index) is damaged, the metadata may be wrong")
+
+
+def _summary_channel(scan: _Scan, cid: int) -> _Channel | None:
+    """A channel whose definition was lost with its chunk, from the summary's copy."""
+    s = scan.summary
+    if s is None or cid not in s.channels:
+        return None
+    topic, sid, enc = s.channels[cid]
+    return _Channel(topic, sid, enc)
+
+
+# -- the compiled scan ----------------------------------------------------------------
+
+def _fast_chunk(mv, K, off: int, nxt: int):
+    """A chunk record at ``off`` read with compiled loops: (records as bytes, message
+    record indices, their fields, the parsed schema/channel/metadata records)."""
+    _t0, _t1, raw = _chunk_data(mv, off + 9, nxt)
+    chunk = np.frombuffer(raw, dtype=np.uint8)
+    cops, coffs, clens, _cstop, ccomplete = K.walk_records(chunk, 0, len(chunk), False)
+    if not ccomplete:
+        raise _CorruptChunk(_PAST_CHUNK)
+    m = np.flatnonzero(cops == OP_MESSAGE)
+    cid, seq, t, ps, pe, _ok = K.message_fields(chunk, coffs[m], clens[m])
+    cmv = memoryview(chunk)
+    try:
+        parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]]))
+                  for j in np.flatnonzero(cops != OP_MESSAGE).tolist()]
+    except (struct.error, UnicodeDecodeError, IndexError) as err:
+        raise _CorruptChunk(f"a record in it does not parse: {err}") from err
+    return chunk, m, cid, seq, t, ps, pe, parsed
 
 
 def _scan_fast(data: bytes) -> _Scan:
-    """The same reading as :func:`_scan_reference`, with the per-message work done by
-    compiled loops: records are walked into arrays, and a message is kept when its
-    channel was defined before it (compared by record ordinals)."""
+    """The same reading as :func:`.reference._scan_reference`, with the per-message work
+    done by compiled loops: records are walked into arrays, and a message is kept when
+    its channel was defined before it (compared by record ordinals), or, when its
+    definition was lost, the summary still defines the channel.
+
+    Every chunk is checked (:func:`_chunk_data`); after a damaged record the walk goes
+    on at the next chunk that checks out (:func:`_resync`), and the damaged range is
+    recorded (:func:`_note_region`)."""
     scan = _Scan()
+    _layout(scan, data)
     buf = np.frombuffer(data, dtype=np.uint8)
     mv = memoryview(data)
-    ops, offs, lens, stop, complete = K.walk_records(buf, 8, len(buf), True)
-    n_top = len(ops)
     defined: dict[int, int] = {}     # channel id -> ordinal of its record
     parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
+    arena = _Arena(0)
+    checked: dict[int, str | None] = {}
 
-    top_msgs = np.flatnonzero(ops == OP_MESSAGE)
-    chunk_ops = np.flatnonzero(ops == OP_CHUNK)
-    usizes = [_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
-              if lens[i] >= 24]
-    arena = _Arena(min(sum(usizes), 64 * len(data)) + (len(data) if len(top_msgs) else 0))
-    if len(top_msgs):
-        cid, seq, t, ps, pe, ok = K.message_fields(buf, offs[top_msgs], lens[top_msgs])
-        if not ok:  # a too-short message record: the file is read up to it
-            first_bad = int(top_msgs[np.flatnonzero(cid < 0)[0]])
-            n_top, complete = first_bad, False
-            scan.reason = f"malformed record after byte {int(offs[first_bad])} (bad message record)"
-            keep = top_msgs < first_bad
-            cid, seq, t, ps, pe, top_msgs = cid[keep], seq[keep], t[keep], ps[keep], pe[keep], top_msgs[keep]
-        parts.append((arena.put(buf), cid, seq, t, ps, pe, top_msgs.astype(np.int64) << 32))
-
-    for i in np.flatnonzero(ops[:n_top] != OP_MESSAGE).tolist():
-        op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
-        body, nxt = off + 9, off + 9 + ln
-        try:
-            if op == OP_CHUNK:
-                t0, t1, usize, comp, raw = _chunk_header(mv, body, nxt)
-                try:
-                    chunk = np.frombuffer(_decompress(comp, raw, usize), dtype=np.uint8)
-                    cops, coffs, clens, _cstop, ccomplete = K.walk_records(chunk, 0, len(chunk), False)
-                    if not ccomplete:
-                        raise _CorruptChunk(_PAST_CHUNK)
-                    m = np.flatnonzero(cops == OP_MESSAGE)
-                    cid, seq, t, ps, pe, ok = K.message_fields(chunk, coffs[m], clens[m])
-                    if not ok:
-                        raise _CorruptChunk(_BAD_MESSAGE)
-                    cmv = memoryview(chunk)
-                    other = np.flatnonzero(cops != OP_MESSAGE).tolist()
-                    parsed = [(j, _parse(int(cops[j]), cmv[coffs[j] + 9:coffs[j] + 9 + clens[j]])) for j in other]
-                except _CorruptChunk:
-                    raise
-                except Exception as err:  # corrupt chunk: keep what came before
-                    raise _CorruptChunk(err) from err
-                for j, pr in parsed:
-                    if pr is not None:
-                        if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
-                            defined[pr[1]] = (i << 32) + j + 1
-                        _apply(scan, pr, True)
-                if len(m):
-                    parts.append((arena.put(chunk), cid, seq, t, ps, pe, (np.int64(i) << 32) + m + 1))
+    def verify(off: int) -> str | None:
+        if off not in checked:
+            why = None
+            ln = _chunk_shape(data, off, scan.data_end)
+            if ln < 0:
+                why = "no consistent chunk header"
             else:
-                pr = _parse(op, mv[body:nxt])
-                if pr is not None:
-                    if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
-                        defined[pr[1]] = i << 32
-                    _apply(scan, pr, False)
-        except _CorruptChunk as err:
-            scan.reason = f"chunk at byte {off} is corrupt ({err})"
-            scan.lost_chunk_range = (t0, t1)
-            n_top, complete = i, False
-            break
-        except (struct.error, UnicodeDecodeError, IndexError) as err:
-            scan.reason = f"malformed record after byte {off} ({err})"
-            n_top, complete = i, False
-            break
+                try:
+                    _fast_chunk(mv, K, off, off + 9 + ln)
+                except _CorruptChunk as err:
+                    why = str(err)
+            checked[off] = why
+        return checked[off]
 
-    scan.complete = bool(complete)
-    if not complete:
-        scan.end_offset = int(offs[n_top]) if n_top < len(ops) else int(stop)
+    def find_next(p: int) -> int:
+        return int(K.find_chunk(buf, p, scan.data_end))
 
+    def add(cid, seq, t, ps, pe, ordinal, chunk):
+        bad = cid < 0
+        if bad.any():
+            scan.bad_messages[-1] = scan.bad_messages.get(-1, 0) + int(bad.sum())
+            good = ~bad
+            cid, seq, t, ps, pe, ordinal = cid[good], seq[good], t[good], ps[good], pe[good], ordinal[good]
+        if len(cid):
+            parts.append((arena.put(chunk), cid, seq, t, ps, pe, ordinal))
+
+    pos, base = 8, 0
+    while True:
+        ops, offs, lens, stop, complete = K.walk_records(buf, pos, scan.data_end, True)
+        n = len(ops)
+        chunk_ops = np.flatnonzero(ops == OP_CHUNK)
+        arena.reserve(min(sum(_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
+                              if lens[i] >= 24), 64 * len(data)))
+        bad_i, why = n, None
+        for i in np.flatnonzero(ops != OP_MESSAGE).tolist():
+            op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
+            body, nxt = off + 9, off + 9 + ln
+            why = _unexpected(scan, op, off, ln)
+            if why is None:
+                try:
+                    if op == OP_CHUNK:
+                        chunk, m, cid, seq, t, ps, pe, parsed = _fast_chunk(mv, K, off, nxt)
+                        for j, pr in parsed:
+                            if pr is not None:
+                                if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
+                                    defined[pr[1]] = ((base + i) << 32) + j + 1
+                                _apply(scan, pr, True)
+                        add(cid, seq, t, ps, pe, (np.int64(base + i) << 32) + m + 1, chunk)
+                    elif op == OP_MESSAGE_INDEX:
+                        _check_message_index(mv, body, ln)
+                    elif op == OP_DATA_END:
+                        scan.data_end_at = off
+                    else:
+                        pr = _parse(op, mv[body:nxt])
+                        if pr is not None:
+                            if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
+                                defined[pr[1]] = (base + i) << 32
+                            _apply(scan, pr, False)
+                except _CorruptChunk as err:
+                    why = f"chunk at byte {off} is corrupt ({err})"
+                except (struct.error, UnicodeDecodeError, IndexError) as err:
+                    why = f"malformed record at byte {off} ({err})"
+            if why is not None:
+                bad_i = i
+                break
+        top = np.flatnonzero(ops[:bad_i] == OP_MESSAGE)
+        if len(top):
+            cid, seq, t, ps, pe, _ok = K.message_fields(buf, offs[top], lens[top])
+            add(cid, seq, t, ps, pe, (top.astype(np.int64) + base) << 32, buf)
+        if why is None:
+            if complete or (scan.footer and stop == scan.data_end):
+                break
+            bad_at = int(stop)
+        else:
+            bad_at = int(offs[bad_i])
+        resume = _resync(scan, bad_at, verify, find_next)
+        _note_region(scan, data, bad_at, scan.data_end if resume is None else resume,
+                     why or _region_reason(scan, bad_at, resume is not None), verify)
+        if resume is None:
+            break
+        pos, base = resume, base + n + 1
+
+    _finish(scan, data)
     # messages -> per-channel arrays into one arena of bytes
+    scan.arena = arena.buf[:arena.used]
     if parts:
-        scan.arena = arena.buf[:arena.used]
         cid = np.concatenate([p[1] for p in parts])
         seq = np.concatenate([p[2] for p in parts])
         t = np.concatenate([p[3] for p in parts])
@@ -252,12 +619,18 @@ def _scan_fast(data: bytes) -> _Scan:
         ps = np.concatenate([p[4] for p in parts]) + shift
         pe = np.concatenate([p[5] for p in parts]) + shift
         ordinal = np.concatenate([p[6] for p in parts])
-        limit = np.int64(n_top) << 32   # messages after the point where reading stopped are lost
+        ids, counts = np.unique(cid, return_counts=True)
+        for c, k in zip(ids.tolist(), counts.tolist()):
+            if c not in scan.channels:
+                ch = _summary_channel(scan, c)
+                if ch is None:
+                    scan.orphans[c] = k
+                else:
+                    scan.channels[c] = ch
         for c, ch in scan.channels.items():
-            sel = np.flatnonzero((cid == c) & (ordinal > defined.get(c, -1)) & (ordinal < limit))
+            sel = np.flatnonzero((cid == c) & (ordinal > defined.get(c, -1)))
             ch.t, ch.seq, ch.starts, ch.ends = t[sel], seq[sel], ps[sel], pe[sel]
     else:
-        scan.arena = np.zeros(0, dtype=np.uint8)
         for ch in scan.channels.values():
             ch.t = ch.seq = ch.starts = ch.ends = np.zeros(0, dtype=np.int64)
     return scan
@@ -269,6 +642,13 @@ class _Arena:
     def __init__(self, capacity: int):
         self.buf = np.empty(max(capacity, 0), dtype=np.uint8)
         self.used = 0
+
+    def reserve(self, n: int) -> None:
+        """Make room for ``n`` more bytes."""
+        if self.used + n > len(self.buf):
+            grown = np.empty(self.used + n, dtype=np.uint8)
+            grown[:self.used] = self.buf[:self.used]
+            self.buf = grown
 
     def put(self, data: np.ndarray) -> int:
         n, at = len(data), self.used
@@ -298,7 +678,7 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
 def _read_bytes(p: Path) -> bytes:
     with reading(p):
         data = p.read_bytes()
-    if len(data) < 8 or data[:8] != MAGIC:
+    if len(data) < 8 or (data[:8] != MAGIC and _find_footer(data) < 0):
         raise FormatError(f"{p}: not an MCAP file (bad magic bytes)")
     return data
 
@@ -307,23 +687,113 @@ def scan_file(path, *, scanner=None) -> tuple[_Scan, int]:
     """Walk an MCAP file's records: (scan, file size). ``scanner`` is ``_scan_fast``
     unless given (the tests pass :func:`.reference._scan_reference`)."""
     data = _read_bytes(Path(path))
-    scan = (scanner or _scan_fast)(data)
-    if not scan.complete and not scan.reason:
-        scan.reason = "file ends inside a record (cut short)"
-        off = scan.end_offset
-        # if the truncated record is a chunk whose header survived, name its time range
-        if off + 9 + 16 <= len(data) and data[off] == OP_CHUNK:
-            scan.lost_chunk_range = struct.unpack_from("<QQ", data, off + 9)
-    return scan, len(data)
+    return (scanner or _scan_fast)(data), len(data)
 
 
 def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> FieldLog:
-    """Load a canonical MCAP log into a :class:`FieldLog`.
+    """Load a canonical MCAP log into a :class:`FieldLog`, checking every chunk's CRC.
 
-    A file cut short loads with every complete chunk; ``log.recovery`` says what was
-    lost. ``strict=True`` raises instead.
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file.
+    topics : list of str, optional
+        Load only these channels.
+    strict : bool
+        Raise :class:`InputError` on any damage instead of recovering.
+
+    Returns
+    -------
+    FieldLog
+        ``log.recovery`` is None for an undamaged file. A damaged one loads with every
+        chunk that checks out (CRC, decompression, records) wherever the damage is, and
+        every message that decodes; ``log.recovery`` (:class:`RecoveryReport`) lists the
+        damaged byte ranges, the chunks lost (time range and channels where known), the
+        messages skipped and bytes after the footer. A chunk that fails is never loaded.
     """
     return _read_log(path, topics=topics, strict=strict)
+
+
+def _decode_tolerant(decode, n: int) -> tuple[dict, np.ndarray]:
+    """``decode(idx)`` of all n messages, or of those that decode when some do not:
+    (columns, indices of the messages skipped). The bad ones are found by halving."""
+    idx = np.arange(n)
+    try:
+        return decode(idx), idx[:0]
+    except InputError as err:
+        first = err
+    bad: list[np.ndarray] = []
+
+    def find(ix: np.ndarray) -> None:
+        try:
+            decode(ix)
+        except InputError:
+            if len(ix) == 1:
+                bad.append(ix)
+            else:
+                find(ix[:len(ix) // 2])
+                find(ix[len(ix) // 2:])
+
+    find(idx[:n // 2])
+    find(idx[n // 2:])
+    bad_idx = np.concatenate(bad) if bad else idx[:0]
+    if len(bad_idx) == n > 1 or not len(bad_idx):  # every message: not damage but a mismatch
+        raise first
+    good = np.setdiff1d(idx, bad_idx)
+    return decode(good), bad_idx
+
+
+def _plausible(t0, t1, lo, hi) -> bool:
+    """A lost chunk's header times are shown when ordered and near the data recovered."""
+    if t0 is None or t1 is None or t0 > t1:
+        return False
+    return lo is None or (t0 >= lo - _DAY_NS and t1 <= hi + _DAY_NS)
+
+
+def _report(scan: _Scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict) -> RecoveryReport:
+    def topic_of(cid: int) -> str:
+        if cid in scan.channels:
+            return scan.channels[cid].topic
+        if scan.summary is not None and cid in scan.summary.channels:
+            return scan.summary.channels[cid][0]
+        return f"channel {cid}"
+
+    lost = []
+    for off, sz, t0, t1, cids, trusted, why in scan.lost_chunks:
+        if not trusted and not _plausible(t0, t1, t_lo, t_hi):
+            t0 = t1 = None
+        lost.append(LostChunk(offset=off, size=sz, start_ns=t0, end_ns=t1, reason=why,
+                              topics=None if cids is None else tuple(sorted({topic_of(c) for c in cids}))))
+    bytes_lost = sum(e - s for s, e, _ in scan.regions)
+    trailing = size - scan.mcap_end if scan.footer else 0
+    for cid, k in scan.bad_messages.items():
+        key = "unknown channel" if cid < 0 else topic_of(cid)
+        skipped[key] = skipped.get(key, 0) + k
+    if scan.regions or scan.notes:
+        for cid, k in scan.orphans.items():  # their channel's definition was lost
+            key = topic_of(cid)
+            skipped[key] = skipped.get(key, 0) + (k if isinstance(k, int) else len(k))
+    cut = bool(scan.regions) and not scan.footer and scan.regions[-1][1] >= scan.data_end
+    if cut:  # the end of the file is missing: data after the last recovered message
+        tail = [c for c in lost if c.offset >= scan.regions[-1][0]]
+        lost_from, lost_to = t_hi, (tail[-1].end_ns if tail else None)
+    else:
+        starts = [c.start_ns for c in lost if c.start_ns is not None]
+        ends = [c.end_ns for c in lost if c.end_ns is not None]
+        lost_from, lost_to = (min(starts) if starts else None), (max(ends) if ends else None)
+    reason = scan.reason
+    if not reason and skipped:
+        reason = f"{sum(skipped.values())} message(s) could not be read"
+    if not reason and scan.metadata_lost:
+        reason = "metadata record(s) damaged"
+    if not reason and trailing:
+        reason = f"{trailing} bytes after the footer"
+    return RecoveryReport(
+        file_size=size, bytes_recovered=size - bytes_lost - trailing, bytes_lost=bytes_lost,
+        messages_recovered=n_msgs, lost_from_ns=lost_from, lost_to_ns=lost_to, reason=reason,
+        lost_chunks=tuple(lost), damaged_ranges=tuple((s, e - s) for s, e, _ in scan.regions),
+        messages_skipped=sum(skipped.values()), skipped_by_topic=dict(sorted(skipped.items())),
+        trailing_bytes=trailing, metadata_lost=tuple(scan.metadata_lost))
 
 
 def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
@@ -332,7 +802,8 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
     log = FieldLog(source=str(p))
     log.meta = dict(scan.metadata)
     n_msgs = 0
-    t_max = None
+    t_lo = t_hi = None
+    skipped: dict[str, int] = {}
     for cid in sorted(scan.channels):
         ch = scan.channels[cid]
         if topics is not None and ch.topic not in topics:
@@ -353,26 +824,32 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         else:
             t, seq = ch.t, ch.seq
         order = np.argsort(seq, kind="stable")
+        payloads = [ch.payloads[i] for i in order.tolist()] if scan.arena is None else None
+        starts, ends = (ch.starts[order], ch.ends[order]) if scan.arena is not None else (None, None)
+
+        def decode(ix, payloads=payloads, starts=starts, ends=ends, codec=codec, topic=ch.topic):
+            if payloads is not None:
+                return codec.decode_reference([payloads[i] for i in ix.tolist()], topic)
+            return codec.decode_spans(scan.arena, starts[ix], ends[ix], topic)
         try:
-            if scan.arena is None:
-                cols = codec.decode_reference([ch.payloads[i] for i in order.tolist()], ch.topic)
-            else:
-                cols = codec.decode_spans(scan.arena, ch.starts[order], ch.ends[order], ch.topic)
+            cols, bad = _decode_tolerant(decode, len(order))
         except InputError as err:
             raise InputError(f"{p} {err}") from err
-        log.channels[ch.topic] = frame_from_columns(cols, t[order], codec.spec)
+        if len(bad):
+            skipped[ch.topic] = len(bad)
+            order = np.delete(order, bad)
+        t = t[order]
+        log.channels[ch.topic] = frame_from_columns(cols, t, codec.spec)
         log.schemas[ch.topic] = schema
         n_msgs += len(t)
         if len(t):
-            t_max = int(t.max()) if t_max is None else max(t_max, int(t.max()))
-    if not scan.complete:
+            t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
+            t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
+    trailing = scan.footer and scan.mcap_end < size
+    if not scan.complete or skipped or trailing or scan.metadata_lost:
+        log.recovery = _report(scan, size, n_msgs, t_lo, t_hi, skipped)
         if strict:
-            raise InputError(f"{p}: damaged file: {scan.reason}")
-        lost = scan.lost_chunk_range
-        log.recovery = RecoveryReport(
-            file_size=size, bytes_recovered=scan.end_offset, bytes_lost=size - scan.end_offset,
-            messages_recovered=n_msgs, lost_from_ns=t_max,
-            lost_to_ns=int(lost[1]) if lost else None, reason=scan.reason)
+            raise InputError(f"{p}: damaged file: {log.recovery.reason}")
     return log
 
 

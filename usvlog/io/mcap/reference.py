@@ -16,22 +16,31 @@ from ..atomic import atomic_path
 from .codec import Codec
 from .format import (
     _REC,
-    _U64,
     OP_CHUNK,
     OP_DATA_END,
     OP_FOOTER,
     OP_MESSAGE,
+    OP_MESSAGE_INDEX,
 )
 from .reader import (
     _add_message,
     _apply,
-    _chunk_header,
+    _check_message_index,
+    _chunk_data,
     _chunk_records,
+    _chunk_shape,
     _CorruptChunk,
-    _decompress,
+    _finish,
+    _layout,
+    _next_chunk_reference,
+    _note_region,
     _parse,
     _read_log,
+    _region_reason,
+    _resync,
     _Scan,
+    _summary_channel,
+    _unexpected,
 )
 from .writer import _codec_for, _compression
 
@@ -78,7 +87,7 @@ def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size
         encoded.append((t, codec.encode_reference(frame, topic)))
     with atomic_path(path, force=force) as tmp:
         with open(tmp, "wb") as fh:
-            w = Writer(fh, chunk_size=chunk_size, compression=comp)
+            w = Writer(fh, chunk_size=chunk_size, compression=comp, enable_data_crcs=True)
             w.start(profile="", library=f"usvlog {__version__}")
             for name in sorted(log.meta):
                 w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
@@ -100,49 +109,102 @@ def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size
 
 def _scan_reference(data: bytes) -> _Scan:
     """The plain reading of the records (one Python step per record), kept as the
-    reference the fast scan is tested against."""
+    reference the fast scan is tested against: the same checks, the same
+    resynchronisation after damage, the same report."""
     scan = _Scan()
+    _layout(scan, data)
     buf = memoryview(data)
-    end, off = len(data), 8
-    while off + 9 <= end:
-        op, length = _REC.unpack_from(buf, off)
-        body, nxt = off + 9, off + 9 + length
-        if nxt > end:
-            break
-        try:
-            if op == OP_MESSAGE:
-                if length < 22 or _U64.unpack_from(buf, body + 6)[0] >= 1 << 63:
-                    raise struct.error("bad message record")
-                _add_message(scan, buf, body, nxt)
-            elif op == OP_CHUNK:
-                t0, t1, usize, comp, raw = _chunk_header(buf, body, nxt)
-                try:
-                    chunk = memoryview(_decompress(comp, raw, usize))
-                    recs = _chunk_records(chunk)
-                    parsed = [(o, b, e, _parse(o, chunk[b:e])) for o, b, e in recs]
-                except Exception as err:  # corrupt chunk: keep what came before
-                    raise _CorruptChunk(err) from err
-                for o, b, e, pr in parsed:
-                    if o == OP_MESSAGE:
-                        _add_message(scan, chunk, b, e)
-                    elif pr is not None:
-                        _apply(scan, pr, True)
+    end, off = scan.data_end, 8
+    checked: dict[int, str | None] = {}
+
+    def verify(o: int) -> str | None:
+        if o not in checked:
+            why = None
+            ln = _chunk_shape(data, o, end)
+            if ln < 0:
+                why = "no consistent chunk header"
             else:
-                pr = _parse(op, buf[body:nxt])
-                if pr is not None:
-                    _apply(scan, pr, False)
-        except _CorruptChunk as err:
-            scan.reason = f"chunk at byte {off} is corrupt ({err})"
-            scan.lost_chunk_range = (t0, t1)
-            return scan
-        except (struct.error, UnicodeDecodeError, IndexError) as err:
-            scan.reason = f"malformed record after byte {off} ({err})"
-            return scan
-        if op in (OP_FOOTER, OP_DATA_END):
-            # the data section is complete; the summary is not needed for reading
-            scan.complete = True
-            return scan
-        off = scan.end_offset = nxt
+                try:
+                    chunk = memoryview(_chunk_data(buf, o + 9, o + 9 + ln)[2])
+                    for op, b, e in _chunk_records(chunk):
+                        try:
+                            _parse(op, chunk[b:e])
+                        except (struct.error, UnicodeDecodeError, IndexError) as err:
+                            raise _CorruptChunk(f"a record in it does not parse: {err}") from err
+                except _CorruptChunk as err:
+                    why = str(err)
+            checked[o] = why
+        return checked[o]
+
+    while True:
+        why, cut = None, False
+        if off + 9 > end:
+            cut = True
+        else:
+            op, length = _REC.unpack_from(buf, off)
+            body, nxt = off + 9, off + 9 + length
+            if nxt > end:
+                cut = True
+            else:
+                why = _unexpected(scan, op, off, length)
+        if not cut and why is None:
+            try:
+                if op == OP_MESSAGE:
+                    _add_message(scan, buf, body, nxt)
+                elif op == OP_CHUNK:
+                    chunk = memoryview(_chunk_data(buf, body, nxt)[2])
+                    recs = _chunk_records(chunk)
+                    try:
+                        parsed = [(o, b, e, _parse(o, chunk[b:e])) for o, b, e in recs]
+                    except (struct.error, UnicodeDecodeError, IndexError) as err:
+                        raise _CorruptChunk(f"a record in it does not parse: {err}") from err
+                    for o, b, e, pr in parsed:
+                        if o == OP_MESSAGE:
+                            _add_message(scan, chunk, b, e)
+                        elif pr is not None:
+                            _apply(scan, pr, True)
+                elif op == OP_MESSAGE_INDEX:
+                    _check_message_index(buf, body, length)
+                else:
+                    pr = _parse(op, buf[body:nxt])
+                    if pr is not None:
+                        _apply(scan, pr, False)
+            except _CorruptChunk as err:
+                why = f"chunk at byte {off} is corrupt ({err})"
+            except (struct.error, UnicodeDecodeError, IndexError) as err:
+                why = f"malformed record at byte {off} ({err})"
+            if why is None:
+                if op == OP_DATA_END:
+                    scan.data_end_at = off
+                if op in (OP_FOOTER, OP_DATA_END):
+                    break  # the data section is complete; the summary is not needed for reading
+                off = nxt
+                continue
+        if cut and scan.footer and off == end:
+            break
+        resume = _resync(scan, off, verify, lambda p: _next_chunk_reference(data, p, end))
+        _note_region(scan, data, off, end if resume is None else resume,
+                     why or _region_reason(scan, off, resume is not None), verify)
+        if resume is None:
+            break
+        off = resume
+
+    _finish(scan, data)
+    # messages on a channel not defined before them: kept when the channel's only
+    # definition was lost and the summary still has it
+    pending, scan.orphans = scan.orphans, {}
+    for cid, msgs in pending.items():
+        if cid in scan.channels:
+            continue
+        ch = _summary_channel(scan, cid)
+        if ch is None:
+            scan.orphans[cid] = len(msgs)
+            continue
+        scan.channels[cid] = ch
+        for t, seq, payload in msgs:
+            ch.times.append(t)
+            ch.seqs.append(seq)
+            ch.payloads.append(payload)
     return scan
 
 

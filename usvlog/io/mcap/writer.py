@@ -78,8 +78,10 @@ class McapWriter:
     ``_write_log_reference`` does it that way and the tests compare): schema and
     channel records open the chunk that follows their registration; a chunk is
     closed after the message that takes it past ``chunk_size``; then message
-    indexes, and at :meth:`finish` the summary (schemas, channels, statistics, chunk
-    and metadata indexes). Message records are built by compiled loops from the
+    indexes, and at :meth:`finish` the Data End record with the data section's CRC
+    (metadata records have no CRC of their own: this one lets a reader tell that one
+    was damaged) and the summary (schemas, channels, statistics, chunk and metadata
+    indexes). Message records are built by compiled loops from the
     packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
@@ -96,7 +98,11 @@ class McapWriter:
         self._chunk_size = int(chunk_size)
         self._comp = _compression(compression)
         self._zstd_level = int(zstd_level)
+        import zlib
+
         self._pos = 0
+        self._crc32 = zlib.crc32
+        self._data_crc: int | None = 0   # CRC of the data section so far (None once it is closed)
         self._schemas: list = []
         self._schema_ids: dict[tuple[str, bytes], int] = {}
         self._channels: list = []
@@ -118,6 +124,8 @@ class McapWriter:
     def _write(self, b) -> int:
         at = self._pos
         self._fh.write(b)
+        if self._data_crc is not None:
+            self._data_crc = self._crc32(b, self._data_crc)
         self._pos += len(b)
         return at
 
@@ -271,7 +279,8 @@ class McapWriter:
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
 
         self.flush()
-        self._write(self._record(DataEnd(0)))
+        crc, self._data_crc = self._data_crc, None
+        self._write(self._record(DataEnd(crc)))
         # summary: the same groups, in the same order, as the mcap Writer
         summary_start = self._pos
         sb = RecordBuilder()
