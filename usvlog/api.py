@@ -52,12 +52,21 @@ def _say(progress: Progress, msg: str) -> None:
         progress(msg)
 
 
-def _read(log):
-    """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded."""
+def _read(log, progress: Progress = None):
+    """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded.
+
+    A damaged file loads with what could be recovered; then its one-line damage report
+    ("input damaged: ...") goes to ``progress`` and into the log's provenance, so every
+    output made from it carries the note.
+    """
     if _is_path(log):
         from .io.mcap import read_log  # heavy: imported only when a log is read
 
-        return read_log(log)
+        log = read_log(log)
+        if log.recovery is not None:
+            note = log.recovery.one_line()
+            _say(progress, f"{log.source}: {note}")
+            log.add_provenance(producer="usvlog load", source=str(log.source or ""), input_damage=note)
     return log
 
 
@@ -407,7 +416,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
                                 smoother=smoother, sway_damping=sway_damping)
     src = log if _is_path(log) else log.source
-    log = _read(log)
+    log = _read(log, progress)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''})")
     result = run_estimate(log, settings, ves)
@@ -465,8 +474,8 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         raise ConfigError("validate on a log or hold out a fraction, not both")
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout)
     ves = _vessel_file(vessel)
-    runs = [_read(x) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
-    val_log = _read(validate) if validate is not None else None
+    runs = [_read(x, progress) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
+    val_log = _read(validate, progress) if validate is not None else None
     _say(progress, f"identifying ({method}) from {len(runs)} log(s)")
     idf.fit(runs, ves)
     if val_log is not None:
@@ -628,7 +637,7 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         vessel = load_vessel_or_scenario_vessel(vessel)
     if _is_path(log):
         _say(progress, f"reading {log}")
-    log = _read(log)
+    log = _read(log, progress)
     _say(progress, f"replaying with scenario {scen.name}")
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
                      whatif_controller=whatif_controller)
@@ -684,7 +693,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
     for x in items:
         if _is_path(x):
             _say(progress, f"reading {x}")
-        read.append(_read(x))
+        read.append(_read(x, progress))
     _say(progress, f"writing {out}")
     return write_rrd(read, out, names=None if names is None else list(names), force=force)
 
@@ -717,8 +726,8 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
     from .view.report import check_report_outputs, write_report  # heavy: matplotlib, numpy
 
     check_report_outputs(out, force)  # fail before the work, not after
-    log = _read(log)
-    base = _read(baseline) if baseline is not None else None
+    log = _read(log, progress)
+    base = _read(baseline, progress) if baseline is not None else None
     _say(progress, f"writing report to {out}")
     return write_report(log, out, baseline=base, force=force, axes=axes)
 

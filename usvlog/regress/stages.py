@@ -240,6 +240,9 @@ def run_scenario(scn: RegressScenario, baseline: dict[str, BaselineEntry]) -> Sc
     t0 = time.perf_counter()
     try:
         log = read_log(scn.dataset)
+        if log.recovery is not None:   # a damaged dataset is a failure, never a baseline to compare
+            return ScenarioOutcome(scn.name, str(scn.path), {}, (), time.perf_counter() - t0,
+                                   f"dataset {scn.dataset} {log.recovery.one_line()}")
         metrics = run_stages(scn, log)
     except UsvlogError as err:
         return ScenarioOutcome(scn.name, str(scn.path), {}, (), time.perf_counter() - t0, str(err))

@@ -1,0 +1,62 @@
+"""Damage is loud downstream: a verb reading a damaged log says so in one line and keeps the
+note in its output's provenance; regress fails on a damaged dataset."""
+
+import json
+
+import pytest
+
+from usvlog.cli import main
+from usvlog.io.mcap import read_log, write_log
+from usvlog.io.mcap.format import OP_CHUNK
+from usvlog.sim.simulate import SimSettings, simulate
+
+
+@pytest.fixture(scope="module")
+def damaged(tmp_path_factory):
+    """A 60 s run written in small chunks, with the CRC of one chunk in the middle broken."""
+    d = tmp_path_factory.mktemp("dmg")
+    good = d / "good.mcap"
+    write_log(simulate("excitation", SimSettings(duration_s=60.0), seed=5), good, chunk_size=32 * 1024)
+    data = bytearray(good.read_bytes())
+    # the chunk records, walked from the header by their lengths
+    offs, off = [], 8 + 9 + int.from_bytes(data[9:17], "little")
+    while data[off] != 0x0F:   # up to Data End
+        if data[off] == OP_CHUNK:
+            offs.append(off)
+        off += 9 + int.from_bytes(data[off + 1:off + 9], "little")
+    assert len(offs) > 5
+    mid = offs[len(offs) // 2]
+    data[mid + 9 + 24] ^= 0xFF            # the chunk's uncompressed CRC field
+    bad = d / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    return good, bad
+
+
+def test_estimate_of_a_damaged_log_says_so_and_keeps_the_note(damaged, tmp_path, capsys):
+    good, bad = damaged
+    ref = read_log(good)
+    log = read_log(bad)
+    assert log.recovery is not None and len(log["/gnss/fix"]) < len(ref["/gnss/fix"])
+    out = tmp_path / "est.mcap"
+    assert main(["estimate", str(bad), "--out", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    lines = [x for x in captured.err.splitlines() if "input damaged" in x]
+    assert len(lines) == 1 and "1 chunk(s) lost" in lines[0] and str(bad) in lines[0]
+    json.loads(captured.out)
+    prov = read_log(out).provenance
+    assert any(p.get("input_damage", "").startswith("input damaged: ") for p in prov)
+    # an intact input: no such line, no such note
+    assert main(["estimate", str(good), "--out", str(tmp_path / "ok.mcap"), "--json"]) == 0
+    assert "input damaged" not in capsys.readouterr().err
+    assert not any("input_damage" in p for p in read_log(tmp_path / "ok.mcap").provenance)
+
+
+def test_regress_fails_on_a_damaged_dataset(damaged, tmp_path, capsys):
+    _good, bad = damaged
+    scen = tmp_path / "dmg.toml"
+    scen.write_text(f'[scenario]\nname = "dmg"\n\n[dataset]\nlog = "{bad}"\n\n[stages]\nrun = ["estimate"]\n'
+                    '\n[estimate]\nmodel = "kinematic"\n')
+    rc = main(["regress", str(scen)])
+    captured = capsys.readouterr()
+    assert rc == 1, captured
+    assert "input damaged" in captured.out + captured.err
