@@ -51,10 +51,34 @@ class TrackingMetrics:
     time_saturated_s: float
 
     def to_dict(self) -> dict:
+        """The metrics as a JSON-ready dict, by field name (units in the names: m, rad, m/s, s)."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) -> TrackingMetrics:
+    """Path-following metrics of controller output rows, from ``start_s`` after the first tick on.
+
+    Each tick counts for its interval to the next one (the last for the interval before
+    it). NaN is kept: a diverged closed loop gives NaN metrics rather than hiding.
+
+    Parameters
+    ----------
+    rows : numpy.ndarray, shape (N, NOUT)
+        Controller outputs per tick, columns as :data:`usvlog.control.law.COL`
+        (``cross_track_m``, ``psi_e_rad``, ``u_e_mps``, ``saturated`` are used).
+    t_s : numpy.ndarray, shape (N,)
+        Tick times (s), increasing.
+    start_s : float
+        Ignore the first ``start_s`` seconds (s; the transient); when the run is not that
+        long, the whole run is measured and ``start_s`` reported as 0.
+
+    Returns
+    -------
+    TrackingMetrics
+        Number of ticks and duration (s) measured; RMS, 95th percentile and maximum of
+        the absolute cross-track error (m); RMS heading error (rad) and surge speed error
+        (m/s); time with the thrusters saturated (s).
+    """
     t_s = np.asarray(t_s, float)
     dt = np.diff(t_s, append=t_s[-1] + (t_s[-1] - t_s[-2] if len(t_s) > 1 else 0.0))
     sel = t_s - t_s[0] >= start_s
@@ -90,6 +114,7 @@ class ReplayMetrics:
     whatif: TrackingMetrics | None
 
     def to_dict(self) -> dict:
+        """The metrics as a JSON-ready dict, ``replay`` and ``whatif`` as nested dicts (or None)."""
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["replay"] = self.replay.to_dict()
         d["whatif"] = None if self.whatif is None else self.whatif.to_dict()
@@ -102,6 +127,18 @@ class ReplayMetrics:
 
 @dataclass(frozen=True)
 class ReplayResult:
+    """What :func:`replay_log` returns.
+
+    Attributes
+    ----------
+    log : FieldLog
+        A copy of the input log with ``/replay/controller`` (and, with the what-if run,
+        ``/replay/whatif/state`` and ``/replay/whatif/controller``), the path metadata
+        record and a provenance entry added.
+    metrics : ReplayMetrics
+        Replayed vs recorded commands and the tracking metrics of both runs.
+    """
+
     log: FieldLog
     metrics: ReplayMetrics
 

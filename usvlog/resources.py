@@ -19,8 +19,18 @@ def _find(packaged: str, top: str) -> Path:
 
 
 def schemas_dir() -> Path:
+    """The directory of the channel JSON Schemas (``usvlog/_schemas`` in a wheel, else ``schemas/``).
+
+    The packaged directory wins when both exist; the path is returned even when neither
+    does (the caller reports the missing file).
+    """
     return _find("_schemas", "schemas")
 
 
 def replay_dir() -> Path:
+    """The directory of the shipped scenario TOML files (``usvlog/_replay`` in a wheel, else ``replay/``).
+
+    The packaged directory wins when both exist; the path is returned even when neither
+    does (the caller reports the missing file).
+    """
     return _find("_replay", "replay")

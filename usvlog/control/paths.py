@@ -117,6 +117,22 @@ def path_eval(kind, prm, theta):
 
 @njit
 def path_eval_many(kind, prm, theta):
+    """:func:`path_eval` at many values of theta (compiled loop).
+
+    Parameters
+    ----------
+    kind : int
+        CIRCLE, SINUSOID, LINE or SPLINE.
+    prm : ndarray
+        The kind's parameters (see :func:`path_from_spec`), metres and radians.
+    theta : ndarray, shape (N,)
+        Path parameter values, m (a contiguous float array).
+
+    Returns
+    -------
+    ndarray, shape (N, 4)
+        Per theta: n_d, e_d (m) and dn_d/dtheta, de_d/dtheta (dimensionless).
+    """
     out = np.empty((theta.shape[0], 4))
     for i in range(theta.shape[0]):
         a, b, c, d = path_eval(kind, prm, theta[i])

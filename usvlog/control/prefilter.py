@@ -32,6 +32,12 @@ from .._jit import njit
 
 @njit
 def wrap(a):
+    """Smallest signed angle of one float: ``a`` (rad) wrapped to [-pi, pi) rad.
+
+    The same arithmetic as :func:`usvlog.model.frames.ssa` (and
+    ``usvlog.estimate.kernels.wrap``), kept here as a numba-compiled scalar function so
+    the compiled prefilter and controller kernels can call it; ``ssa`` is plain numpy.
+    """
     return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 

@@ -51,6 +51,7 @@ class LostChunk:
     reason: str
 
     def to_dict(self) -> dict:
+        """The chunk as a JSON-ready dict: the attributes by name, ``topics`` as a list (or None)."""
         return {"offset": self.offset, "size": self.size, "start_ns": self.start_ns, "end_ns": self.end_ns,
                 "topics": None if self.topics is None else list(self.topics), "reason": self.reason}
 
@@ -110,6 +111,14 @@ class RecoveryReport:
         return self.messages_recovered == 0
 
     def describe(self) -> str:
+        """Everything lost, in one long line (verbs print the shorter :meth:`one_line`).
+
+        Messages recovered, bytes lost of the file size and the reason; then each lost
+        chunk (byte offset, size, reason, its time range as ISO 8601 UTC when known, its
+        channels), the time after which data is lost for a file cut short, messages
+        skipped by channel, metadata records lost and bytes after the footer, each part
+        only when there is something to say.
+        """
         s = (f"recovered {self.messages_recovered} messages; {self.bytes_lost} of {self.file_size} bytes lost"
              f" ({self.reason})")
         if self.lost_chunks:
@@ -162,6 +171,16 @@ class RecoveryReport:
         return head + (": " if head == "input damaged" else "; ") + "; ".join(tail) if tail else head
 
     def to_dict(self) -> dict:
+        """The report as a JSON-ready dict (``--json`` output, provenance).
+
+        Returns
+        -------
+        dict
+            Every attribute by name (sizes in bytes, times in ns since the Unix epoch,
+            ``lost_chunks`` as :meth:`LostChunk.to_dict` dicts, ``damaged_ranges`` as
+            ``[offset, length]`` lists), plus ``nothing_recovered`` and ``summary``
+            (:meth:`one_line`).
+        """
         return {"file_size": self.file_size, "bytes_recovered": self.bytes_recovered,
                 "bytes_lost": self.bytes_lost, "messages_recovered": self.messages_recovered,
                 "lost_from_ns": self.lost_from_ns, "lost_to_ns": self.lost_to_ns, "reason": self.reason,
@@ -179,7 +198,11 @@ def _hms(t_ns: int) -> str:
 
 
 def format_time(t_ns: int) -> str:
-    """ns since the Unix epoch -> ISO 8601 UTC text with milliseconds."""
+    """ns since the Unix epoch -> ISO 8601 UTC text with milliseconds.
+
+    ``1700000000123456789`` -> ``"2023-11-14T22:13:20.123+00:00"`` (the sub-millisecond
+    part is dropped; the inverse, to the ns, is :func:`parse_time`).
+    """
     return _dt.datetime.fromtimestamp(t_ns / 1e9, tz=_dt.UTC).isoformat(timespec="milliseconds")
 
 

@@ -13,6 +13,28 @@ from .stages import regress_scenario_from_dict
 
 
 def read_baseline(path) -> dict[str, BaselineEntry]:
+    """The accepted metrics of a baseline file.
+
+    Parameters
+    ----------
+    path : path-like
+        A TOML file with one ``[metrics."NAME"]`` table per metric (see
+        :meth:`~usvlog.regress.gate.BaselineEntry.from_dict`).
+
+    Returns
+    -------
+    dict
+        Metric name -> :class:`~usvlog.regress.gate.BaselineEntry`; empty when the file
+        does not exist (a scenario run for the first time has no baseline yet).
+
+    Raises
+    ------
+    ConfigError
+        The file is not valid TOML, ``[metrics]`` is not a table of tables, or an entry
+        is invalid (the message names the file).
+    StorageError
+        The file cannot be read.
+    """
     p = Path(path)
     if not p.exists():
         return {}
@@ -39,6 +61,23 @@ def _q(s: str) -> str:
 
 
 def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
+    """The text of a baseline file: a ``[metrics."NAME"]`` TOML table per entry, in name order.
+
+    Floats are written with ``repr`` (so they read back exactly), infinities and NaN as
+    TOML's ``inf``/``-inf``/``nan``; ``description`` only when set.
+
+    Parameters
+    ----------
+    entries : dict
+        Metric name -> :class:`~usvlog.regress.gate.BaselineEntry`.
+    header : str
+        Text put first as ``#`` comment lines (one per line), then a blank line.
+
+    Returns
+    -------
+    str
+        TOML text, as :func:`read_baseline` reads it.
+    """
     lines = [f"# {line}" for line in header.splitlines()] + ([""] if header else [])
     for name in sorted(entries):
         e = entries[name]
@@ -54,6 +93,22 @@ def format_baseline(entries: dict[str, BaselineEntry], header: str = "") -> str:
 
 
 def write_baseline(path, entries: dict[str, BaselineEntry], header: str = "") -> None:
+    """Write a baseline file (:func:`format_baseline`) atomically, replacing any old one.
+
+    Parameters
+    ----------
+    path : path-like
+        The baseline file.
+    entries : dict
+        Metric name -> :class:`~usvlog.regress.gate.BaselineEntry`.
+    header : str
+        Comment lines put first.
+
+    Raises
+    ------
+    StorageError
+        The file cannot be written.
+    """
     write_text_atomic(path, format_baseline(entries, header), force=True)
 
 
@@ -79,5 +134,25 @@ def find_regress_scenarios(paths) -> list[Path]:
 
 
 def load_regress_scenario(path):
+    """Read a regression scenario file.
+
+    Parameters
+    ----------
+    path : path-like
+        The scenario TOML file; the dataset and baseline paths in it are relative to its
+        directory.
+
+    Returns
+    -------
+    usvlog.regress.stages.RegressScenario
+
+    Raises
+    ------
+    ConfigError
+        Invalid TOML or an invalid scenario (see
+        :func:`~usvlog.regress.stages.regress_scenario_from_dict`).
+    StorageError
+        The file is missing or unreadable.
+    """
     p = Path(path).resolve()
     return regress_scenario_from_dict(read_toml(p), p)

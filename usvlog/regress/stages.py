@@ -35,6 +35,45 @@ SECTIONS = {"scenario", "dataset", "stages", "estimate", "identify", "replay", "
 
 @dataclass(frozen=True, kw_only=True)
 class RegressScenario:
+    """One regression scenario: a recorded dataset, the stages to run on it and its baseline.
+
+    Made from a scenario file by :func:`regress_scenario_from_dict` (paths resolved there).
+
+    Attributes
+    ----------
+    name : str
+        ``[scenario] name``, else the file's stem; names the scenario in reports and its
+        default baseline file.
+    path : pathlib.Path
+        The scenario file (named in error messages; ``[replay] scenario`` is looked for
+        beside it).
+    description : str
+        ``[scenario] description``.
+    dataset : pathlib.Path
+        The recorded log (canonical MCAP) the stages run on.
+    made_by : str
+        ``[dataset] made_by``: how the dataset was made (free text).
+    stages : tuple of str
+        Stages to run, in order, from :data:`STAGES` (default all three).
+    estimate : dict
+        Keyword arguments of :class:`~usvlog.estimate.EstimateSettings` (``[estimate]``).
+    identify : dict
+        Keyword arguments of :class:`~usvlog.identify.Identifier` (``[identify]``).
+    replay : dict
+        ``[replay]``: ``scenario`` (a closed-loop scenario TOML beside the file, or the name
+        of a shipped one; required when the stage runs), optional ``gains`` (overrides of
+        the scenario's gains), ``state`` (``"estimate"``: the log with the estimate stage's
+        output, or ``"recorded"``) and ``whatif_model`` (``"scenario"``, or
+        ``"identified"``: the identify stage's vessel).
+    baseline : pathlib.Path
+        The baseline file of accepted metrics (:mod:`usvlog.regress.baselines`).
+
+    Raises
+    ------
+    ConfigError
+        An unknown stage, or the replay stage without ``[replay] scenario``.
+    """
+
     name: str
     path: Path
     description: str = ""
@@ -55,6 +94,28 @@ class RegressScenario:
 
 
 def regress_scenario_from_dict(doc: dict, path: Path) -> RegressScenario:
+    """Check a parsed regression scenario file and make a :class:`RegressScenario` of it.
+
+    Parameters
+    ----------
+    doc : dict
+        The parsed TOML: sections from :data:`SECTIONS`; ``[dataset] log`` is required,
+        ``[stages] run`` lists the stages, ``[baseline] file`` defaults to
+        ``baselines/<name>.toml``.
+    path : pathlib.Path
+        The file it was read from: the dataset and baseline paths are relative to its
+        directory, and errors name it.
+
+    Returns
+    -------
+    RegressScenario
+
+    Raises
+    ------
+    ConfigError
+        An unknown section, no ``[dataset] log``, an unknown stage, or the replay stage
+        without ``[replay] scenario``.
+    """
     for k in doc:
         if k not in SECTIONS:
             raise ConfigError(f"{path}: unknown section [{k}] (known: {', '.join(sorted(SECTIONS))})")
@@ -106,6 +167,27 @@ def _truth_at(log: FieldLog, t_ns: np.ndarray):
 
 
 def stage_estimate(run: _Run) -> None:
+    """The estimate stage: EKF + RTS smoother over the recorded log, with ``[estimate]`` settings.
+
+    Adds ``/estimate/state`` and ``/estimate/innovations`` to ``run.work`` and, to
+    ``run.metrics``: ``estimate.<sensor>_mean_nis`` and ``estimate.<sensor>_rejected``
+    per sensor and ``estimate.dropouts_bridged``. When the log has ``/truth/state``
+    (simulated datasets), also the errors against it over the truth's time span:
+    ``pos_rms_m`` (m), ``psi_rms_deg`` (deg), ``r_rms_degps`` (deg/s), ``u_rms_mps`` and
+    ``v_rms_mps`` (m/s; over ground for the kinematic model, the truth's current added)
+    and, for a model that estimates the current, ``current_err_mps`` (m/s, error of the
+    mean current). RMS values keep NaN: a gap in the estimate shows in the gate.
+
+    Parameters
+    ----------
+    run : _Run
+        The run in progress (scenario, recorded log, working log, metrics); updated in place.
+
+    Raises
+    ------
+    ConfigError
+        ``[estimate]`` has an unknown key or an invalid value.
+    """
     try:
         settings = EstimateSettings(**run.scenario.estimate)
     except TypeError as err:
@@ -141,6 +223,29 @@ def stage_estimate(run: _Run) -> None:
 
 
 def stage_identify(run: _Run) -> None:
+    """The identify stage: fit the model (3) to the recorded log with ``[identify]`` settings.
+
+    Sets ``run.vessel`` to the identified vessel and adds to ``run.metrics``:
+    ``identify.<param>`` for each parameter (m in kg, Iz in kg m^2, d11/d22 in N s/m,
+    d33 in N m s/rad, xg in m), ``identify.fit_<u|v|r|track>_pct`` (% fit of the model's
+    free run on the same log) and ``identify.warnings`` (count of verdict warnings). When
+    the log has ``/truth/state`` (simulated datasets), also ``identify.<param>_err_pct``
+    (% of the true value), ``identify.xg_err_m`` (m) and, when the current is fitted,
+    ``identify.current_err_mps`` (m/s, against the truth's mean current).
+
+    Parameters
+    ----------
+    run : _Run
+        The run in progress (scenario, recorded log, working log, metrics); updated in place.
+
+    Raises
+    ------
+    ConfigError
+        ``[identify]`` has an unknown key or an invalid value.
+    InputError
+        The log cannot be identified from (missing channels, too few samples, an
+        impossible fit).
+    """
     kw = dict(run.scenario.identify)
     try:
         ident = Identifier(**kw)
@@ -171,6 +276,31 @@ def stage_identify(run: _Run) -> None:
 
 
 def stage_replay(run: _Run) -> None:
+    """The replay stage: open-loop replay and what-if run (:func:`usvlog.replay.replay_log`).
+
+    Replays ``run.work`` (``state = "estimate"``, the default: the estimate stage's
+    output) or the recorded log (``"recorded"``) with the ``[replay] scenario``'s path,
+    guidance and gains (``[replay] gains`` overriding some of them). The controller's
+    model and the what-if plant are the identified vessel with ``whatif_model =
+    "identified"`` (when the identify stage ran), else the scenario's ``[vessel]``, the
+    log's or the default one. Adds to ``run.metrics`` the tracking metrics
+    in m, rad, m/s and s as ``replay.<name>`` and ``whatif.<name>`` (``start_s`` and
+    ``duration_s`` left out), and ``replay.command_rms`` (command unit),
+    ``replay.force_rms_n`` (N) and ``replay.decisions_max_abs`` (N, N m) when known.
+
+    Parameters
+    ----------
+    run : _Run
+        The run in progress (scenario, recorded log, working log, metrics); updated in place.
+
+    Raises
+    ------
+    ConfigError
+        An unknown ``[replay]`` key, a bad ``state`` or gains, or a scenario that cannot
+        be loaded.
+    InputError
+        The log has no state to replay.
+    """
     cfg = dict(run.scenario.replay)
     name = cfg.pop("scenario")
     scen_path = run.scenario.path.parent / name
@@ -212,6 +342,24 @@ STAGE_FUNCS = {"estimate": stage_estimate, "identify": stage_identify, "replay":
 
 @dataclass(frozen=True)
 class ScenarioOutcome:
+    """The result of one regression scenario: its metrics and their checks against the baseline.
+
+    Attributes
+    ----------
+    name : str
+        The scenario's name.
+    path : str
+        The scenario file.
+    metrics : dict
+        Metric name -> value (float, in the metric's unit), sorted by name; empty on error.
+    checks : tuple of usvlog.regress.gate.Check
+        One per metric of the run or of the baseline; empty on error.
+    seconds : float
+        Wall time of the run (s).
+    error : str or None
+        The one-line error that stopped the run (bad dataset or settings), else None.
+    """
+
     name: str
     path: str
     metrics: dict
@@ -221,9 +369,11 @@ class ScenarioOutcome:
 
     @property
     def failed(self) -> bool:
+        """True when the run stopped on an error or a check failed (regressed or missing)."""
         return self.error is not None or any(c.failed for c in self.checks)
 
     def to_dict(self) -> dict:
+        """JSON-ready dict of the attributes plus ``failed``; checks as :meth:`Check.to_dict` dicts."""
         return {"name": self.name, "path": self.path, "metrics": self.metrics, "seconds": self.seconds,
                 "error": self.error, "failed": self.failed, "checks": [c.to_dict() for c in self.checks]}
 
@@ -237,6 +387,23 @@ def run_stages(scn: RegressScenario, log: FieldLog) -> dict[str, float]:
 
 
 def run_scenario(scn: RegressScenario, baseline: dict[str, BaselineEntry]) -> ScenarioOutcome:
+    """Read the scenario's dataset, run its stages and check the metrics against ``baseline``.
+
+    Parameters
+    ----------
+    scn : RegressScenario
+        The scenario.
+    baseline : dict
+        Metric name -> accepted :class:`~usvlog.regress.gate.BaselineEntry` (empty for a
+        scenario without a baseline yet: every metric is then ``new``).
+
+    Returns
+    -------
+    ScenarioOutcome
+        Metrics, checks and wall time. A :class:`~usvlog.errors.UsvlogError` (unreadable
+        dataset, bad settings, unusable data) is caught and returned as ``error`` so the
+        other scenarios still run; any other exception is a bug and propagates.
+    """
     t0 = time.perf_counter()
     try:
         log = read_log(scn.dataset)

@@ -159,11 +159,44 @@ def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, 
 
 
 def command_unit(thrusters) -> str:
+    """The unit simulated thruster commands are written in for a thruster map.
+
+    Parameters
+    ----------
+    thrusters : usvlog.model.vessel.Thrusters
+        The vessel's thrusters.
+
+    Returns
+    -------
+    str
+        ``"newton"`` for the ``identity`` map (commands are forces, N), else
+        ``"normalized"`` (commands in [-1, 1]).
+    """
     return "newton" if thrusters.map == "identity" else "normalized"
 
 
 def make_controller(scen: Scenario, path: Path, vessel: Vessel | None = None, gains: Gains | None = None,
                     controller: str | None = None) -> Controller:
+    """The scenario's path-following controller, with optional overrides.
+
+    Parameters
+    ----------
+    scen : Scenario
+        Gives the guidance settings and the defaults below.
+    path : usvlog.control.paths.Path
+        The path to follow (local NED, m), usually ``scen.path(datum)``.
+    vessel : Vessel, optional
+        The controller's model; default the scenario's simulated vessel.
+    gains : Gains, optional
+        Default the scenario's gains.
+    controller : str, optional
+        ``"full"`` (the paper's law) or ``"baseline"``; default the scenario's.
+
+    Returns
+    -------
+    usvlog.control.law.Controller
+        A new controller (not reset: :func:`closed_loop` resets it to the initial state).
+    """
     return Controller(path, vessel or scen.sim.vessel, gains or scen.gains, scen.guidance,
                       full=(controller or scen.controller) == "full")
 
@@ -212,6 +245,21 @@ class EKFInTheLoop:
         return np.ascontiguousarray(xh[:6])
 
     def frame(self, t_ns: np.ndarray):
+        """The estimates made at every controller tick so far, as an ``/estimate/state`` frame.
+
+        Parameters
+        ----------
+        t_ns : numpy.ndarray of int64
+            The ticks' times (ns since the Unix epoch), one per call of the estimator.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Indexed by ``t_ns``: ``n_m``, ``e_m`` (m), ``psi_rad`` (rad, wrapped to
+            [-pi, pi)), ``u_mps``, ``v_mps`` (m/s), ``r_radps`` (rad/s), ``current_n_mps``,
+            ``current_e_mps`` (m/s), and each one's standard deviation (``<name>_std``,
+            same unit) from the EKF covariance.
+        """
         X, S = np.array(self.X), np.array(self.S)
         names = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"]
         cols = {c: X[:, i] for i, c in enumerate(names)}

@@ -69,6 +69,15 @@ class ImportOptions:
             raise ConfigError("chunk_rows must be >= 1")
 
     def to_dict(self) -> dict:
+        """The settings as recorded in the log's provenance.
+
+        Returns
+        -------
+        dict
+            ``columns`` and ``topics`` (role -> source name), ``thrust_unit`` (None when
+            guessed) and ``start_utc_ns`` (ns since the Unix epoch, or None); ``chunk_rows``
+            is not recorded.
+        """
         return {"columns": dict(self.columns), "topics": dict(self.topics), "thrust_unit": self.thrust_unit,
                 "start_utc_ns": self.start_utc_ns}
 
@@ -82,6 +91,14 @@ class ImportResult:
     out: Path | None = None
 
     def to_dict(self) -> dict:
+        """The import report as a JSON-ready dict, plus the output path.
+
+        Returns
+        -------
+        dict
+            :meth:`ImportReport.to_dict` with ``out`` added: the MCAP file written (str),
+            or None when the log was kept in memory.
+        """
         d = self.report.to_dict()
         d["out"] = str(self.out) if self.out else None
         return d
@@ -99,6 +116,24 @@ def parse_pairs(items, what: str) -> dict:
 
 
 def parse_start_utc(text: str | None) -> int | None:
+    """``--start-utc`` text -> ns since the Unix epoch.
+
+    Parameters
+    ----------
+    text : str or None
+        An ISO 8601 time, UTC when it has no zone (:func:`usvlog.log.fieldlog.parse_time`),
+        or None.
+
+    Returns
+    -------
+    int or None
+        The time in ns since the Unix epoch (UTC); None when ``text`` is None.
+
+    Raises
+    ------
+    ConfigError
+        ``text`` is not an ISO 8601 time.
+    """
     if text is None:
         return None
     try:

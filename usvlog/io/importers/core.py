@@ -69,6 +69,19 @@ class ImportReport:
     first_bad: dict = field(default_factory=dict)       # reason -> where the first one was
 
     def skip(self, reason: str, n: int = 1, where: str | None = None) -> None:
+        """Count ``n`` records dropped for ``reason``; remember where the first one was.
+
+        Parameters
+        ----------
+        reason : str
+            Why they were dropped (``"gnss_nan"``, ``"csv_bad_value"``, ...): the key in
+            :attr:`skipped`.
+        n : int
+            How many; nothing is recorded when ``n <= 0``.
+        where : str, optional
+            Where the first one of this reason was (``"line 12: ..."``); kept in
+            :attr:`first_bad` only for the first call that gives one for ``reason``.
+        """
         if n <= 0:
             return
         self.skipped[reason] += int(n)
@@ -76,10 +89,26 @@ class ImportReport:
             self.first_bad[reason] = where
 
     def note(self, text: str) -> None:
+        """Add a note for the user (shown once: a note already made is not repeated).
+
+        Parameters
+        ----------
+        text : str
+            One line, e.g. ``"altitude unknown for some fixes: written as 0 m"``.
+        """
         if text not in self.notes:
             self.notes.append(text)
 
     def to_dict(self) -> dict:
+        """The report as a JSON-ready dict (for ``--json`` and the log's provenance).
+
+        Returns
+        -------
+        dict
+            ``source``, ``format``, ``records``, ``skipped`` (reason -> count, sorted),
+            ``first_bad``, ``guesses``, ``mapping``, ``notes`` and ``channels`` (topic ->
+            samples written, sorted).
+        """
         return {"source": self.source, "format": self.format, "records": self.records,
                 "skipped": dict(sorted(self.skipped.items())), "first_bad": dict(self.first_bad),
                 "guesses": dict(self.guesses), "mapping": dict(self.mapping), "notes": list(self.notes),
@@ -181,6 +210,35 @@ class Assembler:
         self._thrust_forces_known: bool | None = None
 
     def process(self, batch: dict[str, dict[str, np.ndarray]]) -> dict[str, pd.DataFrame]:
+        """Turn one batch of role streams into canonical frames.
+
+        Drops (and counts in the report) samples with a negative time, non-finite values,
+        GNSS fixes with NaN, out-of-range or (0, 0) latitude/longitude, negative speeds
+        and samples not later than the previous kept one of the same stream (kept across
+        batches). Headings and courses are wrapped to [-pi, pi) rad; thrust commands that
+        are not newtons are turned into forces (N) with the vessel's thruster map (forces
+        NaN, and a note, without a vessel whose map is linear or quadratic). The datum is
+        set from the first kept fix when none was given.
+
+        Parameters
+        ----------
+        batch : dict
+            ``{stream: {column: array}}``, streams and columns as in :data:`STREAMS`;
+            ``t_ns`` (int64 ns since the Unix epoch) is required, ``stamp_ns`` defaults
+            to it.
+
+        Returns
+        -------
+        dict
+            Topic -> DataFrame indexed by ``t_ns`` in the channel's canonical columns;
+            streams with nothing kept are left out. :attr:`ImportReport.counts` is
+            increased by the rows returned.
+
+        Raises
+        ------
+        ConfigError
+            A stream not in :data:`STREAMS`, or a thrust unit not in ``THRUST_UNITS``.
+        """
         out = {}
         for stream, cols in batch.items():
             if stream not in STREAMS:

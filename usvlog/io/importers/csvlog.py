@@ -49,11 +49,26 @@ _NAN_TEXT = {"nan", "NaN", "NAN", "-nan", "+nan", "n/a", "NA", "null", "None"}
 
 
 def normalize_header(h: str) -> str:
+    """A header as the role guesses compare it: lower case, runs of other characters -> ``_``.
+
+    ``" Heading (deg)"`` -> ``"heading_deg"``; leading and trailing ``_`` are dropped.
+    """
     s = re.sub(r"[^0-9a-z]+", "_", str(h).strip().lower())
     return s.strip("_")
 
 
 def looks_like_csv(text: str) -> bool:
+    """Whether the start of a file reads as CSV with a header row.
+
+    Looks at the first 20 non-blank lines: the first has a separator (``,``, ``;`` or
+    tab, see :func:`sniff_sep`) and a letter, and no later line has more separators
+    than it (of three or more lines the last is not checked: it may be cut mid-way).
+
+    Parameters
+    ----------
+    text : str
+        The file's first bytes, decoded.
+    """
     lines = [ln for ln in text.splitlines()[:20] if ln.strip()]
     if len(lines) < 1:
         return False
@@ -68,6 +83,10 @@ def looks_like_csv(text: str) -> bool:
 
 
 def sniff_sep(header_line: str) -> str | None:
+    """The field separator of a header line: the most frequent of ``,``, ``;`` and tab.
+
+    Returns None when the line has none of them (ties go to ``,``, then ``;``).
+    """
     counts = {s: header_line.count(s) for s in (",", ";", "\t")}
     sep, n = max(counts.items(), key=lambda kv: kv[1])
     return sep if n > 0 else None

@@ -50,6 +50,16 @@ _USED = _POSITION | _HEADING | {"VTG"}
 
 
 def looks_like_nmea(text: str) -> bool:
+    """Whether the start of a file reads as an NMEA 0183 log.
+
+    True when at least half of the first 40 non-blank lines hold a sentence start
+    (``$`` or ``!``, talker and type, a comma), with or without a time stamp before it.
+
+    Parameters
+    ----------
+    text : str
+        The file's first bytes, decoded.
+    """
     lines = [ln for ln in text.splitlines()[:40] if ln.strip()]
     if not lines:
         return False
@@ -142,6 +152,36 @@ class _Buf:
 
 
 def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
+    """Batches of role streams (``gnss``, ``heading``, ``velocity``) from an NMEA 0183 log.
+
+    See :mod:`usvlog.io.importers.core` for the batch layout and this module's docstring
+    for the sentences used and how times are placed: ``t_ns`` is the line's time stamp
+    prefix, else the sentence's own UTC time; ``stamp_ns`` the sentence's own time. Both
+    are ns since the Unix epoch. Headings and courses are in rad, speeds in m/s,
+    altitudes in m.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The log file (ASCII; undecodable bytes are replaced).
+    opts : usvlog.io.importers.ImportOptions
+        ``start_utc_ns`` (ns since the Unix epoch) for relative prefixes and for the date
+        when the file has no RMC; ``chunk_rows`` samples per batch.
+    report : usvlog.io.importers.core.ImportReport
+        Filled with lines read, lines skipped by reason (garbage, bad checksum, bad
+        field, bad time, no fix, untimed, unsupported sentence), the mapping and guesses.
+    fmt : str
+        Unused (one signature for every reader).
+    on_mapping : callable, optional
+        Called with ``report`` before the sentences are read.
+
+    Raises
+    ------
+    InputError
+        The file has no lines.
+    StorageError
+        The file cannot be read.
+    """
     p = path
     start_ns = opts.start_utc_ns
     day0 = _first_date(p)

@@ -152,6 +152,38 @@ def _parse_spec(spec: str, topics: list[str], path, role: str) -> tuple[str, str
 
 
 def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
+    """Batches of role streams from a ROS 1 or ROS 2 bag (see :mod:`usvlog.io.importers.core`).
+
+    Topics are mapped as this module's docstring says (``--topic`` mappings first, then
+    guesses by message type and topic name). ``t_ns`` is the bag's record time and
+    ``stamp_ns`` the message's ``header.stamp`` (the record time when it has none), both ns
+    since the Unix epoch; headings are rad clockwise from north, yaw rates rad/s (FRD),
+    speeds m/s. A file whose name does not match its content is read through a symbolic
+    link in a temporary directory, removed at the end.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The bag: a ROS 1 ``.bag`` file, a ROS 2 bag directory or its ``.db3``/``.mcap`` file.
+    opts : usvlog.io.importers.ImportOptions
+        ``topics`` (role -> ``/topic[.field.path]``), ``thrust_unit`` (guessed from the
+        values when None), ``chunk_rows`` samples per batch.
+    report : usvlog.io.importers.core.ImportReport
+        Filled with messages read, messages skipped by reason, the mapping and guesses.
+    fmt : str
+        ``"ros1"`` or ``"ros2"``.
+    on_mapping : callable, optional
+        Called with ``report`` once the topic mapping is known.
+
+    Raises
+    ------
+    FormatError
+        The content is not a bag of kind ``fmt``, or rosbags cannot open or read it
+        (``from`` its exception).
+    InputError
+        No topic maps to a role, a given topic is not in the bag, or a mapped field is
+        missing or not a number.
+    """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 

@@ -15,14 +15,40 @@ from ..mcap import McapWriter
 
 
 class MemorySink:
+    """Collects imported frames in memory and makes a :class:`~usvlog.log.fieldlog.FieldLog` of them.
+
+    The counterpart of :class:`McapSink` for imports without an output file; memory grows
+    with the log.
+    """
+
     def __init__(self):
         self._parts: dict[str, list[pd.DataFrame]] = {}
 
     def write(self, frames: dict[str, pd.DataFrame]) -> None:
+        """Keep one batch of canonical frames.
+
+        Parameters
+        ----------
+        frames : dict
+            Topic -> DataFrame indexed by ``t_ns`` (ns since the Unix epoch), as
+            :meth:`usvlog.io.importers.core.Assembler.process` returns.
+        """
         for topic, f in frames.items():
             self._parts.setdefault(topic, []).append(f)
 
     def finish(self, meta: dict[str, dict[str, str]]) -> FieldLog:
+        """The log of every batch written, each channel's parts joined in write order.
+
+        Parameters
+        ----------
+        meta : dict
+            Metadata records ``{name: {key: str}}`` (datum, vessel, provenance).
+
+        Returns
+        -------
+        FieldLog
+            The channels and ``meta``.
+        """
         log = FieldLog()
         for topic, parts in self._parts.items():
             log.set(topic, parts[0] if len(parts) == 1 else pd.concat(parts))
@@ -39,10 +65,27 @@ class McapSink:
         self._w = McapWriter(fh, chunk_size=chunk_size, zstd_level=1)
 
     def write(self, frames: dict[str, pd.DataFrame]) -> None:
+        """Encode one batch of canonical frames and write it to the file now.
+
+        Parameters
+        ----------
+        frames : dict
+            Topic -> DataFrame indexed by ``t_ns`` (ns since the Unix epoch), as
+            :meth:`usvlog.io.importers.core.Assembler.process` returns; the chunks are
+            flushed before returning, so nothing of the batch stays in memory.
+        """
         self._w.add_frames(frames)
         self._w.flush()
 
     def finish(self, meta: dict[str, dict[str, str]]) -> None:
+        """Write the metadata records (in name order), the summary and the footer.
+
+        Parameters
+        ----------
+        meta : dict
+            Metadata records ``{name: {key: str}}`` (datum, vessel, provenance). The
+            caller closes the file.
+        """
         for name in sorted(meta):
             self._w.add_metadata(name, meta[name])
         self._w.finish()

@@ -58,6 +58,36 @@ def _first(data: dict, names: tuple[str, ...], n: int):
 
 
 def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
+    """The role streams of a PX4 ULog file as one batch (see :mod:`usvlog.io.importers.core`).
+
+    pyulog loads the whole file (only the topics used), so there is a single batch:
+    ``gnss`` (deg, m), ``heading`` (rad, from ``vehicle_attitude.q``) and ``thrust``
+    (commands with their unit), as this module's docstring describes. Times are the log's
+    microsecond ``timestamp`` shifted to ns since the Unix epoch; ``stamp_ns`` equals
+    ``t_ns``. pyulog's own console output is swallowed.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The ``.ulg`` file.
+    opts : usvlog.io.importers.ImportOptions
+        ``topics`` (``thrust_left``/``thrust_right`` as ``topic.field`` of one topic),
+        ``thrust_unit`` (else normalized for ``actuator_motors``, pwm_us for
+        ``actuator_outputs``), ``start_utc_ns`` when the log has no GPS UTC time.
+    report : usvlog.io.importers.core.ImportReport
+        Filled with samples read, fixes skipped (no fix), the mapping and guesses.
+    fmt : str
+        Unused (one signature for every reader).
+    on_mapping : callable, optional
+        Called with ``report`` once the mapping is known.
+
+    Raises
+    ------
+    FormatError
+        Not a ULog file, or pyulog cannot read it (``from`` its exception).
+    InputError
+        A mapped topic or field is missing, or the thrust topics are given wrongly.
+    """
     from pyulog import ULog
 
     if file_head(path, len(ULOG_MAGIC)) != ULOG_MAGIC:

@@ -256,6 +256,24 @@ class Codec:
         return self.decode_objects(objs, topic)
 
     def decode_objects(self, objs: list[dict], topic: str = "") -> dict[str, np.ndarray]:
+        """Parsed JSON messages (dicts) -> {column: array}, field by field of the schema.
+
+        A ``{sec, nsec}`` time becomes one int64 ns column; an array field one float column
+        per element (missing or null elements NaN); missing or null numbers become NaN,
+        missing strings ``""``. Integer, boolean and time fields must be present.
+
+        Parameters
+        ----------
+        objs : list of dict
+            One dict per message, in order.
+        topic : str
+            Channel name, only for error messages.
+
+        Raises
+        ------
+        InputError
+            A required field is missing or a value has the wrong type.
+        """
         out: dict[str, np.ndarray] = {}
         for f in self.fields:
             p = f.prop
