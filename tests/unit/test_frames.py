@@ -43,3 +43,23 @@ def test_geodetic_round_trip_and_scale():
 def test_datum_range_checked():
     with pytest.raises(ConfigError):
         Datum(lat_deg=93.1, lon_deg=0.0)
+
+
+def test_wrap_angle_is_ssa_in_python_and_in_kernels():
+    from numba import njit
+
+    from usvlog.model.frames import ssa, wrap_angle
+
+    a = np.random.default_rng(4).uniform(-50.0, 50.0, 1000)
+    a[:4] = [np.pi, -np.pi, 3 * np.pi, 0.0]
+
+    @njit
+    def many(x):
+        out = np.empty_like(x)
+        for i in range(x.shape[0]):
+            out[i] = wrap_angle(x[i])
+        return out
+
+    assert np.array_equal(many(a), ssa(a))
+    assert np.array_equal(np.array([wrap_angle(float(v)) for v in a]), ssa(a))
+    assert ssa(np.pi) == -np.pi and wrap_angle(np.pi) == -np.pi

@@ -30,11 +30,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import njit
+from ..model.frames import wrap_angle
 from ..model.vessel import Vessel
 from .gains import GAIN_NAMES, Gains, GuidanceSettings
 from .guidance import guidance_step, initial_theta
 from .paths import Path
-from .prefilter import heading_filter_step, surge_filter_output, surge_filter_step, wrap
+from .prefilter import heading_filter_step, surge_filter_output, surge_filter_step
 
 # controller state vector ``ctrl_state`` layout (Controller.cs)
 CS_THETA, CS_PSI_D, CS_R_D, CS_A_D, CS_UF, CS_UDF, CS_UEI, CS_PSIEI, CS_INIT = range(9)
@@ -148,7 +149,7 @@ def control_tick(state, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gain
     u_d, u_d_dot = surge_filter_output(cs[CS_UF], cs[CS_UDF], u_ref, order, u_omega)
     psi_d, r_d, r_d_dot = cs[CS_PSI_D], cs[CS_R_D], cs[CS_A_D]
     ue = u - u_d
-    psie = wrap(psi - psi_d)
+    psie = wrap_angle(psi - psi_d)
     re = r - r_d
     full = settings[S_FULL] != 0.0
     tau_u, tau_r = control_law(full, gains, params, ue, cs[CS_UEI], psie, cs[CS_PSIEI], re, u_d, u_d_dot, r_d,
@@ -177,7 +178,7 @@ def control_tick(state, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gain
     row[OUT_CARROT_N] = can
     row[OUT_CARROT_E] = cae
     row[OUT_PSI_REF] = psi_ref
-    row[OUT_PSI_D] = wrap(psi_d)
+    row[OUT_PSI_D] = wrap_angle(psi_d)
     row[OUT_R_D] = r_d
     row[OUT_R_D_DOT] = r_d_dot
     row[OUT_U_D] = u_d

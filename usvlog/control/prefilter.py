@@ -23,29 +23,17 @@ integration (the closed-loop error dynamics are then exactly the Euler form of A
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from .._jit import njit
-
-
-@njit
-def wrap(a):
-    """Smallest signed angle of one float: ``a`` (rad) wrapped to [-pi, pi) rad.
-
-    The same arithmetic as :func:`usvlog.model.frames.ssa` (and
-    ``usvlog.estimate.kernels.wrap``), kept here as a numba-compiled scalar function so
-    the compiled prefilter and controller kernels can call it; ``ssa`` is plain numpy.
-    """
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
+from ..model.frames import wrap_angle
 
 
 @njit
 def heading_filter_step(psi_d, r_d, a_d, psi_ref, dt, omega, zeta):
     """One Euler step of the third-order model: returns the next (psi_d, r_d, r_d_dot)."""
     k = 2.0 * zeta + 1.0
-    jerk = omega ** 3 * wrap(psi_ref - psi_d) - k * omega * a_d - k * omega * omega * r_d
+    jerk = omega ** 3 * wrap_angle(psi_ref - psi_d) - k * omega * a_d - k * omega * omega * r_d
     return psi_d + dt * r_d, r_d + dt * a_d, a_d + dt * jerk
 
 
@@ -75,7 +63,7 @@ def _run_heading(psi_ref, dt, omega, zeta, psi0, r0, a0):
     out = np.empty((n, 3))
     p, r, a = psi0, r0, a0
     for k in range(n):
-        out[k, 0] = wrap(p)
+        out[k, 0] = wrap_angle(p)
         out[k, 1] = r
         out[k, 2] = a
         p, r, a = heading_filter_step(p, r, a, psi_ref[k], dt, omega, zeta)
@@ -159,4 +147,4 @@ def filter_surge(u_ref, dt: float, *, order: int = 2, omega: float = 0.5, zeta: 
 
 
 __all__ = ["heading_filter_step", "surge_filter_output", "surge_filter_step", "filter_heading",
-           "filter_surge", "wrap"]
+           "filter_surge"]

@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from .._jit import njit
+from ..model.frames import wrap_angle
 from ..model.vessel import nu_dot_jacobian_terms, nu_dot_terms
 
 KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
@@ -63,12 +64,6 @@ _nu_dot = njit(nu_dot_terms)
 _nu_jac = njit(nu_dot_jacobian_terms)
 
 _TWO_PI = 2.0 * math.pi
-
-
-@njit
-def wrap(a):
-    """ssa() for one float: [-pi, pi)."""
-    return (a + math.pi) % _TWO_PI - math.pi
 
 
 @njit
@@ -162,7 +157,7 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
         for j in range(nx):
             Phi[i, j] = dt * F[i, j]
         Phi[i, i] += 1.0
-    xo[X_PSI] = wrap(xo[X_PSI])
+    xo[X_PSI] = wrap_angle(xo[X_PSI])
     sparse_matmul(F, P, tmp)
     dt2 = dt * dt
     for i in range(nx):
@@ -199,7 +194,7 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     I01 = I10 = I11 = 0.0
     y0 = z0 - x[i0]
     if kind == COMPASS:
-        y0 = wrap(y0)
+        y0 = wrap_angle(y0)
     if m == 2:
         y1 = z1 - x[i1]
         S00 = P[i0, i0] + R00
@@ -233,7 +228,7 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
             x[i] += K[i, 0] * y0 + K[i, 1] * y1
         else:
             x[i] += K[i, 0] * y0
-    x[X_PSI] = wrap(x[X_PSI])
+    x[X_PSI] = wrap_angle(x[X_PSI])
     # Joseph form (I - K H) P (I - K H)^T + K R K^T, expanded for a selector H:
     # P - K (H P) - (H P)^T K^T + K (H P H^T + R) K^T, upper triangle mirrored
     for i in range(nx):
@@ -404,13 +399,13 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
         _chol_solve(L, inv, Pp, B, Ct)
         for a in range(nx):
             d[a] = XS[k + 1, a] - xp[a]
-        d[X_PSI] = wrap(d[X_PSI])
+        d[X_PSI] = wrap_angle(d[X_PSI])
         for a in range(nx):
             acc = 0.0
             for c in range(nx):
                 acc += Ct[c, a] * d[c]
             XS[k, a] = xk[a] + acc
-        XS[k, X_PSI] = wrap(XS[k, X_PSI])
+        XS[k, X_PSI] = wrap_angle(XS[k, X_PSI])
         # Ps_k = Pk + C (Ps - Pp) C^T
         for a in range(nx):
             for b in range(nx):

@@ -6,10 +6,12 @@ body frame is FRD. ``psi`` is heading clockwise from north in radians.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import jitable
 from ..errors import ConfigError
 
 # WGS-84
@@ -35,6 +37,23 @@ def ssa(angle):
     if type(angle) is float:  # one value (sentence parsers): the same arithmetic without an array
         return np.float64((angle + np.pi) % (2.0 * np.pi) - np.pi)
     return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@jitable
+def wrap_angle(a):
+    """:func:`ssa` of one float, callable from Python and from compiled kernels.
+
+    Parameters
+    ----------
+    a : float
+        Angle in rad, any range.
+
+    Returns
+    -------
+    float
+        The same angle in rad, in [-pi, pi) (the same arithmetic as :func:`ssa`).
+    """
+    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def rot(psi):
