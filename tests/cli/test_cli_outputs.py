@@ -65,3 +65,12 @@ def test_demo_ownership_is_proven_by_checksums(tmp_path):
     (out / "excitation.mcap").write_bytes(b"run")
     with pytest.raises(OutputExistsError):
         Owned(out).check(force=False)
+
+
+@pytest.mark.slow
+def test_demo_rerun_replaces_its_own_files(tmp_path):
+    out = tmp_path / "d"
+    assert main(["demo", "--out", str(out), "--duration-s", "30"]) == 0
+    own = json.loads((out / MARKER).read_text())["files"]
+    assert {"excitation.mcap", "demo.rrd", "report/report.html", "csv/gnss__fix.csv"} <= set(own)
+    assert main(["demo", "--out", str(out), "--duration-s", "30"]) == 0  # its own files: no --force needed
