@@ -733,7 +733,8 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
 
 
 def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, junit: PathLike | None = None,
-            jobs: int = 1, progress: Progress = None, on_start: Callable[[list[Path]], None] | None = None,
+            force: bool = False, jobs: int = 1, progress: Progress = None,
+            on_start: Callable[[list[Path]], None] | None = None,
             on_outcome: Callable[[ScenarioOutcome], None] | None = None) -> list[ScenarioOutcome]:
     """Re-run recorded datasets through estimate/identify/replay and gate on baselines (``usvlog regress``).
 
@@ -747,6 +748,8 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         differences go to ``progress``).
     junit : str or os.PathLike, optional
         Also write JUnit XML for a CI system (its place is checked before any scenario runs).
+    force : bool
+        Replace an existing ``junit`` file.
     jobs : int
         Run the scenarios in this many parallel processes.
     progress : callable, optional
@@ -780,7 +783,7 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     if jobs < 1:
         raise ConfigError(f"--jobs {jobs} must be >= 1")
     if junit:  # the report's place is checked before the scenarios run, not after
-        check_output(junit, True, parent=True)
+        check_output(junit, force, parent=True)
     found = find_regress_scenarios(list(paths) if paths else [replay_dir()])
     if not found:
         raise ConfigError("no regression scenarios found (a scenario has a [dataset] section)")
@@ -817,7 +820,7 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     if junit:
         checks = [c for o in outcomes for c in o.checks]
         write_text_atomic(junit, junit_xml(checks, {o.name: o.seconds for o in outcomes},
-                                           {o.name: o.error for o in outcomes if o.error}), force=True)
+                                           {o.name: o.error for o in outcomes if o.error}), force=force)
     return outcomes
 
 

@@ -1,26 +1,107 @@
 """``usvlog demo``: the whole pipeline on a built-in simulated run.
 
 Every stage of usvlog adds itself here, so the demo always shows what the tool does.
+
+Outputs follow the ``--force`` rule of every verb, with one allowance: a re-run replaces the
+files an earlier demo wrote, when it can prove they are its own. The demo records each file
+it writes, with its SHA-256, in ``OUT/.usvlog-demo.json``; a file the demo would write that
+exists and is not recorded there with that content (another program's, or edited since) is
+refused without ``--force``. Other files in the directory are never touched.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 from pathlib import Path
 
 from ..choices import PARAM_NAMES
-from ..errors import StorageError
+from ..errors import OutputExistsError, StorageError
 from .common import stage
 from .replay import format_metrics
+
+MARKER = ".usvlog-demo.json"
+FILES = ("excitation.mcap", "merged.csv", "imported.mcap", "estimate.mcap", "identified.toml", "paper-circle.mcap",
+         "paper-circle-replay.mcap", "demo.rrd", "estimate.rrd")
+DIRS = ("csv", "report")
 
 
 def register(sub) -> None:
     p = sub.add_parser("demo", help="run the whole pipeline on a built-in simulated run")
     p.add_argument("--out", default="usvlog-demo",
-                   help="output directory (default: usvlog-demo); a re-run replaces the demo's own files in it")
+                   help="output directory (default: usvlog-demo); a re-run replaces the files an earlier demo "
+                        f"wrote there (listed with their checksums in {MARKER}), other existing outputs only "
+                        "with --force")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs the demo did not write")
     p.add_argument("--seed", type=int, default=1, help="random seed of the simulated excitation run (default 1)")
     p.add_argument("--duration-s", type=float, default=600.0,
                    help="length of the simulated excitation run in seconds (default 600)")
     p.set_defaults(func=run)
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+class Owned:
+    """The demo's own files in its output directory, proven by their SHA-256 in ``OUT/.usvlog-demo.json``.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The demo's output directory.
+    """
+
+    def __init__(self, out: Path):
+        self.out = out
+        try:
+            files = json.loads((out / MARKER).read_text(encoding="utf-8"))["files"]
+            self.files = {str(k): str(v) for k, v in files.items()}
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            self.files = {}
+
+    def _rel(self, path: Path) -> str:
+        return path.relative_to(self.out).as_posix()
+
+    def targets(self) -> list[Path]:
+        """Every existing path a run of the demo may replace."""
+        found = [self.out / f for f in FILES]
+        for d in DIRS:
+            p = self.out / d
+            found += sorted(x for x in p.rglob("*") if not x.is_dir()) if p.is_dir() and not p.is_symlink() else [p]
+        return [p for p in found if p.exists() or p.is_symlink()]
+
+    def check(self, force: bool) -> None:
+        """Refuse (without ``force``) an existing output that an earlier demo did not write as it is now.
+
+        Raises
+        ------
+        usvlog.errors.OutputExistsError
+            Naming the first such file.
+        """
+        if force:
+            return
+        for p in self.targets():
+            rel = self._rel(p)
+            if p.is_symlink() or not p.is_file() or self.files.get(rel) != _sha256(p):
+                raise OutputExistsError(f"{p}: output exists and is not a file an earlier usvlog demo wrote "
+                                        f"(not in {self.out / MARKER} with this content; use --force to overwrite)")
+
+    def claim(self, *names: str) -> None:
+        """Record the files (or every file under the directories) ``names`` as the demo's own."""
+        from ..io.atomic import write_text_atomic  # the standard library only, kept out of --help's imports
+
+        for name in names:
+            p = self.out / name
+            for f in sorted(x for x in p.rglob("*") if x.is_file()) if p.is_dir() else [p]:
+                self.files[self._rel(f)] = _sha256(f)
+        self.files = {k: v for k, v in self.files.items() if (self.out / k).is_file()}
+        text = json.dumps({"written_by": "usvlog demo", "files": dict(sorted(self.files.items()))}, indent=1)
+        write_text_atomic(self.out / MARKER, text + "\n", force=True)
 
 
 class _Stages:
@@ -45,6 +126,8 @@ def run(args) -> int:
     settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)  # checked first
     if out.exists() and not out.is_dir():
         raise StorageError(f"{out}: output is not a directory")
+    own = Owned(out)
+    own.check(args.force)  # before any work: outputs that are not the demo's own need --force
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -53,22 +136,29 @@ def run(args) -> int:
     raw = out / "excitation.mcap"
     step(f"simulate: excitation run, {args.duration_s:.0f} s, 0.2 m/s current -> {raw}")
     write_log(simulate("excitation", settings, seed=args.seed), raw, force=True)
+    own.claim("excitation.mcap")
     step("inspect")
     log = read_log(raw)
     print(format_summary(summarize(log)))
     _import_stage(log, out, step)
+    own.claim("merged.csv", "imported.mcap")
     est_path = out / "estimate.mcap"
     step(f"estimate: dynamic model + current, EKF + RTS smoother -> {est_path}")
     result = estimate(log, EstimateSettings(model="dynamic"))
     print(result.report.format())
     log = result.to_log(log)
     write_log(log, est_path, force=True)
+    own.claim("estimate.mcap")
     step(f"export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
+    own.claim("csv")
     step("identify: output error on the simulated run (true vs identified)")
     identify_stage(read_log(raw), out)
+    own.claim("identified.toml")
     circle_replay = _control_stages(out, step)
+    own.claim("paper-circle.mcap", "paper-circle-replay.mcap")
     _view_stages(out, step, excitation=log, circle=circle_replay)
+    own.claim("demo.rrd", "estimate.rrd", "report")
     stage(f"done: results in {out}/")
     return 0
 

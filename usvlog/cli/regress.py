@@ -17,6 +17,7 @@ def register(sub) -> None:
     p.add_argument("paths", nargs="*", help="scenario files or directories (default: the shipped replay/)")
     p.add_argument("--update", action="store_true", help="accept the current metrics as the new baselines")
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML for a CI system")
+    p.add_argument("--force", action="store_true", help="overwrite an existing --junit file")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=1, help="scenarios run in this many parallel processes (default 1)")
     p.set_defaults(func=run)
@@ -68,8 +69,8 @@ def run(args) -> int:
             if bar["done"] == bar["total"]:
                 bar["bar"].close()
 
-    outcomes = api.regress(args.paths, update=args.update, junit=args.junit, jobs=args.jobs, progress=stage,
-                           on_start=start, on_outcome=done)
+    outcomes = api.regress(args.paths, update=args.update, junit=args.junit, force=args.force, jobs=args.jobs,
+                           progress=stage, on_start=start, on_outcome=done)
     if args.json:
         print_json({"scenarios": [o.to_dict() for o in outcomes],
                     "failed": any(o.failed for o in outcomes)})

@@ -1,9 +1,16 @@
-"""Atomic outputs: write to a temporary file beside the target, fsync, rename."""
+"""Atomic outputs: write to a temporary file beside the target, fsync, rename.
+
+The temporary files are named ``.NAME.<random>.tmp`` beside the output (directories:
+``.NAME.<random>.tmp/``). They are removed on every exit the process survives: an error, Ctrl-C,
+or SIGTERM/SIGHUP (which the command line turns into an exception, so the clean-up runs).
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
+import signal
 import tempfile
 from pathlib import Path
 
@@ -47,15 +54,36 @@ def check_output(path, force: bool, *, parent: bool = False) -> Path:
         If ``path`` is a directory, or (``parent``) its directory does not exist.
     """
     p = Path(path)
-    if p.exists() and not force:
-        raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
-    if p.exists() and p.is_dir():
+    if p.is_dir():  # said first: --force would not help
         raise StorageError(f"{p}: output is a directory")
+    if (p.exists() or p.is_symlink()) and not force:
+        raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
     if parent:
         d = p.parent if str(p.parent) else Path(".")
         if not d.is_dir():
             raise StorageError(f"{p}: directory {d} does not exist")
     return p
+
+
+_DEFERRED = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+@contextlib.contextmanager
+def deferred_signals():
+    """Hold SIGINT, SIGTERM and SIGHUP back while the block runs; they are handled right after it.
+
+    For the few steps that must not be cut in two: creating a temporary file and recording
+    its name (so the clean-up knows it), swapping directories, stopping child processes.
+    Blocks them in the calling thread only; a no-op where signals cannot be blocked (Windows).
+    """
+    if not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _umask() -> int:
@@ -93,13 +121,15 @@ def atomic_path(path, *, force: bool = False):
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise StorageError(f"{p}: directory {parent} does not exist")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
-    except OSError as err:
-        raise StorageError(f"{p}: cannot create output ({err.strerror})") from err
-    os.close(fd)
     ok = False
+    tmp = None
     try:
+        with deferred_signals():  # a signal cannot land between creating the file and knowing its name
+            try:
+                fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
+            except OSError as err:
+                raise StorageError(f"{p}: cannot create output ({err.strerror})") from err
+            os.close(fd)
         yield Path(tmp)
         try:
             with open(tmp, "rb+") as fh:
@@ -114,7 +144,7 @@ def atomic_path(path, *, force: bool = False):
             raise StorageError(f"{p}: cannot write output ({err.strerror or err})") from err
         ok = True
     finally:
-        if not ok:
+        if not ok and tmp is not None:  # any exit: error, Ctrl-C, SIGTERM turned into an exception
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
 
@@ -128,3 +158,72 @@ def write_bytes_atomic(path, data: bytes, *, force: bool = False) -> None:
 def write_text_atomic(path, text: str, *, force: bool = False) -> None:
     """Write ``text`` (UTF-8) to ``path`` atomically (see :func:`atomic_path` for errors)."""
     write_bytes_atomic(path, text.encode(), force=force)
+
+
+@contextlib.contextmanager
+def atomic_dir(path, *, force: bool = False):
+    """Yield a temporary directory; on success it takes the place of ``path`` (complete or absent).
+
+    The directory is built as a hidden sibling ``.NAME.<random>.tmp`` and renamed into place
+    at the end, so a failed or killed writer never leaves a half-written ``path``. An existing
+    ``path`` (``force`` only) is first renamed aside and removed once the new one is in place;
+    between the two renames ``path`` is briefly absent, never half-written.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Final directory.
+    force : bool, default False
+        Allow replacing an existing directory (its whole content is replaced).
+
+    Yields
+    ------
+    pathlib.Path
+        Empty temporary directory beside ``path``; write the outputs there.
+
+    Raises
+    ------
+    usvlog.errors.OutputExistsError
+        If ``path`` exists (or appears meanwhile) and ``force`` is False.
+    usvlog.errors.StorageError
+        If ``path`` is a file, its parent is missing, or the directory cannot be written.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise StorageError(f"{p}: output is not a directory")
+    if p.exists() and not force:
+        raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise StorageError(f"{p}: directory {parent} does not exist")
+    ok = False
+    tmp = old = None
+    try:
+        with deferred_signals():
+            try:
+                tmp = tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".tmp", dir=parent)
+            except OSError as err:
+                raise StorageError(f"{p}: cannot create directory ({err.strerror})") from err
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes 0700; outputs get the usual mode
+        yield Path(tmp)
+        try:
+            with deferred_signals():  # the swap is not cut in two by Ctrl-C or SIGTERM
+                if p.exists():
+                    if not force:
+                        raise OutputExistsError(f"{p}: output exists (use --force to overwrite)")
+                    old = tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".old.tmp", dir=parent)
+                    os.replace(p, Path(old) / p.name)
+                os.replace(tmp, p)
+                ok = True
+        except OSError as err:
+            if isinstance(err, OutputExistsError):
+                raise
+            raise StorageError(f"{p}: cannot write output ({err.strerror or err})") from err
+    finally:
+        if not ok and tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+        if old is not None:
+            if not ok and not p.exists():  # the swap failed half-way: the old directory goes back
+                with contextlib.suppress(OSError):
+                    os.replace(Path(old) / p.name, p)
+            shutil.rmtree(old, ignore_errors=True)

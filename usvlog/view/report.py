@@ -14,6 +14,7 @@ Figures whose channels the log lacks are left out and listed as such on the page
 
 from __future__ import annotations
 
+import contextlib
 import html
 import io
 import json
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, OutputExistsError, StorageError
-from ..io.atomic import atomic_path, write_text_atomic
+from ..io.atomic import atomic_dir, atomic_path, deferred_signals
 from ..log.fieldlog import FieldLog, format_time
 from ..model.frames import ssa
 from . import data as vd
@@ -345,7 +346,13 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
     Figures in the style of the paper's Fig. 1, 2, 4 and 5 and the identification fit
     are drawn from whatever channels the log holds (positions in m, speeds in m/s,
     angles in degrees, time in s from the start); figures it cannot draw are listed on
-    the page with the channels they need. Every file is written atomically.
+    the page with the channels they need.
+
+    The report is complete or absent: every figure is rendered first, then a new ``out_dir``
+    (or one holding only an earlier report) is built as a hidden sibling directory and
+    renamed into place. A directory that also holds other files keeps them: the report's
+    files are written to temporary files there and renamed together at the end (figures an
+    earlier report drew and this one does not are removed).
 
     Parameters
     ----------
@@ -410,16 +417,38 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
             continue
         pngs.append((name, _render(fig)))
         shown.append((name, caption))
+    page_text = _html(log, baseline, shown, missing, AXES_NOTE[axes])
     try:
-        out.mkdir(parents=True, exist_ok=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
-        raise StorageError(f"{out}: cannot create directory ({err.strerror})") from err
-    for name, data in pngs:
-        with atomic_path(out / name, force=force) as tmp:
-            Path(tmp).write_bytes(data)
-    page = out / PAGE
-    write_text_atomic(page, _html(log, baseline, shown, missing, AXES_NOTE[axes]), force=force)
-    return page
+        raise StorageError(f"{out}: cannot create directory {out.parent} ({err.strerror})") from err
+    if not out.exists() or _only_report_files(out):
+        # ownership and --force were checked above: an existing directory holds only a report
+        with atomic_dir(out, force=True) as tmp:
+            for name, data in pngs:
+                (tmp / name).write_bytes(data)
+            (tmp / PAGE).write_text(page_text, encoding="utf-8")
+        return out / PAGE
+    with contextlib.ExitStack() as stack:  # a shared directory: every file to a temporary first
+        tmps = [(stack.enter_context(atomic_path(out / name, force=force)), data) for name, data in pngs]
+        tmps.append((stack.enter_context(atomic_path(out / PAGE, force=force)), page_text.encode()))
+        for tmp, data in tmps:
+            tmp.write_bytes(data)
+        with deferred_signals():  # then all renamed together, stale figures of an earlier report removed
+            for name in FIGURES:
+                if name not in dict(pngs):
+                    with contextlib.suppress(FileNotFoundError):
+                        (out / name).unlink()
+            stack.close()
+    return out / PAGE
+
+
+def _only_report_files(out: Path) -> bool:
+    """True when ``out`` is a real directory holding nothing but a report's files (so it may be replaced)."""
+    if out.is_symlink() or not out.is_dir():
+        return False
+    names = {PAGE, *FIGURES}
+    return all(e.name in names and e.is_file() for e in out.iterdir())
 
 
 def _html(log, baseline, shown, missing, axes_note: str) -> str:

@@ -19,6 +19,7 @@ Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep ever
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import re
@@ -34,8 +35,9 @@ import pandas as pd
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..io.atomic import atomic_path, check_output
+from ..io.atomic import deferred_signals as _deferred
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, ned_to_geodetic
 from . import data as vd
@@ -575,43 +577,186 @@ def viewer_command(rrd_path, *, serve: bool = False, host: str = DEFAULT_HOST, p
                    grpc_port: int | None = None) -> list[str]:
     """The ``rerun`` command that opens (or serves to a browser) an .rrd file.
 
-    Serving binds ``host`` (127.0.0.1 unless given); ``port`` is the web viewer's HTTP port,
-    ``grpc_port`` the data server's port.
+    Both the native viewer and the server bind ``host`` (127.0.0.1 unless given; rerun's own
+    default is every interface, 0.0.0.0). ``port`` is the web viewer's HTTP port (``serve``
+    only) and ``grpc_port`` the data server's port (the native viewer's is 9876).
+
+    Parameters
+    ----------
+    rrd_path : str or os.PathLike
+        The recording.
+    serve : bool, default False
+        Serve a web viewer and the data instead of opening the native viewer.
+    host : str, default "127.0.0.1"
+        Address every listening socket binds.
+    port, grpc_port : int, optional
+        TCP ports (default: rerun's, 9090 and 9876).
+
+    Returns
+    -------
+    list of str
+        The command (see :func:`rerun_executable`).
     """
-    cmd = [sys.executable, "-m", "rerun"]
+    cmd = [*rerun_executable(), "--bind", host]
     if serve:
-        cmd += ["--serve-web", "--bind", host]
+        cmd.append("--serve-web")
         if port is not None:
             cmd += ["--web-viewer-port", str(int(port))]
-        if grpc_port is not None:
-            cmd += ["--port", str(int(grpc_port))]
+    if grpc_port is not None:
+        cmd += ["--port", str(int(grpc_port))]
     cmd.append(str(rrd_path))
     return cmd
 
 
-def spawn_viewer(rrd_path) -> subprocess.Popen:
-    """Open the native viewer on an .rrd file (returns at once)."""
-    return subprocess.Popen(viewer_command(rrd_path), start_new_session=True)
+def rerun_executable() -> list[str]:
+    """The rerun viewer binary shipped with rerun-sdk, found as its ``rerun`` launcher finds it.
+
+    Run directly (not through the Python launcher, which would start it as a grandchild), so the
+    process started is the viewer or server itself. Falls back to ``python -m rerun_cli``.
+    """
+    import importlib.util  # only to locate the binary
+
+    if os.environ.get("RERUN_CLI_PATH"):
+        return [os.environ["RERUN_CLI_PATH"]]
+    spec = importlib.util.find_spec("rerun_cli")
+    if spec is not None and spec.submodule_search_locations:
+        pkg = Path(list(spec.submodule_search_locations)[0])
+        exe = ".exe" if sys.platform.startswith("win") else ""
+        for cand in (pkg / "Rerun.app" / "Contents" / "MacOS" / "Rerun", pkg / f"rerun{exe}"):
+            if cand.is_file() and os.access(cand, os.X_OK):
+                return [str(cand)]
+    return [sys.executable, "-m", "rerun_cli"]
+
+
+def display_missing(environ=None, platform: str | None = None) -> bool:
+    """True on a Linux/BSD machine without a graphical session (neither DISPLAY nor WAYLAND_DISPLAY set).
+
+    macOS and Windows always have a display for the native viewer.
+    """
+    env = os.environ if environ is None else environ
+    plat = sys.platform if platform is None else platform
+    if plat.startswith(("win", "darwin", "cygwin")):
+        return False
+    return not (env.get("DISPLAY") or env.get("WAYLAND_DISPLAY"))
+
+
+def open_elsewhere(rrd_path) -> str:
+    """The command that opens ``rrd_path`` on a machine with a display (``rerun FILE.rrd``)."""
+    import shlex  # only for this message
+
+    return f"rerun {shlex.quote(str(rrd_path))}"
+
+
+def no_display_message(rrd_path) -> str:
+    """The one-line error of ``--spawn`` without a display: where the recording is and how to open it."""
+    return (f"--spawn: no display here (DISPLAY and WAYLAND_DISPLAY are unset), no viewer started; the recording "
+            f"is {rrd_path}: open it on a machine with a display with `{open_elsewhere(rrd_path)}`, or serve it "
+            f"to a browser with --serve")
+
+
+def spawn_viewer(rrd_path, *, host: str = DEFAULT_HOST, grpc_port: int | None = None,
+                 check_s: float = 2.0) -> subprocess.Popen:
+    """Open the native viewer on an .rrd file, bound to ``host`` (127.0.0.1); it outlives this process.
+
+    Parameters
+    ----------
+    rrd_path : str or os.PathLike
+        The recording.
+    host : str, default "127.0.0.1"
+        Address the viewer's data server binds.
+    grpc_port : int, optional
+        Its port (default 9876).
+    check_s : float, default 2.0
+        Seconds to watch for a viewer that fails at once (its own messages then come before
+        this error, not after the shell's prompt).
+
+    Returns
+    -------
+    subprocess.Popen
+        The viewer (in its own session).
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If there is no display (nothing is started: the message names the file and the command
+        that opens it elsewhere), or the viewer exits with an error within ``check_s``.
+    """
+    if display_missing():
+        raise ConfigError(no_display_message(rrd_path))
+    proc = subprocess.Popen(viewer_command(rrd_path, host=host, grpc_port=grpc_port), start_new_session=True)
+    try:
+        rc = proc.wait(timeout=check_s)
+    except subprocess.TimeoutExpired:
+        return proc
+    if rc != 0:
+        raise ConfigError(f"--spawn: the Rerun viewer stopped at once (exit code {rc}, its messages are above); "
+                          f"the recording is {rrd_path}: open it with `{open_elsewhere(rrd_path)}`")
+    return proc  # it handed the file to a viewer already running, or the window was closed
 
 
 def serve(rrd_path, *, host: str = DEFAULT_HOST, port: int | None = None, grpc_port: int | None = None) -> int:
     """Serve an .rrd file to a browser viewer until interrupted; returns the exit code.
 
-    ``python -m rerun`` starts the viewer binary as a child, so the server runs in its own
-    process group and the whole group is stopped on Ctrl-C.
+    The server runs in its own process group, and however this call ends (the server exits,
+    Ctrl-C, SIGTERM or SIGHUP turned into an exception by the CLI, an error) the whole group is
+    stopped: SIGTERM, then SIGKILL after 10 s. Ctrl-C is the normal way to stop and returns 0;
+    an interruption carrying a ``signum`` attribute (the CLI's ``Terminated``) propagates after
+    the clean-up.
+
+    Parameters
+    ----------
+    rrd_path : str or os.PathLike
+        The recording.
+    host : str, default "127.0.0.1"
+        Address the web viewer and the data server bind.
+    port, grpc_port : int, optional
+        HTTP port of the web viewer (default 9090) and port of the data server (default 9876).
+
+    Returns
+    -------
+    int
+        The server's exit code, or 0 when stopped with Ctrl-C.
     """
-    proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port),
-                            start_new_session=True)
-    try:
+    proc = None
+    try:  # not under deferred signals: the child would inherit the blocked mask
+        proc = subprocess.Popen(viewer_command(rrd_path, serve=True, host=host, port=port, grpc_port=grpc_port),
+                                start_new_session=True)
         return proc.wait()
-    except KeyboardInterrupt:
-        os.killpg(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
+    except KeyboardInterrupt as err:
+        if getattr(err, "signum", None) is not None:
+            raise
         return 0
+    finally:
+        if proc is not None:
+            _stop_group(proc)
 
 
-__all__ = ["to_rrd", "build_blueprint", "viewer_command", "spawn_viewer", "serve", "default_names",
+def _stop_group(proc: subprocess.Popen, grace_s: float = 10.0) -> None:
+    """Stop every process of ``proc``'s group (SIGTERM, then SIGKILL) and wait, bounded, until it is gone."""
+    import time  # only on the way out
+
+    with _deferred():  # a second Ctrl-C or SIGTERM does not cut the clean-up short
+        for sig, wait_s in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 5.0)):
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                break
+            except PermissionError:  # pragma: no cover - a pid reused by another user's process
+                break
+            deadline = time.monotonic() + wait_s
+            while time.monotonic() < deadline:
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(timeout=0.05)  # reaps the server (or the launcher of the fallback command)
+                try:
+                    os.killpg(proc.pid, 0)
+                except ProcessLookupError:
+                    return
+                time.sleep(0.05)
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=1.0)
+
+
+__all__ = ["to_rrd", "build_blueprint", "viewer_command", "display_missing", "no_display_message",
+           "open_elsewhere", "spawn_viewer",
+           "serve", "default_names",
            "OVERLAY_HZ", "math"]
