@@ -203,7 +203,8 @@ def inspect(log) -> LogSummary:
     return summarize(_read(log))
 
 
-def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False) -> list[Path]:
+def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False,
+           progress: Progress = None) -> list[Path]:
     """Write each channel of a log to ``out/<topic>.csv`` or ``.parquet`` (``usvlog export``).
 
     Parameters
@@ -216,6 +217,8 @@ def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False) -> list
         ``"csv"`` (default) or ``"parquet"`` (``--format``).
     force : bool
         Replace existing files (every output is checked before the first is written).
+    progress : callable, optional
+        Receives the one-line damage report of a damaged input file.
 
     Returns
     -------
@@ -225,7 +228,7 @@ def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False) -> list
     """
     from .io.export import export_log  # heavy: pandas
 
-    return export_log(_read(log), out, fmt=fmt, force=force)
+    return export_log(_read(log, progress), out, fmt=fmt, force=force)
 
 
 # -----------------------------------------------------------------------------

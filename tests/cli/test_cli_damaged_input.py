@@ -60,3 +60,12 @@ def test_regress_fails_on_a_damaged_dataset(damaged, tmp_path, capsys):
     captured = capsys.readouterr()
     assert rc == 1, captured
     assert "input damaged" in captured.out + captured.err
+
+
+@pytest.mark.parametrize("verb", ["export", "view", "report"])
+def test_other_verbs_say_the_input_is_damaged(damaged, tmp_path, capsys, verb):
+    _good, bad = damaged
+    out = tmp_path / ("o.rrd" if verb == "view" else "o")
+    assert main([verb, str(bad), "--out", str(out)]) == 0
+    lines = [x for x in capsys.readouterr().err.splitlines() if "input damaged" in x]
+    assert len(lines) == 1 and "1 chunk(s) lost" in lines[0]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .common import stage
+
 
 def register(sub) -> None:
     p = sub.add_parser("export", help="export each channel of a log to CSV or Parquet")
@@ -15,6 +17,6 @@ def register(sub) -> None:
 def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
 
-    for path in api.export(args.log, args.out, fmt=args.format, force=args.force):
+    for path in api.export(args.log, args.out, fmt=args.format, force=args.force, progress=stage):
         print(path)
     return 0
