@@ -96,12 +96,17 @@ class Recorder(LineInput):
         Bytes after which mcap closes a chunk by itself.
     producer : str
         Provenance ``producer``.
+    clock : tuple of int, optional
+        ``(time.time_ns(), time.monotonic_ns())`` read together: where the receive clock
+        starts (``usvlog record`` passes the moment its first source was opened, so data
+        read before the recorder existed keeps its read time). Default: now.
     """
 
     def __init__(self, path, *, vessel=None, datum: Datum | None = None, flush_s: float = 1.0,
                  rotate_mb: float | None = None, rotate_min: float | None = None, force: bool = False,
                  sources: dict[str, str] | None = None, compression: str = "zstd",
-                 chunk_size: int = 1 << 20, producer: str = "usvlog record"):
+                 chunk_size: int = 1 << 20, producer: str = "usvlog record",
+                 clock: tuple[int, int] | None = None):
         if not (0.01 <= flush_s <= 60.0):
             raise ConfigError(f"flush_s {flush_s} out of range [0.01, 60]")
         if rotate_mb is not None and not rotate_mb > 0:
@@ -124,8 +129,7 @@ class Recorder(LineInput):
                           "compression": compression}
         self.run_id = uuid.uuid4().hex
         self._lock = threading.RLock()
-        self._utc0 = time.time_ns()
-        self._mono0 = time.monotonic_ns()
+        self._utc0, self._mono0 = clock if clock is not None else (time.time_ns(), time.monotonic_ns())
         self._started_utc = format_time(self._utc0)
         self._codecs = {}
         self._seq: dict[str, int] = {}
@@ -147,6 +151,21 @@ class Recorder(LineInput):
     def now_ns(self) -> int:
         """Receive time: the monotonic clock mapped to UTC at start (ns since the epoch)."""
         return self._utc0 + (time.monotonic_ns() - self._mono0)
+
+    def receive_ns(self, monotonic_ns: int) -> int:
+        """The receive time of a read made at ``monotonic_ns`` (a ``time.monotonic_ns()`` value).
+
+        Parameters
+        ----------
+        monotonic_ns : int
+            When the data was read, on the monotonic clock (ns).
+
+        Returns
+        -------
+        int
+            ns since the Unix epoch on the receive clock (:meth:`now_ns` at that moment).
+        """
+        return self._utc0 + (int(monotonic_ns) - self._mono0)
 
     # -- files ---------------------------------------------------------------------
     @property
