@@ -170,6 +170,12 @@ class PartWriter:
         os.fsync(self._fh.fileno())
 
     def fileno(self) -> int:
+        """The current part's file descriptor (the flush thread fsyncs it outside the lock).
+
+        Returns
+        -------
+        int
+        """
         return self._fh.fileno()
 
     def size(self) -> int:

@@ -67,6 +67,12 @@ class RecorderStatus:
         return " | ".join(parts)
 
     def to_dict(self) -> dict:
+        """JSON-ready dict of the status (times in s, sizes in bytes, positions in degrees).
+
+        Returns
+        -------
+        dict
+        """
         d = {k: getattr(self, k) for k in ("elapsed_s", "path", "file_bytes", "messages_written", "fix_age_s",
                                           "satellites", "hdop", "fix_quality", "error")}
         d["files"] = list(self.files)
@@ -101,6 +107,13 @@ class SourceState:
         self._last_messages = self.messages
 
     def snapshot(self) -> SourceStatus:
+        """The counters now, frozen.
+
+        Returns
+        -------
+        SourceStatus
+            With the clock offset (receive minus sensor time) in s, None until known.
+        """
         est = self.offset.estimate()
         return SourceStatus(self.name, self.messages, self.garbage, self.dropped, self.rate_hz,
                             None if est is None else est.offset_ns / 1e9)
