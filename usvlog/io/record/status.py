@@ -96,13 +96,25 @@ class SourceState:
     fixes: FixSelector = field(default_factory=FixSelector)  # one fix per epoch from its NMEA sentences
 
     def count(self, garbage: bool = False) -> None:
-        """One more message (``garbage``: malformed)."""
+        """One more message.
+
+        Parameters
+        ----------
+        garbage : bool
+            It was malformed.
+        """
         self.messages += 1
         if garbage:
             self.garbage += 1
 
     def update_rate(self, dt_s: float) -> None:
-        """Messages per second since the last update, ``dt_s`` seconds ago."""
+        """Messages per second since the last update.
+
+        Parameters
+        ----------
+        dt_s : float
+            Time since the last update, s.
+        """
         self.rate_hz = (self.messages - self._last_messages) / dt_s
         self._last_messages = self.messages
 
