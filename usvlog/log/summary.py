@@ -313,7 +313,17 @@ class TimeStats:
 
 
 def skipped_counts(log: FieldLog) -> dict:
-    """Records skipped at import, summed over the provenance records: {what: count}."""
+    """Records skipped at import, summed over the log's provenance records.
+
+    Parameters
+    ----------
+    log : FieldLog
+
+    Returns
+    -------
+    dict
+        {what: count}.
+    """
     return skipped_from_provenance(log.provenance)
 
 
@@ -374,7 +384,19 @@ def summarize(log: FieldLog) -> LogSummary:
 
 
 def format_summary(s: LogSummary) -> str:
-    """Human-readable multi-line text of a :class:`LogSummary` (times in UTC, durations in s)."""
+    """Human-readable multi-line text of a summary.
+
+    Parameters
+    ----------
+    s : LogSummary
+
+    Returns
+    -------
+    str
+        Times in UTC, durations in s, rates in Hz; a damaged file gets a ``DAMAGED FILE:``
+        line with the one-line report (:meth:`usvlog.log.fieldlog.RecoveryReport.one_line`)
+        and the details under it, trailing bytes included.
+    """
     lines = []
     if s.source:
         lines.append(f"file      {s.source}")
