@@ -630,3 +630,40 @@ def test_backlog_read_before_attach_keeps_read_times_and_order(tmp_path):
     assert th.left.tolist() == list(range(20))
     late_ms = (th.index.to_numpy() - np.array(sent_ns)) / 1e6
     assert late_ms.max() < 100.0 and late_ms.min() > -1.0     # not the 500 ms the recorder was away
+
+
+_PROBE_BIND_ORDER = r"""
+import socket, sys, threading
+port = int(sys.argv[1])
+seen = {}
+
+class Probe:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy" and "numpy" not in seen:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                s.bind(("127.0.0.1", port))
+                seen["numpy"] = "port free"
+            except OSError:
+                seen["numpy"] = "port bound"
+            finally:
+                s.close()
+            seen["readers"] = sorted(t.name for t in threading.enumerate() if t.name.startswith("usvlog-source"))
+        return None
+
+sys.meta_path.insert(0, Probe())
+from usvlog.cli import main
+rc = main(["record", "--out", sys.argv[2], "--thrust", f"udp://127.0.0.1:{port}", "--duration-s", "0.3"])
+print(seen, rc)
+"""
+
+
+def test_record_binds_and_reads_its_sockets_before_numpy_is_imported(tmp_path):
+    """When ``usvlog record`` first imports numpy its UDP port is already bound and its reader
+    thread running (checked from an import hook, deterministically)."""
+    port = free_udp_port()
+    r = subprocess.run([sys.executable, "-c", _PROBE_BIND_ORDER, str(port), str(tmp_path / "p.mcap")],
+                       capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "{'numpy': 'port bound', 'readers': ['usvlog-source-thrust']} 0"
