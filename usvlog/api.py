@@ -185,6 +185,11 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
 def inspect(log) -> LogSummary:
     """What is in a log: channels, counts, rates, time range, gaps, damage (``usvlog inspect``).
 
+    An MCAP file is read a chunk at a time (:func:`usvlog.io.mcap.reader.iter_chunks`: every
+    chunk's CRC checked, recovery past damage as :func:`load` does) and only its time stamps
+    are looked at, so memory stays bounded (about 200 MB) whatever the file's size; payloads
+    are not decoded (a message that does not fit its schema is reported by :func:`load`).
+
     Parameters
     ----------
     log : FieldLog or path
@@ -196,11 +201,80 @@ def inspect(log) -> LogSummary:
         Per channel: count, nominal rate (Hz), first/last time (ns), duration (s), gaps longer
         than 3 periods, backwards and repeated time stamps; plus metadata, recovery and
         skipped-record counts. ``format_summary`` of :mod:`usvlog.log.summary` prints it,
-        ``to_dict()`` gives the JSON form.
+        ``to_dict()`` gives the JSON form; ``recovery["nothing_recovered"]`` marks a damaged
+        file with nothing in it (``usvlog inspect`` exits 1).
     """
+    if _is_path(log):
+        return _inspect_file(Path(log))
     from .log.summary import summarize  # heavy: numpy, pandas
 
-    return summarize(_read(log))
+    return summarize(log)
+
+
+def _inspect_file(path: Path) -> LogSummary:
+    """:func:`inspect` of an MCAP file, streamed: the same summary as ``summarize(load(path))``."""
+    import json
+
+    import numpy as np
+
+    # heavy: numpy, the MCAP reader
+    from .io.mcap.codec import codec_for_schema
+    from .io.mcap.reader import iter_chunks
+    from .log.channels import schema_for_topic
+    from .log.fieldlog import META_PROVENANCE
+    from .log.summary import LogSummary, TimeStats, skipped_from_provenance
+
+    def by_channel(chunk):
+        """(channel id, its times, its sequence numbers) in the chunk, in file order."""
+        cid = chunk.channel_id
+        ids = np.unique(cid)
+        if len(ids) == 1:
+            yield int(ids[0]), chunk.log_time_ns, chunk.sequence
+            return
+        order = np.argsort(cid, kind="stable")
+        cuts = np.searchsorted(cid[order], ids[1:])
+        for c, ix in zip(ids.tolist(), np.split(order, cuts)):
+            yield c, chunk.log_time_ns[ix], chunk.sequence[ix]
+
+    stats: dict[int, TimeStats] = {}
+    with iter_chunks(path) as stream:
+        for chunk in stream:
+            for c, t, seq in by_channel(chunk):
+                stats.setdefault(c, TimeStats()).add(t, seq)
+        channels, meta, recovery = stream.channels, stream.metadata, stream.recovery()
+    again = {c for c, st in stats.items() if st.needs_pass()}
+    if again:   # a median from a histogram, or stamps out of order: read the stamps once more
+        for c in again:
+            stats[c].start_pass()
+        with iter_chunks(path) as stream:
+            for chunk in stream:
+                for c, t, seq in by_channel(chunk):
+                    if c in again:
+                        stats[c].refine(t, seq)
+    by_topic = {}
+    for cid in sorted(channels):
+        ch = channels[cid]
+        if not ch.canonical:
+            continue  # not a canonical channel: load leaves it alone too
+        try:
+            schema = json.loads(ch.schema_data) if ch.schema_data else {"title": ch.schema_name, "properties": {}}
+            if not isinstance(schema, dict):
+                raise TypeError("not an object")
+            codec_for_schema(schema)
+        except (ValueError, TypeError, AttributeError) as err:
+            raise InputError(f"{path} channel {ch.topic}: schema {ch.schema_name} is not a usable JSON Schema "
+                             f"({err})") from err
+        title = schema.get("title", "") or (schema_for_topic(ch.topic) or {}).get("title", "")
+        by_topic[ch.topic] = stats.get(cid, TimeStats()).summary(ch.topic, title)
+    chans = tuple(by_topic[t] for t in sorted(by_topic))
+    firsts = [c.first_ns for c in chans if c.first_ns is not None]
+    lasts = [c.last_ns for c in chans if c.last_ns is not None]
+    first = min(firsts) if firsts else None
+    last = max(lasts) if lasts else None
+    prov_keys = sorted((k for k in meta if k.startswith(META_PROVENANCE + "/")), key=lambda k: int(k.rsplit("/", 1)[1]))
+    return LogSummary(str(path), chans, first, last, (last - first) / 1e9 if first is not None else 0.0,
+                      {k: dict(v) for k, v in meta.items()}, recovery.to_dict() if recovery else None,
+                      skipped_from_provenance([meta[k] for k in prov_keys]))
 
 
 def export(log, out: PathLike, *, fmt: str = "csv", force: bool = False,

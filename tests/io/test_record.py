@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import signal
 import socket
@@ -538,3 +539,131 @@ def test_tcp_source_reconnects_after_the_link_drops(tmp_path):
     assert np.allclose(log["/compass/heading"].heading_rad, ssa(np.radians(sent)))
     ev = log["/events"].text.tolist()
     assert sum("connected" in e for e in ev) >= 2 and sum("reconnecting" in e for e in ev) == 2
+
+
+# -----------------------------------------------------------------------------
+# start-up: the README's loopback recipe, sender started without waiting
+# -----------------------------------------------------------------------------
+
+def _recipe(tmp_path, duration_s: float, gnss_hz: float):
+    """``usvlog record ... &`` then at once the loopback boat, both as subprocesses (README
+    "Recording live"); the boat does not wait for the recorder to be ready."""
+    out = tmp_path / "run.mcap"
+    p_nmea, p_json = free_udp_port(), free_udp_port()
+    gnss, thrust = f"udp://127.0.0.1:{p_nmea}", f"udp://127.0.0.1:{p_json}"
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    rec = subprocess.Popen([sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", gnss,
+                            "--compass", gnss, "--thrust", thrust, "--duration-s", str(duration_s + 4)],
+                           cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        boat = subprocess.run([sys.executable, "-m", "usvlog.io.record.loopback", "--gnss", gnss, "--compass", gnss,
+                               "--thrust", thrust, "--duration-s", str(duration_s), "--gnss-hz", str(gnss_hz)],
+                              cwd=ROOT, env=env, capture_output=True, text=True, timeout=duration_s + 60)
+        _, err = rec.communicate(timeout=60)
+    finally:
+        if rec.poll() is None:
+            rec.kill()
+            rec.wait(10)
+    assert rec.returncode == 0, err
+    assert boat.returncode == 0, boat.stderr
+    m = re.search(r"sent (\d+) fixes \(GGA\+RMC\), (\d+) headings, (\d+) thrust", boat.stdout)
+    assert m is not None, boat.stdout
+    sent = [int(x) for x in m.groups()]
+    return read_log(out), sent
+
+
+def _check_recipe(log, sent, n_fixes):
+    assert log.recovery is None
+    assert sent[0] == n_fixes
+    assert len(log["/gnss/fix"]) >= n_fixes - 1                   # the target: >= 299 of 300
+    th = log["/thrust/command"]
+    assert len(th) >= sent[2] - 10                                # < 0.1 s of thrust at the very start
+    # the receive time of what arrived while the recorder was importing is not late:
+    # receive minus send time over the first 0.5 s of thrust
+    late_ms = (th.index.to_numpy()[:50] - th.stamp_ns.to_numpy()[:50]) / 1e6
+    assert np.median(late_ms) < 10.0 and late_ms.min() > -1.0
+
+
+def test_loopback_recipe_started_at_once_keeps_299_of_300_fixes(tmp_path):
+    log, sent = _recipe(tmp_path, 6.0, 50.0)      # 300 fixes in 6 s: the start-up is the hard part
+    _check_recipe(log, sent, 300)
+
+
+@pytest.mark.slow
+def test_readme_loopback_recipe_30s(tmp_path):
+    log, sent = _recipe(tmp_path, 30.0, 10.0)     # exactly the README's: 300 fixes at 10 Hz
+    _check_recipe(log, sent, 300)
+
+
+def test_sources_module_opens_sockets_with_the_standard_library_only():
+    code = ("import sys, usvlog.io.record.sources as s; src = s.open_sources(thrust='udp://127.0.0.1:0'); "
+            "[x.close() for x in src]; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'numpy', 'pandas', 'numba', 'mcap', 'orjson'}))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+
+
+def test_backlog_read_before_attach_keeps_read_times_and_order(tmp_path):
+    """A started source with no recorder yet keeps what it reads; attached, it hands it over in
+    order, stamped with the time each datagram arrived, not when the recorder got it."""
+    from usvlog.io.record.sources import open_sources, shutdown
+
+    src = open_sources(thrust="udp://127.0.0.1:0")
+    send = udp_target(src[0].address)
+    src[0].start()
+    sent_ns = []
+    for k in range(20):
+        sent_ns.append(time.time_ns())
+        send(b'{"left": %d, "right": 0}\n' % k)
+    time.sleep(0.5)                              # the recorder "imports": nothing attached yet
+    out = tmp_path / "b.mcap"
+    try:
+        with Recorder(out, clock=src[0].opened_ns) as rec:
+            src[0].attach(rec)
+            wait_for(lambda: rec.status().messages_written >= 20, 5, "the backlog to be written")
+            shutdown(src)
+    finally:
+        shutdown(src)
+    th = read_log(out)["/thrust/command"]
+    assert th.left.tolist() == list(range(20))
+    late_ms = (th.index.to_numpy() - np.array(sent_ns)) / 1e6
+    assert late_ms.max() < 100.0 and late_ms.min() > -1.0     # not the 500 ms the recorder was away
+
+
+_PROBE_BIND_ORDER = r"""
+import socket, sys, threading
+port = int(sys.argv[1])
+seen = {}
+
+class Probe:
+    def find_spec(self, name, path=None, target=None):
+        if name == "numpy" and "numpy" not in seen:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                s.bind(("127.0.0.1", port))
+                seen["numpy"] = "port free"
+            except OSError:
+                seen["numpy"] = "port bound"
+            finally:
+                s.close()
+            seen["readers"] = sorted(t.name for t in threading.enumerate() if t.name.startswith("usvlog-source"))
+        return None
+
+sys.meta_path.insert(0, Probe())
+from usvlog.cli import main
+rc = main(["record", "--out", sys.argv[2], "--thrust", f"udp://127.0.0.1:{port}", "--duration-s", "0.3"])
+print(seen, rc)
+"""
+
+
+def test_record_binds_and_reads_its_sockets_before_numpy_is_imported(tmp_path):
+    """When ``usvlog record`` first imports numpy its UDP port is already bound and its reader
+    thread running (checked from an import hook, deterministically)."""
+    port = free_udp_port()
+    r = subprocess.run([sys.executable, "-c", _PROBE_BIND_ORDER, str(port), str(tmp_path / "p.mcap")],
+                       capture_output=True, text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "{'numpy': 'port bound', 'readers': ['usvlog-source-thrust']} 0"

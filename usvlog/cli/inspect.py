@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import print_json
+from .common import print_json, stage
 
 
 def register(sub) -> None:
@@ -13,6 +13,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    """Print the summary (text or JSON); a damaged file's one-line report goes to stderr too.
+
+    Exit 1 when the file is damaged and nothing could be recovered from it (a valid
+    empty file exits 0).
+    """
     from .. import api  # heavy: imported only when the verb runs
     from ..log.summary import format_summary
 
@@ -21,4 +26,8 @@ def run(args) -> int:
         print_json(s.to_dict())
     else:
         print(format_summary(s))
+    if s.recovery:
+        stage(s.recovery["summary"])
+        if s.recovery["nothing_recovered"]:
+            return 1
     return 0

@@ -32,10 +32,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from ..io.config import load_vessel  # heavy: imported only when the verb runs
-    from ..io.record import record
+    """Open the sources and start reading them, then import the recorder and record.
 
-    vessel = load_vessel(args.vessel) if args.vessel else None
+    The sockets (and serial port) are opened and their reader threads started with
+    only the standard library loaded, so what arrives while numpy, pandas and the
+    MCAP writer import (about a second) waits in each source's backlog with the time
+    it was read (see :mod:`usvlog.io.record.sources`), instead of being lost.
+    """
+    # light: standard library only, so the sockets are bound before the heavy imports below
+    from ..io.record.sources import open_sources, shutdown
+
     stop = threading.Event()
 
     def _stop(signum, frame):
@@ -43,6 +49,18 @@ def run(args) -> int:
 
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, _stop)
+    sources = open_sources(args.gnss, args.compass, args.thrust)
+    for s in sources:
+        s.start()
+    try:
+        # heavy: numpy, pandas and the MCAP writer, imported while the sources read
+        from ..io.config import load_vessel
+        from ..io.record import record
+
+        vessel = load_vessel(args.vessel) if args.vessel else None
+    except BaseException:
+        shutdown(sources)
+        raise
     tty = sys.stderr.isatty()
     state = {"n": 0}
 
@@ -56,7 +74,7 @@ def run(args) -> int:
     try:
         summary = record(args.out, gnss=args.gnss, compass=args.compass, thrust=args.thrust, vessel=vessel,
                          rotate_mb=args.rotate_mb, rotate_min=args.rotate_min, duration_s=args.duration_s,
-                         force=args.force, flush_s=args.flush_s, stop=stop, on_status=on_status)
+                         force=args.force, flush_s=args.flush_s, stop=stop, on_status=on_status, sources=sources)
     finally:
         if tty:
             print(file=sys.stderr)

@@ -1,6 +1,8 @@
 """What is in a log: channels, counts, rates, time range, gaps, backwards steps, damage.
 
-Pure: takes a FieldLog, returns a LogSummary (``to_dict()`` for ``--json``).
+Pure: takes a FieldLog, returns a LogSummary (``to_dict()`` for ``--json``); or, for a
+file too big to load, :class:`TimeStats` builds each channel's summary from its time
+stamps a chunk at a time (``usvlog.api.inspect`` streams an MCAP file through it).
 """
 
 from __future__ import annotations
@@ -113,10 +115,233 @@ def summarize_channel(topic: str, schema: str, t_ns: np.ndarray, max_gaps: int =
                           float(t.max() - t.min()) / 1e9, tuple(gaps), backwards, dups)
 
 
+_KEY_BITS = 12                      # a histogram bin is 2**-12 of its values wide (relative)
+_POW2 = np.int64(1) << np.arange(63, dtype=np.int64)
+
+
+def _bin_key(v: np.ndarray) -> np.ndarray:
+    """Histogram bin of positive int64 values, increasing with the value: (bit length, the
+    top ``_KEY_BITS + 1`` bits)."""
+    bits = np.searchsorted(_POW2, v, side="right").astype(np.int64)       # bit length, exact
+    shift = np.maximum(bits - (_KEY_BITS + 1), 0)
+    return (bits << (_KEY_BITS + 2)) | (v >> shift)
+
+
+def _merge_counts(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted distinct values and their summed counts of several (values, counts) pairs."""
+    if not parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    v = np.concatenate([p[0] for p in parts])
+    c = np.concatenate([p[1] for p in parts])
+    u, inv = np.unique(v, return_inverse=True)
+    return u, np.bincount(inv, weights=c, minlength=len(u)).astype(np.int64)
+
+
+class TimeStats:
+    """One channel's :class:`ChannelSummary`, built from its time stamps a batch at a time.
+
+    Gives exactly what :func:`summarize_channel` gives for all the stamps at once, keeping
+    only counters, the 20 longest intervals and the positive intervals as distinct values
+    with counts (for the median: few for a regular channel). When those pass
+    ``max_distinct`` they become a histogram (bins 2**-12 of their values wide) and the
+    median needs a second pass over the data (:meth:`needs_pass`, :meth:`refine`). Stamps
+    must come in recorded (sequence) order; a batch whose sequence numbers go back makes
+    the channel's second pass collect all its stamps (:meth:`needs_pass` is "all").
+
+    Parameters
+    ----------
+    max_distinct : int
+        Distinct positive intervals kept before the histogram takes over.
+    max_gaps : int
+        Gaps kept (the longest), as in :func:`summarize_channel`.
+    """
+
+    def __init__(self, max_distinct: int = 1 << 18, max_gaps: int = 20):
+        self.max_distinct = int(max_distinct)
+        self.max_gaps = int(max_gaps)
+        self.count = 0
+        self.t_min: int | None = None
+        self.t_max: int | None = None
+        self.backwards = 0
+        self.duplicates = 0
+        self._last_t: int | None = None
+        self._last_seq: int | None = None
+        self._pairs = 0                                   # intervals seen so far
+        self._top = (np.zeros(0, np.int64),) * 3          # the longest intervals: dt, pair index, start time
+        self._parts: list[tuple[np.ndarray, np.ndarray]] = []
+        self._distinct = 0
+        self._hist: tuple[np.ndarray, np.ndarray] | None = None   # bin keys, counts (histogram mode)
+        self.ordered = True
+        self._want: np.ndarray | None = None              # second pass: bins whose values are needed
+        self._exact: list[tuple[np.ndarray, np.ndarray]] = []
+        self._all: list[tuple[np.ndarray, np.ndarray]] = []   # second pass, unordered: (seq, t)
+
+    # -- first pass ----------------------------------------------------------------------
+    def add(self, t_ns: np.ndarray, seq: np.ndarray | None = None) -> None:
+        """The next stamps of the channel in recorded order.
+
+        Parameters
+        ----------
+        t_ns : array_like of int
+            Message times, ns since the Unix epoch.
+        seq : array_like of int, optional
+            Their sequence numbers (checked to be in order).
+        """
+        t = np.asarray(t_ns, dtype=np.int64)
+        if not len(t):
+            return
+        if seq is not None and self.ordered:
+            q = np.asarray(seq, dtype=np.int64)
+            if (self._last_seq is not None and q[0] < self._last_seq) or (np.diff(q) < 0).any():
+                self.ordered = False
+            self._last_seq = int(q[-1])
+        self.count += len(t)
+        lo, hi = int(t.min()), int(t.max())
+        self.t_min = lo if self.t_min is None else min(self.t_min, lo)
+        self.t_max = hi if self.t_max is None else max(self.t_max, hi)
+        if not self.ordered:
+            return
+        full = t if self._last_t is None else np.concatenate(([self._last_t], t))
+        self._last_t = int(t[-1])
+        dt = np.diff(full)
+        if not len(dt):
+            return
+        self.backwards += int(np.sum(dt < 0))
+        self.duplicates += int(np.sum(dt == 0))
+        idx = np.arange(self._pairs, self._pairs + len(dt), dtype=np.int64)
+        self._pairs += len(dt)
+        k = np.argsort(-dt, kind="stable")[:self.max_gaps]
+        tdt, tidx, tstart = (np.concatenate((a, b)) for a, b in zip(self._top, (dt[k], idx[k], full[:-1][k])))
+        best = np.lexsort((tidx, -tdt))[:self.max_gaps]
+        self._top = (tdt[best], tidx[best], tstart[best])
+        pos = dt[dt > 0]
+        if not len(pos):
+            return
+        if self._hist is not None:
+            self._hist = _merge_counts([self._hist, np.unique(_bin_key(pos), return_counts=True)])
+            return
+        self._parts.append(np.unique(pos, return_counts=True))
+        self._distinct += len(self._parts[-1][0])
+        if self._distinct > self.max_distinct:
+            self._parts = [_merge_counts(self._parts)]
+            self._distinct = len(self._parts[0][0])
+            if self._distinct > self.max_distinct // 2:   # too many distinct intervals: to a histogram
+                u, c = self._parts[0]
+                self._hist = _merge_counts([(_bin_key(u), c)])
+                self._parts, self._distinct = [], 0
+
+    def _positives(self) -> int:
+        src = self._hist if self._hist is not None else _merge_counts(self._parts)
+        return int(src[1].sum())
+
+    def _order_stats(self) -> tuple[int, int]:
+        n = self._positives()
+        return (n - 1) // 2, n // 2
+
+    def needs_pass(self) -> str | None:
+        """What a second pass must collect: None, "median" (values in the median's bins) or
+        "all" (every stamp with its sequence number: they came out of order)."""
+        if not self.ordered:
+            return "all"
+        if self._hist is not None and self._positives():
+            return "median"
+        return None
+
+    # -- second pass ---------------------------------------------------------------------
+    def start_pass(self) -> None:
+        """Prepare the second pass (see :meth:`needs_pass`)."""
+        self._last_t = None
+        if self.needs_pass() == "median":
+            keys, counts = self._hist
+            cum = np.cumsum(counts)
+            self._want = np.unique(keys[np.searchsorted(cum, np.array(self._order_stats()), side="right")])
+
+    def refine(self, t_ns: np.ndarray, seq: np.ndarray | None = None) -> None:
+        """The channel's stamps again, in the same batches as in the first pass."""
+        t = np.asarray(t_ns, dtype=np.int64)
+        if not len(t):
+            return
+        if not self.ordered:
+            self._all.append((np.asarray(seq, dtype=np.int64), t))
+            return
+        if self._want is None:
+            return
+        full = t if self._last_t is None else np.concatenate(([self._last_t], t))
+        self._last_t = int(t[-1])
+        dt = np.diff(full)
+        pos = dt[dt > 0]
+        sel = pos[np.isin(_bin_key(pos), self._want)]
+        if len(sel):
+            self._exact.append(np.unique(sel, return_counts=True))
+
+    # -- result --------------------------------------------------------------------------
+    def _median(self) -> float:
+        if self._hist is None:
+            u, c = _merge_counts(self._parts)
+            below = 0
+        else:
+            keys, counts = self._hist
+            u, c = _merge_counts(self._exact)
+            first = keys < self._want.min()
+            below = int(counts[first].sum())
+        cum = np.cumsum(c) + below
+        a, b = (int(u[np.searchsorted(cum, k, side="right")]) for k in self._order_stats())
+        return float(np.mean(np.array([a, b] if a != b or self._positives() % 2 == 0 else [a], dtype=np.int64)))
+
+    def summary(self, topic: str, schema: str) -> ChannelSummary:
+        """The channel's summary, as :func:`summarize_channel` gives it."""
+        if not self.ordered:
+            if self._all:
+                seq = np.concatenate([a[0] for a in self._all])
+                t = np.concatenate([a[1] for a in self._all])
+                t = t[np.argsort(seq, kind="stable")]
+            else:
+                t = np.zeros(0, np.int64)
+            return summarize_channel(topic, schema, t, self.max_gaps)
+        if not self.count:
+            return ChannelSummary(topic, schema, 0, None, None, None, 0.0, (), 0, 0)
+        rate = None
+        gaps: list[Gap] = []
+        if self._positives():
+            period = self._median()
+            rate = 1e9 / period
+            dt, idx, start = self._top
+            big = dt > 3 * period
+            gaps = [Gap(int(s), float(d) / 1e9) for _i, d, s in sorted(zip(idx[big], dt[big], start[big]))]
+        return ChannelSummary(topic, schema, self.count, rate, self.t_min, self.t_max,
+                              float(self.t_max - self.t_min) / 1e9, tuple(gaps), self.backwards, self.duplicates)
+
+
 def skipped_counts(log: FieldLog) -> dict:
-    """Records skipped at import, summed over the provenance records: {what: count}."""
+    """Records skipped at import, summed over the log's provenance records.
+
+    Parameters
+    ----------
+    log : FieldLog
+
+    Returns
+    -------
+    dict
+        {what: count}.
+    """
+    return skipped_from_provenance(log.provenance)
+
+
+def skipped_from_provenance(provenance: list[dict]) -> dict:
+    """Records skipped at import, summed over provenance records: {what: count}.
+
+    Parameters
+    ----------
+    provenance : list of dict
+        Provenance records (``FieldLog.provenance``), each a {key: text} dict.
+
+    Returns
+    -------
+    dict
+        {what: count}.
+    """
     out: dict[str, int] = {}
-    for rec in log.provenance:
+    for rec in provenance:
         raw = rec.get("skipped")
         if not raw:
             continue
@@ -159,7 +384,19 @@ def summarize(log: FieldLog) -> LogSummary:
 
 
 def format_summary(s: LogSummary) -> str:
-    """Human-readable multi-line text of a :class:`LogSummary` (times in UTC, durations in s)."""
+    """Human-readable multi-line text of a summary.
+
+    Parameters
+    ----------
+    s : LogSummary
+
+    Returns
+    -------
+    str
+        Times in UTC, durations in s, rates in Hz; a damaged file gets a ``DAMAGED FILE:``
+        line with the one-line report (:meth:`usvlog.log.fieldlog.RecoveryReport.one_line`)
+        and the details under it, trailing bytes included.
+    """
     lines = []
     if s.source:
         lines.append(f"file      {s.source}")
@@ -180,9 +417,11 @@ def format_summary(s: LogSummary) -> str:
         lines.append("skipped records: " + ", ".join(f"{k} {v}" for k, v in sorted(s.skipped.items())))
     if s.recovery:
         r = s.recovery
-        lines.append(f"DAMAGED FILE: {r['reason']}; recovered {r['messages_recovered']} messages, "
+        lines.append(f"DAMAGED FILE: {r['summary']}")
+        lines.append(f"          {r['reason']}; recovered {r['messages_recovered']} messages, "
                      f"lost {r['bytes_lost']} of {r['file_size']} bytes"
-                     + (f", data after {format_time(r['lost_from_ns'])}" if r.get('lost_from_ns') else ""))
+                     + (f"; {r['trailing_bytes']} bytes after the end of the MCAP data (not part of it)"
+                        if r.get("trailing_bytes") else ""))
     if "usvlog.datum" in s.metadata:
         d = s.metadata["usvlog.datum"]
         lines.append(f"datum     lat {d.get('lat_deg')} lon {d.get('lon_deg')}")

@@ -104,6 +104,8 @@ class _Scan:
     orphans: dict = field(default_factory=dict)     # channel id -> messages on a channel never defined
     notes: list = field(default_factory=list)       # other damage (e.g. data section CRC mismatch)
     metadata_lost: list = field(default_factory=list)
+    defined: dict = field(default_factory=dict)     # channel id -> ordinal of its (first) record
+    walked: tuple | None = None                     # the last run of top-level records walked
 
     @property
     def complete(self) -> bool:
@@ -432,8 +434,9 @@ def _region_reason(scan: _Scan, off: int, resumed: bool) -> str:
     return f"malformed record at byte {off} (runs past the end of the data section)"
 
 
-def _finish(scan: _Scan, data: bytes) -> None:
-    """After the walk: metadata and schemas the summary still has, the data section CRC."""
+def _finish(scan: _Scan, data: bytes, crc_upto=None) -> None:
+    """After the walk: metadata and schemas the summary still has, the data section CRC
+    (``crc_upto(n)``, when given, is the CRC-32 of ``data[:n]``)."""
     s = scan.summary
     mv = memoryview(data)
     if s is not None:
@@ -473,7 +476,7 @@ def _finish(scan: _Scan, data: bytes) -> None:
                 scan.notes.append("the summary section is damaged (its CRC fails; the data section was read in full)")
     if not scan.regions and scan.data_end_at >= 0:
         crc = _U32.unpack_from(mv, scan.data_end_at + 9)[0]
-        if crc and zlib.crc32(mv[:scan.data_end_at]) != crc:
+        if crc and (crc_upto(scan.data_end_at) if crc_upto else zlib.crc32(mv[:scan.data_end_at])) != crc:
             scan.notes.append("data section CRC mismatch: a record outside the chunks (header, metadata or"
                               " an index) is damaged, the metadata may be wrong")
 
@@ -508,22 +511,26 @@ def _fast_chunk(mv, K, off: int, nxt: int):
     return chunk, m, cid, seq, t, ps, pe, parsed
 
 
-def _scan_fast(data: bytes) -> _Scan:
-    """The same reading as :func:`.reference._scan_reference`, with the per-message work
-    done by compiled loops: records are walked into arrays, and a message is kept when
-    its channel was defined before it (compared by record ordinals), or, when its
-    definition was lost, the summary still defines the channel.
+def _walk(scan: _Scan, data, release=None, window: int | None = None):
+    """Walk an MCAP file's records, checking every chunk: yields one batch of messages per
+    chunk that checks out (and per run of messages outside chunks), in file order.
 
-    Every chunk is checked (:func:`_chunk_data`); after a damaged record the walk goes
-    on at the next chunk that checks out (:func:`_resync`), and the damaged range is
-    recorded (:func:`_note_region`)."""
-    scan = _Scan()
-    _layout(scan, data)
+    A batch is ``(records, msgs, at, t0, t1)``: ``records`` the bytes the messages lie in
+    (a chunk's decompressed records as a uint8 array, or the file's buffer),
+    ``msgs = (channel id, sequence, log time, payload start, payload end, ordinal)``
+    arrays (malformed message records left out and counted in ``scan.bad_messages``;
+    ``ordinal`` orders records in the file, ``scan.defined`` holds each channel's),
+    ``at`` the chunk record's offset (-1 outside chunks) and ``t0``/``t1`` its time range.
+    Schemas, channels and metadata go into ``scan`` as they are met; after a damaged
+    record the walk goes on at the next chunk that checks out (:func:`_resync`) and the
+    damaged range is recorded (:func:`_note_region`). ``_layout`` must have run;
+    ``_finish`` runs after. ``release(offset)``, when given, is called as the walk passes
+    an offset it will not read again (a memory map drops its pages there); ``window``
+    (bytes), when given, walks the top-level records that many bytes at a time (or one
+    record, when it is longer), so the record arrays stay small whatever the file's size."""
     buf = np.frombuffer(data, dtype=np.uint8)
     mv = memoryview(data)
-    defined: dict[int, int] = {}     # channel id -> ordinal of its record
-    parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
-    arena = _Arena(0)
+    defined = scan.defined           # channel id -> ordinal of its record
     checked: dict[int, str | None] = {}
 
     def verify(off: int) -> str | None:
@@ -543,27 +550,28 @@ def _scan_fast(data: bytes) -> _Scan:
     def find_next(p: int) -> int:
         return int(K.find_chunk(buf, p, scan.data_end))
 
-    def add(cid, seq, t, ps, pe, ordinal, chunk):
+    def good(cid, seq, t, ps, pe, ordinal):
         bad = cid < 0
         if bad.any():
             scan.bad_messages[-1] = scan.bad_messages.get(-1, 0) + int(bad.sum())
-            good = ~bad
-            cid, seq, t, ps, pe, ordinal = cid[good], seq[good], t[good], ps[good], pe[good], ordinal[good]
-        if len(cid):
-            parts.append((arena.put(chunk), cid, seq, t, ps, pe, ordinal))
+            ok = ~bad
+            return cid[ok], seq[ok], t[ok], ps[ok], pe[ok], ordinal[ok]
+        return cid, seq, t, ps, pe, ordinal
 
     pos, base = 8, 0
     while True:
-        ops, offs, lens, stop, complete = K.walk_records(buf, pos, scan.data_end, True)
+        end = scan.data_end
+        if window is not None and pos + 9 <= end:
+            end = min(end, max(pos + window, pos + 9 + _U64.unpack_from(data, pos + 1)[0]))
+        ops, offs, lens, stop, complete = K.walk_records(buf, pos, end, True)
         n = len(ops)
-        chunk_ops = np.flatnonzero(ops == OP_CHUNK)
-        arena.reserve(min(sum(_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
-                              if lens[i] >= 24), 64 * len(data)))
+        scan.walked = (ops, offs, lens)
         bad_i, why = n, None
         for i in np.flatnonzero(ops != OP_MESSAGE).tolist():
             op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
             body, nxt = off + 9, off + 9 + ln
             why = _unexpected(scan, op, off, ln)
+            batch = None
             if why is None:
                 try:
                     if op == OP_CHUNK:
@@ -573,7 +581,9 @@ def _scan_fast(data: bytes) -> _Scan:
                                 if pr[0] == OP_CHANNEL and pr[1] not in scan.channels:
                                     defined[pr[1]] = ((base + i) << 32) + j + 1
                                 _apply(scan, pr, True)
-                        add(cid, seq, t, ps, pe, (np.int64(base + i) << 32) + m + 1, chunk)
+                        msgs = good(cid, seq, t, ps, pe, (np.int64(base + i) << 32) + m + 1)
+                        t0, t1 = _CHUNK.unpack_from(mv, body)[:2]
+                        batch = (chunk, msgs, off, t0, t1)
                     elif op == OP_MESSAGE_INDEX:
                         _check_message_index(mv, body, ln)
                     elif op == OP_DATA_END:
@@ -591,13 +601,25 @@ def _scan_fast(data: bytes) -> _Scan:
             if why is not None:
                 bad_i = i
                 break
+            if batch is not None:
+                if len(batch[1][0]):
+                    yield batch
+                if release is not None:
+                    release(nxt)
         top = np.flatnonzero(ops[:bad_i] == OP_MESSAGE)
         if len(top):
             cid, seq, t, ps, pe, _ok = K.message_fields(buf, offs[top], lens[top])
-            add(cid, seq, t, ps, pe, (top.astype(np.int64) + base) << 32, buf)
+            msgs = good(cid, seq, t, ps, pe, (top.astype(np.int64) + base) << 32)
+            if len(msgs[0]):
+                yield buf, msgs, -1, None, None
         if why is None:
             if complete or (scan.footer and stop == scan.data_end):
                 break
+            if end < scan.data_end:   # the window ends here, not the data: walk on
+                if release is not None:
+                    release(int(stop))
+                pos, base = int(stop), base + n
+                continue
             bad_at = int(stop)
         else:
             bad_at = int(offs[bad_i])
@@ -606,9 +628,31 @@ def _scan_fast(data: bytes) -> _Scan:
                      why or _region_reason(scan, bad_at, resume is not None), verify)
         if resume is None:
             break
+        if release is not None:
+            release(resume)
         pos, base = resume, base + n + 1
 
+
+def _scan_fast(data: bytes) -> _Scan:
+    """The same reading as :func:`.reference._scan_reference`, with the per-message work
+    done by compiled loops (:func:`_walk`): a message is kept when its channel was defined
+    before it (compared by record ordinals), or, when its definition was lost, the summary
+    still defines the channel. Every message's bytes go into one arena."""
+    scan = _Scan()
+    _layout(scan, data)
+    parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
+    arena = _Arena(0)
+    walked = None
+    for records, (cid, seq, t, ps, pe, ordinal), _at, _t0, _t1 in _walk(scan, data):
+        if scan.walked is not walked:   # a new run of records: room for its chunks at once
+            walked = scan.walked
+            ops, offs, lens = walked
+            chunk_ops = np.flatnonzero(ops == OP_CHUNK)
+            arena.reserve(min(sum(_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
+                                  if lens[i] >= 24), 64 * len(data)))
+        parts.append((arena.put(records), cid, seq, t, ps, pe, ordinal))
     _finish(scan, data)
+    defined = scan.defined
     # messages -> per-channel arrays into one arena of bytes
     scan.arena = arena.buf[:arena.used]
     if parts:
@@ -851,6 +895,297 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         if strict:
             raise InputError(f"{p}: damaged file: {log.recovery.reason}")
     return log
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """One verified chunk's messages (see :func:`iter_chunks`).
+
+    Attributes
+    ----------
+    offset : int
+        Byte offset of the chunk record in the file; -1 for messages outside chunks.
+    start_ns, end_ns : int or None
+        The chunk's time range from its header (ns since the Unix epoch); None outside chunks.
+    data : numpy.ndarray
+        uint8 bytes the messages lie in (the chunk's decompressed records).
+    channel_id, sequence, log_time_ns, start, end : numpy.ndarray
+        int64, one per message in file order: channel id, sequence number, log time (ns since
+        the Unix epoch) and the payload's span ``data[start:end]``. Only messages whose
+        channel is defined (the rules of :func:`read_log`) are here.
+    """
+
+    offset: int
+    start_ns: int | None
+    end_ns: int | None
+    data: np.ndarray
+    channel_id: np.ndarray
+    sequence: np.ndarray
+    log_time_ns: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """A channel of an MCAP file: topic, encodings, schema name and the schema's bytes."""
+
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes
+
+    @property
+    def canonical(self) -> bool:
+        """JSON messages with a JSON Schema: a channel :func:`read_log` loads."""
+        return self.message_encoding == MESSAGE_ENCODING and self.schema_encoding == SCHEMA_ENCODING
+
+
+_RELEASE_BYTES = 8 << 20    # a memory-mapped file drops the pages behind the walk this often (bytes)
+_WINDOW_BYTES = 8 << 20      # top-level records walked at a time when streaming (bytes)
+
+
+class ChunkStream:
+    """Verified chunks of an MCAP file, one at a time (see :func:`iter_chunks`).
+
+    Iterate once to get every :class:`Chunk` in file order; afterwards ``channels``,
+    ``metadata`` and ``recovery`` hold what the whole walk found. The file is memory-mapped
+    and the pages behind the walk are given back as it goes, so memory stays at about one
+    chunk whatever the file's size. Use as a context manager (or call :meth:`close`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file.
+    """
+
+    def __init__(self, path):
+        import mmap  # the standard library's, only for streaming reads
+
+        self.path = Path(path)
+        self._mmap_mod = mmap
+        self._fh = None
+        self._map = None
+        self._done = False
+        self._scan = _Scan()
+        self._n_msgs = 0
+        self._t_lo: int | None = None
+        self._t_hi: int | None = None
+        with reading(self.path):
+            self._fh = open(self.path, "rb")  # noqa: SIM115 - closed by close()
+            size = self._fh.seek(0, 2)
+            if size < 8:
+                self.close()
+                raise FormatError(f"{self.path}: not an MCAP file (bad magic bytes)")
+            self._map = mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_READ)
+        self._released = 0
+
+    # -- memory ----------------------------------------------------------------------
+    def _release(self, upto: int, force: bool = False) -> None:
+        """Drop the mapped pages before ``upto`` (page cache keeps them; RSS does not)."""
+        m = self._map
+        if m is None or not hasattr(m, "madvise") or not hasattr(self._mmap_mod, "MADV_DONTNEED"):
+            return
+        page = self._mmap_mod.PAGESIZE
+        start = self._released - self._released % page
+        end = min(upto, len(m)) // page * page
+        if end > start and (force or end - start >= _RELEASE_BYTES):
+            m.madvise(self._mmap_mod.MADV_DONTNEED, start, end - start)
+            self._released = end
+
+    def _release_all(self) -> None:
+        """Drop every mapped page (after a search or a check that ran over the file)."""
+        m = self._map
+        if m is not None and hasattr(m, "madvise") and hasattr(self._mmap_mod, "MADV_DONTNEED"):
+            m.madvise(self._mmap_mod.MADV_DONTNEED, 0, len(m))
+        self._released = 0
+
+    # -- the walk ----------------------------------------------------------------------
+    def __iter__(self):
+        if self._done or self._map is None:
+            raise RuntimeError(f"{self.path}: a ChunkStream is read once")
+        data, scan = self._map, self._scan
+        _layout_windowed(scan, data, self._release_all)
+        if data[:8] != MAGIC and not scan.footer:
+            raise FormatError(f"{self.path}: not an MCAP file (bad magic bytes)")
+        pending = []   # messages on a channel not (yet) defined: resolved at the end
+        for records, msgs, at, t0, t1 in _walk(scan, data, self._release, _WINDOW_BYTES):
+            cid, seq, t, ps, pe, ordinal = msgs
+            known = np.array([c in scan.defined for c in cid.tolist()], dtype=bool) if len(cid) else cid.astype(bool)
+            if not known.all():
+                later = ~known
+                pending.append((np.array(records[:pe[later].max()]) if at >= 0 else records,
+                                at, t0, t1, cid[later], seq[later], t[later], ps[later], pe[later], ordinal[later]))
+            keep = known.copy()
+            if known.any():
+                first = np.array([scan.defined.get(c, -1) for c in cid.tolist()], dtype=np.int64)
+                keep &= ordinal > first
+            if keep.any():
+                yield self._chunk(records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep])
+        _finish_windowed(scan, data, self._release_all)
+        # messages met before their channel's record: kept when it never came (the summary has it)
+        for records, at, t0, t1, cid, seq, t, ps, pe, ordinal in pending:
+            keep = np.zeros(len(cid), dtype=bool)
+            for c in np.unique(cid).tolist():
+                sel = cid == c
+                if c in scan.defined:
+                    keep |= sel & (ordinal > scan.defined[c])
+                elif c in scan.channels or _summary_channel(scan, c) is not None:
+                    scan.channels.setdefault(c, _summary_channel(scan, c))
+                    keep |= sel
+                else:
+                    scan.orphans[c] = scan.orphans.get(c, 0) + int(sel.sum())
+            if keep.any():
+                yield self._chunk(records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep])
+        self._done = True
+
+    def _chunk(self, records, at, t0, t1, cid, seq, t, ps, pe) -> Chunk:
+        canon = self.channels
+        counted = np.array([c in canon and canon[c].canonical for c in cid.tolist()], dtype=bool)
+        if counted.any():
+            tc = t[counted]
+            self._n_msgs += int(counted.sum())
+            lo, hi = int(tc.min()), int(tc.max())
+            self._t_lo = lo if self._t_lo is None else min(self._t_lo, lo)
+            self._t_hi = hi if self._t_hi is None else max(self._t_hi, hi)
+        return Chunk(at, t0, t1, records, cid, seq, t, ps, pe)
+
+    # -- what the walk found -------------------------------------------------------------
+    @property
+    def channels(self) -> dict[int, ChannelInfo]:
+        """Channel id -> :class:`ChannelInfo`, for the channels defined so far."""
+        out = {}
+        for cid, ch in self._scan.channels.items():
+            name, enc, data = self._scan.schemas.get(ch.schema_id, ("", "", b""))
+            out[cid] = ChannelInfo(ch.topic, ch.encoding, name, enc, bytes(data))
+        return out
+
+    @property
+    def metadata(self) -> dict[str, dict[str, str]]:
+        """Metadata records by name (complete after the iteration)."""
+        return dict(self._scan.metadata)
+
+    def recovery(self, skipped: dict[str, int] | None = None) -> RecoveryReport | None:
+        """After the iteration: what was lost, as :func:`read_log` reports it, or None when intact.
+
+        Parameters
+        ----------
+        skipped : dict, optional
+            Topic -> messages a caller could not decode (counted as skipped).
+
+        Returns
+        -------
+        RecoveryReport or None
+            ``messages_recovered`` counts the messages of channels :func:`read_log` loads.
+        """
+        if not self._done:
+            raise RuntimeError(f"{self.path}: iterate over the chunks first")
+        scan, size = self._scan, len(self._map) if self._map is not None else self._scan.size
+        skipped = dict(skipped or {})
+        n = self._n_msgs - sum(skipped.values())
+        trailing = scan.footer and scan.mcap_end < size
+        if not scan.complete or skipped or trailing or scan.metadata_lost:
+            return _report(scan, size, n, self._t_lo, self._t_hi, skipped)
+        return None
+
+    def close(self) -> None:
+        """Unmap and close the file."""
+        if self._map is not None:
+            try:
+                self._map.close()
+            except BufferError:   # a chunk still refers to the map; it goes with the last reference
+                pass
+            self._map = None
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+
+    def __enter__(self) -> ChunkStream:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def iter_chunks(path) -> ChunkStream:
+    """Stream an MCAP file's verified chunks, one at a time, with memory bounded by a chunk.
+
+    The walk is :func:`read_log`'s (every chunk's CRC checked, resynchronisation after
+    damage, the same messages kept), without loading the file: it is memory-mapped and
+    the pages behind the walk are released.
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file.
+
+    Returns
+    -------
+    ChunkStream
+        Iterate it for :class:`Chunk` objects (decompressed, verified, with their time
+        range) in file order; then ``stream.recovery()`` is the
+        :class:`~usvlog.log.fieldlog.RecoveryReport` (None when intact), ``stream.channels``
+        and ``stream.metadata`` what the file defines.
+
+    Examples
+    --------
+    >>> with iter_chunks("run.mcap") as stream:              # doctest: +SKIP
+    ...     n = sum(len(c.log_time_ns) for c in stream)
+    ...     report = stream.recovery()
+    """
+    return ChunkStream(path)
+
+
+def _find_footer_windowed(data, release, window: int = 8 << 20) -> int:
+    """:func:`_find_footer` searching back from the end a window at a time (each window's
+    pages released after), so a file with no footer is not mapped in whole."""
+    end = len(data)
+    lo = end
+    while lo > 8:
+        lo = max(8, end - window)
+        m = data.rfind(MAGIC, lo, end)
+        while m >= 0:
+            f = m - 29
+            if f >= 8 and data[f] == OP_FOOTER and _U64.unpack_from(data, f + 1)[0] == 20:
+                return f
+            m = data.rfind(MAGIC, lo, m + len(MAGIC) - 1)
+        release()
+        end = lo + len(MAGIC) - 1
+    return -1
+
+
+def _layout_windowed(scan: _Scan, data, release) -> None:
+    """:func:`_layout` for a memory-mapped file."""
+    scan.size = len(data)
+    f = _find_footer_windowed(data, release)
+    if f >= 0:
+        scan.footer, scan.mcap_end, scan.footer_at = True, f + 37, f
+        scan.summary = _read_summary(data, f)
+        scan.data_end = scan.summary.start if scan.summary is not None else f
+    else:
+        scan.mcap_end = scan.data_end = len(data)
+    if data[:8] != MAGIC:
+        scan.regions.append((0, 8, "bad magic bytes at the start"))
+    release()
+
+
+def _finish_windowed(scan: _Scan, data, release, window: int = 8 << 20) -> None:
+    """:func:`_finish` for a memory-mapped file: the data section CRC a window at a time."""
+    def crc_upto(n: int) -> int:
+        mv = memoryview(data)
+        crc, off = 0, 0
+        try:
+            while off < n:
+                crc = zlib.crc32(mv[off:min(n, off + window)], crc)
+                off += window
+                release()
+        finally:
+            mv.release()
+        return crc
+
+    _finish(scan, data, crc_upto)
+    release()
 
 
 def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:

@@ -22,12 +22,28 @@ class LineInput:
     """NMEA and JSON line input of the recorder (a mixin: the host provides the samples API)."""
 
     def nmea(self, text: str, *, source: str = "nmea", t_ns: int | None = None):
-        """One NMEA 0183 sentence as received: kept in ``/raw/nmea``; positions, headings,
-        fix quality and GPS time go to their canonical channels. Parsed by
-        :func:`usvlog.io.nmea.parse_sentence` (as the file importer does), checksum required;
-        a time of day without a date is placed nearest the receive time minus the source's
-        clock offset. Returns the parsed sample (None when malformed, whatever the reason:
-        counted as garbage, still kept raw)."""
+        """One NMEA 0183 sentence as received.
+
+        Kept in ``/raw/nmea``; positions, headings, fix quality and GPS time go to their
+        canonical channels. Parsed by :func:`usvlog.io.nmea.parse_sentence` (as the file
+        importer does), checksum required; a time of day without a date is placed nearest
+        the receive time minus the source's clock offset.
+
+        Parameters
+        ----------
+        text : str
+            The sentence, without line ending.
+        source : str
+            Source name (counters, clock offset, ``/raw/nmea``).
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+
+        Returns
+        -------
+        sample or None
+            The parsed sample; None when malformed, whatever the reason (counted as
+            garbage, still kept raw).
+        """
         t = self.now_ns() if t_ns is None else int(t_ns)
         try:
             s = parse_sentence(text)
@@ -78,8 +94,23 @@ class LineInput:
                 self._write_fix(*fix)
 
     def json_line(self, text: str, *, source: str = "json", t_ns: int | None = None) -> bool:
-        """One JSON line (see the README for the message forms). Returns True when used;
-        a line that cannot be used is counted as garbage and kept in ``/raw/json``."""
+        """One JSON line (see the README for the message forms).
+
+        Parameters
+        ----------
+        text : str
+            The line, without line ending.
+        source : str
+            Source name (counters, clock offset, ``/raw/json``).
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+
+        Returns
+        -------
+        bool
+            True when used; a line that cannot be used is counted as garbage and kept in
+            ``/raw/json``.
+        """
         t = self.now_ns() if t_ns is None else int(t_ns)
         kind, err = "", ""
         try:
@@ -126,6 +157,17 @@ class LineInput:
 
 
 def guess_kind(text: str) -> str:
-    """The sentence type of a malformed NMEA line, when its head looks like one (else "")."""
+    """The sentence type of a malformed NMEA line.
+
+    Parameters
+    ----------
+    text : str
+        The line.
+
+    Returns
+    -------
+    str
+        ``GGA``, ``RMC``, ... when its head looks like a sentence's, else "".
+    """
     head = text.strip()[1:].split(",", 1)[0] if text.strip().startswith(("$", "!")) else ""
     return head[2:] if len(head) == 5 and head.isalnum() else ""

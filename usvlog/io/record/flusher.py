@@ -39,6 +39,7 @@ class FlushThread:
         self._thread = threading.Thread(target=self._loop, name="usvlog-record-flush", daemon=True)
 
     def start(self) -> None:
+        """Start the background thread (flush every ``0.8 * flush_s`` s until :meth:`stop`)."""
         self._thread.start()
 
     def stop(self) -> None:

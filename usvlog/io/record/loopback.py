@@ -41,13 +41,50 @@ def _dmy(gps_ns: int) -> str:
 
 
 def gga(gps_ns: int, lat: float, lon: float, alt_m: float, sats: int = 9, hdop: float = 0.8) -> str:
-    """A GGA sentence (geoid separation 0, so altitude is the ellipsoid height)."""
+    """A GGA sentence (geoid separation 0, so altitude is the ellipsoid height).
+
+    Parameters
+    ----------
+    gps_ns : int
+        GPS time, ns since the Unix epoch (the sentence keeps the time of day, ms).
+    lat, lon : float
+        Position, degrees.
+    alt_m : float
+        Altitude, m.
+    sats : int
+        Satellites in use.
+    hdop : float
+        Horizontal dilution of precision.
+
+    Returns
+    -------
+    str
+        The sentence with its checksum, without line ending.
+    """
     la, ns = format_deg_min(lat, True)
     lo, ew = format_deg_min(lon, False)
     return with_checksum(f"GPGGA,{_hms(gps_ns)},{la},{ns},{lo},{ew},1,{sats:02d},{hdop:.1f},{alt_m:.2f},M,0.0,M,,")
 
 
 def rmc(gps_ns: int, lat: float, lon: float, sog_kn: float = 0.0, cog_deg: float = 0.0) -> str:
+    """An RMC sentence (status A).
+
+    Parameters
+    ----------
+    gps_ns : int
+        GPS time, ns since the Unix epoch (time of day to the ms, and the date).
+    lat, lon : float
+        Position, degrees.
+    sog_kn : float
+        Speed over ground, knots.
+    cog_deg : float
+        Course over ground, degrees from true north.
+
+    Returns
+    -------
+    str
+        The sentence with its checksum, without line ending.
+    """
     la, ns = format_deg_min(lat, True)
     lo, ew = format_deg_min(lon, False)
     return with_checksum(f"GPRMC,{_hms(gps_ns)},A,{la},{ns},{lo},{ew},{sog_kn:.2f},{cog_deg % 360:.2f},"
@@ -55,6 +92,18 @@ def rmc(gps_ns: int, lat: float, lon: float, sog_kn: float = 0.0, cog_deg: float
 
 
 def hdt(heading_deg: float) -> str:
+    """An HDT sentence (true heading).
+
+    Parameters
+    ----------
+    heading_deg : float
+        Heading, degrees clockwise from true north (wrapped to [0, 360)).
+
+    Returns
+    -------
+    str
+        The sentence with its checksum, without line ending.
+    """
     return with_checksum(f"HEHDT,{heading_deg % 360.0:.3f},T")
 
 
@@ -69,7 +118,18 @@ class Sent:
 
 
 def udp_target(url_or_addr):
-    """A send(bytes) callable for ``udp://host:port`` or a (host, port) pair."""
+    """A send(bytes) callable for a UDP address.
+
+    Parameters
+    ----------
+    url_or_addr : str or tuple
+        ``udp://host:port`` or a (host, port) pair.
+
+    Returns
+    -------
+    callable
+        ``send(data: bytes)``: one datagram.
+    """
     if isinstance(url_or_addr, str):
         spec = parse_source(url_or_addr)
         addr = (spec.host, spec.port)
@@ -80,7 +140,17 @@ def udp_target(url_or_addr):
 
 
 def free_udp_port(host: str = "127.0.0.1") -> int:
-    """A UDP port that is free now (for tests and benchmarks on loopback)."""
+    """A UDP port that is free now (for tests and benchmarks on loopback).
+
+    Parameters
+    ----------
+    host : str
+        Address to find a port on.
+
+    Returns
+    -------
+    int
+    """
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind((host, 0))
     port = s.getsockname()[1]
@@ -110,6 +180,18 @@ class LoopbackBoat:
         self.sent = Sent()
 
     def pose(self, t_s: float) -> tuple[float, float, float]:
+        """Where the boat is on its circle.
+
+        Parameters
+        ----------
+        t_s : float
+            Time since the start, s.
+
+        Returns
+        -------
+        tuple of float
+            Latitude and longitude (degrees) and heading (degrees clockwise from north, [0, 360)).
+        """
         w = 2 * math.pi / self.period
         n = self.radius * math.sin(w * t_s)
         e = self.radius * (1 - math.cos(w * t_s))
@@ -118,6 +200,20 @@ class LoopbackBoat:
         return lat, lon, math.degrees(w * t_s) % 360.0
 
     def run(self, duration_s: float, stop: threading.Event | None = None) -> Sent:
+        """Send every stream at its rate for ``duration_s`` (or until ``stop`` is set).
+
+        Parameters
+        ----------
+        duration_s : float
+            How long to send, s.
+        stop : threading.Event, optional
+            Stops early when set.
+
+        Returns
+        -------
+        Sent
+            Everything sent, in order (also ``self.sent``).
+        """
         streams = [(hz, fn) for hz, fn in zip(self.rates, (self._gnss, self._compass, self._thrust))
                    if hz and hz > 0]
         streams = [(hz, fn) for hz, fn in streams if getattr(self, fn.__name__[1:]) is not None]
@@ -168,6 +264,18 @@ class LoopbackBoat:
 
 
 def main(argv=None) -> int:
+    """``python -m usvlog.io.record.loopback``: stream the stand-in boat over UDP.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command line arguments (default: ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit code (0).
+    """
     ap = argparse.ArgumentParser(prog="python -m usvlog.io.record.loopback",
                                  description="stream a stand-in boat's NMEA and thrust messages over UDP")
     ap.add_argument("--gnss", help="udp://host:port for GGA+RMC")

@@ -22,7 +22,20 @@ from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING, schema_for_topic
 
 
 def part_path(path, part: int | None) -> Path:
-    """``run.mcap`` -> ``run_000.mcap``, ``run_001.mcap``, ... (``part=None``: the path itself)."""
+    """The file of one part of a rotating recording.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output as given (``run.mcap``).
+    part : int or None
+        Part number; None when not rotating.
+
+    Returns
+    -------
+    pathlib.Path
+        ``run_000.mcap``, ``run_001.mcap``, ... (``part=None``: the path itself).
+    """
     p = Path(path)
     if part is None:
         return p
@@ -30,7 +43,24 @@ def part_path(path, part: int | None) -> Path:
 
 
 def check_outputs(path, *, rotating: bool, force: bool) -> None:
-    """Fail before recording when the output (or, rotating, any part of it) exists or cannot be made."""
+    """Fail before recording when the output (or, rotating, any part of it) exists or cannot be made.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output as given.
+    rotating : bool
+        Parts ``NAME_000.mcap``, ... are written instead.
+    force : bool
+        Existing outputs may be overwritten.
+
+    Raises
+    ------
+    StorageError
+        The output is a directory, or its directory does not exist.
+    OutputExistsError
+        An output exists and ``force`` is False.
+    """
     p = Path(path)
     if p.exists() and p.is_dir():
         raise StorageError(f"{p}: output is a directory")
@@ -50,14 +80,44 @@ def check_outputs(path, *, rotating: bool, force: bool) -> None:
 
 
 def storage_error(path, err: OSError, what: str) -> StorageError:
-    """A one-line StorageError for an OS error on ``path`` (disk full, quota, file too large, ...)."""
+    """A one-line StorageError for an OS error on a file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    err : OSError
+        What the OS said.
+    what : str
+        What failed (e.g. "recording stopped").
+
+    Returns
+    -------
+    StorageError
+        ``PATH: WHAT (disk full | disk quota exceeded | file too large ... | the OS's reason)``.
+    """
     reason = {errno.ENOSPC: "disk full", errno.EFBIG: "file too large for the file system or limit",
               errno.EDQUOT: "disk quota exceeded"}.get(err.errno, err.strerror or str(err))
     return StorageError(f"{path}: {what} ({reason})")
 
 
 def compression_type(name: str):
-    """mcap's CompressionType for ``zstd``, ``lz4`` or ``none``."""
+    """mcap's CompressionType of a compression name.
+
+    Parameters
+    ----------
+    name : str
+        ``zstd``, ``lz4`` or ``none``.
+
+    Returns
+    -------
+    mcap.writer.CompressionType
+
+    Raises
+    ------
+    ConfigError
+        Another name.
+    """
     from mcap.writer import CompressionType
 
     try:
@@ -108,7 +168,18 @@ class PartWriter:
         return self.paths[-1]
 
     def open(self, now_ns: int) -> None:
-        """Create the next part file (StorageError when it cannot be made); :meth:`start` writes its header."""
+        """Create the next part file; :meth:`start` writes its header.
+
+        Parameters
+        ----------
+        now_ns : int
+            The receive time now, ns since the Unix epoch (the part's age counts from it).
+
+        Raises
+        ------
+        StorageError
+            The file cannot be made.
+        """
         from mcap.writer import Writer
 
         p = part_path(self.base, self.part if self.rotating else None)
@@ -124,7 +195,13 @@ class PartWriter:
         self._schema_ids = {}
 
     def start(self, library: str) -> None:
-        """The MCAP header of the part just opened."""
+        """The MCAP header of the part just opened.
+
+        Parameters
+        ----------
+        library : str
+            The header's ``library`` field (``usvlog VERSION``).
+        """
         self._w.start(profile="", library=library)
 
     def sync_directory(self) -> None:
@@ -151,12 +228,32 @@ class PartWriter:
         return cid
 
     def add_message(self, topic: str, data: bytes, t_ns: int, sequence: int) -> None:
-        """One encoded message at log (and publish) time ``t_ns``."""
+        """One encoded message.
+
+        Parameters
+        ----------
+        topic : str
+            Canonical topic (its channel is registered on first use).
+        data : bytes
+            The encoded message (JSON).
+        t_ns : int
+            Log and publish time, ns since the Unix epoch.
+        sequence : int
+            The message's sequence number in its channel (kept modulo 2**32).
+        """
         self._w.add_message(channel_id=self._channel(topic), log_time=t_ns, data=data, publish_time=t_ns,
                             sequence=sequence & 0xFFFFFFFF)
 
     def add_metadata(self, name: str, record: dict[str, str]) -> None:
-        """A metadata record, written between chunks."""
+        """A metadata record, written between chunks.
+
+        Parameters
+        ----------
+        name : str
+            Record name (``usvlog.datum``, ``usvlog.provenance/0``, ...).
+        record : dict
+            {key: text}.
+        """
         self._w.add_metadata(name, record)
 
     def flush_to_os(self) -> None:
@@ -170,6 +267,12 @@ class PartWriter:
         os.fsync(self._fh.fileno())
 
     def fileno(self) -> int:
+        """The current part's file descriptor (the flush thread fsyncs it outside the lock).
+
+        Returns
+        -------
+        int
+        """
         return self._fh.fileno()
 
     def size(self) -> int:
@@ -185,7 +288,17 @@ class PartWriter:
         return self.bytes_done + cur
 
     def rotation_due(self, now_ns: int) -> bool:
-        """The current part is as large or as old as a part may be."""
+        """Whether the current part is as large or as old as a part may be.
+
+        Parameters
+        ----------
+        now_ns : int
+            The receive time now, ns since the Unix epoch.
+
+        Returns
+        -------
+        bool
+        """
         return ((self.rotate_bytes is not None and self.size() >= self.rotate_bytes) or
                 (self.rotate_ns is not None and now_ns - self.opened_ns >= self.rotate_ns))
 
@@ -198,7 +311,13 @@ class PartWriter:
         self._fh = None
 
     def next_part(self, size: int) -> None:
-        """Count a finished part of ``size`` bytes; the next :meth:`open` makes the one after it."""
+        """Count a finished part; the next :meth:`open` makes the one after it.
+
+        Parameters
+        ----------
+        size : int
+            The finished part's size, bytes.
+        """
         self.bytes_done += size
         self.part += 1
 

@@ -96,12 +96,17 @@ class Recorder(LineInput):
         Bytes after which mcap closes a chunk by itself.
     producer : str
         Provenance ``producer``.
+    clock : tuple of int, optional
+        ``(time.time_ns(), time.monotonic_ns())`` read together: where the receive clock
+        starts (``usvlog record`` passes the moment its first source was opened, so data
+        read before the recorder existed keeps its read time). Default: now.
     """
 
     def __init__(self, path, *, vessel=None, datum: Datum | None = None, flush_s: float = 1.0,
                  rotate_mb: float | None = None, rotate_min: float | None = None, force: bool = False,
                  sources: dict[str, str] | None = None, compression: str = "zstd",
-                 chunk_size: int = 1 << 20, producer: str = "usvlog record"):
+                 chunk_size: int = 1 << 20, producer: str = "usvlog record",
+                 clock: tuple[int, int] | None = None):
         if not (0.01 <= flush_s <= 60.0):
             raise ConfigError(f"flush_s {flush_s} out of range [0.01, 60]")
         if rotate_mb is not None and not rotate_mb > 0:
@@ -124,8 +129,7 @@ class Recorder(LineInput):
                           "compression": compression}
         self.run_id = uuid.uuid4().hex
         self._lock = threading.RLock()
-        self._utc0 = time.time_ns()
-        self._mono0 = time.monotonic_ns()
+        self._utc0, self._mono0 = clock if clock is not None else (time.time_ns(), time.monotonic_ns())
         self._started_utc = format_time(self._utc0)
         self._codecs = {}
         self._seq: dict[str, int] = {}
@@ -147,6 +151,21 @@ class Recorder(LineInput):
     def now_ns(self) -> int:
         """Receive time: the monotonic clock mapped to UTC at start (ns since the epoch)."""
         return self._utc0 + (time.monotonic_ns() - self._mono0)
+
+    def receive_ns(self, monotonic_ns: int) -> int:
+        """The receive time of a read made at ``monotonic_ns`` (a ``time.monotonic_ns()`` value).
+
+        Parameters
+        ----------
+        monotonic_ns : int
+            When the data was read, on the monotonic clock (ns).
+
+        Returns
+        -------
+        int
+            ns since the Unix epoch on the receive clock (:meth:`now_ns` at that moment).
+        """
+        return self._utc0 + (int(monotonic_ns) - self._mono0)
 
     # -- files ---------------------------------------------------------------------
     @property
@@ -230,7 +249,24 @@ class Recorder(LineInput):
         return c
 
     def write(self, topic: str, row: dict, t_ns: int | None = None) -> None:
-        """Write one row ``{column: value}`` of a registered canonical topic at receive time ``t_ns``."""
+        """Write one row of a registered canonical topic.
+
+        Parameters
+        ----------
+        topic : str
+            Canonical topic with a registered schema (``schemas/``).
+        row : dict
+            {column: value} in the schema's units.
+        t_ns : int, optional
+            Receive (log) time, ns since the Unix epoch (default: now).
+
+        Raises
+        ------
+        InputError
+            No schema for the topic, a row that does not fit it, or a negative time.
+        StorageError
+            The recording stopped on a storage failure.
+        """
         data = self._codec(topic).encode_row(row, topic)
         t = self.now_ns() if t_ns is None else int(t_ns)
         if t < 0:
@@ -256,17 +292,47 @@ class Recorder(LineInput):
         return s
 
     def set_dropped(self, source: str, dropped: int) -> None:
-        """Datagrams the OS dropped for ``source`` so far (from the socket's counters)."""
+        """Datagrams the OS dropped for a source so far (from the socket's counters).
+
+        Parameters
+        ----------
+        source : str
+            Source name.
+        dropped : int
+            Datagrams dropped since the start; -1 when unknown.
+        """
         self._source(source).dropped = int(dropped)
 
     # -- samples -------------------------------------------------------------------
     def gnss(self, lat_deg: float, lon_deg: float, alt_m: float = math.nan, *, t_ns: int | None = None,
              stamp_ns: int | None = None, cov=None, frame_id: str = "gnss", source: str = "api",
              _counted: bool = False) -> None:
-        """A position fix (degrees; ``alt_m`` metres above the WGS-84 ellipsoid, NaN when unknown,
-        stored as null; NMEA GGA gives it as sea level + geoid separation, see ``usvlog.nmea``). ``cov``:
-        None (unknown: zeros, type 0), 3 ENU variances in m^2 (diagonal known, type 2) or a full
-        3x3 / 9-element ENU covariance (type 3)."""
+        """A position fix on ``/gnss/fix`` (the first one is the datum unless one was given).
+
+        Parameters
+        ----------
+        lat_deg, lon_deg : float
+            Position, degrees (WGS-84).
+        alt_m : float
+            Metres above the WGS-84 ellipsoid; NaN when unknown (stored as null). NMEA GGA gives
+            it as sea level + geoid separation, see :mod:`usvlog.io.nmea`.
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+        stamp_ns : int, optional
+            The fix's own (GPS) time, ns since the Unix epoch (default: ``t_ns``).
+        cov : array_like, optional
+            None (unknown: zeros, type 0), 3 ENU variances in m^2 (diagonal known, type 2) or a
+            full 3x3 / 9-element ENU covariance in m^2 (type 3).
+        frame_id : str
+            The fix's frame.
+        source : str
+            Source name (counters).
+
+        Raises
+        ------
+        InputError
+            A position out of range or a covariance of another size.
+        """
         if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
             raise InputError(f"channel {TOPIC_FIX}: position {lat_deg},{lon_deg} out of range")
         t = self.now_ns() if t_ns is None else int(t_ns)
@@ -294,7 +360,13 @@ class Recorder(LineInput):
                                      alt_m=float(alt_m) if math.isfinite(alt_m) else 0.0))
 
     def set_datum(self, datum: Datum) -> None:
-        """Store the datum now (metadata record, fsynced at once; later parts repeat it)."""
+        """Store the datum now (metadata record, fsynced at once; later parts repeat it).
+
+        Parameters
+        ----------
+        datum : Datum
+            Local NED origin (latitude, longitude in degrees, altitude in m).
+        """
         with self._lock:
             self._check()
             self._datum = datum
@@ -305,7 +377,23 @@ class Recorder(LineInput):
     def heading(self, heading_rad: float, reference: str = "true", *, t_ns: int | None = None,
                 stamp_ns: int | None = None, std_rad: float | None = None, source: str = "api",
                 _counted: bool = False) -> None:
-        """Heading, rad clockwise from north (wrapped to [-pi, pi))."""
+        """A heading on ``/compass/heading``.
+
+        Parameters
+        ----------
+        heading_rad : float
+            Heading, rad clockwise from north (wrapped to [-pi, pi)).
+        reference : str
+            ``true`` or ``magnetic`` north.
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+        stamp_ns : int, optional
+            The sensor's own time, ns since the Unix epoch (default: ``t_ns``).
+        std_rad : float, optional
+            Standard deviation, rad.
+        source : str
+            Source name (counters).
+        """
         if reference not in ("true", "magnetic"):
             raise InputError(f"channel {TOPIC_HEADING}: reference {reference!r} is not 'true' or 'magnetic'")
         if not math.isfinite(heading_rad):
@@ -320,7 +408,23 @@ class Recorder(LineInput):
     def thrust(self, left: float, right: float, unit: str = "newton", *, t_ns: int | None = None,
                stamp_ns: int | None = None, thrust_left_n: float | None = None,
                thrust_right_n: float | None = None, source: str = "api", _counted: bool = False) -> None:
-        """Thruster commands as sent (``unit``: newton, normalized, pwm_us), with forces when known."""
+        """Thruster commands as sent, on ``/thrust/command``.
+
+        Parameters
+        ----------
+        left, right : float
+            The commands in ``unit``.
+        unit : str
+            ``newton``, ``normalized`` or ``pwm_us``.
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+        stamp_ns : int, optional
+            The sender's own time, ns since the Unix epoch (default: ``t_ns``).
+        thrust_left_n, thrust_right_n : float, optional
+            Forces, N, when known (the commands themselves with ``unit="newton"``).
+        source : str
+            Source name (counters).
+        """
         if unit not in THRUST_UNITS:
             raise InputError(f"channel {TOPIC_THRUST}: unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
         if unit == "newton":
@@ -334,7 +438,17 @@ class Recorder(LineInput):
                                   "thrust_right_n": thrust_right_n}, t)
 
     def event(self, text: str, *, t_ns: int | None = None, source: str = "api") -> None:
-        """A free-text event (operator note, software event) on ``/events``."""
+        """A free-text event (operator note, software event) on ``/events``.
+
+        Parameters
+        ----------
+        text : str
+            The note.
+        t_ns : int, optional
+            Receive time, ns since the Unix epoch (default: now).
+        source : str
+            Who noted it.
+        """
         self.write(TOPIC_EVENTS, {"source": source, "text": str(text)}, t_ns)
 
     # -- flushing, rotation, status ------------------------------------------------

@@ -10,12 +10,28 @@ from dataclasses import dataclass
 from ...errors import ConfigError
 from .output import check_outputs
 from .recorder import Recorder
-from .sources import Source, parse_source
+from .sources import Source, open_sources, shutdown
 from .status import RecorderStatus
 
 
 @dataclass(frozen=True)
 class RecordSummary:
+    """How a recording ended.
+
+    Attributes
+    ----------
+    files : tuple of str
+        The files written, in order.
+    duration_s : float
+        From the start of recording to the stop, s.
+    stopped_by : str
+        ``stop`` (signal or event), ``duration`` or ``error``.
+    status : RecorderStatus
+        The last status, after closing.
+    source_errors : dict
+        Source name -> its last error, for sources that had one.
+    """
+
     files: tuple[str, ...]
     duration_s: float
     stopped_by: str                  # "stop" (signal), "duration", "error"
@@ -23,61 +39,75 @@ class RecordSummary:
     source_errors: dict
 
     def to_dict(self) -> dict:
+        """JSON-ready dict (``usvlog record --json``)."""
         return {"files": list(self.files), "duration_s": self.duration_s, "stopped_by": self.stopped_by,
                 "status": self.status.to_dict(), "source_errors": dict(self.source_errors)}
-
-
-def open_sources(gnss: str | None = None, compass: str | None = None,
-                 thrust: str | None = None) -> list[Source]:
-    """Sources for the given URLs, endpoints open, not started (``attach`` a recorder, then
-    ``start``). GNSS and compass may share one URL."""
-    wanted = [("gnss", gnss, "nmea"), ("compass", compass, "nmea"), ("thrust", thrust, "json")]
-    by_url: dict[str, list] = {}
-    for name, url, kind in wanted:
-        if url:
-            spec = parse_source(url, f"--{name}")
-            entry = by_url.setdefault(spec.url, [[], spec, kind])
-            if entry[2] != kind:
-                raise ConfigError(f"--{name} {url}: one source cannot carry both NMEA and JSON lines")
-            entry[0].append(name)
-    out = []
-    try:
-        for names, spec, kind in by_url.values():
-            out.append(Source("+".join(names), spec, None, kind))
-    except Exception:
-        for s in out:
-            s.close()
-        raise
-    return out
 
 
 def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: str | None = None,
            vessel=None, rotate_mb: float | None = None, rotate_min: float | None = None,
            duration_s: float | None = None, force: bool = False, flush_s: float = 1.0,
-           stop: threading.Event | None = None, on_status=None, status_every_s: float = 1.0) -> RecordSummary:
+           stop: threading.Event | None = None, on_status=None, status_every_s: float = 1.0,
+           sources: list[Source] | None = None) -> RecordSummary:
     """Record live sources into ``out`` until ``stop`` is set, ``duration_s`` passes or storage fails.
 
-    ``on_status(RecorderStatus)`` is called about every ``status_every_s``.
+    Parameters
+    ----------
+    out : str or os.PathLike
+        Output MCAP file (``OUT_000.mcap``, ``OUT_001.mcap``, ... when rotating).
+    gnss, compass, thrust : str, optional
+        Source URLs (see :func:`.sources.parse_source`); at least one.
+    vessel : Vessel, optional
+        Stored in every part.
+    rotate_mb, rotate_min : float, optional
+        Start a new part after this many MB (1e6 bytes) / minutes.
+    duration_s : float, optional
+        Stop after this many seconds.
+    force : bool
+        Overwrite existing outputs.
+    flush_s : float
+        Longest time a message waits in memory, s.
+    stop : threading.Event, optional
+        Set it to stop (a signal handler does).
+    on_status : callable, optional
+        ``on_status(RecorderStatus)``, about every ``status_every_s`` s.
+    status_every_s : float
+        Status interval, s.
+    sources : list of Source, optional
+        The sources for these URLs already opened by :func:`.sources.open_sources`, and
+        possibly started (``usvlog record`` opens them before its heavy imports); their
+        backlog goes into the file with its read times and the receive clock starts when
+        the first was opened. Closed here whatever happens.
+
+    Returns
+    -------
+    RecordSummary
     """
-    if not (gnss or compass or thrust):
-        raise ConfigError("no source: give at least one of --gnss, --compass, --thrust")
-    if duration_s is not None and not duration_s > 0:
-        raise ConfigError(f"--duration-s {duration_s} must be > 0")
+    try:
+        if not (gnss or compass or thrust):
+            raise ConfigError("no source: give at least one of --gnss, --compass, --thrust")
+        if duration_s is not None and not duration_s > 0:
+            raise ConfigError(f"--duration-s {duration_s} must be > 0")
+        check_outputs(out, rotating=rotate_mb is not None or rotate_min is not None, force=force)
+        if sources is None:
+            sources = open_sources(gnss, compass, thrust)  # a busy port or a missing device fails here
+    except Exception:
+        shutdown(sources or [])
+        raise
     stop = stop or threading.Event()
     sources_desc = {k: v for k, v in (("gnss", gnss), ("compass", compass), ("thrust", thrust)) if v}
-    check_outputs(out, rotating=rotate_mb is not None or rotate_min is not None, force=force)
-    sources = open_sources(gnss, compass, thrust)  # a busy port or a missing device fails here
+    clock = min((s.opened_ns for s in sources), key=lambda c: c[1], default=None)
     try:
         rec = Recorder(out, vessel=vessel, flush_s=flush_s, rotate_mb=rotate_mb, rotate_min=rotate_min,
-                       force=force, sources=sources_desc)
+                       force=force, sources=sources_desc, clock=clock)
     except Exception:
-        for s in sources:
-            s.close()
+        shutdown(sources)
         raise
     t0 = time.monotonic()
     for s in sources:
         s.attach(rec)
-        s.start()
+        if s.ident is None:   # not started yet
+            s.start()
     stopped_by = "stop"
     try:
         while True:
@@ -96,10 +126,7 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
                 stopped_by = "duration"
                 break
     finally:
-        for s in sources:
-            s.stop()
-        for s in sources:
-            s.join(timeout=2.0)
+        shutdown(sources)
         rec.close()  # raises the storage error, if any
     return RecordSummary(files=tuple(str(p) for p in rec.paths), duration_s=time.monotonic() - t0,
                          stopped_by=stopped_by, status=rec.status(),

@@ -3,7 +3,22 @@
 URLs: ``serial:///dev/ttyUSB0?baud=4800``, ``udp://0.0.0.0:10110`` (listen),
 ``tcp://host:port`` (connect; reconnects with back-off when the link drops).
 Each source runs in its own thread, splits what it reads into lines, stamps each
-read with the recorder's receive clock and hands the lines to the recorder.
+read with the monotonic clock at the moment it is read and hands the lines to the
+recorder, which maps that time to its receive clock.
+
+Standard library only (and pyserial for a serial port): ``usvlog record`` opens its
+sources and starts their threads *before* it imports numpy, pandas and the MCAP
+writer, so nothing sent after the process starts is lost and nothing is stamped
+late. Until a recorder is attached a source keeps what it reads, with its read
+time, in a backlog (at most ``_MAX_BACKLOG`` reads; more are counted as dropped);
+the first read after :meth:`Source.attach` hands the backlog over first, in order.
+
+A UDP datagram's receive time is when the kernel received it (``SO_TIMESTAMPNS``,
+Linux: the wall clock at arrival, mapped to the monotonic clock with the two clocks'
+difference at the read), so a datagram that waited in the socket buffer while the
+main thread held the interpreter (importing numpy takes it for tens of ms at a time)
+is not stamped late. Elsewhere, and for TCP and serial, it is the monotonic clock
+when the source thread read it: at most a few tens of ms late during the imports.
 """
 
 from __future__ import annotations
@@ -11,17 +26,40 @@ from __future__ import annotations
 import contextlib
 import os
 import socket
+import struct
 import threading
+import time
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
 from ...errors import ConfigError, StorageError
 
 _MAX_LINE = 4096
+_MAX_BACKLOG = 1 << 18     # reads kept before a recorder is attached (more are counted as dropped)
+_SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if os.uname().sysname == "Linux" else None)
+_TIMESPEC = struct.Struct("@qq")   # struct timespec on 64-bit Linux: seconds, nanoseconds
 
 
 @dataclass(frozen=True)
 class SourceSpec:
+    """A parsed source URL.
+
+    Attributes
+    ----------
+    url : str
+        The URL as given.
+    scheme : str
+        ``serial``, ``udp`` or ``tcp``.
+    host : str
+        Address to listen on (UDP) or connect to (TCP).
+    port : int
+        UDP or TCP port (0: any free port, UDP).
+    device : str
+        Serial device (or pyserial URL).
+    baud : int
+        Serial line speed, bit/s.
+    """
+
     url: str
     scheme: str          # serial | udp | tcp
     host: str = ""
@@ -31,7 +69,24 @@ class SourceSpec:
 
 
 def parse_source(url: str, what: str = "source") -> SourceSpec:
-    """Parse a source URL; a bad one raises :class:`ConfigError` naming the option."""
+    """Parse a source URL.
+
+    Parameters
+    ----------
+    url : str
+        ``serial:///dev/ttyUSB0?baud=4800``, ``udp://0.0.0.0:10110`` or ``tcp://host:port``.
+    what : str
+        The option named in an error message (e.g. ``--gnss``).
+
+    Returns
+    -------
+    SourceSpec
+
+    Raises
+    ------
+    ConfigError
+        A URL that does not parse or has an unsupported scheme.
+    """
     try:
         u = urlsplit(url)
         scheme = u.scheme.lower()
@@ -58,7 +113,18 @@ def parse_source(url: str, what: str = "source") -> SourceSpec:
 
 
 def udp_drops(sock: socket.socket) -> int:
-    """Datagrams the kernel dropped for this socket (Linux /proc/net/udp*), -1 when unknown."""
+    """Datagrams the kernel dropped for a UDP socket.
+
+    Parameters
+    ----------
+    sock : socket.socket
+        A bound UDP socket.
+
+    Returns
+    -------
+    int
+        The socket's drop counter from Linux ``/proc/net/udp`` (or ``udp6``); -1 when unknown.
+    """
     try:
         inode = os.fstat(sock.fileno()).st_ino
     except OSError:
@@ -79,9 +145,21 @@ def udp_drops(sock: socket.socket) -> int:
 class Source(threading.Thread):
     """One live source feeding a :class:`~usvlog.io.record.recorder.Recorder`.
 
-    ``kind`` is "nmea" (sentences -> ``rec.nmea``) or "json" (lines -> ``rec.json_line``).
-    Endpoints that listen (UDP, serial) are opened in the constructor so a wrong
-    port or device fails before recording starts.
+    Endpoints that listen (UDP, serial) are opened in the constructor, so a wrong
+    port or device fails before recording starts. The thread may be started before
+    a recorder is attached: what it reads meanwhile waits in a backlog with its read
+    time (see the module notes) and goes to the recorder, in order, once attached.
+
+    Parameters
+    ----------
+    name : str
+        Source name in the log (``gnss``, ``compass``, ``gnss+compass``, ``thrust``).
+    spec : SourceSpec
+        Where to read.
+    recorder : Recorder, optional
+        Where the lines go; or :meth:`attach` one later.
+    kind : str
+        ``nmea`` (sentences -> ``recorder.nmea``) or ``json`` (lines -> ``recorder.json_line``).
     """
 
     def __init__(self, name: str, spec: SourceSpec, recorder=None, kind: str = "nmea"):
@@ -94,9 +172,14 @@ class Source(threading.Thread):
         self.kind = kind
         self.error: str | None = None
         self.reconnects = 0
+        self.backlog_dropped = 0
+        self._backlog: list[tuple[int, bytes | None, bool, str | None]] = []
+        self._buf = bytearray()       # a line not ended yet (TCP, serial)
         self._stop_ev = threading.Event()
         self._sock = None
         self._serial = None
+        # the wall clock and the monotonic clock read together: a receive clock may start here
+        self.opened_ns = (time.time_ns(), time.monotonic_ns())
         if spec.scheme == "udp":
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             with contextlib.suppress(OSError):
@@ -107,6 +190,9 @@ class Source(threading.Thread):
             except OSError as err:
                 s.close()
                 raise StorageError(f"source {name} {spec.url}: cannot listen ({err.strerror})") from err
+            if _SO_TIMESTAMPNS is not None:
+                with contextlib.suppress(OSError):   # kernel receive times (see the module notes)
+                    s.setsockopt(socket.SOL_SOCKET, _SO_TIMESTAMPNS, 1)
             s.settimeout(0.2)
             self._sock = s
         elif spec.scheme == "serial":
@@ -123,28 +209,72 @@ class Source(threading.Thread):
 
     @property
     def address(self) -> tuple[str, int] | None:
-        """The bound (host, port) of a UDP source (useful with port 0)."""
+        """The bound (host, port) of a UDP source (useful with port 0); None for other schemes."""
         return self._sock.getsockname() if self._sock is not None and self.spec.scheme == "udp" else None
 
     @property
     def dropped(self) -> int:
-        return udp_drops(self._sock) if self.spec.scheme == "udp" and self._sock is not None else -1
+        """Datagrams dropped before they were read: by the kernel (UDP; -1 when unknown) plus
+        reads beyond the backlog's bound before a recorder was attached."""
+        if self.spec.scheme != "udp" or self._sock is None:
+            return -1
+        k = udp_drops(self._sock)
+        return k + self.backlog_dropped if k >= 0 else k
 
     def attach(self, recorder) -> None:
-        """The recorder the lines go to (before ``start()``)."""
+        """Send the lines to ``recorder`` (before or after ``start()``; the backlog follows).
+
+        Parameters
+        ----------
+        recorder : Recorder
+            Needs ``nmea``, ``json_line``, ``event``, ``set_dropped`` and ``receive_ns``.
+        """
         self.rec = recorder
 
     def stop(self) -> None:
+        """Ask the thread to finish (within about 0.2 s); what it read is handed over first."""
         self._stop_ev.set()
 
     def close(self) -> None:
-        """Release an endpoint of a source that was never started."""
+        """Release the endpoint (of a source that was never started, or has stopped)."""
         for h in (self._sock, self._serial):
             if h is not None:
                 with contextlib.suppress(Exception):
                     h.close()
 
-    # -- lines -----------------------------------------------------------------------
+    # -- reads ---------------------------------------------------------------------
+    def _deliver(self, mono_ns: int, data: bytes | None, datagram: bool = False, event: str | None = None) -> None:
+        """A read (``data``, with its monotonic read time) or an ``event`` note: to the recorder,
+        or into the backlog while none is attached."""
+        if self.rec is None:
+            if len(self._backlog) < _MAX_BACKLOG:
+                self._backlog.append((mono_ns, data, datagram, event))
+            else:
+                self.backlog_dropped += 1
+            return
+        if self._backlog:
+            self._drain()
+        self._process(mono_ns, data, datagram, event)
+
+    def _drain(self) -> None:
+        """Hand the backlog to the attached recorder, in order (source thread only)."""
+        if self.rec is None:
+            return
+        backlog, self._backlog = self._backlog, []
+        for item in backlog:
+            self._process(*item)
+
+    def _process(self, mono_ns: int, data: bytes | None, datagram: bool, event: str | None) -> None:
+        t_ns = self.rec.receive_ns(mono_ns)
+        if event is not None:
+            self.rec.event(event, t_ns=t_ns, source=self.source_name)
+            return
+        if data:
+            self._feed(self._buf, data, t_ns)
+        if self._buf and (datagram or data is None):   # a datagram (or the end of a stream) ends its last line
+            self._emit(bytes(self._buf), t_ns)
+            self._buf.clear()
+
     def _emit(self, line: bytes, t_ns: int) -> None:
         line = line.rstrip(b"\r\n")
         if not line.strip():
@@ -167,10 +297,17 @@ class Source(threading.Thread):
             self._emit(bytes(buf), t_ns)
             buf.clear()
 
+    def _set_dropped(self) -> None:
+        if self.rec is not None:
+            self.rec.set_dropped(self.source_name, self.dropped)
+
     # -- loops -------------------------------------------------------------------------
     def run(self) -> None:
+        """The thread: read until :meth:`stop`, then hand over what is left."""
         try:
             {"udp": self._run_udp, "tcp": self._run_tcp, "serial": self._run_serial}[self.spec.scheme]()
+            if self.rec is not None:
+                self._drain()
         except StorageError as err:  # the recorder failed: stop quietly, the session reports it
             self.error = str(err)
         except Exception as err:  # keep the thread's failure visible in the status
@@ -179,24 +316,22 @@ class Source(threading.Thread):
             self.close()
 
     def _run_udp(self) -> None:
-        sock, rec = self._sock, self.rec
-        buf = bytearray()
+        sock = self._sock
+        anc_size = socket.CMSG_SPACE(_TIMESPEC.size)
         n = 0
         while not self._stop_ev.is_set():
             try:
-                data = sock.recv(65535)
+                data, anc, _flags, _addr = sock.recvmsg(65535, anc_size)
             except TimeoutError:
-                rec.set_dropped(self.source_name, self.dropped)
+                if self._backlog:
+                    self._drain()
+                self._set_dropped()
                 continue
-            t = rec.now_ns()
-            self._feed(buf, data, t)
-            if buf:  # a datagram ends its last line
-                self._emit(bytes(buf), t)
-                buf.clear()
+            self._deliver(_arrival_ns(anc), data, datagram=True)
             n += 1
             if n % 256 == 0:
-                rec.set_dropped(self.source_name, self.dropped)
-        rec.set_dropped(self.source_name, self.dropped)
+                self._set_dropped()
+        self._set_dropped()
 
     def _run_tcp(self) -> None:
         backoff = 0.2
@@ -210,36 +345,35 @@ class Source(threading.Thread):
                 continue
             self.error = None
             backoff = 0.2
-            self.rec.event(f"{self.source_name}: connected to {self.spec.url}", source=self.source_name)
+            self._deliver(time.monotonic_ns(), None, event=f"{self.source_name}: connected to {self.spec.url}")
             sock.settimeout(0.2)
             self._sock = sock
-            buf = bytearray()
             try:
                 while not self._stop_ev.is_set():
                     try:
                         data = sock.recv(65536)
                     except TimeoutError:
+                        if self._backlog:
+                            self._drain()
                         continue
                     if not data:
                         break
-                    self._feed(buf, data, self.rec.now_ns())
+                    self._deliver(time.monotonic_ns(), data)
             except OSError as err:
                 self.error = f"connection lost ({err.strerror or err})"
             finally:
                 with contextlib.suppress(OSError):
                     sock.close()
                 self._sock = None
-            if buf:
-                self._emit(bytes(buf), self.rec.now_ns())
+            self._deliver(time.monotonic_ns(), None)   # the end of the stream ends its last line
             if not self._stop_ev.is_set():
                 self.reconnects += 1
-                self.rec.event(f"{self.source_name}: connection to {self.spec.url} lost, reconnecting",
-                               source=self.source_name)
+                self._deliver(time.monotonic_ns(), None, event=f"{self.source_name}: connection to "
+                                                              f"{self.spec.url} lost, reconnecting")
 
     def _run_serial(self) -> None:
         import serial
 
-        buf = bytearray()
         while not self._stop_ev.is_set():
             if self._serial is None:
                 try:
@@ -259,4 +393,84 @@ class Source(threading.Thread):
                 self.reconnects += 1
                 continue
             if data:
-                self._feed(buf, data, self.rec.now_ns())
+                self._deliver(time.monotonic_ns(), data)
+            elif self._backlog:
+                self._drain()
+
+
+def _arrival_ns(ancdata) -> int:
+    """When a datagram arrived, on the monotonic clock (ns): the kernel's time stamp when the
+    socket has one (a wall-clock time, shifted by the clocks' difference now), else now."""
+    mono = time.monotonic_ns()
+    for level, kind, raw in ancdata:
+        if level == socket.SOL_SOCKET and kind == _SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(raw)
+            arrived = sec * 1_000_000_000 + nsec - (time.time_ns() - mono)
+            return min(arrived, mono)   # never after the read (a wall clock stepped back)
+    return mono
+
+
+def open_sources(gnss: str | None = None, compass: str | None = None,
+                 thrust: str | None = None) -> list[Source]:
+    """Sources for the given URLs, endpoints open, threads not started.
+
+    Standard library only, so ``usvlog record`` calls it (and starts the threads)
+    before its heavy imports; then ``attach`` a recorder.
+
+    Parameters
+    ----------
+    gnss, compass : str, optional
+        NMEA 0183 source URLs; they may be the same URL (one source, ``gnss+compass``).
+    thrust : str, optional
+        JSON-lines source URL.
+
+    Returns
+    -------
+    list of Source
+        One per distinct URL.
+
+    Raises
+    ------
+    ConfigError
+        A bad URL, or one URL given for NMEA and for JSON lines.
+    StorageError
+        A port that cannot be listened on, a serial device that cannot be opened.
+    """
+    wanted = [("gnss", gnss, "nmea"), ("compass", compass, "nmea"), ("thrust", thrust, "json")]
+    by_url: dict[str, list] = {}
+    for name, url, kind in wanted:
+        if url:
+            spec = parse_source(url, f"--{name}")
+            entry = by_url.setdefault(spec.url, [[], spec, kind])
+            if entry[2] != kind:
+                raise ConfigError(f"--{name} {url}: one source cannot carry both NMEA and JSON lines")
+            entry[0].append(name)
+    out: list[Source] = []
+    try:
+        for names, spec, kind in by_url.values():
+            out.append(Source("+".join(names), spec, None, kind))
+    except Exception:
+        for s in out:
+            s.close()
+        raise
+    return out
+
+
+def shutdown(sources: list[Source], timeout_s: float = 2.0) -> None:
+    """Stop the sources' threads (each hands over what it read first) and release their endpoints.
+
+    Parameters
+    ----------
+    sources : list of Source
+        Started or not.
+    timeout_s : float
+        Longest wait for each thread, s.
+    """
+    for s in sources:
+        s.stop()
+    for s in sources:
+        if s.is_alive():
+            s.join(timeout=timeout_s)
+    for s in sources:
+        if not s.is_alive():
+            s.close()

@@ -67,6 +67,12 @@ class RecorderStatus:
         return " | ".join(parts)
 
     def to_dict(self) -> dict:
+        """JSON-ready dict of the status (times in s, sizes in bytes, positions in degrees).
+
+        Returns
+        -------
+        dict
+        """
         d = {k: getattr(self, k) for k in ("elapsed_s", "path", "file_bytes", "messages_written", "fix_age_s",
                                           "satellites", "hdop", "fix_quality", "error")}
         d["files"] = list(self.files)
@@ -90,17 +96,36 @@ class SourceState:
     fixes: FixSelector = field(default_factory=FixSelector)  # one fix per epoch from its NMEA sentences
 
     def count(self, garbage: bool = False) -> None:
-        """One more message (``garbage``: malformed)."""
+        """One more message.
+
+        Parameters
+        ----------
+        garbage : bool
+            It was malformed.
+        """
         self.messages += 1
         if garbage:
             self.garbage += 1
 
     def update_rate(self, dt_s: float) -> None:
-        """Messages per second since the last update, ``dt_s`` seconds ago."""
+        """Messages per second since the last update.
+
+        Parameters
+        ----------
+        dt_s : float
+            Time since the last update, s.
+        """
         self.rate_hz = (self.messages - self._last_messages) / dt_s
         self._last_messages = self.messages
 
     def snapshot(self) -> SourceStatus:
+        """The counters now, frozen.
+
+        Returns
+        -------
+        SourceStatus
+            With the clock offset (receive minus sensor time) in s, None until known.
+        """
         est = self.offset.estimate()
         return SourceStatus(self.name, self.messages, self.garbage, self.dropped, self.rate_hz,
                             None if est is None else est.offset_ns / 1e9)
