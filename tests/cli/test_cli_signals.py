@@ -71,7 +71,7 @@ def test_handlers_installed_only_while_a_verb_runs(tmp_path, monkeypatch):
     before = signal.getsignal(signal.SIGTERM)
     seen = {}
 
-    def fake_export(log, out, fmt, force):
+    def fake_export(log, out, fmt, force, progress=None):
         seen["handler"] = signal.getsignal(signal.SIGTERM)
         os.kill(os.getpid(), signal.SIGTERM)  # delivered to this (main) thread: raised here
         time.sleep(5)
