@@ -558,7 +558,8 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     if val_log is not None:
         idf.validation_ = idf.validate(val_log)
     if out is not None:
-        write_text_atomic(out, idf.to_vessel().to_toml(), force=force)
+        damage = [f"# {r.source}: {r.recovery.one_line()}\n" for r in runs if r.recovery is not None]
+        write_text_atomic(out, "".join(damage) + idf.to_vessel().to_toml(), force=force)
     if out_log is not None:
         save(fit_log(idf, runs[0]), out_log, force=force)
     return idf

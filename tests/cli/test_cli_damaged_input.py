@@ -69,3 +69,15 @@ def test_other_verbs_say_the_input_is_damaged(damaged, tmp_path, capsys, verb):
     assert main([verb, str(bad), "--out", str(out)]) == 0
     lines = [x for x in capsys.readouterr().err.splitlines() if "input damaged" in x]
     assert len(lines) == 1 and "1 chunk(s) lost" in lines[0]
+
+
+def test_identify_keeps_the_damage_note_in_its_vessel_file(damaged, tmp_path, capsys):
+    import tomllib
+
+    _good, bad = damaged
+    out = tmp_path / "v.toml"
+    assert main(["identify", str(bad), "--out", str(out), "--method", "equation-error", "--json"]) == 0
+    text = out.read_text()
+    assert text.startswith(f"# {bad}: input damaged: ") and "1 chunk(s) lost" in text.splitlines()[0]
+    assert tomllib.loads(text)["model"]["m"] > 0          # still a vessel file
+    assert sum("input damaged" in x for x in capsys.readouterr().err.splitlines()) == 1
