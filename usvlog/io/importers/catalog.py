@@ -1,0 +1,125 @@
+"""What a foreign source holds, before anything is imported: its topics and their field paths.
+
+Every format reader offers ``catalog(path, opts) -> Catalog`` (ROS 1/2 bags, ULog, DataFlash,
+NMEA/text, CSV). ``usvlog inspect SOURCE`` prints it, and the role mapping (which topic and
+field feeds ``gnss``, ``heading``, ``thrust``, ``yaw_rate``, ``velocity``) is chosen from it by
+structure (field names and types), not only by topic names.
+
+Field paths are written the same way for every format: ``field.sub[i]`` after the topic name,
+e.g. ``/fix.latitude``, ``/motors.data[1]``, ``actuator_outputs.1.output[0]`` (ULog topic,
+multi-instance number, field), ``RCOU.C1`` (DataFlash message and field; ``GPS.1.Lat`` for
+an instance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class FieldInfo:
+    """One leaf field of a topic's messages.
+
+    Attributes
+    ----------
+    path : str
+        Path below the topic (``"latitude"``, ``"header.stamp.sec"``, ``"output[3]"``).
+    type : str
+        The source's type name (``"float64"``, ``"uint16"``, ``"string"``, ...).
+    length : int or None
+        Array length for an array field (the path then names the whole array), else None.
+    sample : object
+        A value from the first message (a number, a string, or a short list).
+    """
+
+    path: str
+    type: str
+    length: int | None = None
+    sample: object = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready form: ``path``, ``type``, ``length``, ``sample``."""
+        return {"path": self.path, "type": self.type, "length": self.length, "sample": self.sample}
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """One topic (message type, ULog topic instance, DataFlash message, NMEA sentence, CSV file).
+
+    Attributes
+    ----------
+    name : str
+        The name ``--topic ROLE=NAME.field`` uses.
+    type : str
+        Message type (``"sensor_msgs/msg/NavSatFix"``, ``"vehicle_gps_position"``, ``"GGA"``, ``"csv"``).
+    count : int
+        Messages in the source.
+    first_ns, last_ns : int or None
+        Time span of the messages, ns (on the source's own time base: see ``Catalog.time_base``).
+    fields : tuple of FieldInfo
+        Every leaf field path.
+    note : str
+        Why the topic cannot be read (e.g. an unreadable message definition), else "".
+    """
+
+    name: str
+    type: str
+    count: int
+    first_ns: int | None = None
+    last_ns: int | None = None
+    fields: tuple[FieldInfo, ...] = ()
+    note: str = ""
+
+    @property
+    def rate_hz(self) -> float | None:
+        """Mean message rate in Hz over the span (None for fewer than two messages)."""
+        if self.count < 2 or self.first_ns is None or self.last_ns is None or self.last_ns <= self.first_ns:
+            return None
+        return (self.count - 1) / ((self.last_ns - self.first_ns) * 1e-9)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form with ``rate_hz`` and every field."""
+        return {"name": self.name, "type": self.type, "count": self.count, "first_ns": self.first_ns,
+                "last_ns": self.last_ns, "rate_hz": self.rate_hz, "note": self.note,
+                "fields": [f.to_dict() for f in self.fields]}
+
+
+@dataclass
+class Catalog:
+    """Everything a source holds, and the role mapping chosen from it.
+
+    Attributes
+    ----------
+    source : str
+        The file (or ROS 2 bag directory).
+    format : str
+        ``csv``, ``nmea``, ``ros1``, ``ros2``, ``dataflash`` or ``ulog``.
+    topics : list of TopicInfo
+    time_base : str
+        ``"utc"`` (absolute, from GNSS or the recorder's clock), ``"boot"`` (time since the
+        logger started) or ``"relative"`` (no absolute base).
+    mapping : dict
+        role -> ``"topic.field.path"`` chosen (filled by the mapper).
+    reasons : dict
+        role -> why that source was chosen, or why none was.
+    notes : list of str
+        Anything the user should know (skipped topics, ambiguous candidates).
+    """
+
+    source: str
+    format: str
+    topics: list[TopicInfo] = field(default_factory=list)
+    time_base: str = "relative"
+    mapping: dict = field(default_factory=dict)
+    reasons: dict = field(default_factory=dict)
+    notes: list = field(default_factory=list)
+
+    def topic(self, name: str) -> TopicInfo | None:
+        """The topic called ``name``, or None."""
+        return next((t for t in self.topics if t.name == name), None)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form (``usvlog inspect SOURCE --json``)."""
+        return {"source": self.source, "format": self.format, "time_base": self.time_base,
+                "topics": [t.to_dict() for t in self.topics], "mapping": dict(self.mapping),
+                "reasons": dict(self.reasons), "notes": list(self.notes)}
