@@ -4,8 +4,10 @@ Roles and the messages they come from (field paths ``MSG[.instance].Field``; the
 instance is the value of the message's instance field, e.g. ``GPS.1.Lat``, ``IMU.0.GyrZ``):
 
 * ``gnss``: ``GPS`` (instance 0; Status >= 3: 3-D fix, lower is "no fix", skipped and
-  counted) -> ``/gnss/fix``. A log without GPS messages is noted "no GNSS in this log" and
-  maps no ``gnss`` (``AHR2``/``POS`` carry the autopilot's estimated position, not a fix);
+  counted) -> ``/gnss/fix``, with the receiver's ``GPA.HAcc``/``VAcc`` (m, same TimeUS) as
+  the diagonal of the position covariance (``cov_type`` 2, DIAGONAL_KNOWN). A log without
+  GPS messages is noted "no GNSS in this log" and maps no ``gnss`` (``AHR2``/``POS`` carry
+  the autopilot's estimated position, not a fix);
 * ``speed_mps``: ``GPS.Spd`` with ``GPS.GCrs`` as course -> ``/gnss/velocity``;
 * ``heading``: ``ATT.Yaw`` (or ``AHR2.Yaw`` when there is no ATT) -> ``/compass/heading``;
 * ``yaw_rate``: ``IMU.GyrZ`` of instance 0 (rad/s about the body z axis, FRD) -> ``/imu/yaw_rate``;
@@ -540,6 +542,21 @@ def catalog(path, opts=None) -> Catalog:
 
 
 # ----------------------------------------------------------------------------- read
+def _gpa_covariance(accs: list, keep: np.ndarray) -> dict:
+    """Fix covariance columns (m^2, ENU) from GPA HAcc/VAcc (m) per fix; cov_type 2 (DIAGONAL_KNOWN), else 0."""
+    h = np.asarray([np.nan if a[0] is None else a[0] for a in accs], float)[keep]
+    v = np.asarray([np.nan if a[1] is None else a[1] for a in accs], float)[keep]
+    with np.errstate(invalid="ignore"):
+        okh = np.isfinite(h) & (h > 0) & (h < 1e4)
+        okv = np.isfinite(v) & (v > 0) & (v < 1e4)
+    zero = np.zeros(len(h))
+    out = {c: zero for c in ("cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nu_m2", "cov_ue_m2", "cov_un_m2")}
+    out["cov_ee_m2"] = out["cov_nn_m2"] = np.where(okh, h * h, 0.0)
+    out["cov_uu_m2"] = np.where(okh & okv, v * v, 0.0)
+    out["cov_type"] = np.where(okh, 2, 0).astype(np.int64)
+    return out
+
+
 def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[dict]:
     """Role streams from an ArduPilot DataFlash log as one batch (see :mod:`usvlog.io.importers.core`).
 
@@ -587,8 +604,14 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
     cols = {"gnss": ("lat_deg", "lon_deg", "alt_m"), "velocity": ("sog_mps", "cog_rad"),
             "heading": ("heading_rad",), "yaw_rate": ("r_radps",), "thrust": ("left", "right")}
     acc = {s: {k: [] for k in ("t_ns",) + cols[s]} for s in ch.plan}
+    # receiver accuracy: GPA (HAcc/VAcc, m) is written with the same TimeUS as its GPS message
+    gpa = fmts.get("GPA")
+    use_gpa = ("gnss" in ch.plan and ch.plan["gnss"].msg == "GPS" and gpa is not None and gpa.count > 0
+               and {"HAcc", "VAcc"} <= set(gpa.columns))
+    acc_by_boot: dict[tuple, tuple] = {}
+    fix_boot: list[tuple] = []
     first_inst: dict[str, int | None] = {}
-    for m in _messages(path, sorted(by_msg)) if by_msg else ():
+    for m in _messages(path, sorted(set(by_msg) | ({"GPA"} if use_gpa else set()))) if by_msg else ():
         report.records += 1
         f = _fields(m)
         if f is None:
@@ -609,6 +632,8 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
             report.skip("dataflash_bad_time", 1, where=f"{typ} at TimeUS {int(boot)}")
             continue
         at = f"{typ} at TimeUS {int(boot)}"
+        if typ == "GPA" and use_gpa:
+            acc_by_boot[(inst, int(boot))] = (_num(f, "HAcc"), _num(f, "VAcc"))
         for stream in by_msg.get(typ, ()):
             src = ch.plan[stream]
             want = src.inst if src.inst is not None else first_inst.setdefault(typ, inst)
@@ -625,6 +650,7 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
                     report.skip("dataflash_bad_message", 1, where=f"{at} without Lat/Lng")
                     continue
                 vals = (lat, lon, np.nan if alt is None else alt)
+                fix_boot.append((inst, int(boot)))
             elif stream == "velocity":
                 spd = _num(f, src.fields[0])
                 crs = _num(f, src.fields[1]) if src.fields[1] else None
@@ -660,6 +686,8 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
         report.skip(f"{stream}_time_spike", int(spike.sum()))
         keep = ~spike
         batch[stream] = {k: np.asarray(v, np.int64 if k == "t_ns" else float)[keep] for k, v in a.items()}
+        if stream == "gnss" and acc_by_boot:
+            batch[stream].update(_gpa_covariance([acc_by_boot.get(b, (None, None)) for b in fix_boot], keep))
     if "thrust" in batch:
         th = batch["thrust"]
         unit = opts.thrust_unit
