@@ -482,7 +482,8 @@ def catalog(path, opts=None) -> Catalog:
 
 # ----------------------------------------------------------------------------- read
 def _float(d, key) -> np.ndarray:
-    return np.asarray(d.data[key], float)
+    with np.errstate(invalid="ignore", over="ignore"):   # damaged values: NaN/inf, dropped and counted later
+        return np.asarray(d.data[key], float)
 
 
 def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
