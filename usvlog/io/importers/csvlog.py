@@ -6,7 +6,8 @@ longitude in the row, a thrust sample both commands. Malformed rows (wrong field
 count), unparseable cells and bad times are skipped and counted.
 
 Time: ``time_ns`` (ns since the epoch), ``time_s`` (seconds; since the epoch when the
-values are > 1e8, else relative and shifted by ``--start-utc``) or ``time_iso``
+values are > 1e8, else relative: ``--start-utc`` is then the time of the first row's
+sample, else they count from the Unix epoch) or ``time_iso``
 (ISO 8601 text). Roles are guessed from obvious headers when not given.
 """
 
@@ -61,8 +62,9 @@ def looks_like_csv(text: str) -> bool:
     """Whether the start of a file reads as CSV with a header row.
 
     Looks at the first 20 non-blank lines: the first has a separator (``,``, ``;`` or
-    tab, see :func:`sniff_sep`) and a letter, and no later line has more separators
-    than it (of three or more lines the last is not checked: it may be cut mid-way).
+    tab, see :func:`sniff_sep`) and a letter, and at most one later line in ten (at least
+    one, when there are three or more rows) has more separators than it (of three or more
+    lines the last is not checked: it may be cut mid-way).
 
     Parameters
     ----------
@@ -79,7 +81,8 @@ def looks_like_csv(text: str) -> bool:
     if n < 1:
         return False
     body = lines[1:-1] if len(lines) > 2 else lines[1:]  # the last line may be cut mid-way
-    return all(ln.count(sep) <= n for ln in body) and any(c.isalpha() for c in lines[0])
+    over = sum(1 for ln in body if ln.count(sep) > n)   # one malformed row does not make it "not CSV"
+    return over <= max(1, len(body) // 10) and (over == 0 or len(body) >= 3) and any(c.isalpha() for c in lines[0])
 
 
 def sniff_sep(header_line: str) -> str | None:
@@ -170,9 +173,10 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         t = np.where(present & np.isfinite(v), v, -1.0)
         return t.astype(np.int64)
     if "relative" not in state:
-        fin = v[np.isfinite(v)]
+        fin = v[np.isfinite(v) & (v >= 0)]
         if len(fin):
             state["relative"] = bool(np.median(fin) < 1e8)
+            state["first"] = float(fin[0])   # --start-utc is the time of the first sample
             if state["relative"] and start_ns is None:
                 report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
                 report.note(f"time column {header!r} is relative and no --start-utc was given: "
@@ -186,7 +190,9 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         if not rel:
             ti = np.where(ok, ti * 1000, -1)
     if rel:
-        ti = np.where(ok, ti + int(start_ns or 0), -1)
+        first = int(round(state.get("first", 0.0) * 1e9)) if start_ns is not None else 0
+        ti = np.where(ok, ti - first + int(start_ns or 0), -1)
+        ti = np.where(ti >= 0, ti, -1)
     return ti
 
 
@@ -243,6 +249,11 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     if time_role is None:
         raise InputError(f"{p}: no time column found (give --column time_s=HEADER; columns: "
                          f"{listing(headers)})")
+    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
+        if (a in mapping) != (b in mapping):
+            have, miss = (a, b) if a in mapping else (b, a)
+            raise InputError(f"{p}: column {mapping[have]!r} ({have}) has no {miss} column to pair with "
+                             f"(give --column {miss}=HEADER; columns: {listing(headers)})")
     if not any(r in mapping for r in _VALUE_ROLES):
         raise InputError(f"{p}: no column maps to a role (give --column ROLE=HEADER; columns: "
                          f"{listing(headers)})")
