@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ...errors import InputError
+from .catalog import Catalog, FieldInfo, TopicInfo
 from .core import guess_thrust_unit, listing
 
 # role -> normalized header names that mean it
@@ -367,3 +368,117 @@ class _Chunker:
             batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
                                "unit": np.full(int(both.sum()), self.thrust_unit or "newton", dtype=object)}
         return batch
+
+
+# role -> canonical stream it feeds (for the catalog's mapping)
+_ROLE_STREAM = {"lat_deg": "gnss", "lon_deg": "gnss", "alt_m": "gnss", "heading_deg": "heading",
+                "heading_rad": "heading", "thrust_left": "thrust", "thrust_right": "thrust",
+                "yaw_rate_degps": "yaw_rate", "yaw_rate_radps": "yaw_rate", "speed_mps": "velocity",
+                "course_deg": "velocity"}
+
+
+def catalog(path, opts) -> Catalog:
+    """What a CSV log holds: one topic (the file) whose fields are its columns.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file.
+    opts : usvlog.io.importers.ImportOptions
+        ``columns`` (role -> header) given by the user; the rest is guessed as :func:`read`
+        does.
+
+    Returns
+    -------
+    Catalog
+        One topic named after the file (type ``csv``), its row count and time span (ns on
+        the time column's base: since the Unix epoch, or since the first row for relative
+        seconds), one field per column with its type (``float``, ``int``, ``text``,
+        ``empty``) and first non-empty value; ``mapping`` role -> column (each role the
+        importer uses, with why: given, or the header's common name); ``time_base`` ``utc``
+        or ``relative``.
+
+    Raises
+    ------
+    InputError
+        No header row, or a column given in ``opts.columns`` that is not in the header.
+    """
+    from pathlib import Path  # only the catalog needs it
+
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
+            header_line = fh.readline()
+    except OSError as err:
+        raise InputError(f"{p}: cannot read ({err})") from err
+    if not header_line.strip():
+        raise InputError(f"{p}: empty file (no header row)")
+    sep = sniff_sep(header_line) or ","
+    try:
+        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
+        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
+    missing = {r: h for r, h in opts.columns.items() if h not in headers}
+    if missing:
+        r, h = next(iter(missing.items()))
+        raise InputError(f"{p}: column {h!r} for role {r} is not in the header (columns: {listing(headers)})")
+    mapping, guessed = guess_mapping(headers, opts.columns)
+    time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
+    n = 0
+    first: dict = {}
+    kinds: dict = {h: set() for h in headers}
+    t_lo = t_hi = None
+    rel = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pd.errors.ParserWarning)
+        for chunk in _chunks(p, sep, opts.chunk_rows):
+            n += len(chunk)
+            for h in headers:
+                col = chunk[h]
+                nz = col.dropna()
+                if len(nz) and h not in first:
+                    v = nz.iloc[0]
+                    first[h] = v.item() if hasattr(v, "item") else str(v)
+                dt = col.dtype
+                kinds[h].add("int" if pd.api.types.is_integer_dtype(dt) else
+                             "float" if pd.api.types.is_numeric_dtype(dt) else
+                             ("text" if len(nz) else "empty"))
+            if time_role is not None:
+                t = _times(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2, {})
+                t = t[t >= 0]
+                if len(t):
+                    t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
+                    t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
+                    rel = rel or bool(np.median(t) < 1e17)
+    fields = []
+    for h in headers:
+        k = kinds[h] - {"empty"} or {"empty"}
+        ftype = "float" if k == {"int", "float"} else "text" if len(k) > 1 else next(iter(k))
+        fields.append(FieldInfo(path=str(h), type=ftype, sample=first.get(h)))
+    cat = Catalog(source=str(p), format="csv",
+                  topics=[TopicInfo(name=p.name, type="csv", count=n, first_ns=t_lo, last_ns=t_hi,
+                                    fields=tuple(fields))],
+                  time_base="relative" if (rel or time_role is None) else "utc")
+    for role, h in mapping.items():
+        cat.mapping[role] = f"{p.name}.{h}"
+        stream = _ROLE_STREAM.get(role, "time")
+        cat.reasons[role] = (f"given (--column {role}={h})" if role not in guessed else
+                             f"header {h!r} is a common name for {role}") + f"; feeds {stream}"
+    if time_role is None:
+        cat.notes.append(f"no time column found: give --column time_s=HEADER (columns: {listing(headers)})")
+    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
+        if (a in mapping) != (b in mapping):
+            cat.notes.append(f"{a if a in mapping else b} has no {b if a in mapping else a} column to pair with")
+    return cat
+
+
+class _Quiet:
+    """A report stand-in that drops what it is told (the catalog only looks)."""
+
+    guesses: dict = {}
+
+    def skip(self, *a, **k) -> None:
+        pass
+
+    def note(self, *a, **k) -> None:
+        pass
