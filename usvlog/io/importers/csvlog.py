@@ -261,10 +261,17 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     if on_mapping is not None:
         on_mapping(report)
     chunker = _Chunker(mapping, time_role, opts, report)
+    short, n_lines = short_rows(p, sep, header_line.count(sep))
+    cut = [k for k in short if k == n_lines - 1]   # the last row of a file cut mid-way
+    if cut:
+        report.skip("csv_truncated_row", 1, where=f"line {cut[0] + 1}: the file ends inside this row")
+    body = [k for k in short if k != n_lines - 1]
+    if body:
+        report.skip("csv_malformed_row", len(body), where=f"line {body[0] + 1}: fewer fields than the header")
     line0 = 2
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", pd.errors.ParserWarning)
-        for chunk in _chunks(p, sep, opts.chunk_rows):
+        for chunk in _chunks(p, sep, opts.chunk_rows, skip=short):
             report.records += len(chunk)
             _count_malformed(caught, report)
             batch = chunker.batch(chunk, line0)
@@ -273,10 +280,61 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
         _count_malformed(caught, report)
 
 
-def _chunks(p, sep: str, chunk_rows: int) -> Iterator[pd.DataFrame]:
+def short_rows(path, sep: str, n_sep: int, block: int = 1 << 24) -> tuple[list[int], int]:
+    """(0-based line numbers of the non-blank rows with fewer separators than the header, lines in the file).
+
+    pandas fills a row that lacks cells with empty ones, so a row missing its first cell
+    would shift every value into the wrong column; such rows are skipped and counted
+    instead (rows with too many cells pandas drops itself). Read in blocks with numpy
+    (memory stays flat). A file with quotes is not checked (a quoted separator would
+    count).
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file.
+    sep : str
+        The one-character separator.
+    n_sep : int
+        Separators in the header row.
+    block : int
+        Bytes read at a time.
+    """
+    out: list[int] = []
+    sepb, line, carry = ord(sep), 0, b""
+    with open(path, "rb") as fh:
+        while True:
+            buf = fh.read(block)
+            data = carry + buf
+            if not data:
+                break
+            if not buf:
+                data += b"\n"
+            a = np.frombuffer(data, np.uint8)
+            if (a == ord('"')).any():
+                return [], 0
+            nl = np.flatnonzero(a == 10)
+            if len(nl) == 0:
+                carry = data
+                continue
+            cs = np.concatenate([[0], np.cumsum(a == sepb)])
+            starts = np.concatenate([[0], nl[:-1] + 1])
+            per = cs[nl] - cs[starts]
+            nonblank = (nl - starts) > np.where(a[np.maximum(nl - 1, 0)] == 13, 1, 0)
+            bad = np.flatnonzero((per < n_sep) & nonblank)
+            out.extend(int(line + k) for k in bad if line + k > 0)
+            line += len(nl)
+            carry = data[nl[-1] + 1:]
+            if not buf:
+                break
+    return out, line
+
+
+def _chunks(p, sep: str, chunk_rows: int, skip=()) -> Iterator[pd.DataFrame]:
     """pandas' chunked reader; its parser errors become one-line InputErrors naming the file."""
     try:
         reader = pd.read_csv(p, sep=sep, chunksize=chunk_rows, keep_default_na=False, na_values=[""],
+                             skiprows=list(skip) or None,
                              on_bad_lines="warn", encoding_errors="replace", skip_blank_lines=False,
                              low_memory=True)
         yield from reader   # usvlog's work on each chunk runs in the caller, outside this try
