@@ -280,7 +280,7 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
         _count_malformed(caught, report)
 
 
-def short_rows(path, sep: str, n_sep: int, block: int = 1 << 24) -> tuple[list[int], int]:
+def short_rows(path, sep: str, n_sep: int, block: int = 1 << 22) -> tuple[list[int], int]:
     """(0-based line numbers of the non-blank rows with fewer separators than the header, lines in the file).
 
     pandas fills a row that lacks cells with empty ones, so a row missing its first cell
@@ -305,26 +305,26 @@ def short_rows(path, sep: str, n_sep: int, block: int = 1 << 24) -> tuple[list[i
     with open(path, "rb") as fh:
         while True:
             buf = fh.read(block)
-            data = carry + buf
-            if not data:
-                break
+            data = carry + buf if carry else buf
             if not buf:
-                data += b"\n"
-            a = np.frombuffer(data, np.uint8)
-            if (a == ord('"')).any():
+                if not carry:
+                    break
+                data = carry + b"\n"
+            if b'"' in data:
                 return [], 0
+            a = np.frombuffer(data, np.uint8)
             nl = np.flatnonzero(a == 10)
             if len(nl) == 0:
                 carry = data
                 continue
-            cs = np.concatenate([[0], np.cumsum(a == sepb)])
-            starts = np.concatenate([[0], nl[:-1] + 1])
-            per = cs[nl] - cs[starts]
-            nonblank = (nl - starts) > np.where(a[np.maximum(nl - 1, 0)] == 13, 1, 0)
-            bad = np.flatnonzero((per < n_sep) & nonblank)
+            seps = np.searchsorted(np.flatnonzero(a == sepb), nl)   # separators before each line end
+            per = np.diff(seps, prepend=0)
+            length = np.diff(nl, prepend=-1) - 1
+            blank = (length == 0) | ((length == 1) & (a[np.maximum(nl - 1, 0)] == 13))
+            bad = np.flatnonzero((per < n_sep) & ~blank)
             out.extend(int(line + k) for k in bad if line + k > 0)
             line += len(nl)
-            carry = data[nl[-1] + 1:]
+            carry = data[int(nl[-1]) + 1:]
             if not buf:
                 break
     return out, line

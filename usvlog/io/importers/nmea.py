@@ -182,8 +182,8 @@ class _Scan:
 def _scan(path, fmt: str | None, limit: int = _SCAN_LINES) -> _Scan:
     sc = _Scan()
     for i, line in enumerate(_lines(path)):
-        if i >= limit:
-            break
+        if i >= limit or (i >= 2000 and sc.day0 is not None and (len(sc.offsets) >= 50 or sc.kind != "local")):
+            break   # enough seen: checksums, VTG, prefix kind in 2000 lines; a date and the offsets
         m = _SENTENCE.search(line)
         if m is None:
             continue
