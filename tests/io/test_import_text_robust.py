@@ -21,6 +21,7 @@ from usvlog.errors import InputError
 from usvlog.io.importers import ImportOptions, import_file
 from usvlog.io.importers.csvlog import catalog as csv_catalog
 from usvlog.io.importers.csvlog import looks_like_csv
+from usvlog.io.importers.nmea import PrefixTimeError, looks_like_nmea, prefix_time
 from usvlog.io.importers.nmea import catalog as nmea_catalog
 from usvlog.io.nmea import with_checksum as _cs
 
@@ -300,3 +301,33 @@ def test_import_json_failure_prints_an_error_object(tmp_path, capsys):
     assert rc == 2
     out = json.loads(capsys.readouterr().out)
     assert "nothing imported" in out["error"] and out["kind"] == "InputError"
+
+
+@settings(max_examples=200, deadline=None)
+@given(text=st.text(st.sampled_from("0123456789-:T .,Ze+|[]abc"), max_size=40),
+       fmt=st.sampled_from([None, "auto", "%Y-%m-%d %H:%M:%S.%f", "%H:%M:%S"]))
+def test_prefix_time_reads_or_says_why(text, fmt):
+    try:
+        got = prefix_time(text, fmt)
+    except PrefixTimeError:
+        return
+    assert got is None or (isinstance(got[0], int) and got[1] in ("utc", "local", "relative"))
+
+
+def test_prefix_kinds():
+    assert prefix_time("2024-05-01T10:00:00.5Z x") == (1_714_557_600_500_000_000, "utc")
+    assert prefix_time("2024-05-01 12:00:00+0200 |") == (1_714_557_600_000_000_000, "utc")
+    assert prefix_time("2024-05-01 10:00:00,25 INFO") == (1_714_557_600_250_000_000, "local")
+    assert prefix_time("1714557600.5 ") == (1_714_557_600_500_000_000, "utc")
+    assert prefix_time("12.5 ") == (12_500_000_000, "relative")
+    assert prefix_time("[INFO] nmea: ") is None
+    for bad in ("1e300 ", "-5 ", "2024-13-01 10:00:00 "):
+        with pytest.raises(PrefixTimeError):
+            prefix_time(bad)
+
+
+def test_a_capture_with_many_logger_lines_is_nmea():
+    lines = [f"2023-09-01 15:56:4{i}.000 | INFO | main - status {i}" for i in range(6)]
+    lines += [f"2023-09-01 15:56:4{i}.500 | DEBUG | recv - " + _cs("GPHDT,10.0,T") for i in range(3)]
+    assert looks_like_nmea("\n".join(lines))
+    assert not looks_like_nmea("time,lat,lon\n1,2,3\n4,5,6\n")

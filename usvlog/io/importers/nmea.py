@@ -75,8 +75,9 @@ _ZONE_STEP_NS = 15 * 60 * 1_000_000_000  # time zones are whole quarter hours
 def looks_like_nmea(text: str) -> bool:
     """Whether the start of a file reads as an NMEA 0183 log.
 
-    True when at least half of the first 40 non-blank lines hold a sentence start
-    (``$`` or ``!``, talker and type, a comma) anywhere in the line, after any prefix.
+    True when at least a quarter of the first 40 non-blank lines (and two of them, in a file
+    of two lines or more) hold a sentence start (``$`` or ``!``, talker and type, a comma)
+    anywhere in the line, after any prefix: a logger's capture may interleave its own lines.
 
     Parameters
     ----------
@@ -87,7 +88,7 @@ def looks_like_nmea(text: str) -> bool:
     if not lines:
         return False
     hits = sum(1 for ln in lines if _SENTENCE.search(ln))
-    return hits >= max(1, len(lines) // 2)
+    return hits >= max(min(2, len(lines)), len(lines) // 4)
 
 
 class PrefixTimeError(ValueError):
@@ -642,7 +643,7 @@ def catalog(path, opts) -> Catalog:
                 pre = prefix_time(line[:m.start()], mode)
             except PrefixTimeError:
                 pre = None
-            if pre is not None and pre[1] == sc.kind:
+            if pre is not None and pre[1] == sc.kind and 0 <= pre[0] + offset < 2**62:
                 t = pre[0] + offset
         if t is not None:
             lo, hi = span.get(typ, (t, t))
