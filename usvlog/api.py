@@ -137,7 +137,7 @@ def save(log: FieldLog, path: PathLike, force: bool = False, **kw) -> Path:
 def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto", vessel=None,
                columns: dict[str, str] | None = None, topics: dict[str, str] | None = None,
                thrust_unit: str | None = None, start_utc: str | int | None = None, force: bool = False,
-               on_mapping: Callable | None = None) -> ImportResult:
+               on_mapping: Callable | None = None, prefix_time: str | None = None) -> ImportResult:
     """Import a field log (CSV, NMEA 0183, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg): ``usvlog import``.
 
     Parameters
@@ -162,12 +162,17 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         Unit of the recorded thruster commands (:data:`usvlog.choices.THRUST_UNITS`);
         None guesses it from the values.
     start_utc : str or int, optional
-        Start time of relative time columns: ISO 8601 text or ns since the Unix epoch.
+        Time of the first sample of a log with relative times: ISO 8601 text or ns since the
+        Unix epoch.
     force : bool
         Replace an existing ``out``.
     on_mapping : callable, optional
         Called with the import report once the column/topic mapping is known, before the bulk
         of the work.
+    prefix_time : str, optional
+        NMEA/text logs: ``"auto"`` or a ``strptime`` format to use the time stamps a logger
+        wrote before each sentence, ``"none"`` never; None uses only stamps that say their
+        zone (``--prefix-time``).
 
     Returns
     -------
@@ -179,7 +184,7 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
 
     return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
                        thrust_unit=thrust_unit, start_utc=start_utc, out=out, force=force,
-                       on_mapping=on_mapping)
+                       on_mapping=on_mapping, prefix_time=prefix_time)
 
 
 def inspect(log) -> LogSummary:

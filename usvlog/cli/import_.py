@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..choices import IMPORT_FORMATS, THRUST_UNITS
+from ..errors import UsvlogError
 from .common import print_json, stage
 
 
@@ -23,7 +24,12 @@ def register(sub) -> None:
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
     p.add_argument("--start-utc", default=None, metavar="ISO",
-                   help="start time for relative time columns / line stamps, e.g. 2024-05-01T10:00:00Z")
+                   help="time of the first sample of a log with relative times (time columns, line stamps), "
+                        "e.g. 2024-05-01T10:00:00Z")
+    p.add_argument("--prefix-time", default=None, metavar="auto|FORMAT",
+                   help="NMEA/text: use the time stamp a logger wrote before each sentence (auto: ISO 8601 or "
+                        "seconds; or a strptime format such as '%%Y-%%m-%%d %%H:%%M:%%S.%%f'; none: never). "
+                        "Default: only stamps that give their zone; sentence UTC (RMC/ZDA) otherwise")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the import report as JSON")
     p.set_defaults(func=run)
@@ -40,10 +46,17 @@ def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
     from ..io.importers import parse_pairs
 
-    res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
-                         columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
-                         thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
-                         on_mapping=_print_mapping)
+    try:
+        res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
+                             columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
+                             thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
+                             on_mapping=_print_mapping,
+                             prefix_time=getattr(args, "prefix_time", None))
+    except Exception as err:
+        if args.json:   # a machine reader gets JSON on failure too; the error still goes to stderr, same exit code
+            print_json({"error": " ".join(str(err).split()) or type(err).__name__, "kind": type(err).__name__,
+                        "internal": not isinstance(err, UsvlogError)})
+        raise
     r = res.report
     if args.json:
         print_json(res.to_dict())

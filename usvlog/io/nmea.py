@@ -9,7 +9,8 @@ previous sentence's time and the file's RMC date, and reads line prefixes.
 * position: GGA (with altitude, satellites, HDOP, fix quality), RMC, GLL;
 * heading: HDT (true), HDG (magnetic sensor heading + deviation, + variation when
   given -> true), HDM (magnetic); radians clockwise from north, wrapped with ``ssa``;
-* ground velocity: VTG (speed over ground m/s, course over true north rad);
+* ground velocity: VTG and RMC (speed over ground m/s, course over true north rad; an
+  unreadable RMC speed or course is left None, the position is kept);
 * GPS time: RMC and ZDA carry the date; GGA and GLL only the time of day, which
   :func:`resolve_time_of_day` places on the day nearest a reference time (this is
   also how both callers handle a midnight roll-over).
@@ -80,8 +81,8 @@ class NmeaSample(NamedTuple):
     has_fix: bool = False              # position fields are valid
     heading_rad: float | None = None
     reference: str | None = None       # "true" | "magnetic"
-    sog_mps: float | None = None       # VTG speed over ground
-    cog_rad: float | None = None       # VTG course over ground (true), [-pi, pi)
+    sog_mps: float | None = None       # VTG / RMC speed over ground, m/s
+    cog_rad: float | None = None       # VTG / RMC course over ground (true), rad in [-pi, pi)
     time_of_day_ns: int | None = None  # ns since UTC midnight
     date: _dt.date | None = None       # UTC date (RMC, ZDA)
 
@@ -234,6 +235,21 @@ def _signed(value: str, direction: str, what: str) -> float:
     return v
 
 
+def _rmc_velocity(kn: str, course: str) -> tuple[float | None, float | None]:
+    """RMC speed over ground (knots -> m/s) and course (deg -> rad); None for a field that is
+    empty or unreadable (a bad speed does not cost the sentence its position)."""
+    try:
+        v = _float(kn, "speed over ground")
+        sog = v * _KNOT_MPS if v is not None and v >= 0 else None
+    except NmeaFieldError:
+        sog = None
+    try:
+        cog = _angle(course, "course") if course else None
+    except NmeaFieldError:
+        cog = None
+    return sog, cog
+
+
 # -- sentences ------------------------------------------------------------------
 
 _PAD = [""] * 14
@@ -287,7 +303,9 @@ def parse_sentence(text: str, *, require_checksum: bool = True) -> NmeaSample:
         pos = _position(f[2], f[3], f[4], f[5]) if f[1] == "A" else None
         if pos is None:
             return NmeaSample(kind, talker, time_of_day_ns=tod, date=date)
-        return NmeaSample(kind, talker, lat_deg=pos[0], lon_deg=pos[1], has_fix=True, time_of_day_ns=tod, date=date)
+        sog, cog = _rmc_velocity(f[6], f[7])
+        return NmeaSample(kind, talker, lat_deg=pos[0], lon_deg=pos[1], has_fix=True, sog_mps=sog, cog_rad=cog,
+                          time_of_day_ns=tod, date=date)
     if kind == "GLL":
         # lat, N/S, lon, E/W, time, status (absent before NMEA 2.3: valid), mode
         tod = _tod_ns(f[4])

@@ -55,8 +55,12 @@ class ImportOptions:
     thrust_unit: str | None = None                # None: guessed from the values
     start_utc_ns: int | None = None               # for relative time columns
     chunk_rows: int = 50_000
+    prefix_time: str | None = None                # text logs: None, "auto", "none" or a strptime format
 
     def __post_init__(self):
+        if self.prefix_time is not None and self.prefix_time not in ("auto", "none") and "%" not in self.prefix_time:
+            raise ConfigError(f"--prefix-time {self.prefix_time!r} is not auto, none or a strptime format "
+                              "such as '%Y-%m-%d %H:%M:%S.%f'")
         if self.thrust_unit is not None and self.thrust_unit not in THRUST_UNITS:
             raise ConfigError(f"thrust unit {self.thrust_unit!r} is not one of {', '.join(THRUST_UNITS)}")
         for role in self.columns:
@@ -78,8 +82,11 @@ class ImportOptions:
             guessed) and ``start_utc_ns`` (ns since the Unix epoch, or None); ``chunk_rows``
             is not recorded.
         """
-        return {"columns": dict(self.columns), "topics": dict(self.topics), "thrust_unit": self.thrust_unit,
-                "start_utc_ns": self.start_utc_ns}
+        d = {"columns": dict(self.columns), "topics": dict(self.topics), "thrust_unit": self.thrust_unit,
+             "start_utc_ns": self.start_utc_ns}
+        if self.prefix_time is not None:
+            d["prefix_time"] = self.prefix_time
+        return d
 
 
 @dataclass(frozen=True)
@@ -190,7 +197,7 @@ def file_identity(path) -> dict:
 def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
                 datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
-                on_mapping=None) -> ImportResult:
+                on_mapping=None, prefix_time: str | None = None) -> ImportResult:
     """Import one field log.
 
     Parameters
@@ -208,7 +215,8 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     thrust_unit : str, optional
         ``newton``, ``normalized`` or ``pwm_us``; guessed from the values when None.
     start_utc : str or int, optional
-        Start of relative times: ISO 8601 text or ns since the Unix epoch.
+        Time of the first sample of a log with relative times (ISO 8601 text or ns since the
+        Unix epoch); for NMEA without RMC/ZDA also the date.
     datum : usvlog.model.frames.Datum, optional
         Origin of the local NED frame; the first kept fix when None.
     out : path-like, optional
@@ -219,6 +227,10 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         Source records per batch (memory stays flat).
     on_mapping : callable, optional
         ``on_mapping(report)`` once the mapping is known, before the bulk of the work.
+    prefix_time : str, optional
+        NMEA/text logs: use the time stamps before the sentences (``"auto"``: ISO 8601 or
+        seconds; or a ``strptime`` format); ``"none"``: never; None: only stamps that say
+        their zone or are epoch seconds (see :mod:`usvlog.io.importers.nmea`).
 
     Returns
     -------
@@ -242,7 +254,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
     start_ns = start_utc if isinstance(start_utc, int) or start_utc is None else parse_start_utc(start_utc)
     opts = ImportOptions(columns=dict(columns or {}), topics=dict(topics or {}), thrust_unit=thrust_unit,
-                         start_utc_ns=start_ns, chunk_rows=chunk_rows)
+                         start_utc_ns=start_ns, chunk_rows=chunk_rows, prefix_time=prefix_time)
     if out is not None:
         check_output(out, force)
     if p.is_file() and p.stat().st_size == 0:

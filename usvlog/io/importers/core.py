@@ -94,7 +94,7 @@ class ImportReport:
         Parameters
         ----------
         text : str
-            One line, e.g. ``"altitude unknown for some fixes: written as 0 m"``.
+            One line, e.g. ``"altitude unknown for some fixes (e.g. RMC-only fixes): written as null"``.
         """
         if text not in self.notes:
             self.notes.append(text)
@@ -302,9 +302,9 @@ class Assembler:
             self.datum = Datum(lat_deg=float(c["lat_deg"][0]), lon_deg=float(c["lon_deg"][0]), alt_m=alt0)
         alt = np.asarray(c.get("alt_m", np.full(n, np.nan)), float)
         if not np.isfinite(alt).all():
-            # LocationFix needs a number; the 3-DOF model never uses altitude
-            self.report.note("altitude unknown for some fixes: written as 0 m")
-            alt = np.where(np.isfinite(alt), alt, 0.0)
+            # unknown stays unknown: LocationFix altitude is null then (the 3-DOF model never uses it)
+            self.report.note("altitude unknown for some fixes (e.g. RMC-only fixes): written as null")
+            alt = np.where(np.isfinite(alt), alt, np.nan)
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64),
                 "frame_id": np.asarray(c.get("frame_id", np.full(n, "gnss", dtype=object)), dtype=object),
                 "lat_deg": c["lat_deg"].astype(float), "lon_deg": c["lon_deg"].astype(float), "alt_m": alt}

@@ -6,7 +6,8 @@ longitude in the row, a thrust sample both commands. Malformed rows (wrong field
 count), unparseable cells and bad times are skipped and counted.
 
 Time: ``time_ns`` (ns since the epoch), ``time_s`` (seconds; since the epoch when the
-values are > 1e8, else relative and shifted by ``--start-utc``) or ``time_iso``
+values are > 1e8, else relative: ``--start-utc`` is then the time of the first row's
+sample, else they count from the Unix epoch) or ``time_iso``
 (ISO 8601 text). Roles are guessed from obvious headers when not given.
 """
 
@@ -20,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ...errors import InputError
+from .catalog import Catalog, FieldInfo, TopicInfo
 from .core import guess_thrust_unit, listing
 
 # role -> normalized header names that mean it
@@ -61,8 +63,9 @@ def looks_like_csv(text: str) -> bool:
     """Whether the start of a file reads as CSV with a header row.
 
     Looks at the first 20 non-blank lines: the first has a separator (``,``, ``;`` or
-    tab, see :func:`sniff_sep`) and a letter, and no later line has more separators
-    than it (of three or more lines the last is not checked: it may be cut mid-way).
+    tab, see :func:`sniff_sep`) and a letter, and at most one later line in ten (at least
+    one, when there are three or more rows) has more separators than it (of three or more
+    lines the last is not checked: it may be cut mid-way).
 
     Parameters
     ----------
@@ -79,7 +82,8 @@ def looks_like_csv(text: str) -> bool:
     if n < 1:
         return False
     body = lines[1:-1] if len(lines) > 2 else lines[1:]  # the last line may be cut mid-way
-    return all(ln.count(sep) <= n for ln in body) and any(c.isalpha() for c in lines[0])
+    over = sum(1 for ln in body if ln.count(sep) > n)   # one malformed row does not make it "not CSV"
+    return over <= max(1, len(body) // 10) and (over == 0 or len(body) >= 3) and any(c.isalpha() for c in lines[0])
 
 
 def sniff_sep(header_line: str) -> str | None:
@@ -170,9 +174,10 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         t = np.where(present & np.isfinite(v), v, -1.0)
         return t.astype(np.int64)
     if "relative" not in state:
-        fin = v[np.isfinite(v)]
+        fin = v[np.isfinite(v) & (v >= 0)]
         if len(fin):
             state["relative"] = bool(np.median(fin) < 1e8)
+            state["first"] = float(fin[0])   # --start-utc is the time of the first sample
             if state["relative"] and start_ns is None:
                 report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
                 report.note(f"time column {header!r} is relative and no --start-utc was given: "
@@ -186,7 +191,9 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         if not rel:
             ti = np.where(ok, ti * 1000, -1)
     if rel:
-        ti = np.where(ok, ti + int(start_ns or 0), -1)
+        first = int(round(state.get("first", 0.0) * 1e9)) if start_ns is not None else 0
+        ti = np.where(ok, ti - first + int(start_ns or 0), -1)
+        ti = np.where(ti >= 0, ti, -1)
     return ti
 
 
@@ -243,16 +250,28 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     if time_role is None:
         raise InputError(f"{p}: no time column found (give --column time_s=HEADER; columns: "
                          f"{listing(headers)})")
+    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
+        if (a in mapping) != (b in mapping):
+            have, miss = (a, b) if a in mapping else (b, a)
+            raise InputError(f"{p}: column {mapping[have]!r} ({have}) has no {miss} column to pair with "
+                             f"(give --column {miss}=HEADER; columns: {listing(headers)})")
     if not any(r in mapping for r in _VALUE_ROLES):
         raise InputError(f"{p}: no column maps to a role (give --column ROLE=HEADER; columns: "
                          f"{listing(headers)})")
     if on_mapping is not None:
         on_mapping(report)
     chunker = _Chunker(mapping, time_role, opts, report)
+    short, n_lines = short_rows(p, sep, header_line.count(sep))
+    cut = [k for k in short if k == n_lines - 1]   # the last row of a file cut mid-way
+    if cut:
+        report.skip("csv_truncated_row", 1, where=f"line {cut[0] + 1}: the file ends inside this row")
+    body = [k for k in short if k != n_lines - 1]
+    if body:
+        report.skip("csv_malformed_row", len(body), where=f"line {body[0] + 1}: fewer fields than the header")
     line0 = 2
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", pd.errors.ParserWarning)
-        for chunk in _chunks(p, sep, opts.chunk_rows):
+        for chunk in _chunks(p, sep, opts.chunk_rows, skip=short):
             report.records += len(chunk)
             _count_malformed(caught, report)
             batch = chunker.batch(chunk, line0)
@@ -261,10 +280,61 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
         _count_malformed(caught, report)
 
 
-def _chunks(p, sep: str, chunk_rows: int) -> Iterator[pd.DataFrame]:
+def short_rows(path, sep: str, n_sep: int, block: int = 1 << 22) -> tuple[list[int], int]:
+    """(0-based line numbers of the non-blank rows with fewer separators than the header, lines in the file).
+
+    pandas fills a row that lacks cells with empty ones, so a row missing its first cell
+    would shift every value into the wrong column; such rows are skipped and counted
+    instead (rows with too many cells pandas drops itself). Read in blocks with numpy
+    (memory stays flat). A file with quotes is not checked (a quoted separator would
+    count).
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file.
+    sep : str
+        The one-character separator.
+    n_sep : int
+        Separators in the header row.
+    block : int
+        Bytes read at a time.
+    """
+    out: list[int] = []
+    sepb, line, carry = ord(sep), 0, b""
+    with open(path, "rb") as fh:
+        while True:
+            buf = fh.read(block)
+            data = carry + buf if carry else buf
+            if not buf:
+                if not carry:
+                    break
+                data = carry + b"\n"
+            if b'"' in data:
+                return [], 0
+            a = np.frombuffer(data, np.uint8)
+            nl = np.flatnonzero(a == 10)
+            if len(nl) == 0:
+                carry = data
+                continue
+            seps = np.searchsorted(np.flatnonzero(a == sepb), nl)   # separators before each line end
+            per = np.diff(seps, prepend=0)
+            length = np.diff(nl, prepend=-1) - 1
+            blank = (length == 0) | ((length == 1) & (a[np.maximum(nl - 1, 0)] == 13))
+            bad = np.flatnonzero((per < n_sep) & ~blank)
+            out.extend(int(line + k) for k in bad if line + k > 0)
+            line += len(nl)
+            carry = data[int(nl[-1]) + 1:]
+            if not buf:
+                break
+    return out, line
+
+
+def _chunks(p, sep: str, chunk_rows: int, skip=()) -> Iterator[pd.DataFrame]:
     """pandas' chunked reader; its parser errors become one-line InputErrors naming the file."""
     try:
         reader = pd.read_csv(p, sep=sep, chunksize=chunk_rows, keep_default_na=False, na_values=[""],
+                             skiprows=list(skip) or None,
                              on_bad_lines="warn", encoding_errors="replace", skip_blank_lines=False,
                              low_memory=True)
         yield from reader   # usvlog's work on each chunk runs in the caller, outside this try
@@ -356,3 +426,117 @@ class _Chunker:
             batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
                                "unit": np.full(int(both.sum()), self.thrust_unit or "newton", dtype=object)}
         return batch
+
+
+# role -> canonical stream it feeds (for the catalog's mapping)
+_ROLE_STREAM = {"lat_deg": "gnss", "lon_deg": "gnss", "alt_m": "gnss", "heading_deg": "heading",
+                "heading_rad": "heading", "thrust_left": "thrust", "thrust_right": "thrust",
+                "yaw_rate_degps": "yaw_rate", "yaw_rate_radps": "yaw_rate", "speed_mps": "velocity",
+                "course_deg": "velocity"}
+
+
+def catalog(path, opts) -> Catalog:
+    """What a CSV log holds: one topic (the file) whose fields are its columns.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file.
+    opts : usvlog.io.importers.ImportOptions
+        ``columns`` (role -> header) given by the user; the rest is guessed as :func:`read`
+        does.
+
+    Returns
+    -------
+    Catalog
+        One topic named after the file (type ``csv``), its row count and time span (ns on
+        the time column's base: since the Unix epoch, or since the first row for relative
+        seconds), one field per column with its type (``float``, ``int``, ``text``,
+        ``empty``) and first non-empty value; ``mapping`` role -> column (each role the
+        importer uses, with why: given, or the header's common name); ``time_base`` ``utc``
+        or ``relative``.
+
+    Raises
+    ------
+    InputError
+        No header row, or a column given in ``opts.columns`` that is not in the header.
+    """
+    from pathlib import Path  # only the catalog needs it
+
+    p = Path(path)
+    try:
+        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
+            header_line = fh.readline()
+    except OSError as err:
+        raise InputError(f"{p}: cannot read ({err})") from err
+    if not header_line.strip():
+        raise InputError(f"{p}: empty file (no header row)")
+    sep = sniff_sep(header_line) or ","
+    try:
+        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
+        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
+    missing = {r: h for r, h in opts.columns.items() if h not in headers}
+    if missing:
+        r, h = next(iter(missing.items()))
+        raise InputError(f"{p}: column {h!r} for role {r} is not in the header (columns: {listing(headers)})")
+    mapping, guessed = guess_mapping(headers, opts.columns)
+    time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
+    n = 0
+    first: dict = {}
+    kinds: dict = {h: set() for h in headers}
+    t_lo = t_hi = None
+    rel = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pd.errors.ParserWarning)
+        for chunk in _chunks(p, sep, opts.chunk_rows):
+            n += len(chunk)
+            for h in headers:
+                col = chunk[h]
+                nz = col.dropna()
+                if len(nz) and h not in first:
+                    v = nz.iloc[0]
+                    first[h] = v.item() if hasattr(v, "item") else str(v)
+                dt = col.dtype
+                kinds[h].add("int" if pd.api.types.is_integer_dtype(dt) else
+                             "float" if pd.api.types.is_numeric_dtype(dt) else
+                             ("text" if len(nz) else "empty"))
+            if time_role is not None:
+                t = _times(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2, {})
+                t = t[t >= 0]
+                if len(t):
+                    t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
+                    t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
+                    rel = rel or bool(np.median(t) < 1e17)
+    fields = []
+    for h in headers:
+        k = kinds[h] - {"empty"} or {"empty"}
+        ftype = "float" if k == {"int", "float"} else "text" if len(k) > 1 else next(iter(k))
+        fields.append(FieldInfo(path=str(h), type=ftype, sample=first.get(h)))
+    cat = Catalog(source=str(p), format="csv",
+                  topics=[TopicInfo(name=p.name, type="csv", count=n, first_ns=t_lo, last_ns=t_hi,
+                                    fields=tuple(fields))],
+                  time_base="relative" if (rel or time_role is None) else "utc")
+    for role, h in mapping.items():
+        cat.mapping[role] = f"{p.name}.{h}"
+        stream = _ROLE_STREAM.get(role, "time")
+        cat.reasons[role] = (f"given (--column {role}={h})" if role not in guessed else
+                             f"header {h!r} is a common name for {role}") + f"; feeds {stream}"
+    if time_role is None:
+        cat.notes.append(f"no time column found: give --column time_s=HEADER (columns: {listing(headers)})")
+    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
+        if (a in mapping) != (b in mapping):
+            cat.notes.append(f"{a if a in mapping else b} has no {b if a in mapping else a} column to pair with")
+    return cat
+
+
+class _Quiet:
+    """A report stand-in that drops what it is told (the catalog only looks)."""
+
+    guesses: dict = {}
+
+    def skip(self, *a, **k) -> None:
+        pass
+
+    def note(self, *a, **k) -> None:
+        pass

@@ -1,22 +1,37 @@
-"""NMEA 0183 text logs, raw or with a time stamp before each sentence, read line by line.
+"""NMEA 0183 text logs, raw or captured by a logger that writes something before each sentence.
 
-Sentences are parsed by :func:`usvlog.io.nmea.parse_sentence`, the parser the live
-recorder uses too (talker IDs, HDG deviation/variation, GGA altitude as WGS-84
-ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL ->
-``/gnss/fix``; HDT, HDG, HDM -> ``/compass/heading``; VTG -> ``/gnss/velocity``.
-What is particular to a file is done here: the date comes from RMC (or
-``--start-utc``); a time of day without a date is placed on the day nearest the
-previous sentence's time (:func:`usvlog.io.nmea.resolve_time_of_day`), so the time
-rolling past midnight moves to the next day. One fix per epoch, from its best valid
-sentence (GGA, else RMC, else GLL: :class:`usvlog.io.nmea.FixSelector`, the rule the
-recorder follows too). Sentences without a checksum are accepted (some loggers strip it);
-lines with a bad checksum, garbage, unreadable fields and sentences that say
-"no fix" are skipped and counted.
+Sentences are found anywhere in a line (after any logger prefix: a time stamp, a log
+level, a module name) and parsed by :func:`usvlog.io.nmea.parse_sentence`, the parser
+the live recorder uses too (talker IDs, HDG deviation/variation, GGA altitude as WGS-84
+ellipsoidal height, checksum rules: see that module). GGA, RMC, GLL -> ``/gnss/fix``
+(one fix per epoch, from its best valid sentence: GGA, else RMC, else GLL,
+:class:`usvlog.io.nmea.FixSelector`); HDT, HDG, HDM -> ``/compass/heading``; VTG, or RMC
+when the file has no VTG -> ``/gnss/velocity``. RMC-only fixes have no altitude: it is
+written as unknown (NaN / null), never 0.
 
-Times: a line's prefix (ISO 8601 or seconds, epoch or relative to ``--start-utc``) is
-the record time; the sentence's own UTC time is ``stamp_ns``. Without a prefix,
-sentences with no time of their own (headings, VTG) are spread evenly between the
-timed sentences around them.
+What is skipped and counted (one bad line never costs more than its own samples): lines
+with no sentence, bad checksums, a sentence without its checksum in a file whose sentences
+carry one (a truncated ``$HEHDT,2`` is not read as 2 deg), unreadable or out-of-range
+fields, empty headings (``$GPHDT,,*4F``), sentences that say "no fix", prefix times that
+cannot be a time (``1e300``).
+
+Times: the sentence's own UTC (RMC/ZDA give the date; a time of day alone is placed on
+the day nearest the previous sentence, so a midnight roll-over moves to the next day) is
+``stamp_ns``, and the record time ``t_ns`` unless a line prefix time is used. A prefix
+time (ISO 8601, epoch or relative seconds, or ``--prefix-time FORMAT``) is used:
+
+* without ``--prefix-time``: only when it says its zone (``...Z``, ``+02:00``) or is epoch
+  seconds; a zone-less prefix (a logger's local clock) is not used and is reported with its
+  offset from the sentences' UTC; relative seconds only when the file has no RMC/ZDA date;
+* ``--prefix-time auto`` or ``FORMAT`` (``strptime``): always; a zone-less or relative
+  prefix is put on UTC by ``--start-utc`` (the time of the first stamped line), else by
+  its offset from the sentences' UTC (rounded to the time zone it is when within a minute
+  of one), else taken as UTC (zone-less) or counted from the Unix epoch (relative), with
+  a note each time;
+* ``--prefix-time none``: never.
+
+Without a usable prefix, sentences with no time of their own (headings, VTG) are spread
+evenly between the timed sentences around them.
 """
 
 from __future__ import annotations
@@ -24,7 +39,9 @@ from __future__ import annotations
 import datetime as _dt
 import math
 import re
+import statistics
 from collections.abc import Iterator
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,19 +58,26 @@ from ..nmea import (
     parse_sentence,
     resolve_time_of_day,
 )
+from .catalog import Catalog, FieldInfo, TopicInfo
 
 _SENTENCE = re.compile(r"[$!][A-Z][A-Z0-9]{2,5},")
 _DAY_NS = 86_400 * 1_000_000_000
 _POSITION = {"GGA", "RMC", "GLL"}
 _HEADING = {"HDT", "HDG", "HDM"}
 _USED = _POSITION | _HEADING | {"VTG"}
+_SCAN_LINES = 20_000
+_ISO = re.compile(r"(\d{4}-\d{2}-\d{2})[T ](\d{2}:\d{2}:\d{2}(?:[.,]\d+)?)[ ]?(Z|UTC|GMT|[+-]\d{2}:?\d{2})?(?![\d:])")
+_NUM = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?(?![\w.:-])")
+_EPOCH_MIN_S, _EPOCH_MAX_S = 1e8, 4e9    # epoch seconds: 1973 .. 2096 (beyond: no time stamp, e.g. 1e300)
+_ZONE_STEP_NS = 15 * 60 * 1_000_000_000  # time zones are whole quarter hours
 
 
 def looks_like_nmea(text: str) -> bool:
     """Whether the start of a file reads as an NMEA 0183 log.
 
-    True when at least half of the first 40 non-blank lines hold a sentence start
-    (``$`` or ``!``, talker and type, a comma), with or without a time stamp before it.
+    True when at least a quarter of the first 40 non-blank lines (and two of them, in a file
+    of two lines or more) hold a sentence start (``$`` or ``!``, talker and type, a comma)
+    anywhere in the line, after any prefix: a logger's capture may interleave its own lines.
 
     Parameters
     ----------
@@ -64,11 +88,186 @@ def looks_like_nmea(text: str) -> bool:
     if not lines:
         return False
     hits = sum(1 for ln in lines if _SENTENCE.search(ln))
-    return hits >= max(1, len(lines) // 2)
+    return hits >= max(min(2, len(lines)), len(lines) // 4)
+
+
+class PrefixTimeError(ValueError):
+    """A line prefix that holds something like a time stamp which cannot be one."""
+
+
+def prefix_time(prefix: str, fmt: str | None = None) -> tuple[int, str] | None:
+    """The time stamp at the start of a line's prefix.
+
+    Parameters
+    ----------
+    prefix : str
+        The text before the sentence (``"2023-09-01 15:56:44.626 | DEBUG | ... - "``).
+    fmt : str, optional
+        A ``strptime`` format for the stamp (as many words as it has are read), or
+        None / ``"auto"``: ISO 8601 date and time (``T`` or a space between, zone optional)
+        or a number of seconds.
+
+    Returns
+    -------
+    (int, str) or None
+        The time in ns and its kind: ``"utc"`` (a zone was given, or epoch seconds: ns since
+        the Unix epoch), ``"local"`` (a date and time without zone, read as if UTC) or
+        ``"relative"`` (seconds < 1e8: ns since some start); None when the prefix starts
+        with no time stamp.
+
+    Raises
+    ------
+    PrefixTimeError
+        A stamp that cannot be a time: a number that is not finite, negative or beyond
+        2096 as epoch seconds (``1e300``), a date that does not exist, text that does not
+        fit ``fmt``.
+    """
+    s = prefix.strip().lstrip("[(")
+    if not s:
+        return None
+    if fmt not in (None, "auto", "none"):
+        words = len(str(fmt).split())
+        text = " ".join(s.split()[:words]).rstrip(",;|])")
+        try:
+            t = _dt.datetime.strptime(text, str(fmt))
+        except ValueError:
+            raise PrefixTimeError(f"{text[:40]!r} does not fit --prefix-time {fmt!r}") from None
+        kind = "local" if t.tzinfo is None else "utc"
+        t = t.replace(tzinfo=_dt.UTC) if t.tzinfo is None else t
+        d = t - _dt.datetime(1970, 1, 1, tzinfo=_dt.UTC)
+        return (d.days * 86_400 + d.seconds) * 1_000_000_000 + d.microseconds * 1000, kind
+    m = _ISO.match(s)
+    if m is not None:
+        date, tod, zone = m.groups()
+        z = "" if zone is None else ("+00:00" if zone in ("Z", "UTC", "GMT") else
+                                     zone if ":" in zone else zone[:3] + ":" + zone[3:])
+        try:
+            return parse_time(f"{date}T{tod.replace(',', '.')}{z}"), ("local" if zone is None else "utc")
+        except ValueError:
+            raise PrefixTimeError(f"{m.group(0)!r} is not a time") from None
+    m = _NUM.match(s)
+    if m is None:
+        return None
+    try:
+        v = float(m.group(0))
+    except (ValueError, OverflowError):   # pragma: no cover - the pattern is a float literal
+        raise PrefixTimeError(f"{m.group(0)[:40]!r} is not a time") from None
+    if not (math.isfinite(v) and 0.0 <= v < _EPOCH_MAX_S):
+        raise PrefixTimeError(f"{m.group(0)[:40]!r} is not a time")
+    return int(round(v * 1e9)), ("utc" if v >= _EPOCH_MIN_S else "relative")
+
+
+@dataclass
+class _Scan:
+    """What the first lines of a file say: date, checksums, prefix kind, prefix-to-UTC offsets."""
+
+    day0: int | None = None                 # ns of the UTC midnight of the first RMC/ZDA date
+    with_cs: int = 0
+    without_cs: int = 0
+    vtg: int = 0
+    kind: str | None = None                 # the first prefix time's kind
+    first_prefix: int | None = None         # the first prefix time, ns
+    example: str = ""                       # the first prefix time as written
+    offsets: list = field(default_factory=list)   # sentence UTC - prefix time, ns (RMC/ZDA lines)
+
+    @property
+    def checksummed(self) -> bool:
+        """The file's sentences carry checksums (most of them do)."""
+        return self.with_cs > self.without_cs
+
+    def offset(self) -> int | None:
+        """Median of sentence UTC - prefix time (ns), or None without RMC/ZDA lines."""
+        return int(statistics.median(self.offsets)) if self.offsets else None
+
+
+def _scan(path, fmt: str | None, limit: int = _SCAN_LINES) -> _Scan:
+    sc = _Scan()
+    for i, line in enumerate(_lines(path)):
+        if i >= limit or (i >= 2000 and sc.day0 is not None and (len(sc.offsets) >= 50 or sc.kind != "local")):
+            break   # enough seen: checksums, VTG, prefix kind in 2000 lines; a date and the offsets
+        m = _SENTENCE.search(line)
+        if m is None:
+            continue
+        body = line[m.start():].strip()
+        if "*" in body:
+            sc.with_cs += 1
+        else:
+            sc.without_cs += 1
+        if "VTG," in body[:8]:
+            sc.vtg += 1
+        pre = None
+        if m.start() and fmt != "none":
+            try:
+                pre = prefix_time(line[:m.start()], fmt)
+            except PrefixTimeError:
+                pre = None
+            if pre is not None and sc.kind is None:
+                sc.first_prefix, sc.kind = pre
+                words = line[:m.start()].split()
+                sc.example = " ".join(words[:2] if sc.kind == "local" and fmt in (None, "auto") else words[:1])[:30]
+        if body[3:7] not in ("RMC,", "ZDA,") and body[1:5] not in ("RMC,", "ZDA,"):
+            continue
+        try:
+            smp = parse_sentence(body, require_checksum=False)
+        except NmeaError:
+            continue
+        if smp.date is not None and sc.day0 is None:
+            sc.day0 = date_ns(smp.date)
+        if pre is not None and pre[1] == sc.kind and smp.gps_time_ns is not None and len(sc.offsets) < 50:
+            sc.offsets.append(smp.gps_time_ns - pre[0])
+    return sc
+
+
+def _hms(ns: int) -> str:
+    """A signed offset as ``+HH:MM`` (whole minutes) or ``+H h MM min SS.S s``."""
+    sign = "-" if ns < 0 else "+"
+    a = abs(ns)
+    if a % 60_000_000_000 == 0:
+        return f"{sign}{a // 3_600_000_000_000:02d}:{a // 60_000_000_000 % 60:02d}"
+    return f"{sign}{a // 3_600_000_000_000} h {a // 60_000_000_000 % 60:02d} min {a % 60_000_000_000 / 1e9:.1f} s"
+
+
+def _prefix_policy(sc: _Scan, mode: str | None, start_ns: int | None, report) -> tuple[bool, int]:
+    """(use the prefix times, offset ns added to them) and the notes that say so."""
+    if sc.kind is None or mode == "none":
+        return False, 0
+    if sc.kind == "utc":
+        return True, 0
+    off = sc.offset()
+    what = "have no time zone" if sc.kind == "local" else "are relative"
+    if mode is None and (sc.kind == "local" or (sc.day0 is not None and start_ns is None)):
+        rel = "" if off is None else f" (they are UTC{_hms(-_zone(off)[0])}, measured against the sentences)"
+        report.note(f"line prefix times ({sc.example!r}) {what}: not used, times from the sentences' "
+                    f"UTC{rel}; give --prefix-time auto to use them")
+        return False, 0
+    if start_ns is not None:
+        report.guesses["start_utc"] = "--start-utc (first stamped line)"
+        report.note(f"line prefix times {what}: the first one is placed at --start-utc")
+        return True, int(start_ns) - int(sc.first_prefix or 0)
+    if off is not None:
+        z, exact = _zone(off) if sc.kind == "local" else (off, False)
+        how = f"zone UTC{_hms(-z)}" if exact else f"shifted by the measured {_hms(z)}"
+        report.guesses["prefix_time"] = f"UTC{_hms(-z)}" if exact else f"offset {_hms(z)}"
+        report.note(f"line prefix times ({sc.example!r}) {what}: put on the sentences' UTC (RMC/ZDA), {how}")
+        return True, z
+    if sc.kind == "local":
+        report.guesses["prefix_time"] = "UTC (assumed)"
+        report.note(f"line prefix times ({sc.example!r}) have no time zone and the file has no RMC/ZDA UTC: "
+                    "taken as UTC")
+        return True, 0
+    report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
+    report.note("line time stamps are relative and no --start-utc was given: times start at the Unix epoch")
+    return True, 0
+
+
+def _zone(off: int) -> tuple[int, bool]:
+    """(offset, is a time zone): ``off`` rounded to quarter hours when it is within a minute of one."""
+    z = int(round(off / _ZONE_STEP_NS)) * _ZONE_STEP_NS
+    return (z, True) if abs(off - z) <= 60_000_000_000 else (off, False)
 
 
 class _Clock:
-    """Calendar time of sentence times of day: RMC dates, midnight roll-over."""
+    """Calendar time of sentence times of day: RMC/ZDA dates, midnight roll-over."""
 
     def __init__(self, day_ns: int | None):
         self.day = day_ns or 0
@@ -83,45 +282,6 @@ class _Clock:
             t = resolve_time_of_day(tod, self.last)
         self.last = t
         return t
-
-
-def _prefix_ns(prefix: str, start_ns: int | None, report, state: dict) -> int | None:
-    s = prefix.strip().strip(",;|:").strip()
-    if not s:
-        return None
-    try:
-        v = float(s)
-    except ValueError:
-        v = None
-    if v is not None:
-        if not math.isfinite(v):
-            return -1
-        if v >= 1e8:
-            return int(round(v * 1e9))
-        if start_ns is None and "start_utc" not in report.guesses:
-            report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
-            report.note("line time stamps are relative and no --start-utc was given: times start at the Unix epoch")
-        return int(round(v * 1e9)) + (start_ns or 0)
-    try:
-        return parse_time(s)
-    except ValueError:
-        return -1
-
-
-def _first_date(path, limit: int = 20000) -> int | None:
-    """Date of the first RMC sentence near the start of the file (for sentences before it)."""
-    for i, line in enumerate(_lines(path)):
-        if i >= limit:
-            break
-        m = _SENTENCE.search(line) if "RMC," in line else None
-        if m is not None:
-            try:
-                s = parse_sentence(line[m.start():], require_checksum=False)
-            except NmeaError:
-                continue
-            if s.date is not None:
-                return date_ns(s.date)
-    return None
 
 
 def _lines(path) -> Iterator[str]:
@@ -140,6 +300,9 @@ class _Buf:
         self.heading = {k: [] for k in ("t_ns", "stamp_ns", "heading_rad", "reference")}
         self.velocity = {k: [] for k in ("t_ns", "stamp_ns", "sog_mps", "cog_rad")}
 
+    def __len__(self) -> int:
+        return len(self.gnss["t_ns"]) + len(self.heading["t_ns"]) + len(self.velocity["t_ns"])
+
     def batch(self) -> dict:
         out = {}
         for name in ("gnss", "heading", "velocity"):
@@ -151,25 +314,35 @@ class _Buf:
         return out
 
 
+def _empty_heading(body: str) -> bool:
+    """An HDT/HDG/HDM sentence whose heading field is empty (``$GPHDT,,*4F``)."""
+    head, _, rest = body.partition(",")
+    return head[-3:] in _HEADING and rest.split("*")[0].split(",")[0].strip() == ""
+
+
 def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     """Batches of role streams (``gnss``, ``heading``, ``velocity``) from an NMEA 0183 log.
 
     See :mod:`usvlog.io.importers.core` for the batch layout and this module's docstring
-    for the sentences used and how times are placed: ``t_ns`` is the line's time stamp
-    prefix, else the sentence's own UTC time; ``stamp_ns`` the sentence's own time. Both
-    are ns since the Unix epoch. Headings and courses are in rad, speeds in m/s,
-    altitudes in m.
+    for the sentences used and how times are placed: ``t_ns`` is the line's prefix time
+    when it is used, else the sentence's own UTC time; ``stamp_ns`` the sentence's own
+    time. Both are ns since the Unix epoch. Headings and courses are in rad, speeds in
+    m/s, altitudes in m (NaN when the sentence has none).
 
     Parameters
     ----------
     path : pathlib.Path
         The log file (ASCII; undecodable bytes are replaced).
     opts : usvlog.io.importers.ImportOptions
-        ``start_utc_ns`` (ns since the Unix epoch) for relative prefixes and for the date
-        when the file has no RMC; ``chunk_rows`` samples per batch.
+        ``prefix_time`` (None, ``"auto"``, ``"none"`` or a ``strptime`` format),
+        ``start_utc_ns`` (ns since the Unix epoch: the time of the first stamped line for
+        relative or zone-less prefixes, and the date when the file has no RMC/ZDA),
+        ``chunk_rows`` samples per batch.
     report : usvlog.io.importers.core.ImportReport
-        Filled with lines read, lines skipped by reason (garbage, bad checksum, bad
-        field, bad time, no fix, untimed, unsupported sentence), the mapping and guesses.
+        Filled with lines read, lines skipped by reason (``nmea_garbage``,
+        ``nmea_bad_checksum``, ``nmea_no_checksum``, ``nmea_bad_field``,
+        ``nmea_heading_empty``, ``nmea_bad_time``, ``gnss_no_fix``, ``nmea_untimed``,
+        ``nmea_unsupported``), the mapping, guesses and notes.
     fmt : str
         Unused (one signature for every reader).
     on_mapping : callable, optional
@@ -184,14 +357,19 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     """
     p = path
     start_ns = opts.start_utc_ns
-    day0 = _first_date(p)
+    mode = getattr(opts, "prefix_time", None)
+    sc = _scan(p, mode)
+    day0 = sc.day0
     if day0 is None and start_ns is not None:
         day0 = (start_ns // _DAY_NS) * _DAY_NS
     if day0 is None:
         report.guesses["date"] = "1970-01-01"
-        report.note("no RMC date in the file and no --start-utc: sentence times are on 1970-01-01")
+        report.note("no RMC/ZDA date in the file and no --start-utc: sentence times are on 1970-01-01")
+    use_prefix, offset = _prefix_policy(sc, mode, start_ns, report)
+    prefix_hint = "" if use_prefix or sc.kind is None else " (give --prefix-time auto to use the line prefix times)"
+    velocity_from = "VTG" if sc.vtg else "RMC"
     clock = _Clock(day0)
-    report.mapping.update({"gnss": "GGA/RMC/GLL", "heading": "HDT/HDG/HDM", "velocity": "VTG"})
+    report.mapping.update({"gnss": "GGA/RMC/GLL", "heading": "HDT/HDG/HDM", "velocity": velocity_from})
     if on_mapping is not None:
         on_mapping(report)
     buf = _Buf()
@@ -199,7 +377,6 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     last_t: int | None = None
     last_dt = 100_000_000
     fixes = FixSelector()
-    state: dict = {}
     n_lines = 0
 
     def emit_pending(t_next: int | None):
@@ -207,7 +384,8 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
         if not pending:
             return
         if last_t is None and t_next is None:
-            report.skip("nmea_untimed", len(pending))
+            report.skip("nmea_untimed", len(pending), where="sentences without a time of their own and no "
+                        "timed sentence around them" + prefix_hint)
             pending = []
             return
         if last_t is None:
@@ -230,13 +408,28 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             continue
         m = _SENTENCE.search(line)
         if m is None:
-            report.skip("nmea_garbage", 1, where=f"line {lineno}: {line[:40]!r}")
+            report.skip("nmea_garbage", 1, where=f"line {lineno}: no sentence ({line[:30]!r})")
             continue
-        prefix = line[:m.start()]
         body = line[m.start():]
-        t_prefix = _prefix_ns(prefix, start_ns, report, state) if prefix else None
-        if t_prefix is not None and t_prefix < 0:
-            report.skip("nmea_bad_time", 1, where=f"line {lineno}: time {prefix.strip()[:40]!r}")
+        t_prefix = None
+        if use_prefix and m.start():
+            try:
+                pre = prefix_time(line[:m.start()], mode)
+            except PrefixTimeError as err:
+                report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time {err}")
+                continue
+            if pre is not None:
+                if pre[1] != sc.kind:
+                    report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time of another kind "
+                                f"({pre[1]}, the file's are {sc.kind})")
+                    continue
+                t_prefix = pre[0] + offset
+                if not 0 <= t_prefix < 2**62:
+                    report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time out of range")
+                    continue
+        if sc.checksummed and "*" not in body:
+            report.skip("nmea_no_checksum", 1, where=f"line {lineno}: sentence without its checksum "
+                        f"({body[:30]!r})")
             continue
         try:
             smp = parse_sentence(body, require_checksum=False)
@@ -244,12 +437,21 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
             continue
         except NmeaFieldError:
-            report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
+            if _empty_heading(body):
+                report.skip("nmea_heading_empty", 1, where=f"line {lineno}: {body[:40]!r}")
+            else:
+                report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
             continue
         except NmeaError:
             report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
             continue
         typ = smp.kind
+        if typ == "ZDA":
+            if smp.date is not None and smp.time_of_day_ns is not None:
+                clock.stamp(smp.time_of_day_ns, smp.date)   # the date for the sentences after it
+            else:
+                report.skip("nmea_unsupported", 1)
+            continue
         if typ not in _USED:
             report.skip("nmea_unsupported", 1)
             continue
@@ -259,6 +461,8 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             continue
         t = t_prefix if t_prefix is not None else stamp
         if t is None:
+            if kind == "velocity" and velocity_from != "VTG":
+                continue
             pending.append((kind, vals))
             continue
         if not (kind == "gnss" and fixes.same_epoch(smp)):   # the epoch's 2nd fix sentence: same time
@@ -270,9 +474,12 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             # one fix per epoch, from its best valid sentence (GGA, else RMC, else GLL)
             for item in fixes.offer(smp, t, (t, stamp if stamp is not None else t, vals)):
                 _put(buf, "gnss", *item)
-        else:
+            if typ == "RMC" and velocity_from == "RMC" and smp.sog_mps is not None:
+                _put(buf, "velocity", t, stamp if stamp is not None else t,
+                     (smp.sog_mps, math.nan if smp.cog_rad is None else smp.cog_rad))
+        elif kind != "velocity" or velocity_from == "VTG":
             _put(buf, kind, t, stamp if stamp is not None else t, vals)
-        if len(buf.gnss["t_ns"]) + len(buf.heading["t_ns"]) + len(buf.velocity["t_ns"]) >= opts.chunk_rows:
+        if len(buf) >= opts.chunk_rows:
             yield buf.batch()
     for item in fixes.flush():
         _put(buf, "gnss", *item)
@@ -309,3 +516,180 @@ def _put(buf: _Buf, kind: str, t: int, stamp: int, vals: tuple) -> None:
     else:
         d["sog_mps"].append(vals[0])
         d["cog_rad"].append(vals[1])
+
+
+# -- catalog -----------------------------------------------------------------------------
+
+# sentence type -> its field names, by position (1 = the first field after the head)
+FIELD_NAMES: dict[str, tuple[str, ...]] = {
+    "GGA": ("time_utc", "lat_ddmm", "lat_hemi", "lon_dddmm", "lon_hemi", "fix_quality", "satellites", "hdop",
+            "alt_msl_m", "alt_unit", "geoid_sep_m", "geoid_sep_unit", "dgps_age_s", "dgps_station"),
+    "RMC": ("time_utc", "status", "lat_ddmm", "lat_hemi", "lon_dddmm", "lon_hemi", "sog_kn", "cog_deg", "date",
+            "mag_var_deg", "mag_var_dir", "mode"),
+    "GLL": ("lat_ddmm", "lat_hemi", "lon_dddmm", "lon_hemi", "time_utc", "status", "mode"),
+    "VTG": ("cog_true_deg", "true_ref", "cog_mag_deg", "mag_ref", "sog_kn", "kn_unit", "sog_kmh", "kmh_unit",
+            "mode"),
+    "HDT": ("heading_deg", "true_ref"),
+    "HDM": ("heading_deg", "mag_ref"),
+    "HDG": ("heading_deg", "deviation_deg", "deviation_dir", "variation_deg", "variation_dir"),
+    "ZDA": ("time_utc", "day", "month", "year", "zone_h", "zone_min"),
+    "GSA": ("mode", "fix_type") + tuple(f"prn{i}" for i in range(1, 13)) + ("pdop", "hdop", "vdop"),
+    "GSV": ("messages", "message", "satellites_in_view"),
+    "ROT": ("rate_degpmin", "status"),
+}
+# role -> (sentence types that feed it, the field used)
+_ROLE_SOURCES = {"gnss": (("GGA", "RMC", "GLL"), "lat_ddmm"), "heading": (("HDT", "HDG", "HDM"), "heading_deg"),
+                 "velocity": (("VTG", "RMC"), "sog_kn")}
+
+
+def _field_type(values: list[str]) -> str:
+    """``float``, ``int`` or ``text`` from a field's non-empty values."""
+    vals = [v for v in values if v != ""]
+    if not vals:
+        return "empty"
+    try:
+        for v in vals:
+            int(v)
+        return "int"
+    except ValueError:
+        pass
+    try:
+        for v in vals:
+            float(v)
+        return "float"
+    except ValueError:
+        return "text"
+
+
+def catalog(path, opts) -> Catalog:
+    """What an NMEA/text log holds: one topic per sentence type, its fields by position.
+
+    Parameters
+    ----------
+    path : path-like
+        The log file.
+    opts : usvlog.io.importers.ImportOptions
+        ``prefix_time`` decides which times the spans are on (as :func:`read` does).
+
+    Returns
+    -------
+    Catalog
+        Topics named by sentence type (``RMC``, ``GGA``, ``HDT``, ...; type ``NMEA GPRMC``
+        with the talkers seen), counts of readable sentences (checksum holds), the time span
+        (ns since the Unix epoch: the sentence UTC for RMC/GGA/GLL/ZDA, the line prefix
+        time for the others when it is used), fields named by position (``RMC.sog_kn`` is
+        field 7; unknown types ``f1``, ``f2``, ...) with their type (the position in the
+        type text) and the first value; ``time_base`` ``utc`` when the file has RMC/ZDA
+        dates or zoned prefix times; the roles the importer maps and why; notes for the
+        lines skipped.
+
+    Raises
+    ------
+    StorageError
+        The file cannot be read.
+    """
+    from collections import Counter, defaultdict  # only the catalog needs them
+
+    mode = getattr(opts, "prefix_time", None)
+    sc = _scan(path, mode)
+    tmp_report = _NoteSink()
+    use_prefix, offset = _prefix_policy(sc, mode, getattr(opts, "start_utc_ns", None), tmp_report)
+    clock = _Clock(sc.day0)
+    counts: Counter = Counter()
+    talkers: dict = defaultdict(set)
+    values: dict = defaultdict(lambda: defaultdict(list))
+    first_vals: dict = {}
+    span: dict = {}
+    bad = Counter()
+    for line in _lines(path):
+        m = _SENTENCE.search(line)
+        if m is None:
+            if line.strip():
+                bad["lines without a sentence"] += 1
+            continue
+        body = line[m.start():].strip()
+        if sc.checksummed and "*" not in body:
+            bad["sentences without their checksum"] += 1
+            continue
+        try:
+            smp = parse_sentence(body, require_checksum=False)
+        except NmeaChecksumError:
+            bad["bad checksums"] += 1
+            continue
+        except NmeaFieldError:
+            smp = None
+        except NmeaError:
+            bad["unreadable sentences"] += 1
+            continue
+        head, _, rest = body.split("*")[0].partition(",")
+        head = head[1:]
+        typ = head[2:] if len(head) == 5 and head[0] != "P" else head
+        parts = rest.split(",")
+        counts[typ] += 1
+        talkers[typ].add(head[:2] if typ != head else "")
+        vs = values[typ]
+        for i, v in enumerate(parts[:40]):
+            if len(vs[i]) < 200:
+                vs[i].append(v.strip())
+        first_vals.setdefault(typ, {})
+        for i, v in enumerate(parts[:40]):
+            if v.strip() and i not in first_vals[typ]:
+                first_vals[typ][i] = v.strip()
+        t = None
+        if smp is not None and smp.time_of_day_ns is not None:
+            t = clock.stamp(smp.time_of_day_ns, smp.date)
+        elif use_prefix and m.start():
+            try:
+                pre = prefix_time(line[:m.start()], mode)
+            except PrefixTimeError:
+                pre = None
+            if pre is not None and pre[1] == sc.kind and 0 <= pre[0] + offset < 2**62:
+                t = pre[0] + offset
+        if t is not None:
+            lo, hi = span.get(typ, (t, t))
+            span[typ] = (min(lo, t), max(hi, t))
+    topics = []
+    for typ in sorted(counts, key=lambda k: (-counts[k], k)):
+        names = FIELD_NAMES.get(typ, ())
+        fields = []
+        for i in sorted(values[typ]):
+            name = names[i] if i < len(names) else f"f{i + 1}"
+            ftype = _field_type(values[typ][i])
+            sample = first_vals[typ].get(i)
+            if sample is not None and ftype in ("int", "float") and name not in ("time_utc", "date") \
+                    and not name.endswith("ddmm"):   # times, dates and ddmm positions stay as written
+                sample = int(sample) if ftype == "int" else float(sample)
+            fields.append(FieldInfo(path=name, type=f"{ftype} (field {i + 1})", sample=sample))
+        tk = sorted(x for x in talkers[typ] if x)
+        lo, hi = span.get(typ, (None, None))
+        topics.append(TopicInfo(name=typ, type="NMEA " + (", ".join(x + typ for x in tk) if tk else typ),
+                                count=counts[typ], first_ns=lo, last_ns=hi, fields=tuple(fields)))
+    cat = Catalog(source=str(path), format="nmea", topics=topics,
+                  time_base="utc" if (sc.day0 is not None or sc.kind == "utc") else "relative")
+    for role, (types, fld) in _ROLE_SOURCES.items():
+        have = [t for t in types if counts.get(t)]
+        if role == "velocity" and "VTG" in have:
+            have = ["VTG"]
+        if have:
+            cat.mapping[role] = "/".join(f"{t}.{fld}" for t in have)
+            cat.reasons[role] = (f"{' and '.join(have)} sentences ({', '.join(str(counts[t]) for t in have)}); "
+                                 + {"gnss": "one fix per epoch: GGA, else RMC, else GLL",
+                                    "heading": "headings in degrees (HDG corrected by deviation/variation)",
+                                    "velocity": "speed over ground (kn) and course"}[role])
+        else:
+            cat.reasons[role] = f"no {'/'.join(types)} sentence in the file"
+    cat.notes.extend(tmp_report.notes)
+    cat.notes.extend(f"{n} {what} skipped" for what, n in sorted(bad.items()))
+    return cat
+
+
+class _NoteSink:
+    """A report stand-in that keeps only notes and guesses (for :func:`catalog`)."""
+
+    def __init__(self):
+        self.notes: list = []
+        self.guesses: dict = {}
+
+    def note(self, text: str) -> None:
+        if text not in self.notes:
+            self.notes.append(text)
