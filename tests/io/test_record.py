@@ -381,6 +381,7 @@ def test_live_serial_tcp_udp_5s(tmp_path):
     check_live(log, sent, summary, 5.0)
 
 
+@pytest.mark.slow   # a 30 s real-time soak; the 5 s run above checks the same in CI
 def test_live_serial_tcp_udp_30s(tmp_path):
     log, sent, summary = _live(tmp_path, 30.0)
     check_live(log, sent, summary, 30.0)
