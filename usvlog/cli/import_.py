@@ -22,6 +22,12 @@ def register(sub) -> None:
                         "to a topic and field path; repeatable")
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
+    p.add_argument("--thrust-range", default=None, metavar="LO:HI",
+                   help="range of integer thrust commands (unit counts), e.g. --thrust-range=-255:255 or "
+                        "0:200 (full scale: the larger magnitude; commands outside it are skipped and counted)")
+    p.add_argument("--keep-dead", action="store_true",
+                   help="write channels the health audit judges dead (a compass that never moves while the "
+                        "track turns) as data; by default they go to /raw/... and are flagged")
     p.add_argument("--start-utc", default=None, metavar="ISO",
                    help="start time for relative time columns / line stamps, e.g. 2024-05-01T10:00:00Z")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -43,7 +49,7 @@ def run(args) -> int:
     res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
                          columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
                          thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
-                         on_mapping=_print_mapping)
+                         on_mapping=_print_mapping, thrust_range=args.thrust_range, keep_dead=args.keep_dead)
     r = res.report
     if args.json:
         print_json(res.to_dict())
