@@ -542,8 +542,6 @@ class Assembler:
             return None
         self._last[stream] = int(t[idx[-1]])
         sel = {k: v[idx] for k, v in cols.items()}
-        if stream == "heading":
-            sel["heading_rad"] = ssa(np.asarray(sel["heading_rad"], float))
         self.audit.observe(stream, sel["t_ns"].astype(np.int64), sel["stamp_ns"].astype(np.int64), sel)
         return getattr(self, f"_frame_{stream}")(sel)
 
