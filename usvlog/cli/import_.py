@@ -16,7 +16,8 @@ def register(sub) -> None:
     p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
                    help="CSV: map a role (time_s, time_ns, time_iso, lat_deg, lon_deg, alt_m, heading_deg, "
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
-                        "course_deg) to a column; repeatable")
+                        "course_deg, thrust_left_dir, thrust_right_dir: direction flags, 0 forward and non-zero "
+                        "reverse, or -1/+1) to a column; repeatable")
     p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
                    help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
                         "to a topic and field path; repeatable")

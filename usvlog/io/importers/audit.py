@@ -345,6 +345,7 @@ class TrackTurn:
 
     def __init__(self):
         self._anchor: tuple[float, float] | None = None
+        self._coslat = 1.0
         self._course: float | None = None
         self.turn_rad = 0.0
         self.legs = 0
@@ -357,7 +358,8 @@ class TrackTurn:
             return
         if self._anchor is None:
             self._anchor = (float(lat[0]), float(lon[0]))
-        coslat = math.cos(math.radians(float(lat[0])))
+            self._coslat = math.cos(math.radians(float(lat[0])))
+        coslat = self._coslat
         i, n = 0, len(lat)
         while i < n:
             a_lat, a_lon = self._anchor

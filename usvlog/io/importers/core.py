@@ -21,8 +21,8 @@ Thrust commands that are not newtons go through the vessel's thruster map
 their unit are kept, except ``counts``: they are written as normalized commands
 (counts / full scale, the sign of a direction flag applied) and the unit and range
 recorded go to the health record (``health["thrust"]``). A unit the reader guessed is
-guessed again here from the first batch with a non-zero command, robustly
-(:func:`guess_thrust`). The datum is the first kept fix unless one is given.
+guessed again here, robustly (:func:`guess_thrust`), from the first
+:data:`THRUST_GUESS_ROWS` commands once one is not zero (held back until then). The datum is the first kept fix unless one is given.
 
 Every stream also goes through the sensor health audit
 (:class:`~usvlog.io.importers.audit.HealthAudit`); :meth:`Assembler.finish` gives the
@@ -77,6 +77,8 @@ THRUST_LIMITS: dict[str, tuple[float, float]] = {
 COUNT_FULL_SCALES = (100, 127, 200, 255, 500, 1000, 1023, 1024, 2047, 2048, 4095, 4096, 10000, 32767,
                      32768, 65535)
 """Full scales of integer command counts the guess picks from (the smallest that holds the bulk)."""
+THRUST_GUESS_ROWS = 500
+"""A guessed thrust unit is guessed from at least this many commands (or all, if fewer)."""
 _TWO_PI = 2.0 * math.pi
 
 
@@ -386,7 +388,8 @@ class Assembler:
             guessing = given is None and (reader_unit is None or "thrust_unit" in self.report.guesses)
             lr = [np.concatenate([np.asarray(p[c], float) for p in pend]) for c in ("left", "right")]
             informative = any(bool(np.any(np.isfinite(a) & (a != 0))) for a in lr)
-            if guessing and not informative and cols is not None:
+            rows = sum(len(p["t_ns"]) for p in pend)
+            if guessing and (not informative or rows < THRUST_GUESS_ROWS) and cols is not None:
                 return None
             if given is not None or guessing:
                 g = guess_thrust(*lr) if guessing or (given == "counts" and self.thrust_range is None) else None
@@ -641,8 +644,8 @@ def guess_thrust(left, right) -> ThrustGuess:
     The bulk is the commands between the 0.5 % and 99.5 % quantiles (so a stray
     -99360 among +-255 does not decide): within 800..2200 -> ``pwm_us``; within
     +-1 -> ``normalized``; whole numbers (99 % of the bulk) -> ``counts`` with the
-    smallest full scale of :data:`COUNT_FULL_SCALES` that holds the bulk (range
-    -F..F, or 0..F when no command is negative); anything else -> ``newton``.
+    smallest full scale F of :data:`COUNT_FULL_SCALES` that holds the bulk (range
+    -F..F); anything else -> ``newton``.
 
     Parameters
     ----------
@@ -668,7 +671,7 @@ def guess_thrust(left, right) -> ThrustGuess:
     if np.mean(bulk == np.round(bulk)) >= 0.99:
         top = max(abs(q_lo), abs(q_hi))
         fs = next((float(f) for f in COUNT_FULL_SCALES if f >= top), float(math.ceil(top)))
-        lo = -fs if q_lo < 0 else 0.0
+        lo = -fs   # symmetric: a stretch of forward-only commands says nothing of reverse
         return ThrustGuess("counts", lo, fs, f"whole-number commands {span}: counts, full scale {fs:g} "
                                              f"(range {lo:g}:{fs:g}; give --thrust-range LO:HI if not)")
     return ThrustGuess("newton", *THRUST_LIMITS["newton"], f"commands {span} beyond +-1, not whole numbers: newtons")
