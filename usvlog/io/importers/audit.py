@@ -16,8 +16,8 @@ The checks (thresholds are the module constants):
   latitude, longitude and altitude are exactly those of the fix before it, less than
   :data:`DUP_PAYLOAD_WINDOW_S` later, when the copied fix had moved at least
   :data:`DUP_PAYLOAD_MOVE_M` from the fix before it (a still receiver repeats its fix
-  legitimately; so copies of the very first fix are kept; scalar streams repeat values legitimately, so the payload rule is for
-  fixes only);
+  legitimately, so copies of the very first fix are kept; scalar streams repeat values
+  legitimately, so the payload rule is for fixes only);
 * **rate, jitter and real gaps**, after the collapse: nominal rate from the median
   interval, jitter the standard deviation of the intervals that are not gaps, gaps the
   intervals longer than :data:`GAP_FACTOR` x the median;

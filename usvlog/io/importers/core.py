@@ -22,7 +22,8 @@ their unit are kept, except ``counts``: they are written as normalized commands
 (counts / full scale, the sign of a direction flag applied) and the unit and range
 recorded go to the health record (``health["thrust"]``). A unit the reader guessed is
 guessed again here, robustly (:func:`guess_thrust`), from the first
-:data:`THRUST_GUESS_ROWS` commands once one is not zero (held back until then). The datum is the first kept fix unless one is given.
+:data:`THRUST_GUESS_ROWS` commands once one is not zero (held back until then). The
+datum is the first kept fix unless one is given.
 
 Every stream also goes through the sensor health audit
 (:class:`~usvlog.io.importers.audit.HealthAudit`); :meth:`Assembler.finish` gives the
@@ -54,7 +55,7 @@ from ...errors import ConfigError, FormatError
 from ...log.channels import channel_spec, frame_from_columns
 from ...model.frames import Datum, ssa
 from ...model.vessel import THRUST_UNITS, Vessel
-from .audit import DEAD_CAPABLE, HealthAudit, raw_topic
+from .audit import DEAD_CAPABLE, HealthAudit
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
