@@ -12,6 +12,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from usvlog import api
 from usvlog.cli import main
@@ -208,3 +210,34 @@ def test_thrust_range_validation():
 def test_health_of_a_simulated_log_is_empty():
     from usvlog.log.fieldlog import FieldLog
     assert health_of(FieldLog()) == {}
+
+
+def _clean_rows(n=200):
+    rows = []
+    for k in range(n):
+        ang = math.radians(400.0 * k / (n - 1))
+        lat = LAT0 + R_M * math.sin(ang) / 111_320.0
+        lon = LON0 + R_M * (1 - math.cos(ang)) / (111_320.0 * math.cos(math.radians(LAT0)))
+        rows.append([f"{T0 + 0.1 * k:.3f}", f"{lat:.9f}", f"{lon:.9f}", f"{(400.0 * k / (n - 1)) % 360:.3f}",
+                     str((k * 37) % 511 - 255), str((k * 11) % 511 - 255)])
+    return rows
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(row=st.integers(0, 199), col=st.sampled_from([1, 3, 4]),
+       damage=st.sampled_from(["1e300", "-1e300", "nan", "", "-99360", "abc", "1e400"]))
+def test_one_damaged_record_changes_only_its_own_sample(tmp_path, row, col, damage):
+    header = "time_s,lat,lon,heading_deg,thrust_left,thrust_right"
+    rows = _clean_rows()
+    clean = tmp_path / "clean.csv"
+    clean.write_text(header + "\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    rows[row][col] = damage
+    bad = tmp_path / "bad.csv"
+    bad.write_text(header + "\n" + "\n".join(",".join(r) for r in rows) + "\n")
+    a, b = import_file(clean).log, import_file(bad).log
+    hit = {1: "/gnss/fix", 3: "/compass/heading", 4: "/thrust/command"}[col]
+    t_row = a[hit].index[row]
+    assert sorted(a.topics) == sorted(b.topics)
+    for topic in a.topics:
+        want = a[topic].drop(index=t_row) if topic == hit else a[topic]
+        assert want.equals(b[topic]), (topic, damage)

@@ -29,14 +29,15 @@ The checks (thresholds are the module constants):
   position that never changes (exactly) while thrust is applied for at least
   :data:`THRUST_APPLIED_S`. A position that moves less than :data:`POSITION_STILL_M`
   under thrust is *suspect* (a moored bollard test looks the same) and kept;
-* **time base** (``utc``, or ``relative`` with what it was counted from) and the offset
+* **time base** (``utc``; ``boot`` for a flight log's boot clock or ``relative`` for a
+  relative time column, with what it was counted from) and the offset
   between each sensor's own stamps and the log time (median, min, max, s).
 
 The record (:meth:`HealthAudit.finish`, stored as JSON text in the import's provenance
 record under the key ``health``; read it back with :func:`health_of`)::
 
     {"version": 1,
-     "time_base": "utc" | "relative",  "time_counted_from": str | None,
+     "time_base": "utc" | "boot" | "relative",  "time_counted_from": str | None,
      "keep_dead": bool,
      "track_turn_deg": float | None,   # total turning of the GNSS track (deg)
      "thrust_applied_s": float,        # time with a non-zero thrust command (s)
@@ -465,7 +466,7 @@ class HealthAudit:
         Parameters
         ----------
         time_base : str
-            ``utc`` or ``relative``.
+            ``utc``, ``boot`` or ``relative``.
         time_counted_from : str, optional
             What relative times were counted from (``--start-utc``, the epoch).
         """

@@ -350,7 +350,8 @@ class Assembler:
             if cols is not None:
                 self._emit("thrust", self._stream("thrust", cols), out)
         tb = self.report.guesses.get("time_base") or self.report.guesses.get("start_utc")
-        self.health = self.audit.finish(time_base="relative" if tb else "utc", time_counted_from=tb)
+        base = "utc" if not tb else "boot" if self.report.format in ("ulog", "dataflash") else "relative"
+        self.health = self.audit.finish(time_base=base, time_counted_from=tb)
         self.health["thrust"] = self._thrust_record()
         self.report.health = self.health
         for stream, parts in self._held.items():
