@@ -241,3 +241,61 @@ def test_one_damaged_record_changes_only_its_own_sample(tmp_path, row, col, dama
     for topic in a.topics:
         want = a[topic].drop(index=t_row) if topic == hit else a[topic]
         assert want.equals(b[topic]), (topic, damage)
+
+
+def test_ros2_bag_fix_republished_with_the_same_header_stamp(tmp_path):
+    """Through the real ROS 2 reader: each NavSatFix sent 3 times (record times 0.2, 0.25, 0.3 s
+    after its header stamp), an Imu whose orientation never moves while the track turns 400 deg,
+    +-255 thruster commands with a -99360 outlier."""
+    rosbag2 = pytest.importorskip("rosbags.rosbag2")
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    T = store.types
+    Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
+    V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+    t0 = int(T0) * 1_000_000_000
+    s = 1_000_000_000
+    msgs = []
+    for k in range(N_FIX):
+        lat, lon = _track(k)
+        st = t0 + k * s
+        hdr = Header(stamp=Time(sec=st // s, nanosec=st % s), frame_id="gps")
+        fix = T["sensor_msgs/msg/NavSatFix"](
+            header=hdr, status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1), latitude=lat, longitude=lon,
+            altitude=1.0, position_covariance=np.zeros(9), position_covariance_type=0)
+        for c in range(3):
+            msgs.append(("/gps/fix", "sensor_msgs/msg/NavSatFix", st + 200_000_000 + c * 50_000_000, fix))
+        for j in range(5):
+            ti = st + j * 200_000_000 + 10_000_000
+            hdr = Header(stamp=Time(sec=ti // s, nanosec=ti % s), frame_id="imu")
+            msgs.append(("/imu/data", "sensor_msgs/msg/Imu", ti, T["sensor_msgs/msg/Imu"](
+                header=hdr, orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0), orientation_covariance=np.zeros(9),
+                angular_velocity=V3(x=0.0, y=0.0, z=0.01 * ((k + j) % 7)), angular_velocity_covariance=np.zeros(9),
+                linear_acceleration=V3(x=0.0, y=0.0, z=9.81), linear_acceleration_covariance=np.zeros(9))))
+        left = -99360.0 if k == 50 else float(_commands(k)[0])
+        msgs.append(("/thrusters/left", "std_msgs/msg/Float64", st + 30_000_000, T["std_msgs/msg/Float64"](data=left)))
+        msgs.append(("/thrusters/right", "std_msgs/msg/Float64", st + 30_001_000,
+                     T["std_msgs/msg/Float64"](data=float(_commands(k)[1]))))
+    bag = tmp_path / "bag"
+    with rosbag2.Writer(bag, version=9, storage_plugin=rosbag2.StoragePlugin.MCAP) as w:
+        conns = {}
+        for topic, typ, t, m in sorted(msgs, key=lambda x: x[2]):
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=store)
+            w.write(conns[topic], t, store.serialize_cdr(m, typ))
+    res = import_file(bag, topics={"thrust_left": "/thrusters/left.data", "thrust_right": "/thrusters/right.data"})
+    log, rep = res.log, res.report
+    h = health_of(log)
+    # the same-stamp rule needs no move: every copy goes, the very first fix's too
+    assert len(log["/gnss/fix"]) == N_FIX and rep.skipped["gnss_republished"] == 2 * N_FIX
+    assert h["channels"]["/gnss/fix"]["republished_same_stamp"] == 2 * N_FIX
+    assert h["channels"]["/gnss/fix"]["stamp_offset_s"]["median"] == pytest.approx(-0.2)
+    assert h["channels"]["/gnss/fix"]["rate_hz"] == pytest.approx(1.0) and h["channels"]["/gnss/fix"]["gaps"] == 0
+    assert h["dead"] == ["/compass/heading"] and "/compass/heading" not in log
+    assert len(log["/raw/compass/heading"]) == 5 * N_FIX
+    assert h["channels"]["/imu/yaw_rate"]["status"] == "ok" and len(log["/imu/yaw_rate"]) == 5 * N_FIX
+    assert rep.guesses["thrust_unit"] == "counts" and rep.skipped["thrust_out_of_range"] == 1
+    # the reader pairs each left command with the last right one: the first left has none yet
+    assert rep.skipped["thrust_incomplete"] == 1
+    assert len(log["/thrust/command"]) == N_FIX - 2
