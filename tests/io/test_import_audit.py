@@ -299,3 +299,11 @@ def test_ros2_bag_fix_republished_with_the_same_header_stamp(tmp_path):
     # the reader pairs each left command with the last right one: the first left has none yet
     assert rep.skipped["thrust_incomplete"] == 1
     assert len(log["/thrust/command"]) == N_FIX - 2
+
+
+def test_a_wrong_thrust_unit_is_pointed_out(tmp_path):
+    src = foreign_csv(tmp_path / "boat.csv", outlier=False)
+    res = import_file(src, thrust_unit="pwm_us")
+    assert res.report.skipped["thrust_out_of_range"] == N_FIX
+    assert "/thrust/command" not in res.log
+    assert any("is the unit right" in n for n in res.report.notes)

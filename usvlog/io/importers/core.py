@@ -367,6 +367,12 @@ class Assembler:
             self.report.counts[dest] += len(f)
             out[dest] = f
         self._held = {}
+        thr = self.health["channels"].get(STREAMS["thrust"][0])
+        if thr and self._thrust and thr["out_of_range"] > thr["written"]:
+            th = self._thrust
+            self.report.note(f"most thrust commands ({thr['out_of_range']} of {thr['records']}) are outside "
+                             f"{th['lo']:g}..{th['hi']:g} {th['unit']}: is the unit right (--thrust-unit, "
+                             "--thrust-range)?")
         for topic, ch in self.health["channels"].items():
             if ch["status"] == "suspect":
                 self.report.note(f"{topic} suspect: {ch['why']}")
