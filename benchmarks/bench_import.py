@@ -95,6 +95,7 @@ CHILD = textwrap.dedent("""
         n_out = 0
         for batch in mod.read(__import__("pathlib").Path(src), ImportOptions(), rep, fmt=fmt):
             n_out += sum(len(f) for f in asm.process(batch).values())
+        n_out += sum(len(f) for f in asm.finish().values())
         records = rep.records
     else:
         res = import_file(src, out=out, force=True)

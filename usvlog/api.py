@@ -137,7 +137,8 @@ def save(log: FieldLog, path: PathLike, force: bool = False, **kw) -> Path:
 def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto", vessel=None,
                columns: dict[str, str] | None = None, topics: dict[str, str] | None = None,
                thrust_unit: str | None = None, start_utc: str | int | None = None, force: bool = False,
-               on_mapping: Callable | None = None, prefix_time: str | None = None) -> ImportResult:
+               on_mapping: Callable | None = None, prefix_time: str | None = None,
+               thrust_range: str | tuple | None = None, keep_dead: bool = False) -> ImportResult:
     """Import a field log (CSV, NMEA 0183, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg): ``usvlog import``.
 
     Parameters
@@ -173,6 +174,12 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         NMEA/text logs: ``"auto"`` or a ``strptime`` format to use the time stamps a logger
         wrote before each sentence, ``"none"`` never; None uses only stamps that say their
         zone (``--prefix-time``).
+    thrust_range : str or tuple, optional
+        ``"LO:HI"`` or ``(lo, hi)``: range of integer ``counts`` commands (``--thrust-range``);
+        guessed from the values when None.
+    keep_dead : bool
+        Write channels the sensor health audit judges dead as data (``--keep-dead``); by
+        default they go to ``/raw/...`` and are flagged.
 
     Returns
     -------
@@ -184,7 +191,8 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
 
     return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
                        thrust_unit=thrust_unit, start_utc=start_utc, out=out, force=force,
-                       on_mapping=on_mapping, prefix_time=prefix_time)
+                       on_mapping=on_mapping, prefix_time=prefix_time, thrust_range=thrust_range,
+                       keep_dead=keep_dead)
 
 
 def inspect(log) -> LogSummary:

@@ -17,12 +17,19 @@ def register(sub) -> None:
     p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
                    help="CSV: map a role (time_s, time_ns, time_iso, lat_deg, lon_deg, alt_m, heading_deg, "
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
-                        "course_deg) to a column; repeatable")
+                        "course_deg, thrust_left_dir, thrust_right_dir: direction flags, 0 forward and non-zero "
+                        "reverse, or -1/+1) to a column; repeatable")
     p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
                    help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
                         "to a topic and field path; repeatable")
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
+    p.add_argument("--thrust-range", default=None, metavar="LO:HI",
+                   help="range of integer thrust commands (unit counts), e.g. --thrust-range=-255:255 or "
+                        "0:200 (full scale: the larger magnitude; commands outside it are skipped and counted)")
+    p.add_argument("--keep-dead", action="store_true",
+                   help="write channels the health audit judges dead (a compass that never moves while the "
+                        "track turns) as data; by default they go to /raw/... and are flagged")
     p.add_argument("--start-utc", default=None, metavar="ISO",
                    help="time of the first sample of a log with relative times (time columns, line stamps), "
                         "e.g. 2024-05-01T10:00:00Z")
@@ -50,8 +57,8 @@ def run(args) -> int:
         res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
                              columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
                              thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
-                             on_mapping=_print_mapping,
-                             prefix_time=getattr(args, "prefix_time", None))
+                             on_mapping=_print_mapping, prefix_time=getattr(args, "prefix_time", None),
+                             thrust_range=args.thrust_range, keep_dead=args.keep_dead)
     except Exception as err:
         if args.json:   # a machine reader gets JSON on failure too; the error still goes to stderr, same exit code
             print_json({"error": " ".join(str(err).split()) or type(err).__name__, "kind": type(err).__name__,

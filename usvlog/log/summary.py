@@ -72,7 +72,17 @@ class LogSummary:
         d["start_utc"] = format_time(self.first_ns) if self.first_ns is not None else None
         d["end_utc"] = format_time(self.last_ns) if self.last_ns is not None else None
         d["channels"] = {c["topic"]: c for c in d["channels"]}
+        d["health"] = self.health
         return d
+
+    @property
+    def health(self) -> dict | None:
+        """The sensor health record of the last import (None for a log that was not imported).
+
+        Parsed from the ``health`` key of the provenance records in :attr:`metadata`; the
+        layout is documented in :mod:`usvlog.io.importers.audit`.
+        """
+        return health_from_metadata(self.metadata)
 
     def channel(self, topic: str) -> ChannelSummary:
         """The summary of ``topic``; ``StopIteration`` if the log has no such channel."""
@@ -355,6 +365,81 @@ def skipped_from_provenance(provenance: list[dict]) -> dict:
     return out
 
 
+def health_from_metadata(metadata: dict) -> dict | None:
+    """The health record of the last import among a log's provenance metadata records.
+
+    Parameters
+    ----------
+    metadata : dict
+        Metadata records ``{name: {key: text}}``; the provenance records are
+        ``usvlog.provenance/N``.
+
+    Returns
+    -------
+    dict or None
+        The record (layout in :mod:`usvlog.io.importers.audit`), None when no import
+        stored one.
+    """
+    keys = sorted((k for k in metadata if k.startswith("usvlog.provenance/") and k.rsplit("/", 1)[1].isdigit()),
+                  key=lambda k: int(k.rsplit("/", 1)[1]))
+    for k in reversed(keys):
+        raw = metadata[k].get("health")
+        if not raw:
+            continue
+        try:
+            d = json.loads(raw)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(d, dict):
+            return d
+    return None
+
+
+def format_health(h: dict) -> list[str]:
+    """Text lines of a health record (the ``health`` section of ``usvlog inspect``).
+
+    Parameters
+    ----------
+    h : dict
+        A health record (:mod:`usvlog.io.importers.audit`).
+
+    Returns
+    -------
+    list of str
+        A header line (time base, track turn, thrust time) and one line per channel:
+        status, rate (Hz), jitter (ms), gaps, republished copies collapsed, out-of-range
+        values, longest stuck stretch (s), stamp offset (s); then why a channel is dead or
+        suspect, and the thrust unit, range and whether the force scale is known.
+    """
+    base = h.get("time_base", "?")
+    if h.get("time_counted_from"):
+        base += f" (relative time, counted from {h['time_counted_from']})"
+    turn = h.get("track_turn_deg")
+    lines = [f"health    time base {base}; track turned "
+             + ("-" if turn is None else f"{turn:.0f} deg") + f"; thrust applied {h.get('thrust_applied_s', 0):.0f} s"]
+    lines.append(f"  {'channel':<22} {'status':<8} {'rate Hz':>8} {'jit ms':>7} {'gaps':>5} {'repub':>6} "
+                 f"{'range':>6} {'stuck s':>8} {'stamp-log s':>12}")
+    for topic, c in (h.get("channels") or {}).items():
+        rate = f"{c['rate_hz']:.2f}" if c.get("rate_hz") else "-"
+        jit = f"{c['jitter_s'] * 1e3:.1f}" if c.get("jitter_s") is not None else "-"
+        off = c.get("stamp_offset_s")
+        offs = f"{off['median']:+.3f}" if off else "-"
+        lines.append(f"  {topic:<22} {c.get('status', '?'):<8} {rate:>8} {jit:>7} {c.get('gaps', 0):>5} "
+                     f"{c.get('republished', 0):>6} {c.get('out_of_range', 0):>6} "
+                     f"{c.get('stuck_longest_s', 0):>8.1f} {offs:>12}")
+    for topic, c in (h.get("channels") or {}).items():
+        if c.get("status") in ("dead", "suspect"):
+            where = f"; written as {c['written_as']}" if c.get("written_as", topic) != topic else ""
+            lines.append(f"  {c['status'].upper()} {topic}: {c.get('why', '')}{where}")
+    th = h.get("thrust")
+    if th:
+        lo, hi = th.get("range", [None, None])
+        lines.append(f"  thrust unit {th.get('unit')} range {lo:g}:{hi:g} ({th.get('reason', '')}); force scale "
+                     f"{th.get('force_scale')}" + (f"; direction flag {th['direction_flag']}"
+                                                   if th.get("direction_flag") else ""))
+    return lines
+
+
 def summarize(log: FieldLog) -> LogSummary:
     """Summarise a log (what ``usvlog inspect`` shows).
 
@@ -432,4 +517,7 @@ def format_summary(s: LogSummary) -> str:
     prov = [s.metadata[k] for k in sorted(s.metadata) if k.startswith("usvlog.provenance/")]
     for p in prov:
         lines.append(f"produced  by {p.get('producer', '?')} from {p.get('source', '?')}")
+    health = s.health
+    if health:
+        lines.extend(format_health(health))
     return "\n".join(lines)

@@ -24,6 +24,13 @@ from ..choices import PARAM_NAMES, THRUST_UNITS
 from ..errors import ConfigError, InputError
 
 
+def _full_scale(full_scale) -> float:
+    """The full scale of ``counts`` commands, checked: a finite number > 0."""
+    if full_scale is None or not (math.isfinite(float(full_scale)) and float(full_scale) > 0):
+        raise ConfigError(f"thrust commands in counts need a full scale > 0 (--thrust-range), not {full_scale}")
+    return float(full_scale)
+
+
 def require_finite(obj, names, kind: str) -> None:
     """Every field in ``names`` of ``obj`` is a finite number (not a bool), else ConfigError.
 
@@ -167,15 +174,18 @@ class Thrusters:
             raise ConfigError(f"thruster pwm_span_us = {self.pwm_span_us} must be > 0")
 
     # -- command <-> force -------------------------------------------------------
-    def normalize(self, command, unit: str):
-        """Recorded command -> normalized command in [-1, 1] (pwm_us or normalized).
+    def normalize(self, command, unit: str, full_scale: float | None = None):
+        """Recorded command -> normalized command in [-1, 1] (pwm_us, normalized or counts).
 
         Parameters
         ----------
         command : float or array_like
             Thruster command(s) in ``unit``.
-        unit : {"normalized", "pwm_us"}
-            Unit of ``command``: already normalized, or a PWM pulse width in microseconds.
+        unit : {"normalized", "pwm_us", "counts"}
+            Unit of ``command``: already normalized, a PWM pulse width in microseconds, or
+            integer counts (full command at +- ``full_scale``).
+        full_scale : float, optional
+            Counts of a full command (e.g. 255), > 0; required for ``counts``.
 
         Returns
         -------
@@ -185,24 +195,30 @@ class Thrusters:
         Raises
         ------
         usvlog.errors.ConfigError
-            For any other unit (``newton`` commands have no normalized form).
+            For any other unit (``newton`` commands have no normalized form), or ``counts``
+            without a positive ``full_scale``.
         """
         c = np.asarray(command, dtype=float)
         if unit == "normalized":
             return np.clip(c, -1.0, 1.0)
         if unit == "pwm_us":
             return np.clip((c - self.pwm_neutral_us) / self.pwm_span_us, -1.0, 1.0)
+        if unit == "counts":
+            return np.clip(c / _full_scale(full_scale), -1.0, 1.0)
         raise ConfigError(f"thrust unit {unit!r} cannot be normalized")
 
-    def command_to_force(self, command, unit: str):
+    def command_to_force(self, command, unit: str, full_scale: float | None = None):
         """Recorded thruster command in ``unit`` -> force in newtons.
 
         Parameters
         ----------
         command : float or array_like
             Thruster command(s) as recorded.
-        unit : {"newton", "normalized", "pwm_us"}
-            Unit of ``command``: N, normalized [-1, 1], or PWM pulse width in microseconds.
+        unit : {"newton", "normalized", "pwm_us", "counts"}
+            Unit of ``command``: N, normalized [-1, 1], PWM pulse width in microseconds, or
+            integer counts (full command at +- ``full_scale``).
+        full_scale : float, optional
+            Counts of a full command, > 0; required for ``counts``.
 
         Returns
         -------
@@ -222,14 +238,14 @@ class Thrusters:
         c = np.asarray(command, dtype=float)
         if unit == "newton":
             return c.copy()
-        c = self.normalize(c, unit)
+        c = self.normalize(c, unit, full_scale)
         if self.map == "identity":
             raise ConfigError(
                 f"thrust commands in {unit} need a thruster map (linear or quadratic), not identity")
         shape = c if self.map == "linear" else c * np.abs(c)
         return np.where(c >= 0, self.forward_n * shape, self.reverse_n * shape)
 
-    def force_to_command(self, force, unit: str):
+    def force_to_command(self, force, unit: str, full_scale: float | None = None):
         """Force in newtons -> command in ``unit`` (saturated to the thruster limits).
 
         Inverse of :meth:`command_to_force` within the limits.
@@ -238,8 +254,11 @@ class Thrusters:
         ----------
         force : float or array_like
             Force of one thruster in N.
-        unit : {"newton", "normalized", "pwm_us"}
+        unit : {"newton", "normalized", "pwm_us", "counts"}
             Unit of the command to produce.
+        full_scale : float, optional
+            Counts of a full command, > 0; required for ``counts`` (the result is not
+            rounded to whole counts).
 
         Returns
         -------
@@ -266,6 +285,8 @@ class Thrusters:
             return c
         if unit == "pwm_us":
             return self.pwm_neutral_us + self.pwm_span_us * c
+        if unit == "counts":
+            return _full_scale(full_scale) * c
         raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
 
     def saturate(self, force):

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,7 +42,8 @@ FORMATS = IMPORT_FORMATS
 _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
             "dataflash": "dataflash", "ulog": "ulog"}
 CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad",
-             "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
+             "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg",
+             "thrust_left_dir", "thrust_right_dir")
 TOPIC_ROLES = ("gnss", "heading", "yaw_rate", "thrust_left", "thrust_right", "speed_mps")
 
 
@@ -56,6 +58,8 @@ class ImportOptions:
     start_utc_ns: int | None = None               # for relative time columns
     chunk_rows: int = 50_000
     prefix_time: str | None = None                # text logs: None, "auto", "none" or a strptime format
+    thrust_range: tuple | None = None             # (lo, hi) of counts commands (--thrust-range)
+    keep_dead: bool = False                       # write channels judged dead as data (--keep-dead)
 
     def __post_init__(self):
         if self.prefix_time is not None and self.prefix_time not in ("auto", "none") and "%" not in self.prefix_time:
@@ -71,6 +75,12 @@ class ImportOptions:
                 raise ConfigError(f"unknown topic role {role!r} (roles: {', '.join(TOPIC_ROLES)})")
         if self.chunk_rows < 1:
             raise ConfigError("chunk_rows must be >= 1")
+        if self.thrust_range is not None:
+            lo, hi = self.thrust_range
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and max(abs(lo), abs(hi)) > 0):
+                raise ConfigError(f"thrust range {lo:g}:{hi:g} is not LO:HI with LO < HI")
+            if self.thrust_unit not in (None, "counts"):
+                raise ConfigError(f"--thrust-range is for counts commands, not {self.thrust_unit}")
 
     def to_dict(self) -> dict:
         """The settings as recorded in the log's provenance.
@@ -79,13 +89,17 @@ class ImportOptions:
         -------
         dict
             ``columns`` and ``topics`` (role -> source name), ``thrust_unit`` (None when
-            guessed) and ``start_utc_ns`` (ns since the Unix epoch, or None); ``chunk_rows``
-            is not recorded.
+            guessed) and ``start_utc_ns`` (ns since the Unix epoch, or None); ``thrust_range``
+            and ``keep_dead`` only when set; ``chunk_rows`` is not recorded.
         """
         d = {"columns": dict(self.columns), "topics": dict(self.topics), "thrust_unit": self.thrust_unit,
              "start_utc_ns": self.start_utc_ns}
         if self.prefix_time is not None:
             d["prefix_time"] = self.prefix_time
+        if self.thrust_range is not None:
+            d["thrust_range"] = list(self.thrust_range)
+        if self.keep_dead:
+            d["keep_dead"] = True
         return d
 
 
@@ -120,6 +134,36 @@ def parse_pairs(items, what: str) -> dict:
             raise ConfigError(f"{what} {it!r} is not ROLE=VALUE")
         out[role.strip()] = val.strip()
     return out
+
+
+def parse_thrust_range(text: str | None) -> tuple[float, float] | None:
+    """``--thrust-range`` text ``LO:HI`` (e.g. ``-255:255``, ``0:200``) -> (lo, hi) in counts.
+
+    Parameters
+    ----------
+    text : str or None
+        Two numbers separated by ``:``, or None.
+
+    Returns
+    -------
+    tuple of float or None
+        ``(lo, hi)``; None when ``text`` is None.
+
+    Raises
+    ------
+    ConfigError
+        Not two finite numbers with LO < HI.
+    """
+    if text is None:
+        return None
+    lo, sep, hi = str(text).partition(":")
+    try:
+        rng = (float(lo), float(hi))
+    except ValueError:
+        rng = None
+    if not sep or rng is None or not all(math.isfinite(x) for x in rng) or rng[0] >= rng[1]:
+        raise ConfigError(f"thrust range {text!r} is not LO:HI with LO < HI (e.g. -255:255 or 0:200)")
+    return rng
 
 
 def parse_start_utc(text: str | None) -> int | None:
@@ -197,7 +241,8 @@ def file_identity(path) -> dict:
 def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
                 datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
-                on_mapping=None, prefix_time: str | None = None) -> ImportResult:
+                on_mapping=None, prefix_time: str | None = None, thrust_range=None,
+                keep_dead: bool = False) -> ImportResult:
     """Import one field log.
 
     Parameters
@@ -231,6 +276,12 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         NMEA/text logs: use the time stamps before the sentences (``"auto"``: ISO 8601 or
         seconds; or a ``strptime`` format); ``"none"``: never; None: only stamps that say
         their zone or are epoch seconds (see :mod:`usvlog.io.importers.nmea`).
+    thrust_range : tuple of float or str, optional
+        ``(lo, hi)`` or ``"LO:HI"``: the range of ``counts`` commands (full scale: the larger
+        magnitude); implies ``thrust_unit="counts"``. Guessed from the values when None.
+    keep_dead : bool
+        Write channels the health audit judges dead as data (flagged) instead of under
+        ``/raw/...`` (:mod:`usvlog.io.importers.audit`).
 
     Returns
     -------
@@ -253,8 +304,12 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     if fmt not in ("auto",) + FORMATS:
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
     start_ns = start_utc if isinstance(start_utc, int) or start_utc is None else parse_start_utc(start_utc)
+    if isinstance(thrust_range, str):
+        thrust_range = parse_thrust_range(thrust_range)
     opts = ImportOptions(columns=dict(columns or {}), topics=dict(topics or {}), thrust_unit=thrust_unit,
-                         start_utc_ns=start_ns, chunk_rows=chunk_rows, prefix_time=prefix_time)
+                         start_utc_ns=start_ns, chunk_rows=chunk_rows, prefix_time=prefix_time,
+                         thrust_range=None if thrust_range is None else tuple(float(x) for x in thrust_range),
+                         keep_dead=bool(keep_dead))
     if out is not None:
         check_output(out, force)
     if p.is_file() and p.stat().st_size == 0:
@@ -263,7 +318,8 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         fmt = detect_format(p)
     report = ImportReport(source=p.name, format=fmt)
     ident = file_identity(p)
-    asm = Assembler(report, vessel=vessel, datum=datum)
+    asm = Assembler(report, vessel=vessel, datum=datum, thrust_unit=opts.thrust_unit,
+                    thrust_range=opts.thrust_range, keep_dead=opts.keep_dead)
     module = importlib.import_module(f".{_MODULES[fmt]}", __name__)
 
     def run(sink):
@@ -271,6 +327,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         # calls it (FormatError from the library's error); anything else is a bug in usvlog
         for batch in module.read(p, opts, report, fmt=fmt, on_mapping=on_mapping):
             sink.write(asm.process(batch))
+        sink.write(asm.finish())
         if sum(report.counts.values()) == 0:
             sk = ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())) or "none"
             first = "; first: " + " ".join(next(iter(report.first_bad.values())).split()) if report.first_bad else ""
@@ -283,7 +340,9 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         meta.add_provenance(producer="usvlog import", source=p.name, settings=opts.to_dict(), format=fmt,
                             size=str(ident["size"]), sha256=ident["sha256"],
                             skipped=dict(sorted(report.skipped.items())), guesses=report.guesses,
-                            mapping=report.mapping, records=str(report.records))
+                            mapping=report.mapping, records=str(report.records), health=asm.health,
+                            **({"force_scale": asm.health["thrust"]["force_scale"]}
+                               if asm.health and asm.health.get("thrust") else {}))
         return meta.meta
 
     if out is None:
@@ -300,4 +359,4 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
 
 
 __all__ = ["FORMATS", "CSV_ROLES", "TOPIC_ROLES", "ImportOptions", "ImportReport", "ImportResult",
-           "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc"]
+           "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc", "parse_thrust_range"]

@@ -11,9 +11,23 @@ equal). :class:`Assembler` turns batches into canonical frames, one batch at a t
 * samples whose record time is not after the previous kept sample of the same
   stream (backwards or duplicated time stamps).
 
+* headings beyond +-360 deg and thrust commands outside their unit's range
+  (:data:`THRUST_LIMITS`; newtons beyond +-:data:`THRUST_ABSURD_N`);
+* republished copies of a sample (same sensor stamp, or a GNSS fix identical to the
+  one before it): collapsed, see :mod:`usvlog.io.importers.audit`.
+
 Thrust commands that are not newtons go through the vessel's thruster map
 (:meth:`usvlog.model.vessel.Thrusters.command_to_force`); the recorded commands and
-their unit are kept. The datum is the first kept fix unless one is given.
+their unit are kept, except ``counts``: they are written as normalized commands
+(counts / full scale, the sign of a direction flag applied) and the unit and range
+recorded go to the health record (``health["thrust"]``). A unit the reader guessed is
+guessed again here, robustly (:func:`guess_thrust`), from the first
+:data:`THRUST_GUESS_ROWS` commands once one is not zero (held back until then). The
+datum is the first kept fix unless one is given.
+
+Every stream also goes through the sensor health audit
+(:class:`~usvlog.io.importers.audit.HealthAudit`); :meth:`Assembler.finish` gives the
+frames held back while a channel could still be dead, under ``/raw/...`` for a dead one.
 
 Pure numpy/pandas: no file is opened here (the sinks that write live in
 ``usvlog.io.importers.sink``).
@@ -41,6 +55,7 @@ from ...errors import ConfigError, FormatError
 from ...log.channels import channel_spec, frame_from_columns
 from ...model.frames import Datum, ssa
 from ...model.vessel import THRUST_UNITS, Vessel
+from .audit import DEAD_CAPABLE, HealthAudit
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -52,6 +67,20 @@ STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
 }
 _COV = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
         "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
+THRUST_ABSURD_N = 1e5
+"""Thrust commands in newtons beyond +- this are impossible for a small USV (skipped)."""
+THRUST_LIMITS: dict[str, tuple[float, float]] = {
+    "newton": (-THRUST_ABSURD_N, THRUST_ABSURD_N),
+    "normalized": (-1.0 - 1e-9, 1.0 + 1e-9),
+    "pwm_us": (800.0, 2200.0),
+}
+"""Commands accepted per unit (``counts``: the ``--thrust-range``, given or guessed)."""
+COUNT_FULL_SCALES = (100, 127, 200, 255, 500, 1000, 1023, 1024, 2047, 2048, 4095, 4096, 10000, 32767,
+                     32768, 65535)
+"""Full scales of integer command counts the guess picks from (the smallest that holds the bulk)."""
+THRUST_GUESS_ROWS = 500
+"""A guessed thrust unit is guessed from at least this many commands (or all, if fewer)."""
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass
@@ -67,6 +96,7 @@ class ImportReport:
     notes: list = field(default_factory=list)
     counts: Counter = field(default_factory=Counter)    # topic -> samples written
     first_bad: dict = field(default_factory=dict)       # reason -> where the first one was
+    health: dict | None = None                          # the sensor health record (audit.py)
 
     def skip(self, reason: str, n: int = 1, where: str | None = None) -> None:
         """Count ``n`` records dropped for ``reason``; remember where the first one was.
@@ -106,13 +136,14 @@ class ImportReport:
         -------
         dict
             ``source``, ``format``, ``records``, ``skipped`` (reason -> count, sorted),
-            ``first_bad``, ``guesses``, ``mapping``, ``notes`` and ``channels`` (topic ->
-            samples written, sorted).
+            ``first_bad``, ``guesses``, ``mapping``, ``notes``, ``channels`` (topic ->
+            samples written, sorted) and ``health`` (the sensor health record of
+            :mod:`usvlog.io.importers.audit`, None before the import finished).
         """
         return {"source": self.source, "format": self.format, "records": self.records,
                 "skipped": dict(sorted(self.skipped.items())), "first_bad": dict(self.first_bad),
                 "guesses": dict(self.guesses), "mapping": dict(self.mapping), "notes": list(self.notes),
-                "channels": dict(sorted(self.counts.items()))}
+                "channels": dict(sorted(self.counts.items())), "health": self.health}
 
 
 def clock_offset_fallback(opts, report, what: str) -> int:
@@ -200,38 +231,72 @@ def _time_filter(t: np.ndarray, last: int | None) -> tuple[np.ndarray, int, int]
 
 
 class Assembler:
-    """Turns role batches into canonical frames, counting what it drops."""
+    """Turns role batches into canonical frames, counting what it drops and auditing each channel.
 
-    def __init__(self, report: ImportReport, *, vessel: Vessel | None = None, datum: Datum | None = None):
+    Parameters
+    ----------
+    report : ImportReport
+        Filled with what is dropped, guessed and written.
+    vessel : usvlog.model.vessel.Vessel, optional
+        Its thruster map turns commands that are not newtons into forces (N).
+    datum : usvlog.model.frames.Datum, optional
+        Origin of the local frame; the first kept fix when None.
+    thrust_unit : str, optional
+        The unit the user gave (``--thrust-unit``); None when the reader's unit is
+        either known from the format or guessed (then guessed again here).
+    thrust_range : tuple of float, optional
+        ``(lo, hi)`` of ``counts`` commands (``--thrust-range``); implies ``counts``
+        when no unit is given.
+    keep_dead : bool
+        Write channels judged dead as data all the same (still flagged).
+    """
+
+    def __init__(self, report: ImportReport, *, vessel: Vessel | None = None, datum: Datum | None = None,
+                 thrust_unit: str | None = None, thrust_range: tuple[float, float] | None = None,
+                 keep_dead: bool = False):
         self.report = report
         self.vessel = vessel
         self.datum = datum
+        self.thrust_unit = thrust_unit
+        self.thrust_range = None if thrust_range is None else (float(thrust_range[0]), float(thrust_range[1]))
+        self.keep_dead = keep_dead
+        self.audit = HealthAudit({s: STREAMS[s][0] for s in STREAMS}, keep_dead=keep_dead)
+        self.health: dict | None = None
         self._last: dict[str, int] = {}
         self._thrust_forces_known: bool | None = None
+        self._held: dict[str, list[pd.DataFrame]] = {}     # frames of channels that could still be dead
+        self._thrust_pending: list[dict] = []                # thrust columns waiting for the unit guess
+        self._thrust: dict | None = None                     # unit, lo, hi, reason, full scale, guessed
+        self._dir_sign: bool | None = None                   # direction flags: +-1 signs (else 0/1)
 
     def process(self, batch: dict[str, dict[str, np.ndarray]]) -> dict[str, pd.DataFrame]:
         """Turn one batch of role streams into canonical frames.
 
         Drops (and counts in the report) samples with a negative time, non-finite values,
-        GNSS fixes with NaN, out-of-range or (0, 0) latitude/longitude, negative speeds
+        GNSS fixes with NaN, out-of-range or (0, 0) latitude/longitude, negative speeds,
+        headings beyond +-360 deg, thrust commands outside their unit's range,
+        republished copies (same sensor stamp, or a fix identical to the one before it)
         and samples not later than the previous kept one of the same stream (kept across
         batches). Headings and courses are wrapped to [-pi, pi) rad; thrust commands that
         are not newtons are turned into forces (N) with the vessel's thruster map (forces
         NaN, and a note, without a vessel whose map is linear or quadratic). The datum is
-        set from the first kept fix when none was given.
+        set from the first kept fix when none was given. Heading, GNSS and yaw-rate frames
+        are held back while their values have not moved (the channel could be dead) and
+        come out of a later call or of :meth:`finish`.
 
         Parameters
         ----------
         batch : dict
             ``{stream: {column: array}}``, streams and columns as in :data:`STREAMS`;
             ``t_ns`` (int64 ns since the Unix epoch) is required, ``stamp_ns`` defaults
-            to it.
+            to it. Thrust may carry ``left_dir``/``right_dir`` direction flags (0 forward,
+            non-zero reverse; or signs -1/+1 when the stream has negative flags).
 
         Returns
         -------
         dict
             Topic -> DataFrame indexed by ``t_ns`` in the channel's canonical columns;
-            streams with nothing kept are left out. :attr:`ImportReport.counts` is
+            streams with nothing to write now are left out. :attr:`ImportReport.counts` is
             increased by the rows returned.
 
         Raises
@@ -243,20 +308,193 @@ class Assembler:
         for stream, cols in batch.items():
             if stream not in STREAMS:
                 raise ConfigError(f"unknown stream {stream!r}")
+            if stream == "thrust":
+                cols = self._thrust_ready(cols)
+                if cols is None:
+                    continue
             frame = self._stream(stream, cols)
-            if frame is not None and len(frame):
-                topic = STREAMS[stream][0]
-                self.report.counts[topic] += len(frame)
-                out[topic] = frame
+            self._emit(stream, frame, out)
         return out
 
+    def _emit(self, stream: str, frame: pd.DataFrame | None, out: dict) -> None:
+        topic = STREAMS[stream][0]
+        if stream in DEAD_CAPABLE and self.audit.channel(stream).still():
+            if frame is not None and len(frame):
+                self._held.setdefault(stream, []).append(frame)
+            return
+        parts = self._held.pop(stream, [])
+        if frame is not None and len(frame):
+            parts.append(frame)
+        if not parts:
+            return
+        f = parts[0] if len(parts) == 1 else pd.concat(parts)
+        self.report.counts[topic] += len(f)
+        out[topic] = f
+
+    def finish(self) -> dict[str, pd.DataFrame]:
+        """The frames still held back, and the health record (:attr:`health`).
+
+        Call once after the last :meth:`process`. A channel judged dead
+        (:mod:`usvlog.io.importers.audit`) is returned under ``/raw/<topic>`` (unless
+        ``keep_dead``), with a note; thrust commands still waiting for their unit guess
+        are guessed from what there is.
+
+        Returns
+        -------
+        dict
+            Topic -> DataFrame, as :meth:`process` returns.
+        """
+        out: dict[str, pd.DataFrame] = {}
+        if self._thrust_pending:
+            cols = self._thrust_ready(None)
+            if cols is not None:
+                self._emit("thrust", self._stream("thrust", cols), out)
+        tb = self.report.guesses.get("time_base") or self.report.guesses.get("start_utc")
+        base = "utc" if not tb else "boot" if self.report.format in ("ulog", "dataflash") else "relative"
+        self.health = self.audit.finish(time_base=base, time_counted_from=tb)
+        self.health["thrust"] = self._thrust_record()
+        self.report.health = self.health
+        for stream, parts in self._held.items():
+            topic = STREAMS[stream][0]
+            ch = self.health["channels"].get(topic, {})
+            dest = ch.get("written_as", topic)
+            f = parts[0] if len(parts) == 1 else pd.concat(parts)
+            if dest != topic:
+                self.report.note(f"{topic} looks dead ({ch.get('why', '')}): written as {dest}, not as data "
+                                 "(--keep-dead writes it as data)")
+            elif ch.get("status") == "dead":
+                self.report.note(f"{topic} looks dead ({ch.get('why', '')}): kept as data (--keep-dead)")
+            self.report.counts[dest] += len(f)
+            out[dest] = f
+        self._held = {}
+        thr = self.health["channels"].get(STREAMS["thrust"][0])
+        if thr and self._thrust and thr["out_of_range"] > thr["written"]:
+            th = self._thrust
+            self.report.note(f"most thrust commands ({thr['out_of_range']} of {thr['records']}) are outside "
+                             f"{th['lo']:g}..{th['hi']:g} {th['unit']}: is the unit right (--thrust-unit, "
+                             "--thrust-range)?")
+        for topic, ch in self.health["channels"].items():
+            if ch["status"] == "suspect":
+                self.report.note(f"{topic} suspect: {ch['why']}")
+            if ch["republished"]:
+                self.report.note(f"{topic}: {ch['republished']} republished copies collapsed")
+        return out
+
+    # -- thrust units --------------------------------------------------------------------
+    def _thrust_ready(self, cols: dict | None) -> dict | None:
+        """Thrust columns with their unit settled (None: held until a command is not zero)."""
+        if self._thrust is None:
+            if cols is not None:
+                self._thrust_pending.append({k: np.asarray(v) for k, v in cols.items()})
+            pend = self._thrust_pending
+            given = self.thrust_unit
+            if given is None and self.thrust_range is not None:
+                given = "counts"
+            reader_unit = None
+            if pend and "unit" in pend[0] and len(pend[0]["unit"]):
+                reader_unit = str(pend[0]["unit"][0])
+            guessing = given is None and (reader_unit is None or "thrust_unit" in self.report.guesses)
+            lr = [np.concatenate([np.asarray(p[c], float) for p in pend]) for c in ("left", "right")]
+            informative = any(bool(np.any(np.isfinite(a) & (a != 0))) for a in lr)
+            rows = sum(len(p["t_ns"]) for p in pend)
+            if guessing and (not informative or rows < THRUST_GUESS_ROWS) and cols is not None:
+                return None
+            if given is not None or guessing:
+                g = guess_thrust(*lr) if guessing or (given == "counts" and self.thrust_range is None) else None
+                unit = given or g.unit
+                if unit == "counts":
+                    rng = self.thrust_range or (g.lo, g.hi)
+                    reason = (g.reason if g is not None and g.unit == "counts" else
+                              "--thrust-range" if self.thrust_range is not None else g.reason)
+                else:
+                    rng = THRUST_LIMITS[unit]
+                    reason = g.reason if guessing else "--thrust-unit"
+                if guessing:
+                    self.report.guesses["thrust_unit"] = unit
+                    self.report.note(f"thrust unit guessed: {unit} ({reason})")
+            else:
+                unit = reader_unit or "newton"
+                if unit not in THRUST_UNITS:
+                    raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
+                rng = self.thrust_range if unit == "counts" and self.thrust_range else THRUST_LIMITS.get(unit)
+                reason = "from the format"
+                if rng is None:
+                    raise ConfigError("thrust commands in counts need --thrust-range LO:HI")
+            if unit == "counts":
+                self.report.guesses["thrust_range"] = f"{rng[0]:g}:{rng[1]:g}"
+            self._thrust = {"unit": unit, "lo": float(rng[0]), "hi": float(rng[1]), "reason": reason,
+                            "set": given is not None or not guessing}
+            cols = {k: np.concatenate([np.asarray(p[k]) for p in pend]) for k in pend[0]} if pend else None
+            self._thrust_pending = []
+            if cols is None:
+                return None
+        cols = {k: np.asarray(v) for k, v in cols.items()}
+        n = len(cols["t_ns"])
+        cols["unit"] = np.full(n, self._thrust["unit"], dtype=object)
+        return cols
+
+    def _thrust_record(self) -> dict | None:
+        if self._thrust is None:
+            return None
+        th = self._thrust
+        known = self._thrust_forces_known
+        return {"unit": th["unit"], "range": [th["lo"], th["hi"]], "reason": th["reason"],
+                "direction_flag": None if self._dir_sign is None else ("sign" if self._dir_sign else "0/1"),
+                "written_unit": "normalized" if th["unit"] == "counts" else th["unit"],
+                "force_scale": "known" if th["unit"] == "newton" or known else "unknown"}
+
+    def _thrust_values(self, cols: dict, keep: np.ndarray, ch) -> np.ndarray:
+        """Range check (counted), direction flags and counts -> normalized; returns ``keep``."""
+        th = self._thrust
+        left = np.asarray(cols["left"], float)
+        right = np.asarray(cols["right"], float)
+        with np.errstate(invalid="ignore"):
+            out = keep & ((left < th["lo"]) | (left > th["hi"]) | (right < th["lo"]) | (right > th["hi"]))
+        n_out = int(out.sum())
+        if n_out:
+            i = int(np.flatnonzero(out)[0])
+            self.report.skip("thrust_out_of_range", n_out,
+                             where=f"t_ns {int(cols['t_ns'][i])}: {left[i]:g}, {right[i]:g} {th['unit']} "
+                                   f"outside {th['lo']:g}..{th['hi']:g}")
+            ch.out_of_range += n_out
+        keep = keep & ~out
+        for side, flag in (("left", "left_dir"), ("right", "right_dir")):
+            if flag not in cols:
+                continue
+            f = np.asarray(cols[flag], float)
+            if self._dir_sign is None:
+                self._dir_sign = bool(np.any(f[np.isfinite(f)] < 0))
+                self.report.guesses["thrust_direction_flag"] = (
+                    "sign (-1 reverse, +1 forward)" if self._dir_sign else "0 forward, non-zero reverse")
+            bad = keep & ~np.isfinite(f)
+            self.report.skip("thrust_nan", int(bad.sum()))
+            keep &= ~bad
+            with np.errstate(invalid="ignore"):
+                rev = (f < 0) if self._dir_sign else (f != 0)
+            v = np.abs(left if side == "left" else right)
+            signed = np.where(rev, -v, v)
+            if side == "left":
+                left = signed
+            else:
+                right = signed
+        if th["unit"] == "counts":
+            fs = max(abs(th["lo"]), abs(th["hi"]))
+            left, right = left / fs, right / fs
+            cols["unit"] = np.full(len(left), "normalized", dtype=object)
+        cols["left"], cols["right"] = left, right
+        return keep
+
+    # -- one stream ------------------------------------------------------------------------
     def _stream(self, stream: str, cols: dict[str, np.ndarray]) -> pd.DataFrame | None:
         t = np.asarray(cols["t_ns"], dtype=np.int64)
         n = len(t)
         if n == 0:
             return None
+        ch = self.audit.channel(stream)
+        ch.records += n
         cols = {k: np.asarray(v) for k, v in cols.items()}
         cols.setdefault("stamp_ns", t)
+        stamp = np.asarray(cols["stamp_ns"], dtype=np.int64)
         neg = t < 0
         self.report.skip(f"{stream}_time_negative", int(neg.sum()))
         keep = ~neg
@@ -271,27 +509,51 @@ class Assembler:
             self.report.skip("gnss_nan", int((nan & keep).sum()))
             self.report.skip("gnss_out_of_range", int((rng & keep).sum()))
             self.report.skip("gnss_no_fix", int((zero & keep).sum()))
+            ch.invalid += int(neg.sum() + (nan & keep).sum() + (zero & keep).sum())
+            ch.out_of_range += int((rng & keep).sum())
             keep &= ~(nan | rng | zero)
         else:
             bad = np.zeros(n, bool)
             for c in values:
                 bad |= ~np.isfinite(np.asarray(cols[c], float))
             self.report.skip(f"{stream}_nan", int((bad & keep).sum()))
+            ch.invalid += int(neg.sum() + (bad & keep).sum())
             keep &= ~bad
             if stream == "velocity":
                 with np.errstate(invalid="ignore"):
                     negv = keep & (np.asarray(cols["sog_mps"], float) < 0)
                 self.report.skip("velocity_out_of_range", int(negv.sum()))
+                ch.out_of_range += int(negv.sum())
                 keep &= ~negv
+            elif stream == "heading":
+                with np.errstate(invalid="ignore"):
+                    far = keep & (np.abs(np.asarray(cols["heading_rad"], float)) > _TWO_PI * (1 + 1e-9))
+                if far.any():
+                    i = int(np.flatnonzero(far)[0])
+                    self.report.skip("heading_out_of_range", int(far.sum()),
+                                     where=f"t_ns {int(t[i])}: heading {float(cols['heading_rad'][i]):.6g} rad "
+                                           "(beyond +-360 deg)")
+                ch.out_of_range += int(far.sum())
+                keep &= ~far
+            elif stream == "thrust":
+                keep = self._thrust_values(cols, keep, ch)
+        vi = np.flatnonzero(keep)
+        payload = [cols[c][vi] for c in ("lat_deg", "lon_deg", "alt_m") if c in cols] if stream == "gnss" else None
+        dup = ch.republished(t[vi], stamp[vi], payload)
+        if dup.any():
+            self.report.skip(f"{stream}_republished", int(dup.sum()))
+            keep[vi[dup]] = False
         t_keep = t[keep]
-        tk, back, dup = _time_filter(t_keep, self._last.get(stream))
+        tk, back, dupt = _time_filter(t_keep, self._last.get(stream))
         self.report.skip(f"{stream}_time_backwards", back)
-        self.report.skip(f"{stream}_time_duplicate", dup)
+        self.report.skip(f"{stream}_time_duplicate", dupt)
+        ch.time_disorder += back + dupt
         idx = np.flatnonzero(keep)[tk]
         if len(idx) == 0:
             return None
         self._last[stream] = int(t[idx[-1]])
         sel = {k: v[idx] for k, v in cols.items()}
+        self.audit.observe(stream, sel["t_ns"].astype(np.int64), sel["stamp_ns"].astype(np.int64), sel)
         return getattr(self, f"_frame_{stream}")(sel)
 
     # -- per stream --------------------------------------------------------------------
@@ -336,9 +598,13 @@ class Assembler:
                 raise ConfigError(f"thrust unit {u!r} is not one of {', '.join(THRUST_UNITS)}")
             thr = self.vessel.thrusters if self.vessel is not None else None
             if thr is None or thr.map == "identity":
-                self.report.note(f"thrust commands in {u}: forces unknown (give a --vessel whose "
+                shown = self._thrust["unit"] if self._thrust else u
+                self.report.note(f"thrust commands in {shown}: forces unknown (give a --vessel whose "
                                  "thruster map is linear or quadratic)")
+                self._thrust_forces_known = False
                 continue
+            if self._thrust_forces_known is None:
+                self._thrust_forces_known = True
             fl[m] = thr.command_to_force(left[m], u)
             fr[m] = thr.command_to_force(right[m], u)
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "left": left, "right": right,
@@ -359,18 +625,80 @@ class Assembler:
         return frame_from_columns(cols, c["t_ns"], channel_spec("/gnss/velocity"))
 
 
-def guess_thrust_unit(left: np.ndarray, right: np.ndarray) -> str:
-    """Unit of thruster commands from their range: PWM microseconds, [-1, 1] or newtons."""
-    v = np.concatenate([np.asarray(left, float), np.asarray(right, float)])
+@dataclass(frozen=True)
+class ThrustGuess:
+    """A thrust unit guessed from the commands: unit, accepted range and why.
+
+    Attributes
+    ----------
+    unit : str
+        One of ``THRUST_UNITS``.
+    lo, hi : float
+        Commands accepted (in ``unit``); ``counts``: the range whose larger magnitude is
+        the full scale.
+    reason : str
+        One line for the user.
+    """
+
+    unit: str
+    lo: float
+    hi: float
+    reason: str
+
+
+def guess_thrust(left, right) -> ThrustGuess:
+    """Unit of thruster commands from their range, robust to a few outliers.
+
+    The bulk is the commands between the 0.5 % and 99.5 % quantiles (so a stray
+    -99360 among +-255 does not decide): within 800..2200 -> ``pwm_us``; within
+    +-1 -> ``normalized``; whole numbers (99 % of the bulk) -> ``counts`` with the
+    smallest full scale F of :data:`COUNT_FULL_SCALES` that holds the bulk (range
+    -F..F); anything else -> ``newton``.
+
+    Parameters
+    ----------
+    left, right : array_like
+        Commands of the two thrusters (any unit); non-finite values are ignored.
+
+    Returns
+    -------
+    ThrustGuess
+    """
+    v = np.concatenate([np.asarray(left, float).ravel(), np.asarray(right, float).ravel()])
     v = v[np.isfinite(v)]
     if len(v) == 0:
-        return "newton"
-    lo, hi = float(v.min()), float(v.max())
-    if lo >= 800.0 and hi <= 2200.0:
-        return "pwm_us"
-    if lo >= -1.0 and hi <= 1.0:
-        return "normalized"
-    return "newton"
+        return ThrustGuess("newton", *THRUST_LIMITS["newton"], "no finite command: newtons assumed")
+    q_lo, q_hi = (float(x) for x in np.quantile(v, [0.005, 0.995], method="nearest"))
+    bulk = v[(v >= q_lo) & (v <= q_hi)]
+    span = f"{q_lo:g}..{q_hi:g}" + (f" (all: {float(v.min()):g}..{float(v.max()):g})"
+                                   if v.min() < q_lo or v.max() > q_hi else "")
+    if q_lo >= 800.0 and q_hi <= 2200.0:
+        return ThrustGuess("pwm_us", *THRUST_LIMITS["pwm_us"], f"commands {span}: RC pulse widths (us)")
+    if q_lo >= -1.0 and q_hi <= 1.0:
+        return ThrustGuess("normalized", *THRUST_LIMITS["normalized"], f"commands {span}: within +-1")
+    if np.mean(bulk == np.round(bulk)) >= 0.99:
+        top = max(abs(q_lo), abs(q_hi))
+        fs = next((float(f) for f in COUNT_FULL_SCALES if f >= top), float(math.ceil(top)))
+        lo = -fs   # symmetric: a stretch of forward-only commands says nothing of reverse
+        return ThrustGuess("counts", lo, fs, f"whole-number commands {span}: counts, full scale {fs:g} "
+                                             f"(range {lo:g}:{fs:g}; give --thrust-range LO:HI if not)")
+    return ThrustGuess("newton", *THRUST_LIMITS["newton"], f"commands {span} beyond +-1, not whole numbers: newtons")
+
+
+def guess_thrust_unit(left: np.ndarray, right: np.ndarray) -> str:
+    """Unit of thruster commands from their range (:func:`guess_thrust`'s unit).
+
+    Parameters
+    ----------
+    left, right : array_like
+        Commands of the two thrusters.
+
+    Returns
+    -------
+    str
+        ``pwm_us``, ``normalized``, ``counts`` or ``newton``.
+    """
+    return guess_thrust(left, right).unit
 
 
 def yaw_from_quaternion_enu(x, y, z, w):

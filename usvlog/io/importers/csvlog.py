@@ -40,13 +40,16 @@ GUESSES: dict[str, tuple[str, ...]] = {
     "thrust_right": ("thrust_right", "right", "right_thrust", "thrust_right_n", "starboard", "stbd",
                      "motor_right", "thr_right", "cmd_right", "right_cmd", "pwm_right", "right_pwm",
                      "thruster_right", "right_n"),
+    "thrust_left_dir": ("thrust_left_dir", "left_dir", "dir_left", "left_direction", "direction_left"),
+    "thrust_right_dir": ("thrust_right_dir", "right_dir", "dir_right", "right_direction", "direction_right"),
     "yaw_rate_degps": ("yaw_rate_degps", "yaw_rate", "gyro_z", "r_degps", "yaw_rate_deg_s", "rot_degps"),
     "yaw_rate_radps": ("yaw_rate_radps", "r_radps", "gyro_z_radps"),
     "speed_mps": ("speed_mps", "speed", "sog", "sog_mps", "ground_speed"),
     "course_deg": ("course_deg", "course", "cog", "cog_deg"),
 }
 _VALUE_ROLES = ("lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad", "thrust_left", "thrust_right",
-                "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg")
+                "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg", "thrust_left_dir",
+                "thrust_right_dir")
 _NAN_TEXT = {"nan", "NaN", "NAN", "-nan", "+nan", "n/a", "NA", "null", "None"}
 
 
@@ -425,6 +428,9 @@ class _Chunker:
                 report.guesses["thrust_unit"] = self.thrust_unit
             batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
                                "unit": np.full(int(both.sum()), self.thrust_unit or "newton", dtype=object)}
+            for role, col in (("thrust_left_dir", "left_dir"), ("thrust_right_dir", "right_dir")):
+                if role in vals:   # direction flags: an empty cell is forward (0)
+                    batch["thrust"][col] = np.where(pres[role][both], vals[role][both], 0.0)
         return batch
 
 
