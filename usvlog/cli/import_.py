@@ -17,9 +17,11 @@ def register(sub) -> None:
                    help="CSV: map a role (time_s, time_ns, time_iso, lat_deg, lon_deg, alt_m, heading_deg, "
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
                         "course_deg) to a column; repeatable")
-    p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
-                   help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
-                        "to a topic and field path; repeatable")
+    p.add_argument("--topic", action="append", default=[], metavar="ROLE=SOURCE[.field.path[i]]",
+                   help="map a role (gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, "
+                        "speed_mps, course) to a topic/message and field path, as `usvlog inspect SOURCE` lists "
+                        "them: /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0], RCOU.C1; "
+                        "a scalar message needs no field; repeatable")
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
     p.add_argument("--start-utc", default=None, metavar="ISO",

@@ -323,7 +323,7 @@ def _yaw_rate_candidates(cat: Catalog) -> list[_Cand]:
             if f.length is not None:
                 continue
             if re.search(r"angular_velocity(\.z|\[2\])$", f.path):
-                out.append(_Cand(t, {"yaw_rate": f.path}, 3, f"angular velocity z {f.path}"))
+                out.append(_Cand(t, {"yaw_rate": f.path}, 3, "angular velocity z"))
             elif leaf(f.path) in YAW_RATE_NAMES and is_numeric(f):
                 out.append(_Cand(t, {"yaw_rate": f.path}, 2, f"field {f.path}"))
     return out
