@@ -35,7 +35,8 @@ def _print_mapping(report) -> None:
     stage(f"importing {report.source} as {report.format}")
     guessed = {k.split(" ", 1)[-1] for k in report.guesses if k.startswith(("column ", "topic "))}
     for role, src in report.mapping.items():
-        stage(f"  {role:<16} <- {src}" + ("   (guessed)" if role in guessed else ""))
+        why = report.guesses.get(f"reason {role}")
+        stage(f"  {role:<16} <- {src}" + (f"   (guessed: {why})" if why else "   (guessed)" if role in guessed else ""))
 
 
 def run(args) -> int:
@@ -51,7 +52,7 @@ def run(args) -> int:
         print_json(res.to_dict())
         return 0
     for k, v in r.guesses.items():
-        if not k.startswith(("column ", "topic ")):
+        if not k.startswith(("column ", "topic ", "reason ")):
             print(f"guessed   {k} = {v}")
     for note in r.notes:
         print(f"note      {note}")

@@ -190,7 +190,8 @@ def format_catalog(cat: Catalog, fields: bool = True) -> str:
             lines.append(f"      skipped: {t.note}")
         if fields:
             for f in t.fields:
-                arr = f"[{f.length}]" if f.length is not None else ""
+                arr = "" if f.length is None else (f" (length {f.length})" if f.type.endswith("[]")
+                                                   else f"[{f.length}]")
                 smp = _fmt_sample(f.sample)
                 lines.append(f"      .{f.path:<36} {f.type}{arr}" + (f"  = {smp}" if smp else ""))
     lines.append("mapping")

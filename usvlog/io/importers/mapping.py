@@ -334,10 +334,10 @@ def _commandlike(t: TopicInfo) -> bool:
     return any(w in n for w in COMMAND_WORDS)
 
 
-def _thrust_candidates(cat: Catalog) -> list[_Cand]:
+def _thrust_candidates(cat: Catalog, any_topic: bool = False) -> list[_Cand]:
     out = []
     for t in cat.topics:
-        if t.note or not _commandlike(t):
+        if t.note or not (any_topic or _commandlike(t)):
             continue
         for _par, g in _groups(t).items():
             lf, rt = _pick(LEFT_NAMES, g), _pick(RIGHT_NAMES, g)
@@ -427,7 +427,7 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
         if role == "thrust":
             t = cat.topic(topic)
             assert t is not None
-            cs = [c for c in _thrust_candidates(Catalog(cat.source, cat.format, [t])) if c.topic is t
+            cs = [c for c in _thrust_candidates(Catalog(cat.source, cat.format, [t]), any_topic=True) if c.topic is t
                   and all(p.startswith(path) for p in c.paths.values())]
             if not cs:
                 raise InputError(f"{cat.source}: {spec!r} for role thrust has no left/right fields or 2-element "
