@@ -284,7 +284,7 @@ def _velocity_candidates(cat: Catalog) -> list[_Cand]:
             v = _num(sp.sample)
             plaus = v is None or 0 <= v < 100
             out.append(_Cand(t, paths, (2 if cs is not None else 1) + (1 if has_pos else 0),
-                             f"field {sp.path}" + (f" with {cs.path}" if cs is not None else ""), plaus))
+                             f"field {sp.path}" + (f" (course {cs.path})" if cs is not None else ""), plaus))
     return out
 
 
@@ -343,7 +343,7 @@ def _thrust_candidates(cat: Catalog, any_topic: bool = False) -> list[_Cand]:
             lf, rt = _pick(LEFT_NAMES, g), _pick(RIGHT_NAMES, g)
             if lf is not None and rt is not None:
                 out.append(_Cand(t, {"thrust_left": lf.path, "thrust_right": rt.path}, 3,
-                                 f"left/right fields {lf.path}/{rt.path} on a command topic"))
+                                 f"fields {lf.path}/{rt.path} on a command topic"))
         for f in t.fields:
             if f.length == 2 and is_numeric(f):
                 out.append(_Cand(t, {"thrust_left": f.path + "[0]", "thrust_right": f.path + "[1]"}, 2,
