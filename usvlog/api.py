@@ -157,8 +157,9 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         CSV: role -> column header (roles: ``time_s``, ``lat_deg``, ``heading_deg``,
         ``thrust_left``, ...); what is not given is guessed.
     topics : dict, optional
-        Bags: role -> ``/topic[.field.path]`` (roles: ``gnss``, ``heading``, ``yaw_rate``,
-        ``thrust_left``, ``thrust_right``, ``speed_mps``).
+        role -> ``SOURCE[.field.path[i]]`` as ``usvlog inspect SOURCE`` lists them (roles:
+        ``gnss``, ``heading``, ``yaw_rate``, ``thrust``, ``thrust_left``, ``thrust_right``,
+        ``velocity``, ``speed_mps``, ``course``); what is not given is chosen by structure.
     thrust_unit : str, optional
         Unit of the recorded thruster commands (:data:`usvlog.choices.THRUST_UNITS`);
         None guesses it from the values.

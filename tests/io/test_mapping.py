@@ -91,3 +91,15 @@ def test_requested_errors_list_what_exists():
 def test_split_path():
     assert split_path("pose.position[2].x") == ["pose", "position", 2, "x"]
     assert split_path("a.0.b") == ["a", 0, "b"]
+
+
+def test_speed_only_from_navigation_messages_and_driver_topics_not_commands():
+    motor = _t("/port_motor/status", "c/Motor", [("speed", "float64", None, 12.0)])
+    gps = _t("/gps_driver/vel", "c/Vel", [("speed", "float64", None, 1.2)])
+    mapping, _, _ = map_roles(Catalog("a.bag", "ros1", [motor]))
+    assert "speed_mps" not in mapping                  # a motor's speed is not speed over ground
+    mapping, _, _ = map_roles(Catalog("a.bag", "ros1", [motor, gps]))
+    assert mapping["speed_mps"] == "/gps_driver/vel.speed"
+    setpoint = _t("/heading_setpoint", "std_msgs/msg/Float64", [("data", "float64", None, 90.0)])
+    mapping, _, _ = map_roles(Catalog("a.bag", "ros1", [setpoint]))
+    assert "heading" not in mapping                    # a setpoint is not a measurement

@@ -271,7 +271,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     columns : dict, optional
         CSV role -> header (roles: :data:`CSV_ROLES`); what is not given is guessed.
     topics : dict, optional
-        Bag role -> ``/topic[.field.path]`` (roles: :data:`TOPIC_ROLES`); guessed otherwise.
+        role -> ``SOURCE[.field.path[i]]`` (roles: :data:`TOPIC_ROLES`); chosen by structure otherwise.
     thrust_unit : str, optional
         ``newton``, ``normalized`` or ``pwm_us``; guessed from the values when None.
     start_utc : str or int, optional

@@ -45,8 +45,8 @@ YAW_RATE_NAMES = ("yaw_rate", "yawrate", "yawspeed", "yaw_speed", "r_radps", "ya
 LEFT_NAMES = ("left", "port", "l", "left_cmd", "left_thrust", "thrust_left", "motor_left", "left_motor")
 RIGHT_NAMES = ("right", "starboard", "stbd", "r", "right_cmd", "right_thrust", "thrust_right",
                "motor_right", "right_motor")
-COMMAND_WORDS = ("thrust", "motor", "cmd", "command", "thruster", "pwm", "esc", "actuator", "propul",
-                 "drive", "servo", "output", "rcou", "throttle")
+COMMAND_WORDS = ("thrust", "motor", "cmd", "command", "pwm", "esc", "actuator", "propul", "servo", "output",
+                 "rcou", "throttle", "setpoint")
 HEADING_TOPIC_WORDS = ("heading", "compass", "hdg", "cap", "yaw")
 NUMERIC = ("float", "double", "int", "uint", "byte", "char", "bool", "number")
 
@@ -270,14 +270,18 @@ def _gnss_candidates(cat: Catalog) -> list[_Cand]:
 def _velocity_candidates(cat: Catalog) -> list[_Cand]:
     out = []
     for t in cat.topics:
-        if t.note:
+        if t.note or _commandlike(t):
             continue
+        navlike = bool(words(t.name + " " + t.type) & {"gps", "gnss", "fix", "nav", "vel", "velocity", "sog", "vtg",
+                                                       "rmc", "odom", "odometry"})
         for _par, g in _groups(t).items():
             sp = _pick(SPEED_NAMES, g)
             if sp is None:
                 continue
             cs = _pick(COURSE_NAMES, g)
             has_pos = _pick(LAT_NAMES, g) is not None
+            if not (has_pos or cs is not None or navlike):   # a motor's or a wind sensor's speed is not SOG
+                continue
             paths = {"speed_mps": sp.path}
             if cs is not None:
                 paths["course"] = cs.path
@@ -291,7 +295,7 @@ def _velocity_candidates(cat: Catalog) -> list[_Cand]:
 def _heading_candidates(cat: Catalog) -> tuple[list[_Cand], list[str]]:
     out, courses = [], []
     for t in cat.topics:
-        if t.note:
+        if t.note or _commandlike(t):   # a heading setpoint is not a measurement
             continue
         nums = [f for f in t.fields if is_numeric(f) and f.length is None and not _is_stamp(f.path)]
         tw = words(t.name)
@@ -317,7 +321,7 @@ def _heading_candidates(cat: Catalog) -> tuple[list[_Cand], list[str]]:
 def _yaw_rate_candidates(cat: Catalog) -> list[_Cand]:
     out = []
     for t in cat.topics:
-        if t.note:
+        if t.note or _commandlike(t):
             continue
         for f in t.fields:
             if f.length is not None:
@@ -330,8 +334,8 @@ def _yaw_rate_candidates(cat: Catalog) -> list[_Cand]:
 
 
 def _commandlike(t: TopicInfo) -> bool:
-    n = (t.name + " " + t.type).lower()
-    return any(w in n for w in COMMAND_WORDS)
+    """A topic whose name or type has a word starting like a command (``/motors/cmd``, ``actuator_outputs``)."""
+    return any(w.startswith(c) for w in words(t.name + " " + t.type) for c in COMMAND_WORDS)
 
 
 def _thrust_candidates(cat: Catalog, any_topic: bool = False) -> list[_Cand]:
