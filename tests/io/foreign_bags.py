@@ -139,25 +139,41 @@ def write_bag(path, kind: str = "ros1", **faults):
 BAD_DEF = "float64 x\nthis line \x01\x02 is not [[ a field\n"
 
 
-def write_bad_definition_bag(path, *, with_good: bool = True):
-    """ROS 1 bag: a good NavSatFix topic ``/fix`` and ``/weird`` whose embedded definition cannot be parsed."""
-    from rosbags.rosbag1 import Writer
+def write_bad_definition_bag(path, *, with_good: bool = True, kind: str = "ros1"):
+    """A good NavSatFix topic ``/fix`` and ``/weird`` whose embedded definition cannot be parsed.
+
+    ``kind``: ``ros1`` (a .bag file) or ``ros2-mcap`` (a directory).
+    """
     from rosbags.typesys import Stores, get_typestore
 
-    store = get_typestore(Stores.ROS1_NOETIC)
+    ros1 = kind == "ros1"
+    store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     T = store.types
-    with Writer(path) as w:
-        weird = w.add_connection("/weird", "acme_msgs/msg/Weird", msgdef=BAD_DEF, md5sum="0" * 32, callerid="/acme")
+    if ros1:
+        from rosbags.rosbag1 import Writer
+
+        writer, ser = Writer(path), store.serialize_ros1
+    else:
+        from rosbags.rosbag2 import StoragePlugin
+        from rosbags.rosbag2 import Writer as Writer2
+
+        writer, ser = Writer2(path, version=9, storage_plugin=StoragePlugin.MCAP), store.serialize_cdr
+    with writer as w:
+        if ros1:
+            weird = w.add_connection("/weird", "acme_msgs/msg/Weird", msgdef=BAD_DEF, md5sum="0" * 32,
+                                     callerid="/acme")
+        else:
+            weird = w.add_connection("/weird", "acme_msgs/msg/Weird", msgdef=BAD_DEF, rihs01="RIHS01_" + "0" * 64)
         fix = w.add_connection("/fix", "sensor_msgs/msg/NavSatFix", typestore=store) if with_good else None
         for i in range(N):
             t = T0 + i * DT
             w.write(weird, t, b"\x00\x01\x02\x03\xff\xfe" * 3)
             if fix is not None:
                 msg = T["sensor_msgs/msg/NavSatFix"](
-                    header=_header(T, t, "gps", True), status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+                    header=_header(T, t, "gps", ros1), status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
                     latitude=LAT[i], longitude=LON[i], altitude=ALT[i], position_covariance=np.zeros(9),
                     position_covariance_type=0)
-                w.write(fix, t + 1, store.serialize_ros1(msg, "sensor_msgs/msg/NavSatFix"))
+                w.write(fix, t + 1, ser(msg, "sensor_msgs/msg/NavSatFix"))
     return path
 
 

@@ -153,8 +153,9 @@ def test_inspect_command_imports_what_inspect_showed(tmp_path, capsys):
     assert res.report.mapping == cat.mapping
 
 
-def test_bad_definition_skips_that_topic_only(tmp_path, capsys):
-    path = write_bad_definition_bag(tmp_path / "bad.bag")
+@pytest.mark.parametrize("kind", ["ros1", "ros2-mcap"])
+def test_bad_definition_skips_that_topic_only(tmp_path, capsys, kind):
+    path = write_bad_definition_bag(tmp_path / ("bad.bag" if kind == "ros1" else "bad2"), kind=kind)
     res = import_file(path)
     g = res.log["/gnss/fix"]
     np.testing.assert_allclose(g["lat_deg"], LAT, atol=1e-9, rtol=0)

@@ -138,7 +138,7 @@ def _robust_reader_class():
                 except Exception:  # noqa: BLE001 -- a nested type missing from the definitions
                     ok = None
                 if ok is None:
-                    self.bad_types.setdefault(msgtype, "its message definition is incomplete")
+                    self.bad_types.setdefault(msgtype, "its message definition cannot be read")
                 elif not ok and not self.is2:
                     self.bad_types.setdefault(msgtype, "its message definition does not match its checksum")
             self.connections = connections
@@ -248,7 +248,7 @@ def _scan(reader, path: Path, fmt: str) -> Catalog:
             try:
                 _fields(reader.typestore, msgtype, msg, "", fields)
             except KeyError:
-                note, fields = f"its message definition is incomplete ({_printable(msgtype)})", []
+                note, fields = f"its message definition cannot be read ({_printable(msgtype)})", []
         topics.append(TopicInfo(name=_printable(name, 200), type=_printable(msgtype, 200), count=counts[name],
                                 first_ns=first.get(name), last_ns=last.get(name), fields=tuple(fields), note=note))
     starts = [v for v in first.values()]
