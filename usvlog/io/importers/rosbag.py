@@ -22,7 +22,9 @@ without ``--topic``:
 ``--topic ROLE=/topic[.field.path[i]]`` maps any topic, checked against the catalog first:
 a scalar message (``std_msgs/Float64``) maps without ``.data``; a wrong field name is an
 error that lists the fields. Header stamps (``header.stamp``) go to ``stamp_ns``; the
-bag's record time is ``t_ns``.
+bag's record time is ``t_ns``; a GNSS message's own fix time (a ``time`` field in UTC seconds,
+as ``gps_common/GPSFix`` has) goes to the batch column ``fix_time_ns`` (-1 when there is
+none), so a fix republished with new header stamps can be recognised.
 """
 
 from __future__ import annotations
@@ -45,6 +47,8 @@ from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4   # rosbags' Nodetype values
 _MAX_EXPAND = 16                               # elements of a message array listed in the catalog
 _UTC_MIN_NS = 946_684_800 * 10**9              # 2000-01-01: record times before this are not wall clock
+_FIX_TIME_NAMES = ("time", "fix_time", "utc_time", "time_utc", "gps_time")   # a fix's own UTC time, s
+_FIX_TIME_MIN_S = 946_684_800.0
 
 
 def _open_path(path: Path, fmt: str, stack) -> Path:
@@ -448,7 +452,9 @@ def _read_mapped(reader, path, cat, mapping, opts, report) -> Iterator[dict]:
                 alt = _number(_first_attr(obj, ALT_NAMES))
                 cov = getattr(obj, "position_covariance", None)
                 ctype = _number(getattr(obj, "position_covariance_type", 0)) or 0
-                buf.gnss(t_ns, stamp, lat, lon, math.nan if alt is None else alt, cov, int(ctype), conn.topic)
+                fix_s = _number(_first_attr(obj, _FIX_TIME_NAMES))
+                fix_ns = int(round(fix_s * 1e9)) if fix_s is not None and _FIX_TIME_MIN_S < fix_s < 4e9 else -1
+                buf.gnss(t_ns, stamp, lat, lon, math.nan if alt is None else alt, cov, int(ctype), conn.topic, fix_ns)
             elif role == "heading":
                 q = getattr(obj, "orientation", obj)
                 if all(hasattr(q, a) for a in ("x", "y", "z", "w")):
@@ -513,14 +519,14 @@ class _Buf:
             d.setdefault(k, []).append(v)
         self.n += 1
 
-    def gnss(self, t, stamp, lat, lon, alt, cov, ctype, topic):
+    def gnss(self, t, stamp, lat, lon, alt, cov, ctype, topic, fix_ns=-1):
         extra = {}
         if cov is not None and len(cov) == 9:
             for name, c in zip(("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
                                 "cov_ue_m2", "cov_un_m2", "cov_uu_m2"), cov):
                 extra[name] = float(c)
         self._add("gnss", t_ns=t, stamp_ns=stamp, lat_deg=lat, lon_deg=lon, alt_m=alt, cov_type=ctype,
-                  frame_id=topic.strip("/") or "gnss", **extra)
+                  frame_id=topic.strip("/") or "gnss", fix_time_ns=fix_ns, **extra)
 
     def heading(self, t, stamp, psi, unit):
         self._add("heading", t_ns=t, stamp_ns=stamp, heading_rad=psi, _unit=unit or "", reference="true")
