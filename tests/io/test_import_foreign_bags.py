@@ -272,3 +272,17 @@ def test_gnss_batches_carry_the_fix_time_of_a_republished_fix(tmp_path):
     fix_ns = np.concatenate([b["gnss"]["fix_time_ns"] for b in batches if "gnss" in b])
     want = np.repeat(T0 + DT * np.arange(N) - 3_000_000, 3)
     np.testing.assert_allclose(fix_ns, want, atol=1_000)  # float seconds in the message: within 1 us
+
+
+def test_inspect_tells_a_ros2_mcap_file_from_a_canonical_log(tmp_path, capsys):
+    bagdir = write_bag(tmp_path / "twin2", "ros2-mcap")
+    inner = next(bagdir.glob("*.mcap"))
+    assert main(["inspect", str(inner), "--json"]) == 0
+    cat = json.loads(capsys.readouterr().out)
+    assert cat["format"] == "ros2" and cat["mapping"]["gnss"] == "/gps"
+    out = tmp_path / "run.mcap"
+    assert main(["import", str(bagdir), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "/gnss/fix" in json.dumps(summary) and "format" not in summary
