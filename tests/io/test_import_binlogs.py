@@ -118,3 +118,38 @@ def test_ulog_role_mapped_to_missing_topic_or_field(tmp_path):
     with pytest.raises(InputError, match=r"f.ulg: topic actuator_outputs has no field 'output\[40\]'"):
         import_file(p, topics={"thrust_left": "actuator_outputs.output[40]",
                                "thrust_right": "actuator_outputs.output[1]"})
+
+
+def test_dataflash_gpa_accuracy_is_the_fix_covariance(tmp_path):
+    """GPA (written by ArduPilot with its GPS message's TimeUS) HAcc/VAcc -> diagonal covariance, type 2."""
+    from import_fixtures import _df_fmt, _df_msg
+
+    data, tr = build_dataflash(n=10)
+    gpa = (70, "GPA", "QCC", "TimeUS,HAcc,VAcc")
+    hacc = 150 + 10 * np.arange(10)          # cm (format C: x 0.01 -> m)
+    extra = [_df_fmt(*gpa)] + [_df_msg(70, "QCC", int(us), int(h), 2 * int(h))
+                               for us, h in zip(tr["boot_us"], hacc, strict=True) if h != 180]
+    p = tmp_path / "gpa.bin"
+    p.write_bytes(data + b"".join(extra))
+    g = import_file(p).log["/gnss/fix"]
+    h_m = hacc / 100.0
+    has = hacc != 180                          # one fix without its GPA: covariance unknown
+    np.testing.assert_allclose(g["cov_ee_m2"][has], h_m[has] ** 2)
+    np.testing.assert_allclose(g["cov_nn_m2"][has], h_m[has] ** 2)
+    np.testing.assert_allclose(g["cov_uu_m2"][has], (2 * h_m[has]) ** 2)
+    assert list(g["cov_type"]) == [2 if x else 0 for x in has]
+    assert (g["cov_ee_m2"][~has] == 0).all()
+
+
+def test_dataflash_unknown_role_and_half_thrust_refused(tmp_path):
+    from usvlog.errors import InputError
+    from usvlog.io.importers import dataflash
+
+    p = tmp_path / "f.bin"
+    p.write_bytes(build_dataflash()[0])
+    fmts = dataflash.formats(dataflash._open(p))
+    with pytest.raises(InputError, match="role 'depth' cannot be read from a DataFlash log"):
+        dataflash.choose_roles(fmts, {}, {"depth": "BARO.Alt"}, p)
+    ch = dataflash.choose_roles(fmts, {3: 73, 1: 74}, {}, p)
+    assert ch.mapping == {"gnss": "GPS", "heading": "ATT.Yaw", "thrust_left": "RCOU.C3", "thrust_right": "RCOU.C1"}
+    assert "SERVO3_FUNCTION = 73" in ch.reasons["thrust"]
