@@ -152,13 +152,14 @@ def _fmt_ns(ns: int | None) -> str:
     return f"{ns / 1e9:.3f} s"
 
 
-def _fmt_sample(v) -> str:
+def _fmt_sample(v, length: int | None = None) -> str:
     if v is None:
         return ""
     if isinstance(v, float):
         return f"{v:.9g}"
     if isinstance(v, list):
-        return "[" + ", ".join(_fmt_sample(x) for x in v) + (", ...]" if len(v) >= 4 else "]")
+        more = length is not None and length > len(v)
+        return "[" + ", ".join(_fmt_sample(x) for x in v) + (", ...]" if more else "]")
     return repr(v) if isinstance(v, str) else str(v)
 
 
@@ -192,13 +193,15 @@ def format_catalog(cat: Catalog, fields: bool = True) -> str:
             for f in t.fields:
                 arr = "" if f.length is None else (f" (length {f.length})" if f.type.endswith("[]")
                                                    else f"[{f.length}]")
-                smp = _fmt_sample(f.sample)
+                smp = _fmt_sample(f.sample, f.length)
                 lines.append(f"      .{f.path:<36} {f.type}{arr}" + (f"  = {smp}" if smp else ""))
     lines.append("mapping")
-    roles = list(cat.mapping) + [r for r in cat.reasons if r not in cat.mapping]
+    group = {"thrust_left": "thrust", "thrust_right": "thrust", "speed_mps": "velocity", "course": "velocity"}
+    covered = {group[r] for r in cat.mapping if r in group}
+    roles = list(cat.mapping) + [r for r in cat.reasons if r not in cat.mapping and r not in covered]
     for role in roles:
         src = cat.mapping.get(role, "(none)")
-        why = cat.reasons.get(role, "")
+        why = cat.reasons.get(role) or cat.reasons.get(group.get(role, ""), "")
         lines.append(f"  {role:<13} <- {src}" + (f"   ({why})" if why else ""))
     for n in cat.notes:
         lines.append(f"note      {n}")
