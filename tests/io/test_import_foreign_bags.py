@@ -85,6 +85,10 @@ def test_topic_thrust_pair_and_indexed_spec(tmp_path):
     # the covariance array is there but is not a number: the error names the array
     with pytest.raises(InputError, match=r"position_covariance.*not a number"):
         import_file(path, topics={"heading": "/gps.position_covariance"})
+    res = import_file(path, topics={"velocity": "/gps"})
+    assert (res.report.mapping["speed_mps"], res.report.mapping["course"]) == ("/gps.speed", "/gps.track")
+    with pytest.raises(InputError, match="course=/gps.track needs speed_mps from the same message"):
+        import_file(path, topics={"course": "/gps.track", "speed_mps": "/capRaw"})
     res = import_file(path, topics={"heading": "/gps.position_covariance[4]"})
     assert np.allclose(res.log["/compass/heading"]["heading_rad"], 2.25)
 

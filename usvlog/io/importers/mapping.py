@@ -478,6 +478,15 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
                 if r not in mapping:
                     mapping[r] = _join(c.topic.name, p)
                     reasons[r] = reasons["speed_mps"]
+    if "course" in mapping:   # a course is written with the speed of the same message (/gnss/velocity)
+        ct = split_mapping(cat, mapping["course"])[0]
+        st = split_mapping(cat, mapping["speed_mps"])[0] if "speed_mps" in mapping else None
+        if st != ct:
+            if "course" in requested:
+                raise InputError(f"{cat.source}: course={requested['course']} needs speed_mps from the same message "
+                                 f"(give --topic speed_mps={ct}.FIELD or --topic velocity={ct})")
+            notes.append(f"course {mapping.pop('course')} not used: the speed comes from another message")
+            reasons.pop("course", None)
     hc, courses = _heading_candidates(cat)
     if "heading" not in mapping:
         c = _choose("heading", hc, reasons, notes)
