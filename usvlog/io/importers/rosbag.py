@@ -225,13 +225,30 @@ def _scan(reader, path: Path, fmt: str) -> Catalog:
     first: dict[str, int] = {}
     last: dict[str, int] = {}
     first_raw: dict = {}
-    for conn, t_ns, raw in guarded(reader.messages(), path, "damaged bag while listing its topics"):
-        t = conn.topic
-        counts[t] += 1
-        first.setdefault(t, int(t_ns))
-        last[t] = int(t_ns)
-        if t not in first_raw and conn.msgtype not in bad:
-            first_raw[t] = (conn, raw)
+    indexes = [getattr(getattr(c, "owner", None), "indexes", None) for c in conns]
+    if conns and all(isinstance(ix, dict) and c.id in ix for c, ix in zip(conns, indexes)):
+        # ROS 1: counts and spans from the bag's index; only the first message of each topic is read
+        for c, ix in zip(conns, indexes):
+            times = [int(x.time) for x in ix[c.id]]
+            counts[c.topic] += len(times)
+            if times:
+                first[c.topic] = min(first.get(c.topic, times[0]), min(times))
+                last[c.topic] = max(last.get(c.topic, times[-1]), max(times))
+        for t, cs in by_topic.items():
+            good = [c for c in cs if c.msgtype not in bad and counts[t]]
+            if good:
+                for conn, _t_ns, raw in guarded(reader.messages(connections=good), path,
+                                                "damaged bag while listing its topics"):
+                    first_raw[t] = (conn, raw)
+                    break
+    else:
+        for conn, t_ns, raw in guarded(reader.messages(), path, "damaged bag while listing its topics"):
+            t = conn.topic
+            counts[t] += 1
+            first.setdefault(t, int(t_ns))
+            last[t] = int(t_ns)
+            if t not in first_raw and conn.msgtype not in bad:
+                first_raw[t] = (conn, raw)
     topics = []
     for name, cs in sorted(by_topic.items()):
         types = sorted({c.msgtype for c in cs})
