@@ -31,6 +31,7 @@ if TYPE_CHECKING:  # for annotations only: importing these at run time pulls num
     from .estimate import EstimateResult
     from .identify import Identifier
     from .io.importers import ImportResult
+    from .io.importers.catalog import Catalog
     from .log.fieldlog import FieldLog
     from .log.summary import LogSummary
     from .model.vessel import Vessel
@@ -157,8 +158,9 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         CSV: role -> column header (roles: ``time_s``, ``lat_deg``, ``heading_deg``,
         ``thrust_left``, ...); what is not given is guessed.
     topics : dict, optional
-        Bags: role -> ``/topic[.field.path]`` (roles: ``gnss``, ``heading``, ``yaw_rate``,
-        ``thrust_left``, ``thrust_right``, ``speed_mps``).
+        role -> ``SOURCE[.field.path[i]]`` as ``usvlog inspect SOURCE`` lists them (roles:
+        ``gnss``, ``heading``, ``yaw_rate``, ``thrust``, ``thrust_left``, ``thrust_right``,
+        ``velocity``, ``speed_mps``, ``course``); what is not given is chosen by structure.
     thrust_unit : str, optional
         Unit of the recorded thruster commands (:data:`usvlog.choices.THRUST_UNITS`);
         None guesses it from the values.
@@ -195,33 +197,65 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
                        keep_dead=keep_dead)
 
 
-def inspect(log) -> LogSummary:
-    """What is in a log: channels, counts, rates, time range, gaps, damage (``usvlog inspect``).
+def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None) -> LogSummary | Catalog:
+    """What is in a log or a foreign source (``usvlog inspect``).
 
-    An MCAP file is read a chunk at a time (:func:`usvlog.io.mcap.reader.iter_chunks`: every
-    chunk's CRC checked, recovery past damage as :func:`load` does) and only its time stamps
-    are looked at, so memory stays bounded (about 200 MB) whatever the file's size; payloads
-    are not decoded (a message that does not fit its schema is reported by :func:`load`).
+    A canonical MCAP log gives its summary: the file is read a chunk at a time
+    (:func:`usvlog.io.mcap.reader.iter_chunks`: every chunk's CRC checked, recovery past damage
+    as :func:`load` does) and only its time stamps are looked at, so memory stays bounded
+    (about 200 MB) whatever the file's size; payloads are not decoded (a message that does not
+    fit its schema is reported by :func:`load`). Any other source (ROS 1/2 bag, ULog,
+    DataFlash, NMEA, CSV) gives its catalog: every topic/message with type, count, time span
+    and field paths, the role mapping ``usvlog import`` would use and why.
 
     Parameters
     ----------
     log : FieldLog or path
-        The log, or its MCAP file.
+        The log, its MCAP file, or a foreign source file (a directory for a ROS 2 bag).
+    fmt : str
+        Format of a foreign source: ``"auto"`` (from the content) or one of
+        :data:`usvlog.choices.IMPORT_FORMATS`.
+    topics : dict, optional
+        role -> ``SOURCE.field.path[i]`` for a foreign source, checked and honoured as
+        ``usvlog import --topic`` would.
 
     Returns
     -------
-    LogSummary
-        Per channel: count, nominal rate (Hz), first/last time (ns), duration (s), gaps longer
-        than 3 periods, backwards and repeated time stamps; plus metadata, recovery and
-        skipped-record counts. ``format_summary`` of :mod:`usvlog.log.summary` prints it,
-        ``to_dict()`` gives the JSON form; ``recovery["nothing_recovered"]`` marks a damaged
-        file with nothing in it (``usvlog inspect`` exits 1).
+    LogSummary or Catalog
+        LogSummary (canonical log): per channel count, nominal rate (Hz), first/last time (ns),
+        duration (s), gaps longer than 3 periods, backwards and repeated time stamps; plus
+        metadata, recovery and skipped-record counts. ``format_summary`` of
+        :mod:`usvlog.log.summary` prints it, ``to_dict()`` gives the JSON form;
+        ``recovery["nothing_recovered"]`` marks a damaged file with nothing in it
+        (``usvlog inspect`` exits 1). Catalog (foreign source):
+        :class:`usvlog.io.importers.catalog.Catalog`, printed by ``format_catalog``.
     """
     if _is_path(log):
-        return _inspect_file(Path(log))
+        path = Path(log)
+        if _is_canonical_candidate(path):
+            return _inspect_file(path)
+        from .io.importers import catalog_file  # heavy: the importers (numpy, pandas)
+
+        return catalog_file(path, fmt, topics=topics)
     from .log.summary import summarize  # heavy: numpy, pandas
 
     return summarize(log)
+
+
+def _is_canonical_candidate(path: Path) -> bool:
+    """An MCAP file that is not a ROS 2 bag, a missing path, or a non-MCAP file named ``*.mcap``."""
+    if not path.exists():
+        return True
+    if path.is_dir():
+        return False
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError as err:
+        raise StorageError(f"{path}: cannot be read ({err.strerror or err})") from err
+    if head.startswith(b"\x89MCAP0\r\n"):
+        return b"ros2" not in head[8:64]  # the header record's profile names a ROS 2 bag
+    return path.suffix.lower() == ".mcap"
 
 
 def _inspect_file(path: Path) -> LogSummary:

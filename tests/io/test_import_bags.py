@@ -123,7 +123,7 @@ def test_bag_round_trip(bag):
     np.testing.assert_allclose(th["left"], 0.1 + 0.01 * np.arange(N), atol=1e-12)
     np.testing.assert_allclose(th["right"], 0.5 - 0.01 * np.arange(N), atol=1e-12)
     assert set(th["unit"]) == {"normalized"}
-    assert res.report.mapping["gnss"] == "/gps/fix" and res.report.mapping["heading"] == "/imu/data"
+    assert res.report.mapping["gnss"] == "/gps/fix" and res.report.mapping["heading"] == "/imu/data.orientation"
     assert log.datum.lat_deg == pytest.approx(LAT[0], abs=1e-12)
 
 

@@ -19,9 +19,11 @@ def register(sub) -> None:
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
                         "course_deg, thrust_left_dir, thrust_right_dir: direction flags, 0 forward and non-zero "
                         "reverse, or -1/+1) to a column; repeatable")
-    p.add_argument("--topic", action="append", default=[], metavar="ROLE=/topic[.field]",
-                   help="bags: map a role (gnss, heading, yaw_rate, thrust_left, thrust_right, speed_mps) "
-                        "to a topic and field path; repeatable")
+    p.add_argument("--topic", action="append", default=[], metavar="ROLE=SOURCE[.field.path[i]]",
+                   help="map a role (gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, "
+                        "speed_mps, course) to a topic/message and field path, as `usvlog inspect SOURCE` lists "
+                        "them: /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0], RCOU.C1; "
+                        "a scalar message needs no field; repeatable")
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
     p.add_argument("--thrust-range", default=None, metavar="LO:HI",
@@ -46,7 +48,8 @@ def _print_mapping(report) -> None:
     stage(f"importing {report.source} as {report.format}")
     guessed = {k.split(" ", 1)[-1] for k in report.guesses if k.startswith(("column ", "topic "))}
     for role, src in report.mapping.items():
-        stage(f"  {role:<16} <- {src}" + ("   (guessed)" if role in guessed else ""))
+        why = report.guesses.get(f"reason {role}")
+        stage(f"  {role:<16} <- {src}" + (f"   (guessed: {why})" if why else "   (guessed)" if role in guessed else ""))
 
 
 def run(args) -> int:
@@ -69,7 +72,7 @@ def run(args) -> int:
         print_json(res.to_dict())
         return 0
     for k, v in r.guesses.items():
-        if not k.startswith(("column ", "topic ")):
+        if not k.startswith(("column ", "topic ", "reason ")):
             print(f"guessed   {k} = {v}")
     for note in r.notes:
         print(f"note      {note}")

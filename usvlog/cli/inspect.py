@@ -1,4 +1,4 @@
-"""``usvlog inspect``: channels, counts, rates, time range, gaps and damage of a log."""
+"""``usvlog inspect``: what a log holds (canonical MCAP) or what a foreign source holds and how it would map."""
 
 from __future__ import annotations
 
@@ -6,22 +6,32 @@ from .common import print_json, stage
 
 
 def register(sub) -> None:
-    p = sub.add_parser("inspect", help="channels, counts, rates, time range, gaps and damage of a log")
-    p.add_argument("log", help="canonical MCAP log")
+    p = sub.add_parser("inspect", help="what a log holds: channels, counts, rates, gaps and damage of an MCAP log; "
+                                       "topics, field paths and the role mapping of any other source")
+    p.add_argument("log", metavar="SOURCE",
+                   help="canonical MCAP log, or a field log to import (ROS 1/2 bag, .ulg, .bin, NMEA, CSV)")
+    p.add_argument("--format", default="auto", help="format of a field log (default: detected from the content)")
+    p.add_argument("--topic", action="append", default=[], metavar="ROLE=SOURCE[.field.path[i]]",
+                   help="check a mapping as `usvlog import --topic` would; repeatable")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    """Print the summary (text or JSON); a damaged file's one-line report goes to stderr too.
+    """Print the summary or the catalog (text or JSON); a damaged file's one-line report goes to stderr too.
 
-    Exit 1 when the file is damaged and nothing could be recovered from it (a valid
+    Exit 1 when an MCAP file is damaged and nothing could be recovered from it (a valid
     empty file exits 0).
     """
     from .. import api  # heavy: imported only when the verb runs
+    from ..io.importers import parse_pairs
+    from ..io.importers.catalog import Catalog, format_catalog
     from ..log.summary import format_summary
 
-    s = api.inspect(args.log)
+    s = api.inspect(args.log, fmt=args.format, topics=parse_pairs(args.topic, "--topic"))
+    if isinstance(s, Catalog):
+        print_json(s.to_dict()) if args.json else print(format_catalog(s))
+        return 0
     if args.json:
         print_json(s.to_dict())
     else:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,8 +26,12 @@ from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
 from ...model.vessel import THRUST_UNITS, Vessel
 from ..atomic import atomic_path, check_output
+from .catalog import Catalog
 from .core import Assembler, ImportReport
 from .csvlog import looks_like_csv
+from .mapping import ROLES as MAPPING_ROLES
+from .mapping import apply as mapping_apply
+from .mapping import split_path
 from .nmea import looks_like_nmea
 from .sink import McapSink, MemorySink
 from .sniff import (
@@ -44,8 +49,22 @@ _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
 CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad",
              "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg",
              "thrust_left_dir", "thrust_right_dir")
-TOPIC_ROLES = ("gnss", "heading", "yaw_rate", "thrust_left", "thrust_right", "speed_mps")
+TOPIC_ROLES = MAPPING_ROLES  # gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, speed_mps, course
 
+
+
+def _check_topic_spec(role: str, spec) -> None:
+    """``--topic ROLE=SOURCE.field.path[i]``: a name, then dotted fields with optional ``[i]`` indices."""
+    text = str(spec)
+    bad = (not text.strip() or any(c.isspace() or not c.isprintable() for c in text)
+           or text.count("[") != text.count("]"))
+    if not bad and "[" in text:
+        bad = not all((tok.startswith("[") and tok[1:-1].isdigit()) or ("[" not in tok and "]" not in tok)
+                      for tok in re.findall(r"\[[^\]]*\]|[^\[]+", text))
+    if bad or not split_path(text):
+        shown = "".join(c if c.isprintable() else "?" for c in text)[:80]
+        raise ConfigError(f"--topic {role}={shown!r} is not SOURCE[.field.path[i]] "
+                          "(e.g. /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0])")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -70,9 +89,10 @@ class ImportOptions:
         for role in self.columns:
             if role not in CSV_ROLES:
                 raise ConfigError(f"unknown column role {role!r} (roles: {', '.join(CSV_ROLES)})")
-        for role in self.topics:
+        for role, spec in self.topics.items():
             if role not in TOPIC_ROLES:
                 raise ConfigError(f"unknown topic role {role!r} (roles: {', '.join(TOPIC_ROLES)})")
+            _check_topic_spec(role, spec)
         if self.chunk_rows < 1:
             raise ConfigError("chunk_rows must be >= 1")
         if self.thrust_range is not None:
@@ -238,6 +258,53 @@ def file_identity(path) -> dict:
     return {"size": size, "sha256": h.hexdigest()}
 
 
+def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catalog:
+    """What a foreign source holds and how it would be mapped: ``usvlog inspect SOURCE``.
+
+    Parameters
+    ----------
+    src : path-like
+        The source file (a directory for a ROS 2 bag).
+    fmt : str
+        ``auto`` (detected from the content) or one of :data:`FORMATS`.
+    topics : dict, optional
+        role -> ``SOURCE.field.path[i]`` to check and honour, as ``--topic`` of ``import``.
+
+    Returns
+    -------
+    Catalog
+        Every topic/message with type, count, time span (ns) and field paths, and the role
+        mapping with its reasons (:func:`usvlog.io.importers.mapping.map_roles`, unless the
+        format's reader fills it itself).
+
+    Raises
+    ------
+    UsvlogError
+        One line: the file does not exist or is empty (``StorageError``/``InputError``),
+        cannot be read (``FormatError``), a ``--topic`` mapping names what does not exist
+        (``InputError``), or the format has no listing yet (``FormatError``).
+    """
+    p = Path(src)
+    if not p.exists():
+        raise StorageError(f"{p}: no such file")
+    if fmt not in ("auto",) + FORMATS:
+        raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
+    opts = ImportOptions(topics=dict(topics or {}))
+    if p.is_file() and p.stat().st_size == 0:
+        raise InputError(f"{p}: empty file")
+    if fmt == "auto":
+        fmt = detect_format(p)
+    module = importlib.import_module(f".{_MODULES[fmt]}", __name__)
+    lister = getattr(module, "catalog", None)
+    if lister is None:
+        raise FormatError(f"{p}: listing the topics of a {fmt} source is not yet supported "
+                          f"(usvlog import {p} --out LOG.mcap, then usvlog inspect LOG.mcap)")
+    cat = lister(p, opts, fmt=fmt) if fmt in ("ros1", "ros2") else lister(p, opts)
+    if not cat.mapping:
+        mapping_apply(cat, opts.topics)
+    return cat
+
+
 def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
                 datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
@@ -256,7 +323,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     columns : dict, optional
         CSV role -> header (roles: :data:`CSV_ROLES`); what is not given is guessed.
     topics : dict, optional
-        Bag role -> ``/topic[.field.path]`` (roles: :data:`TOPIC_ROLES`); guessed otherwise.
+        role -> ``SOURCE[.field.path[i]]`` (roles: :data:`TOPIC_ROLES`); chosen by structure otherwise.
     thrust_unit : str, optional
         ``newton``, ``normalized`` or ``pwm_us``; guessed from the values when None.
     start_utc : str or int, optional
@@ -358,5 +425,6 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     return ImportResult(None, report, Path(out))
 
 
-__all__ = ["FORMATS", "CSV_ROLES", "TOPIC_ROLES", "ImportOptions", "ImportReport", "ImportResult",
-           "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc", "parse_thrust_range"]
+__all__ = ["FORMATS", "Catalog", "catalog_file", "CSV_ROLES", "TOPIC_ROLES", "ImportOptions", "ImportReport",
+           "ImportResult", "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc",
+           "parse_thrust_range"]

@@ -13,7 +13,10 @@ an instance).
 
 from __future__ import annotations
 
+import datetime as _dt
+import shlex
 from dataclasses import dataclass, field
+from pathlib import Path
 
 
 @dataclass(frozen=True)
@@ -118,8 +121,90 @@ class Catalog:
         """The topic called ``name``, or None."""
         return next((t for t in self.topics if t.name == name), None)
 
+    def import_command(self, out: str | None = None) -> str:
+        """A ready-to-paste ``usvlog import`` command with the mapping spelled out as ``--topic``.
+
+        Parameters
+        ----------
+        out : str, optional
+            Output MCAP file; ``SOURCE-NAME.mcap`` in the current directory when None.
+        """
+        out = out or Path(self.source).stem + ".mcap"
+        parts = ["usvlog", "import", self.source, "--out", out]
+        if self.format in ("ros1", "ros2", "ulog", "dataflash"):
+            for role, spec in self.mapping.items():
+                parts += ["--topic", f"{role}={spec}"]
+        return " ".join(shlex.quote(p) for p in parts)
+
     def to_dict(self) -> dict:
-        """JSON-ready form (``usvlog inspect SOURCE --json``)."""
+        """JSON-ready form (``usvlog inspect SOURCE --json``), with ``import_command``."""
         return {"source": self.source, "format": self.format, "time_base": self.time_base,
                 "topics": [t.to_dict() for t in self.topics], "mapping": dict(self.mapping),
-                "reasons": dict(self.reasons), "notes": list(self.notes)}
+                "reasons": dict(self.reasons), "notes": list(self.notes),
+                "import_command": self.import_command()}
+
+
+def _fmt_ns(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    if ns >= 946_684_800 * 10**9:
+        return _dt.datetime.fromtimestamp(ns / 1e9, _dt.UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")[:-4] + "Z"
+    return f"{ns / 1e9:.3f} s"
+
+
+def _fmt_sample(v, length: int | None = None) -> str:
+    if v is None:
+        return ""
+    if isinstance(v, float):
+        return f"{v:.9g}"
+    if isinstance(v, list):
+        more = length is not None and length > len(v)
+        return "[" + ", ".join(_fmt_sample(x) for x in v) + (", ...]" if more else "]")
+    return repr(v) if isinstance(v, str) else str(v)
+
+
+def format_catalog(cat: Catalog, fields: bool = True) -> str:
+    """The text ``usvlog inspect SOURCE`` prints for a catalog.
+
+    Parameters
+    ----------
+    cat : Catalog
+        The source's topics and the role mapping.
+    fields : bool
+        List every field path of every topic (type, array length, sample value).
+
+    Returns
+    -------
+    str
+        Source, format and time base; per topic its type, count, rate (Hz) and span, then
+        its field paths; the role mapping with its reasons; the notes; and a ready-to-paste
+        ``usvlog import`` command.
+    """
+    base = {"utc": "UTC", "boot": "time since boot", "relative": "relative time (no absolute base)"}
+    lines = [f"source    {cat.source}", f"format    {cat.format}",
+             f"time      {base.get(cat.time_base, cat.time_base)}", f"topics    {len(cat.topics)}"]
+    for t in cat.topics:
+        rate = t.rate_hz
+        span = "" if t.first_ns is None else f"  {_fmt_ns(t.first_ns)} .. {_fmt_ns(t.last_ns)}"
+        lines.append(f"  {t.name}  [{t.type}]  {t.count} msgs" + (f"  {rate:.3g} Hz" if rate else "") + span)
+        if t.note:
+            lines.append(f"      skipped: {t.note}")
+        if fields:
+            for f in t.fields:
+                arr = "" if f.length is None else (f" (length {f.length})" if f.type.endswith("[]")
+                                                   else f"[{f.length}]")
+                smp = _fmt_sample(f.sample, f.length)
+                lines.append(f"      .{f.path:<36} {f.type}{arr}" + (f"  = {smp}" if smp else ""))
+    lines.append("mapping")
+    group = {"thrust_left": "thrust", "thrust_right": "thrust", "speed_mps": "velocity", "course": "velocity"}
+    covered = {group[r] for r in cat.mapping if r in group}
+    roles = list(cat.mapping) + [r for r in cat.reasons if r not in cat.mapping and r not in covered]
+    for role in roles:
+        src = cat.mapping.get(role, "(none)")
+        why = cat.reasons.get(role) or cat.reasons.get(group.get(role, ""), "")
+        lines.append(f"  {role:<13} <- {src}" + (f"   ({why})" if why else ""))
+    for n in cat.notes:
+        lines.append(f"note      {n}")
+    lines.append("import with")
+    lines.append("  " + cat.import_command())
+    return "\n".join(lines)

@@ -539,7 +539,13 @@ class Assembler:
                 keep = self._thrust_values(cols, keep, ch)
         vi = np.flatnonzero(keep)
         payload = [cols[c][vi] for c in ("lat_deg", "lon_deg", "alt_m") if c in cols] if stream == "gnss" else None
-        dup = ch.republished(t[vi], stamp[vi], payload)
+        # a GNSS message's own fix time (when the reader has one: -1 where not) names the fix
+        # better than its header stamp, which a republisher renews
+        key = stamp[vi]
+        if "fix_time_ns" in cols:
+            ft = np.asarray(cols["fix_time_ns"], np.int64)[vi]
+            key = np.where(ft >= 0, ft, key)
+        dup = ch.republished(t[vi], key, payload)
         if dup.any():
             self.report.skip(f"{stream}_republished", int(dup.sum()))
             keep[vi[dup]] = False
@@ -649,8 +655,9 @@ class ThrustGuess:
 def guess_thrust(left, right) -> ThrustGuess:
     """Unit of thruster commands from their range, robust to a few outliers.
 
-    The bulk is the commands between the 0.5 % and 99.5 % quantiles (so a stray
-    -99360 among +-255 does not decide): within 800..2200 -> ``pwm_us``; within
+    The bulk is the commands between the 0.5 % and 99.5 % quantiles, after dropping gross
+    outliers -- magnitudes over 10 times the 95th percentile of the non-zero magnitudes --
+    so a stray -99360 among +-255 does not decide even in a short log: within 800..2200 -> ``pwm_us``; within
     +-1 -> ``normalized``; whole numbers (99 % of the bulk) -> ``counts`` with the
     smallest full scale F of :data:`COUNT_FULL_SCALES` that holds the bulk (range
     -F..F); anything else -> ``newton``.
@@ -668,10 +675,14 @@ def guess_thrust(left, right) -> ThrustGuess:
     v = v[np.isfinite(v)]
     if len(v) == 0:
         return ThrustGuess("newton", *THRUST_LIMITS["newton"], "no finite command: newtons assumed")
+    v_all = v
+    mag = np.abs(v[v != 0])
+    if len(mag):
+        v = v[np.abs(v) <= 10.0 * float(np.quantile(mag, 0.95, method="nearest"))]
     q_lo, q_hi = (float(x) for x in np.quantile(v, [0.005, 0.995], method="nearest"))
     bulk = v[(v >= q_lo) & (v <= q_hi)]
-    span = f"{q_lo:g}..{q_hi:g}" + (f" (all: {float(v.min()):g}..{float(v.max()):g})"
-                                   if v.min() < q_lo or v.max() > q_hi else "")
+    span = f"{q_lo:g}..{q_hi:g}" + (f" (all: {float(v_all.min()):g}..{float(v_all.max()):g})"
+                                   if v_all.min() < q_lo or v_all.max() > q_hi else "")
     if q_lo >= 800.0 and q_hi <= 2200.0:
         return ThrustGuess("pwm_us", *THRUST_LIMITS["pwm_us"], f"commands {span}: RC pulse widths (us)")
     if q_lo >= -1.0 and q_hi <= 1.0:

@@ -1,26 +1,35 @@
 """ROS 1 .bag and ROS 2 bags (sqlite3 or mcap storage) through rosbags: no ROS install.
 
-Automatic topic guesses by message type (printed so the user can correct them):
+The message definitions embedded in the bag are read one topic at a time: a topic whose
+definition cannot be parsed is skipped with a one-line note, the others are read.
+:func:`catalog` lists every topic with its type, count, time span and every leaf field path
+(types, array lengths, a sample value from the first message); the roles are then chosen
+from it by structure (:mod:`usvlog.io.importers.mapping`), so custom message types map
+without ``--topic``:
 
-* ``sensor_msgs/NavSatFix`` -> ``/gnss/fix`` (status < 0 is "no fix": skipped, counted;
-  the ENU covariance is Foxglove's layout already);
-* ``sensor_msgs/Imu`` -> ``/compass/heading`` from the orientation quaternion
-  (REP-103 ENU yaw, counter-clockwise from east: psi_NED = pi/2 - yaw_ENU) and
-  ``/imu/yaw_rate`` from ``angular_velocity.z`` (FLU z up: r_FRD = -omega_z);
-* ``geometry_msgs/QuaternionStamped``, ``PoseStamped``, ``nav_msgs/Odometry``
-  orientations (ENU, as the IMU) -> heading when there is no IMU;
-* ``std_msgs/Float32|Float64`` on a topic named like a compass heading -> heading
-  (clockwise from north; degrees when the values exceed 2 pi), on topics named
-  like left/right thrusters -> ``/thrust/command`` (held at the left topic's times).
+* a message with latitude/longitude fields (``sensor_msgs/NavSatFix`` first) ->
+  ``/gnss/fix`` (``status.status < 0`` is "no fix": skipped, counted; the ENU covariance
+  is Foxglove's layout already); its speed/track fields -> ``/gnss/velocity``;
+* an IMU orientation quaternion (REP-103 ENU yaw, counter-clockwise from east:
+  psi_NED = pi/2 - yaw_ENU), another orientation (pose, odometry) or a heading/yaw field
+  -> ``/compass/heading`` (a number is clockwise from north: degrees when the field name
+  says so or the values exceed 2 pi);
+* ``angular_velocity.z`` -> ``/imu/yaw_rate`` (FLU z up: r_FRD = -omega_z);
+* left/right fields or a 2-element array on a command-like topic, or two scalar topics
+  named left/right -> ``/thrust/command`` (a pair on two topics is held at the left
+  topic's times).
 
-``--topic ROLE=/topic[.field.path]`` maps any topic, including custom message types
-whose definitions are embedded in the bag, with a dotted path to the field: a number,
-a quaternion (x, y, z, w: ENU yaw) or a message with latitude/longitude.
-Header stamps (``header.stamp``) go to ``stamp_ns``; the bag's record time is ``t_ns``.
+``--topic ROLE=/topic[.field.path[i]]`` maps any topic, checked against the catalog first:
+a scalar message (``std_msgs/Float64``) maps without ``.data``; a wrong field name is an
+error that lists the fields. Header stamps (``header.stamp``) go to ``stamp_ns``; the
+bag's record time is ``t_ns``; a GNSS message's own fix time (a ``time`` field in UTC seconds,
+as ``gps_common/GPSFix`` has) goes to the batch column ``fix_time_ns`` (-1 when there is
+none), so a fix republished with new header stamps can be recognised.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import tempfile
@@ -30,19 +39,16 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import FormatError, InputError
-from .core import foreign, guarded, guess_thrust_unit, listing, yaw_from_quaternion_enu
+from .catalog import Catalog, FieldInfo, TopicInfo
+from .core import foreign, guarded, guess_thrust_unit, yaw_from_quaternion_enu
+from .mapping import ALT_NAMES, LAT_NAMES, LON_NAMES, map_roles, split_mapping, split_path, topic_listing
 from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
 
-_FLOATS = {"std_msgs/msg/Float32", "std_msgs/msg/Float64"}
-_NAVSAT = "sensor_msgs/msg/NavSatFix"
-_IMU = "sensor_msgs/msg/Imu"
-_HEADING_NAMES = ("heading", "compass", "hdg")
-_ORIENTATION_TYPES = {"geometry_msgs/msg/QuaternionStamped": "quaternion",
-                      "geometry_msgs/msg/PoseStamped": "pose.orientation",
-                      "nav_msgs/msg/Odometry": "pose.pose.orientation"}
-_LEFT_NAMES = ("left", "port")
-_RIGHT_NAMES = ("right", "starboard", "stbd")
-_THRUST_NAMES = ("thrust", "motor", "cmd", "thruster", "pwm", "esc")
+_BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4   # rosbags' Nodetype values
+_MAX_EXPAND = 16                               # elements of a message array listed in the catalog
+_UTC_MIN_NS = 946_684_800 * 10**9              # 2000-01-01: record times before this are not wall clock
+_FIX_TIME_NAMES = ("time", "fix_time", "utc_time", "time_utc", "gps_time")   # a fix's own UTC time, s
+_FIX_TIME_MIN_S = 946_684_800.0
 
 
 def _open_path(path: Path, fmt: str, stack) -> Path:
@@ -70,30 +76,269 @@ def _check_kind(path: Path, fmt: str) -> None:
         raise FormatError(f"{path}: not a ROS 2 bag (neither a bag directory nor a sqlite3/mcap file)")
 
 
-def _field(msg, fpath: str, where: str):
-    """The field at dotted path ``fpath`` of a message (``a.b.0.c``: index 0 of a sequence).
+def _printable(text, limit: int = 60) -> str:
+    """A name read from the file, safe to print on one line (control characters replaced)."""
+    s = "".join(c if c.isprintable() else "?" for c in str(text))
+    return " ".join(s.split())[:limit]
 
-    ``where`` names the file and topic for the InputError raised when the path does
-    not exist in the message.
+
+def _robust_reader_class():
+    """AnyReader whose typestore is filled one connection at a time (a bad definition skips its type)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+    class RobustReader(AnyReader):
+        """rosbags' AnyReader; ``bad_types`` maps a message type to why it cannot be read."""
+
+        bad_types: dict
+
+        def _open(self) -> None:
+            assert self.stack
+            for reader in self.readers:
+                self.stack.enter_context(reader)
+            self.bad_types = {}
+            typs: dict = {}
+            digests: dict = {}
+            connections = [y for x in self.readers for y in x.connections]
+            for conn in connections:
+                fmt = getattr(conn.msgdef.format, "name", "NONE")
+                if fmt == "NONE" or conn.msgtype in self.bad_types:
+                    continue
+                try:
+                    if fmt == "MSG":
+                        new = get_types_from_msg(conn.msgdef.data, conn.msgtype)
+                    else:
+                        sep = "=" * 80 + "\n"
+                        new = {}
+                        if conn.msgdef.data.startswith(f"{sep}IDL: "):
+                            for part in conn.msgdef.data.split(sep)[1:]:
+                                new.update(get_types_from_idl(part.split("\n", 1)[1]))
+                        else:
+                            new.update(get_types_from_idl(conn.msgdef.data))
+                except Exception:  # noqa: BLE001 -- rosbags' parser on one definition read from the file
+                    self.bad_types[conn.msgtype] = "its message definition cannot be parsed"
+                    continue
+                for k, v in new.items():
+                    typs.setdefault(k, v)
+                if conn.digest:
+                    digests[conn.msgtype] = conn.digest
+            if self.default_typestore is not None:
+                for k, v in self.default_typestore.fielddefs.items():
+                    typs.setdefault(k, v)
+            store = get_typestore(Stores.EMPTY)
+            try:
+                store.register(typs)
+            except Exception:  # noqa: BLE001 -- one type at a time, to find the bad ones
+                store = get_typestore(Stores.EMPTY)
+                for k, v in typs.items():
+                    try:
+                        store.register({k: v})
+                    except Exception:  # noqa: BLE001 -- rosbags' type registry on a definition from the file
+                        self.bad_types.setdefault(k, "its message definition cannot be registered")
+            func = store.hash_rihs01 if self.is2 else (lambda x: store.generate_msgdef(x)[1])
+            for msgtype, digest in digests.items():
+                try:
+                    ok = func(msgtype) == digest
+                except Exception:  # noqa: BLE001 -- a nested type missing from the definitions
+                    ok = None
+                if ok is None:
+                    self.bad_types.setdefault(msgtype, "its message definition cannot be read")
+                elif not ok and not self.is2:
+                    self.bad_types.setdefault(msgtype, "its message definition does not match its checksum")
+            self.connections = connections
+            self.typestore = store
+
+    return RobustReader
+
+
+@contextlib.contextmanager
+def _opened(path: Path, fmt: str):
+    """The bag open for reading (rosbags' errors -> one-line FormatError); temporary links removed."""
+    from rosbags.typesys import Stores, get_typestore
+
+    _check_kind(path, fmt)
+    tmpdirs: list[Path] = []
+    try:
+        bag = _open_path(path, fmt, tmpdirs)
+        store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
+        with foreign(path, f"not a readable {'ROS 1' if fmt == 'ros1' else 'ROS 2'} bag"):
+            reader = _robust_reader_class()([bag], default_typestore=store)
+            reader.open()
+        try:
+            yield reader
+        finally:
+            reader.close()
+    finally:
+        for d in tmpdirs:
+            for f in d.iterdir():
+                f.unlink()
+            d.rmdir()
+
+
+def _sample(v):
+    """A short JSON-ready sample of a field value."""
+    if isinstance(v, (np.ndarray, list, tuple)):
+        return [_sample(x) for x in list(v[:4])]
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (int, np.integer)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else str(float(v))
+    if isinstance(v, str):
+        return _printable(v, 40)
+    return None
+
+
+def _fields(store, msgtype: str, msg, prefix: str, out: list, depth: int = 0) -> None:
+    """Every leaf field path of ``msgtype`` (sample values from ``msg`` when given)."""
+    if depth > 12:
+        return
+    _consts, fields = store.fielddefs[msgtype]
+    for name, (node, det) in fields:
+        path = f"{prefix}.{name}" if prefix else name
+        val = getattr(msg, name, None) if msg is not None else None
+        node = int(node)
+        if node == _BASE:
+            out.append(FieldInfo(path, str(det[0]), None, _sample(val)))
+        elif node == _NAME:
+            _fields(store, det, val, path, out, depth + 1)
+        else:
+            (enode, edet), n = det
+            length = int(n) if node == _ARRAY else (len(val) if val is not None else None)
+            if int(enode) == _BASE:
+                typ = str(edet[0]) + ("" if node == _ARRAY else "[]")
+                out.append(FieldInfo(path, typ, length if length is not None else 0, _sample(val)))
+            else:
+                for i in range(min(length or 0, _MAX_EXPAND)):
+                    _fields(store, edet, val[i] if val is not None else None, f"{path}[{i}]", out, depth + 1)
+
+
+def _scan(reader, path: Path, fmt: str) -> Catalog:
+    """One pass over the bag: counts, spans and the first message of every topic -> Catalog."""
+    conns = reader.connections
+    bad = getattr(reader, "bad_types", {})
+    by_topic: dict[str, list] = {}
+    for c in conns:
+        by_topic.setdefault(c.topic, []).append(c)
+    counts = {t: 0 for t in by_topic}
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    first_raw: dict = {}
+    indexes = [getattr(getattr(c, "owner", None), "indexes", None) for c in conns]
+    if conns and all(isinstance(ix, dict) and c.id in ix for c, ix in zip(conns, indexes)):
+        # ROS 1: counts and spans from the bag's index; only the first message of each topic is read
+        for c, ix in zip(conns, indexes):
+            times = [int(x.time) for x in ix[c.id]]
+            counts[c.topic] += len(times)
+            if times:
+                first[c.topic] = min(first.get(c.topic, times[0]), min(times))
+                last[c.topic] = max(last.get(c.topic, times[-1]), max(times))
+        for t, cs in by_topic.items():
+            good = [c for c in cs if c.msgtype not in bad and counts[t]]
+            if good:
+                for conn, _t_ns, raw in guarded(reader.messages(connections=good), path,
+                                                "damaged bag while listing its topics"):
+                    first_raw[t] = (conn, raw)
+                    break
+    else:
+        for conn, t_ns, raw in guarded(reader.messages(), path, "damaged bag while listing its topics"):
+            t = conn.topic
+            counts[t] += 1
+            first.setdefault(t, int(t_ns))
+            last[t] = int(t_ns)
+            if t not in first_raw and conn.msgtype not in bad:
+                first_raw[t] = (conn, raw)
+    topics = []
+    for name, cs in sorted(by_topic.items()):
+        types = sorted({c.msgtype for c in cs})
+        msgtype = types[0]
+        note = ""
+        fields: list = []
+        if len(types) > 1:
+            note = f"several message types ({', '.join(_printable(x) for x in types)})"
+        elif msgtype in bad:
+            note = f"{bad[msgtype]} ({_printable(msgtype)})"
+        else:
+            msg = None
+            if name in first_raw:
+                try:
+                    msg = reader.deserialize(first_raw[name][1], msgtype)
+                except Exception:  # noqa: BLE001 -- rosbags' deserializer on a message from the file
+                    msg = None
+            try:
+                _fields(reader.typestore, msgtype, msg, "", fields)
+            except KeyError:
+                note, fields = f"its message definition cannot be read ({_printable(msgtype)})", []
+        topics.append(TopicInfo(name=_printable(name, 200), type=_printable(msgtype, 200), count=counts[name],
+                                first_ns=first.get(name), last_ns=last.get(name), fields=tuple(fields), note=note))
+    starts = [v for v in first.values()]
+    base = "utc" if starts and min(starts) >= _UTC_MIN_NS else "relative"
+    return Catalog(source=str(path), format=fmt, topics=topics, time_base=base)
+
+
+def _fmt_of(path: Path, fmt: str | None) -> str:
+    if fmt in ("ros1", "ros2"):
+        return fmt
+    return "ros1" if file_head(path, 16).startswith(ROS1_MAGIC) else "ros2"
+
+
+def catalog(path, opts=None, *, fmt: str | None = None) -> Catalog:
+    """Every topic of a bag: type, count, time span and leaf field paths (one pass over the bag).
+
+    Parameters
+    ----------
+    path : path-like
+        A ROS 1 ``.bag`` file, a ROS 2 bag directory or its ``.db3``/``.mcap`` file.
+    opts : usvlog.io.importers.ImportOptions, optional
+        Not used (the mapping is filled by :func:`usvlog.io.importers.mapping.apply`).
+    fmt : str, optional
+        ``"ros1"`` or ``"ros2"``; from the content when None.
+
+    Returns
+    -------
+    Catalog
+        Topics sorted by name (times: the bag's record times, ns since the Unix epoch;
+        ``time_base`` ``"utc"`` unless they start before 2000, then ``"relative"``). A topic
+        whose message definition cannot be read has a ``note`` and no fields.
+
+    Raises
+    ------
+    FormatError
+        rosbags cannot open or read the bag.
     """
-    obj = msg
-    for part in [x for x in fpath.split(".") if x]:
-        if isinstance(obj, (list, tuple, np.ndarray)) and part.isdigit():
-            if int(part) >= len(obj):
-                raise InputError(f"{where}: no field {fpath!r} (index {part} of {len(obj)} elements)")
-            obj = obj[int(part)]
+    p = Path(path)
+    f = _fmt_of(p, fmt)
+    with _opened(p, f) as reader:
+        return _scan(reader, p, f)
+
+
+def _get(obj, parts):
+    """The value at a split field path, or None when the message does not have it."""
+    for part in parts:
+        if isinstance(part, int):
+            if not isinstance(obj, (list, tuple, np.ndarray)) or part >= len(obj):
+                return None
+            obj = obj[part]
         elif part.startswith("_") or not hasattr(obj, part):
-            raise InputError(f"{where}: no field {fpath!r} ({type(obj).__name__} has no {part!r})")
+            return None
         else:
             obj = getattr(obj, part)
     return obj
 
 
-def _number(obj, where: str) -> float:
-    """A message field as a float; InputError when the mapped field is not a number."""
+def _first_attr(obj, names):
+    for n in names:
+        for cand in (n, n.upper(), n.capitalize()):
+            if hasattr(obj, cand):
+                return getattr(obj, cand)
+    return None
+
+
+def _number(obj) -> float | None:
+    """A message field as a float; None when it is not a number."""
     if isinstance(obj, (bool, np.bool_)) or not isinstance(obj, (int, float, np.integer, np.floating)):
-        raise InputError(f"{where}: the field is a {type(obj).__name__}, not a number "
-                         "(map a numeric field with --topic ROLE=/topic.field)")
+        return None
     return float(obj)
 
 
@@ -102,74 +347,42 @@ def _stamp(msg) -> int | None:
     st = getattr(h, "stamp", None)
     if st is None:
         return None
-    return int(st.sec) * 1_000_000_000 + int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+    try:
+        return int(st.sec) * 1_000_000_000 + int(getattr(st, "nanosec", getattr(st, "nsec", 0)))
+    except (TypeError, ValueError, AttributeError):
+        return None
 
 
-def _guess(conns, report) -> dict:
-    """role -> (topic, field path or '', how) from message types and topic names."""
-    by_topic = {c.topic: c.msgtype for c in conns}
-    guess: dict = {}
-
-    def first(pred, prefer=()):
-        cands = [t for t, ty in sorted(by_topic.items()) if pred(t, ty)]
-        for p in prefer:
-            for t in cands:
-                if p in t.lower():
-                    return t
-        return cands[0] if cands else None
-
-    t = first(lambda t, ty: ty == _NAVSAT, ("fix", "gps", "gnss"))
-    if t:
-        guess["gnss"] = (t, "")
-    t = first(lambda t, ty: ty in _FLOATS and any(n in t.lower() for n in _HEADING_NAMES))
-    if t:
-        guess["heading"] = (t, "data")
-    imu = first(lambda t, ty: ty == _IMU, ("imu",))
-    if imu:
-        guess.setdefault("heading", (imu, ""))
-        guess["yaw_rate"] = (imu, "")
-    for typ, fpath in _ORIENTATION_TYPES.items():  # other common carriers of an ENU orientation
-        t = first(lambda t, ty, typ=typ: ty == typ, _HEADING_NAMES + ("pose", "odom"))
-        if t:
-            guess.setdefault("heading", (t, fpath))
-    for role, names in (("thrust_left", _LEFT_NAMES), ("thrust_right", _RIGHT_NAMES)):
-        t = first(lambda t, ty, names=names: ty in _FLOATS and any(n in t.lower() for n in names)
-                  and any(n in t.lower() for n in _THRUST_NAMES))
-        if t:
-            guess[role] = (t, "data")
-    return guess
-
-
-def _parse_spec(spec: str, topics: list[str], path, role: str) -> tuple[str, str]:
-    """'/topic.field.path' -> (topic, field path): the longest topic that prefixes the spec."""
-    for t in sorted(topics, key=len, reverse=True):
-        if spec == t:
-            return t, ""
-        if spec.startswith(t + "."):
-            return t, spec[len(t) + 1:]
-    raise InputError(f"{path}: topic {spec.split('.')[0]!r} for role {role} is not in the bag "
-                     f"(topics: {listing(sorted(topics)) or 'none'})")
+def _angle_unit(path: str) -> str | None:
+    low = path.lower()
+    if "deg" in low:
+        return "deg"
+    if "rad" in low:
+        return "rad"
+    return None
 
 
 def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
     """Batches of role streams from a ROS 1 or ROS 2 bag (see :mod:`usvlog.io.importers.core`).
 
-    Topics are mapped as this module's docstring says (``--topic`` mappings first, then
-    guesses by message type and topic name). ``t_ns`` is the bag's record time and
+    The bag is listed first (:func:`catalog`), the roles chosen from the listing
+    (:func:`usvlog.io.importers.mapping.map_roles`: ``--topic`` mappings first, then by
+    structure), then the mapped topics are read. ``t_ns`` is the bag's record time and
     ``stamp_ns`` the message's ``header.stamp`` (the record time when it has none), both ns
     since the Unix epoch; headings are rad clockwise from north, yaw rates rad/s (FRD),
-    speeds m/s. A file whose name does not match its content is read through a symbolic
-    link in a temporary directory, removed at the end.
+    speeds m/s, courses rad. A file whose name does not match its content is read through a
+    symbolic link in a temporary directory, removed at the end.
 
     Parameters
     ----------
     path : pathlib.Path
         The bag: a ROS 1 ``.bag`` file, a ROS 2 bag directory or its ``.db3``/``.mcap`` file.
     opts : usvlog.io.importers.ImportOptions
-        ``topics`` (role -> ``/topic[.field.path]``), ``thrust_unit`` (guessed from the
+        ``topics`` (role -> ``/topic[.field.path[i]]``), ``thrust_unit`` (guessed from the
         values when None), ``chunk_rows`` samples per batch.
     report : usvlog.io.importers.core.ImportReport
-        Filled with messages read, messages skipped by reason, the mapping and guesses.
+        Filled with messages read, messages skipped by reason, the mapping, guesses and notes
+        (skipped topics, ambiguous candidates).
     fmt : str
         ``"ros1"`` or ``"ros2"``.
     on_mapping : callable, optional
@@ -181,54 +394,44 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
         The content is not a bag of kind ``fmt``, or rosbags cannot open or read it
         (``from`` its exception).
     InputError
-        No topic maps to a role, a given topic is not in the bag, or a mapped field is
-        missing or not a number.
+        No topic maps to a role, or a ``--topic`` mapping names a topic or field that does
+        not exist or is of the wrong kind (the message lists what exists).
     """
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
-    _check_kind(Path(path), fmt)
-    tmpdirs: list[Path] = []
-    try:
-        bag = _open_path(Path(path), fmt, tmpdirs)
-        store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
-        with foreign(path, f"not a readable {'ROS 1' if fmt == 'ros1' else 'ROS 2'} bag"):
-            reader = AnyReader([bag], default_typestore=store)
-            reader.open()
-        try:
-            yield from _read_open(reader, path, opts, report, on_mapping)
-        finally:
-            reader.close()
-    finally:
-        for d in tmpdirs:
-            for f in d.iterdir():
-                f.unlink()
-            d.rmdir()
+    p = Path(path)
+    with _opened(p, fmt) as reader:
+        cat = _scan(reader, p, fmt)
+        mapping, reasons, notes = map_roles(cat, opts.topics)
+        for n in notes:
+            report.note(n)
+        if not mapping:
+            raise InputError(f"{p}: no topic maps to a role (give --topic ROLE=/topic[.field]; see usvlog inspect; "
+                             f"topics: {topic_listing(cat)})")
+        report.mapping.update(mapping)
+        report.guesses.update({f"topic {r}": v for r, v in mapping.items() if r not in opts.topics})
+        report.guesses.update({f"reason {r}": v for r, v in reasons.items() if r in mapping and r not in opts.topics})
+        if on_mapping is not None:
+            on_mapping(report)
+        yield from _read_mapped(reader, p, cat, mapping, opts, report)
 
 
-def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
-    conns = reader.connections
-    topics = sorted({c.topic for c in conns})
-    given = {role: _parse_spec(spec, topics, path, role) for role, spec in opts.topics.items()}
-    guessed = {r: v for r, v in _guess(conns, report).items() if r not in given}
-    # an IMU picked for heading also gives the yaw rate unless that role was mapped
-    roles = {**guessed, **given}
-    for r, (t, f) in roles.items():
-        report.mapping[r] = t + ("." + f if f else "")
-    report.guesses.update({f"topic {r}": t + ("." + f if f else "") for r, (t, f) in guessed.items()})
-    if not roles:
-        raise InputError(f"{path}: no topic maps to a role (give --topic ROLE=/topic[.field]; topics: "
-                         f"{listing(f'{c.topic} [{c.msgtype}]' for c in conns) or 'none'})")
-    if on_mapping is not None:
-        on_mapping(report)
-    wanted = {t for t, _ in roles.values()}
-    sel = [c for c in conns if c.topic in wanted]
+_ORDER = ("gnss", "heading", "yaw_rate", "course", "speed_mps", "thrust_right", "thrust_left")
+
+
+def _read_mapped(reader, path, cat, mapping, opts, report) -> Iterator[dict]:
+    roles = {r: split_mapping(cat, v) for r, v in mapping.items()}
+    parts = {r: split_path(f) for r, (_t, f) in roles.items()}
     by_topic: dict[str, list[str]] = {}
-    for r, (t, _f) in roles.items():
-        by_topic.setdefault(t, []).append(r)
-    buf = _Buf()
+    for r in sorted(roles, key=lambda r: _ORDER.index(r) if r in _ORDER else 99):
+        by_topic.setdefault(roles[r][0], []).append(r)
+    sel = [c for c in reader.connections if c.topic in by_topic]
+    buf = _Buf(report)
+    for r in ("heading", "course"):
+        if r in roles:
+            buf.units[r] = _angle_unit(roles[r][1])
+            if buf.units[r] is not None:   # the field's name says the unit
+                report.guesses[f"{r}_unit"] = buf.units[r]
     held = {"thrust_left": math.nan, "thrust_right": math.nan}
-    heading_deg: bool | None = None
+    pair_same_topic = roles.get("thrust_left", ("a",))[0] == roles.get("thrust_right", ("b",))[0]
     thrust_unit = opts.thrust_unit
     last_t = None
 
@@ -245,24 +448,30 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
             continue
         stamp = _stamp(msg)
         stamp = int(t_ns) if stamp is None else stamp
-        where = f"{path}: topic {conn.topic} at t_ns {t_ns}"
+        course = math.nan
         for role in by_topic[conn.topic]:
-            fpath = roles[role][1]
-            obj = _field(msg, fpath, f"{path}: topic {conn.topic} ({conn.msgtype})") if fpath else msg
+            obj = _get(msg, parts[role])
+            where = f"topic {conn.topic} at t_ns {t_ns}"
+            if obj is None:
+                report.skip("ros_missing_field", 1, where=f"{where}: no {roles[role][1]}")
+                continue
             if role == "gnss":
-                lat = getattr(obj, "latitude", getattr(obj, "lat", None))
-                lon = getattr(obj, "longitude", getattr(obj, "lon", None))
+                lat, lon = _number(_first_attr(obj, LAT_NAMES)), _number(_first_attr(obj, LON_NAMES))
                 if lat is None or lon is None:
-                    raise InputError(f"{path}: topic {conn.topic}: {conn.msgtype} field {fpath or '(message)'} "
-                                     "has no latitude/longitude")
-                st = getattr(getattr(obj, "status", None), "status", 0)
-                if st is not None and int(st) < 0:
-                    report.skip("gnss_no_fix", 1, where=f"topic {conn.topic} at t_ns {t_ns}: status {st}")
+                    report.skip("gnss_bad_value", 1, where=where)
                     continue
+                if "int" in type(_first_attr(obj, LAT_NAMES)).__name__ and (abs(lat) > 90 or abs(lon) > 180):
+                    lat, lon = lat * 1e-7, lon * 1e-7   # degrees x 1e7 (MAVLink-style integers)
+                st = getattr(getattr(obj, "status", None), "status", 0)
+                if _number(st) is not None and int(st) < 0:
+                    report.skip("gnss_no_fix", 1, where=f"{where}: status {st}")
+                    continue
+                alt = _number(_first_attr(obj, ALT_NAMES))
                 cov = getattr(obj, "position_covariance", None)
-                ctype = int(getattr(obj, "position_covariance_type", 0))
-                buf.gnss(t_ns, stamp, _number(lat, where), _number(lon, where),
-                         _number(getattr(obj, "altitude", math.nan), where), cov, ctype, conn.topic)
+                ctype = _number(getattr(obj, "position_covariance_type", 0)) or 0
+                fix_s = _number(_first_attr(obj, _FIX_TIME_NAMES))
+                fix_ns = int(round(fix_s * 1e9)) if fix_s is not None and _FIX_TIME_MIN_S < fix_s < 4e9 else -1
+                buf.gnss(t_ns, stamp, lat, lon, math.nan if alt is None else alt, cov, int(ctype), conn.topic, fix_ns)
             elif role == "heading":
                 q = getattr(obj, "orientation", obj)
                 if all(hasattr(q, a) for a in ("x", "y", "z", "w")):
@@ -270,34 +479,54 @@ def _read_open(reader, path, opts, report, on_mapping) -> Iterator[dict]:
                     if cov is not None and len(cov) and cov[0] == -1.0:
                         report.skip("heading_unknown", 1)
                         continue
-                    buf.heading(t_ns, stamp, float(yaw_from_quaternion_enu(q.x, q.y, q.z, q.w)))
+                    buf.heading(t_ns, stamp, float(yaw_from_quaternion_enu(q.x, q.y, q.z, q.w)), "rad")
                 else:
-                    v = _number(obj, where)
-                    if heading_deg is None and math.isfinite(v):
-                        heading_deg = abs(v) > 2 * math.pi + 0.1
-                        report.guesses["heading_unit"] = "deg" if heading_deg else "rad"
-                    buf.heading(t_ns, stamp, math.radians(v) if heading_deg else v)
+                    v = _number(obj)
+                    if v is None:
+                        report.skip("heading_bad_value", 1, where=where)
+                        continue
+                    buf.heading(t_ns, stamp, v, None)
             elif role == "yaw_rate":
-                w = getattr(obj, "angular_velocity", None)
-                r = -_number(w.z, where) if w is not None else _number(obj, where)  # FLU z up -> FRD z down
-                buf.yaw_rate(t_ns, stamp, r)
+                v = _number(obj)
+                if v is None:
+                    report.skip("yaw_rate_bad_value", 1, where=where)
+                    continue
+                flu = "angular_velocity" in roles[role][1]   # REP-103: FLU z up -> FRD z down
+                buf.yaw_rate(t_ns, stamp, -v if flu else v)
+            elif role == "course":
+                v = _number(obj)
+                course = math.nan if v is None else v
             elif role == "speed_mps":
-                buf.velocity(t_ns, stamp, _number(obj, where))
+                v = _number(obj)
+                if v is None:
+                    report.skip("velocity_bad_value", 1, where=where)
+                    continue
+                same = roles.get("course", ("",))[0] == conn.topic
+                buf.velocity(t_ns, stamp, v, course if same else math.nan)
             else:
-                held[role] = _number(obj, where)
-                if role == "thrust_left" and math.isfinite(held["thrust_right"]):
-                    buf.thrust(t_ns, stamp, held["thrust_left"], held["thrust_right"])
-                elif role == "thrust_left":
-                    report.skip("thrust_incomplete", 1)
+                v = _number(obj)
+                held[role] = math.nan if v is None else v
+                if role == "thrust_left":
+                    if math.isfinite(held["thrust_right"]) and v is not None:
+                        buf.thrust(t_ns, stamp, held["thrust_left"], held["thrust_right"])
+                    else:
+                        report.skip("thrust_incomplete", 1, where=where)
+                    if pair_same_topic:
+                        held["thrust_right"] = math.nan
         if buf.n >= opts.chunk_rows:
-            batch, thrust_unit = buf.batch(thrust_unit, report)
+            batch, thrust_unit = buf.batch(thrust_unit)
             yield batch
-    batch, _ = buf.batch(thrust_unit, report)
+    batch, _ = buf.batch(thrust_unit)
     yield batch
 
 
 class _Buf:
-    def __init__(self):
+    def __init__(self, report):
+        self.report = report
+        self.units: dict = {}
+        self._reset()
+
+    def _reset(self):
         self.d = {k: {} for k in ("gnss", "heading", "yaw_rate", "velocity", "thrust")}
         self.n = 0
 
@@ -307,40 +536,59 @@ class _Buf:
             d.setdefault(k, []).append(v)
         self.n += 1
 
-    def gnss(self, t, stamp, lat, lon, alt, cov, ctype, topic):
+    def gnss(self, t, stamp, lat, lon, alt, cov, ctype, topic, fix_ns=-1):
         extra = {}
         if cov is not None and len(cov) == 9:
             for name, c in zip(("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
                                 "cov_ue_m2", "cov_un_m2", "cov_uu_m2"), cov):
                 extra[name] = float(c)
         self._add("gnss", t_ns=t, stamp_ns=stamp, lat_deg=lat, lon_deg=lon, alt_m=alt, cov_type=ctype,
-                  frame_id=topic.strip("/") or "gnss", **extra)
+                  frame_id=topic.strip("/") or "gnss", fix_time_ns=fix_ns, **extra)
 
-    def heading(self, t, stamp, psi):
-        self._add("heading", t_ns=t, stamp_ns=stamp, heading_rad=psi, reference="true")
+    def heading(self, t, stamp, psi, unit):
+        self._add("heading", t_ns=t, stamp_ns=stamp, heading_rad=psi, _unit=unit or "", reference="true")
 
     def yaw_rate(self, t, stamp, r):
         self._add("yaw_rate", t_ns=t, stamp_ns=stamp, r_radps=r)
 
-    def velocity(self, t, stamp, v):
-        self._add("velocity", t_ns=t, stamp_ns=stamp, sog_mps=v)
+    def velocity(self, t, stamp, v, course):
+        self._add("velocity", t_ns=t, stamp_ns=stamp, sog_mps=v, cog_rad=course)
 
     def thrust(self, t, stamp, left, right):
         self._add("thrust", t_ns=t, stamp_ns=stamp, left=left, right=right)
 
-    def batch(self, thrust_unit, report):
+    def _to_rad(self, role: str, v: np.ndarray, fixed: np.ndarray | None = None) -> np.ndarray:
+        """Angles in rad: degrees when the field name says so, else when the values exceed 2 pi."""
+        todo = np.ones(len(v), bool) if fixed is None else (fixed == "")
+        if not todo.any():
+            return v
+        if self.units.get(role) is None:
+            fin = v[todo & np.isfinite(v)]
+            if len(fin) == 0:
+                return v
+            self.units[role] = "deg" if np.abs(fin).max() > 2 * math.pi + 0.1 else "rad"
+            self.report.guesses[f"{role}_unit"] = self.units[role]
+        if self.units[role] == "deg":
+            v = np.where(todo, np.radians(v), v)
+        return v
+
+    def batch(self, thrust_unit):
         out = {}
         for stream, d in self.d.items():
             if not d:
                 continue
-            cols = {k: np.asarray(v, dtype=object if k in ("reference", "frame_id") else
+            cols = {k: np.asarray(v, dtype=object if k in ("reference", "frame_id", "_unit") else
                                   (np.int64 if k.endswith("_ns") or k == "cov_type" else float))
                     for k, v in d.items()}
+            if stream == "heading":
+                cols["heading_rad"] = self._to_rad("heading", cols["heading_rad"], cols.pop("_unit"))
+            if stream == "velocity":
+                cols["cog_rad"] = self._to_rad("course", cols["cog_rad"])
             if stream == "thrust":
                 if thrust_unit is None:
                     thrust_unit = guess_thrust_unit(cols["left"], cols["right"])
-                    report.guesses["thrust_unit"] = thrust_unit
+                    self.report.guesses["thrust_unit"] = thrust_unit
                 cols["unit"] = np.full(len(cols["t_ns"]), thrust_unit, dtype=object)
             out[stream] = cols
-        self.__init__()
+        self._reset()
         return out, thrust_unit
