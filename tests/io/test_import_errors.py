@@ -128,3 +128,12 @@ def test_names_from_a_file_stay_on_one_line(tmp_path):
     with pytest.raises(UsvlogError) as info:
         import_file(p)
     assert "hdr.csv" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_library_message_with_raw_bytes_stays_one_printable_line():
+    from usvlog.io.importers.core import foreign_error
+
+    err = foreign_error("x.bag", "not a readable ROS 1 bag", ValueError("bad\x01\x02 def\nline two\x7f\x1b[31m"))
+    msg = str(err)
+    assert msg.isprintable() and "\n" not in msg
+    assert msg == "x.bag: not a readable ROS 1 bag (ValueError: bad?? def line two??[31m)"

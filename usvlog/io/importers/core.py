@@ -176,7 +176,9 @@ def foreign_error(path, what: str, err: BaseException) -> FormatError:
     err : BaseException
         The library's exception; raise the result ``from err``.
     """
-    text = " ".join(str(err).split())[:200]
+    # one line, and never the file's raw bytes: the library's text with anything unprintable
+    # shown as "?" (a damaged definition can put control characters into its message)
+    text = "".join(c if c.isprintable() else "?" for c in " ".join(str(err).split()))[:200]
     return FormatError(f"{path}: {what} ({type(err).__name__}{': ' + text if text else ''})")
 
 
