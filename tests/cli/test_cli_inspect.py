@@ -143,3 +143,20 @@ def test_inspect_exit_codes_and_damage_line(small, tmp_path, capsys):
     assert f"DAMAGED FILE: {rec['summary']}" in out and "100 bytes after the end of the MCAP data" in out
     assert "100 bytes of garbage after the end" in err
     assert format_summary(api.inspect(path)) == format_summary(summarize(read_log(path)))
+
+
+def test_inspect_says_relative_time_when_the_source_has_no_absolute_base(tmp_path, capsys):
+    from usvlog.cli import main
+
+    src = tmp_path / "r.csv"
+    src.write_text("time_s,lat_deg,lon_deg\n" + "".join(f"{i / 10:.1f},{63.43 + 1e-5 * i:.7f},10.39\n"
+                                                       for i in range(50)))
+    assert main(["import", str(src), "--out", str(tmp_path / "r.mcap")]) == 0
+    assert main(["import", str(src), "--out", str(tmp_path / "a.mcap"), "--start-utc", "2024-05-01T10:00:00Z"]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "r.mcap")]) == 0
+    time_line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("time "))
+    assert time_line.split()[1:5] == ["relative", "time", "0.000", ".."] and "4.900 s" in time_line
+    assert main(["inspect", str(tmp_path / "a.mcap")]) == 0
+    time_line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("time "))
+    assert time_line.split()[1].startswith("2024-05-01T10:00:00")

@@ -486,7 +486,12 @@ def format_summary(s: LogSummary) -> str:
     if s.source:
         lines.append(f"file      {s.source}")
     if s.first_ns is not None:
-        lines.append(f"time      {format_time(s.first_ns)} .. {format_time(s.last_ns)}  ({s.duration_s:.1f} s)")
+        h = s.health or {}
+        if h.get("time_base") == "relative":   # no absolute base: the dates would be made up
+            lines.append(f"time      relative time {s.first_ns / 1e9:.3f} .. {s.last_ns / 1e9:.3f} s  "
+                         f"({s.duration_s:.1f} s; no absolute time in the source: --start-utc ISO on import sets one)")
+        else:
+            lines.append(f"time      {format_time(s.first_ns)} .. {format_time(s.last_ns)}  ({s.duration_s:.1f} s)")
     lines.append("")
     lines.append(f"{'channel':<24} {'schema':<28} {'messages':>9} {'rate Hz':>8} {'gaps':>5} {'backwd':>6} {'dup':>5}")
     for c in s.channels:
