@@ -261,3 +261,20 @@ def test_dataflash_catalog_lists_every_message(ardu):
     assert rcou.rate_hz == pytest.approx(10.0, rel=0.01)
     assert "gnss" not in cat.mapping and cat.reasons["gnss"].startswith("no GNSS in this log")
     assert "no GNSS in this log (no GPS messages)" in cat.notes
+
+
+def test_start_utc_places_the_first_sample_of_a_log_without_gps_time():
+    from pymavlink import mavutil
+
+    start = 1_714_557_600_000_000_000          # 2024-05-01T10:00:00Z
+    log = import_file(BIN, start_utc=start).log
+    first = min(int(f.index[0]) for f in log.channels.values() if len(f))
+    assert first == start
+    # the boot-time spacing of the headings (ATT TimeUS, read by pymavlink) is kept
+    mlog = mavutil.mavlink_connection(str(BIN))
+    t_att = []
+    while (m := mlog.recv_match(type="ATT")) is not None:
+        t_att.append(m.TimeUS)
+    hd = log["/compass/heading"]
+    assert hd.index[0] >= start
+    np.testing.assert_array_equal(hd.index.to_numpy() - hd.index[0], (np.asarray(t_att) - t_att[0]) * 1000)

@@ -487,8 +487,10 @@ def format_summary(s: LogSummary) -> str:
         lines.append(f"file      {s.source}")
     if s.first_ns is not None:
         h = s.health or {}
-        if h.get("time_base") == "relative":   # no absolute base: the dates would be made up
-            lines.append(f"time      relative time {s.first_ns / 1e9:.3f} .. {s.last_ns / 1e9:.3f} s  "
+        base, since = h.get("time_base"), str(h.get("time_counted_from") or "")
+        if base in ("relative", "boot") and since.startswith("1970"):   # no absolute base: dates would be made up
+            what = "time since boot" if base == "boot" else "relative time"
+            lines.append(f"time      {what} {s.first_ns / 1e9:.3f} .. {s.last_ns / 1e9:.3f} s  "
                          f"({s.duration_s:.1f} s; no absolute time in the source: --start-utc ISO on import sets one)")
         else:
             lines.append(f"time      {format_time(s.first_ns)} .. {format_time(s.last_ns)}  ({s.duration_s:.1f} s)")

@@ -146,14 +146,24 @@ class ImportReport:
                 "channels": dict(sorted(self.counts.items())), "health": self.health}
 
 
-def clock_offset_fallback(opts, report, what: str) -> int:
-    """UTC offset (ns) of a log's own clock when the log has no GPS time: ``--start-utc``, else the epoch.
+def clock_offset_fallback(opts, report, what: str, first_ns: int | None = None) -> int:
+    """UTC offset (ns) of a log's own clock when the log has no GPS time.
 
-    Records the guess and a note: ``"no GPS time in the log: {what} counted from ..."``.
+    With ``--start-utc`` the first sample (own-clock time ``first_ns``, ns) is placed at that
+    time; without it the own clock is counted from the Unix epoch. Records the guess and a
+    note: ``"no GPS time in the log: {what} counted from ..."``.
+
+    Returns
+    -------
+    int
+        ns to add to the log's own clock (ns) to get the log time.
     """
     report.guesses["time_base"] = "--start-utc" if opts.start_utc_ns else "1970-01-01T00:00:00Z"
-    report.note(f"no GPS time in the log: {what} counted from " + report.guesses["time_base"])
-    return opts.start_utc_ns or 0
+    if opts.start_utc_ns:
+        report.note(f"no GPS time in the log: {what} counted so that the first sample is at --start-utc")
+        return int(opts.start_utc_ns) - int(first_ns or 0)
+    report.note(f"no GPS time in the log: {what} counted from 1970-01-01T00:00:00Z")
+    return 0
 
 
 def listing(names, limit: int = 30) -> str:

@@ -598,6 +598,10 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
         report.note(note)
     if offset_ns is None:
         offset_ns = clock_offset_fallback(opts, report, "boot time")
+        # with --start-utc the first sample read is placed at that time (below)
+        place_first = bool(opts.start_utc_ns)
+    else:
+        place_first = False
     by_msg: dict[str, list] = {}
     for stream, src in ch.plan.items():
         by_msg.setdefault(src.msg, []).append(stream)
@@ -627,6 +631,8 @@ def read(path, opts, report, *, fmt="dataflash", on_mapping=None) -> Iterator[di
         if boot is None:
             report.skip("dataflash_bad_message", 1, where=f"{typ} without TimeUS")
             continue
+        if place_first and 0 <= boot < 2**62:
+            offset_ns, place_first = int(opts.start_utc_ns) - int(boot) * 1000, False
         t = int(boot) * 1000 + offset_ns
         if not 0 <= t < _T_MAX_NS:   # a damaged TimeUS: not a time int64 ns can hold
             report.skip("dataflash_bad_time", 1, where=f"{typ} at TimeUS {int(boot)}")

@@ -534,7 +534,10 @@ def read(path, opts, report, *, fmt="ulog", on_mapping=None) -> Iterator[dict]:
     gps = ch.plan.get("gnss", (None,))[0]
     offset_ns = _utc_offset_ns(gps)
     if offset_ns is None:
-        offset_ns = clock_offset_fallback(opts, report, "log time")
+        firsts = [int(us[(us >= 0) & (us < _US_MAX)].min()) * 1000 for us in
+                  (np.asarray(p[0].data["timestamp"]) for p in ch.plan.values())
+                  if ((us >= 0) & (us < _US_MAX)).any()]
+        offset_ns = clock_offset_fallback(opts, report, "log time", min(firsts) if firsts else None)
     batch = {}
 
     def times(d, stream):
