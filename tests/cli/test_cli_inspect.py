@@ -160,3 +160,19 @@ def test_inspect_says_relative_time_when_the_source_has_no_absolute_base(tmp_pat
     assert main(["inspect", str(tmp_path / "a.mcap")]) == 0
     time_line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("time "))
     assert time_line.split()[1].startswith("2024-05-01T10:00:00")
+
+
+@pytest.mark.parametrize("verb", [["inspect"], ["estimate", "--out", "x.mcap"], ["identify", "--out", "v.toml"]])
+def test_json_verbs_report_a_failure_as_json_too(tmp_path, capsys, verb):
+    import json
+
+    from usvlog.cli import main
+
+    bad = tmp_path / "g.txt"
+    bad.write_text("garbage\n")
+    args = [verb[0], str(bad), *[str(tmp_path / a) if a.endswith((".mcap", ".toml")) else a for a in verb[1:]]]
+    assert main([*args, "--json"]) == 2
+    out = capsys.readouterr()
+    doc = json.loads(out.out)
+    assert doc["kind"].endswith("Error") and doc["internal"] is False and str(bad) in doc["error"]
+    assert len(out.err.strip().splitlines()) == 1

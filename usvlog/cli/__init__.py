@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import os
 import signal
 import sys
@@ -124,6 +125,14 @@ def _stopped(verb: str, err: KeyboardInterrupt) -> int:
     return 130
 
 
+def _json_error(args, err: BaseException) -> None:
+    """With ``--json``, a script reading stdout gets the failure as JSON too (the one line
+    still goes to stderr, the exit code is the same)."""
+    if getattr(args, "json", False):
+        print(json.dumps({"error": " ".join(str(err).split()) or type(err).__name__, "kind": type(err).__name__,
+                          "internal": not isinstance(err, UsvlogError)}), flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code.
 
@@ -142,6 +151,7 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
         return int(rc or 0)
     except UsvlogError as err:
+        _json_error(args, err)
         print(f"usvlog {args.verb}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:
@@ -152,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         cause = interrupted(err)
         if cause is not None:  # Ctrl-C inside compiled code arrives wrapped (numba: SystemError)
             return _stopped(args.verb, cause)
+        _json_error(args, err)
         if os.environ.get("USVLOG_DEBUG"):
             raise
         print(f"usvlog {args.verb}: internal error: {type(err).__name__}: {err} "

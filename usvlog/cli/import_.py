@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from ..choices import IMPORT_FORMATS, THRUST_UNITS
-from ..errors import UsvlogError
 from .common import print_json, stage
 
 
@@ -56,17 +55,11 @@ def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
     from ..io.importers import parse_pairs
 
-    try:
-        res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
-                             columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
-                             thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
-                             on_mapping=_print_mapping, prefix_time=getattr(args, "prefix_time", None),
-                             thrust_range=args.thrust_range, keep_dead=args.keep_dead)
-    except Exception as err:
-        if args.json:   # a machine reader gets JSON on failure too; the error still goes to stderr, same exit code
-            print_json({"error": " ".join(str(err).split()) or type(err).__name__, "kind": type(err).__name__,
-                        "internal": not isinstance(err, UsvlogError)})
-        raise
+    res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
+                         columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
+                         thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
+                         on_mapping=_print_mapping, prefix_time=getattr(args, "prefix_time", None),
+                         thrust_range=args.thrust_range, keep_dead=args.keep_dead)
     r = res.report
     if args.json:
         print_json(res.to_dict())
