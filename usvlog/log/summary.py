@@ -382,8 +382,24 @@ def health_from_metadata(metadata: dict) -> dict | None:
     """
     keys = sorted((k for k in metadata if k.startswith("usvlog.provenance/") and k.rsplit("/", 1)[1].isdigit()),
                   key=lambda k: int(k.rsplit("/", 1)[1]))
-    for k in reversed(keys):
-        raw = metadata[k].get("health")
+    return health_from_provenance([metadata[k] for k in keys])
+
+
+def health_from_provenance(provenance: list[dict]) -> dict | None:
+    """The health record of the last import among provenance records (None if none has one).
+
+    Parameters
+    ----------
+    provenance : list of dict
+        Provenance records ({key: text}), oldest first.
+
+    Returns
+    -------
+    dict or None
+        The record (layout in :mod:`usvlog.io.importers.audit`), parsed from its JSON text.
+    """
+    for rec in reversed(list(provenance)):
+        raw = rec.get("health")
         if not raw:
             continue
         try:

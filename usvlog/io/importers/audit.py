@@ -64,10 +64,11 @@ record under the key ``health``; read it back with :func:`health_of`)::
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
+
+from ...log.summary import health_from_provenance
 
 DUP_STAMP_DEPTH = 8
 """A sample whose own stamp equals one of this many samples before it is a republished copy."""
@@ -489,32 +490,6 @@ class HealthAudit:
                 "keep_dead": self.keep_dead, "track_turn_deg": self.track.turn_deg,
                 "thrust_applied_s": self.thrust_applied_ns / 1e9, "dead": dead, "suspect": suspect,
                 "thrust": self.thrust, "channels": chans}
-
-
-def health_from_provenance(provenance: list[dict]) -> dict | None:
-    """The health record of the last import among provenance records (None if none has one).
-
-    Parameters
-    ----------
-    provenance : list of dict
-        Provenance records ({key: text}), oldest first.
-
-    Returns
-    -------
-    dict or None
-        The record (layout in the module docstring), parsed from its JSON text.
-    """
-    for rec in reversed(list(provenance)):
-        raw = rec.get("health")
-        if not raw:
-            continue
-        try:
-            d = json.loads(raw)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(d, dict):
-            return d
-    return None
 
 
 def health_of(log) -> dict:

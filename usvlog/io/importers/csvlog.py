@@ -206,6 +206,34 @@ def _parser_message(err: BaseException) -> str:
     return lines[0] if lines else type(err).__name__
 
 
+def _header(p, opts) -> tuple[str, str, list[str]]:
+    """(header line, separator, column names) of a CSV file; every ``--column`` must name one.
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, has no header row, pandas cannot parse the header, or a
+        ``--column`` names a column that is not in it.
+    """
+    try:
+        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
+            header_line = fh.readline()
+    except OSError as err:
+        raise InputError(f"{p}: cannot read ({err})") from err
+    if not header_line.strip():
+        raise InputError(f"{p}: empty file (no header row)")
+    sep = sniff_sep(header_line) or ","
+    try:
+        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
+        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
+    missing = {r: h for r, h in opts.columns.items() if h not in headers}
+    if missing:
+        r, h = next(iter(missing.items()))
+        raise InputError(f"{p}: column {h!r} for role {r} is not in the header (columns: {listing(headers)})")
+    return header_line, sep, headers
+
+
 def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     """Batches of role streams from a CSV file (see :mod:`usvlog.io.importers.core`).
 
@@ -229,23 +257,7 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
         column, or a file pandas' parser cannot read (``from`` its error).
     """
     p = path
-    try:
-        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
-            header_line = fh.readline()
-    except OSError as err:
-        raise InputError(f"{p}: cannot read ({err})") from err
-    if not header_line.strip():
-        raise InputError(f"{p}: empty file (no header row)")
-    sep = sniff_sep(header_line) or ","
-    try:
-        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
-        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
-    missing = {r: h for r, h in opts.columns.items() if h not in headers}
-    if missing:
-        r, h = next(iter(missing.items()))
-        raise InputError(f"{p}: column {h!r} for role {r} is not in the header "
-                         f"(columns: {listing(headers)})")
+    header_line, sep, headers = _header(p, opts)
     mapping, guessed = guess_mapping(headers, opts.columns)
     report.mapping.update(mapping)
     report.guesses.update({f"column {k}": v for k, v in guessed.items()})
@@ -470,22 +482,7 @@ def catalog(path, opts) -> Catalog:
     from pathlib import Path  # only the catalog needs it
 
     p = Path(path)
-    try:
-        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
-            header_line = fh.readline()
-    except OSError as err:
-        raise InputError(f"{p}: cannot read ({err})") from err
-    if not header_line.strip():
-        raise InputError(f"{p}: empty file (no header row)")
-    sep = sniff_sep(header_line) or ","
-    try:
-        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
-        raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
-    missing = {r: h for r, h in opts.columns.items() if h not in headers}
-    if missing:
-        r, h = next(iter(missing.items()))
-        raise InputError(f"{p}: column {h!r} for role {r} is not in the header (columns: {listing(headers)})")
+    _, sep, headers = _header(p, opts)
     mapping, guessed = guess_mapping(headers, opts.columns)
     time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
     n = 0
