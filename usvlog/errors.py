@@ -33,6 +33,13 @@ class StorageError(UsvlogError, OSError):
     """The file system refused: missing input, unwritable output, disk full."""
 
 
+class UnusableResultError(UsvlogError, ArithmeticError):
+    """A computation ran but its result cannot be trusted (diverged, non-finite): nothing
+    is written, and the CLI exits 1 (not 2: the input was readable, the answer is no)."""
+
+    exit_code = 1
+
+
 def where(path: object = None, channel: str | None = None, at: str | None = None) -> str:
     """Format the 'file, channel, row/time' prefix used by every error message.
 

@@ -83,3 +83,24 @@ def test_estimate_vessel_file_is_used(current_file, tmp_path, capsys):
     own = json.loads(capsys.readouterr().out)
     assert own["settings"]["vessel"] == "paper-section-iv"
     assert own["loglik"] > rep["loglik"]
+
+
+def test_a_diverged_estimate_is_refused_not_written(tmp_path, capsys):
+    """Thrust of +-1e300 N drives the dynamic model to non-finite states: exit 1, one line
+    naming the time, no output; the kinematic model (thrust marks only yaw steps) stays finite."""
+    log = simulate("excitation", SimSettings(duration_s=30.0), seed=1)
+    th = log["/thrust/command"].copy()
+    for c in ("left", "right", "thrust_left_n", "thrust_right_n"):
+        th[c] = np.where(np.arange(len(th)) % 2 == 0, 1e300, -1e300)
+    log.set("/thrust/command", th)
+    src, out = tmp_path / "absurd.mcap", tmp_path / "est.mcap"
+    write_log(log, src)
+    assert main(["estimate", str(src), "--out", str(out), "--model", "dynamic", "--json"]) == 1
+    cap = capsys.readouterr()
+    err = [x for x in cap.err.strip().splitlines() if "error" in x]   # (after the progress line)
+    assert len(err) == 1 and "diverged at t = " in err[0] and "nothing written" in err[0]
+    assert json.loads(cap.out)["kind"] == "UnusableResultError"
+    assert not out.exists()
+    assert main(["estimate", str(src), "--out", str(out), "--model", "kinematic"]) == 0
+    st = read_log(out)["/estimate/state"]
+    assert np.isfinite(st[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()).all()

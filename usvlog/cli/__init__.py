@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
     except UsvlogError as err:
         _json_error(args, err)
         print(f"usvlog {args.verb}: error: {err}", file=sys.stderr)
-        return 2
+        return int(getattr(err, "exit_code", 2))
     except KeyboardInterrupt as err:
         return _stopped(args.verb, err)
     except BrokenPipeError:

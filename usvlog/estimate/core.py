@@ -12,7 +12,7 @@ import pandas as pd
 from scipy.optimize import minimize
 from scipy.stats import chi2
 
-from ..errors import ConfigError, InputError
+from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
 from ..model.frames import Datum, geodetic_to_ned, ssa
@@ -621,6 +621,38 @@ class EstimateResult:
         return out
 
 
+POSITION_STD_LIMIT_M = 1e4
+"""A position one-sigma beyond this (m) is a filter that has lost the track, not an estimate."""
+
+
+def _check_finite(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str) -> None:
+    """Refuse a run whose states or one-sigmas are not finite, or whose position one-sigma
+    exceeds :data:`POSITION_STD_LIMIT_M`: an estimate is finite or it is not returned.
+
+    Raises
+    ------
+    usvlog.errors.UnusableResultError
+        Naming the model, the first bad time (s from the start) and the largest
+        innovation NIS before it.
+    """
+    nx = pb.nx
+    bad = ~(np.isfinite(raw.X[:, :nx]).all(axis=1) & np.isfinite(raw.XS[:, :nx]).all(axis=1)
+            & np.isfinite(raw.SDf[:, :nx]).all(axis=1) & np.isfinite(raw.SDs[:, :nx]).all(axis=1))
+    with np.errstate(invalid="ignore"):
+        bad |= (raw.SDf[:, :2] > POSITION_STD_LIMIT_M).any(axis=1) | (raw.SDs[:, :2] > POSITION_STD_LIMIT_M).any(axis=1)
+    if not bad.any():
+        return
+    i = int(np.flatnonzero(bad)[0])
+    t_s = (int(pb.t_ns[i]) - int(pb.t_ns[0])) * 1e-9
+    before = pb.m_t_ns <= pb.t_ns[i]
+    nis = raw.innov[before, 2] if before.any() else np.zeros(0)
+    worst = f"; largest NIS before it {float(np.nanmax(np.abs(nis))):.3g}" if np.isfinite(nis).any() else ""
+    raise UnusableResultError(
+        f"{src}: the {settings.model} estimate diverged at t = {t_s:.1f} s from the start (state not finite or "
+        f"position uncertainty beyond {POSITION_STD_LIMIT_M:g} m{worst}); nothing written: check the thrust "
+        "units and the sensors' noise, or use the kinematic model")
+
+
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
              vessel: Vessel | None = None) -> EstimateResult:
     """Estimate the state of a run (forward EKF, then the extended RTS smoother).
@@ -654,6 +686,9 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     usvlog.errors.InputError
         If a needed channel is missing or empty, time goes backwards in one, it has no
         valid record, or thrust commands cannot be converted to forces.
+    usvlog.errors.UnusableResultError
+        If the filter diverged (a state not finite, or a position one-sigma beyond
+        :data:`POSITION_STD_LIMIT_M`): no estimate is returned rather than garbage.
 
     Examples
     --------
@@ -673,6 +708,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     q = process_noise(settings)
     runner = run_fast if settings.fast else run_reference_path
     raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
+    _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid
     state = _state_frame(raw.XS[g], raw.SDs[g], raw.PBs[g], pb.t_ns[g], pb.model)
     forward = _state_frame(raw.X[g], raw.SDf[g], raw.PBf[g], pb.t_ns[g], pb.model)
