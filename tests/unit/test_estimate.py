@@ -445,3 +445,29 @@ def test_thrust_commands_go_through_the_thruster_map():
     # the identity map cannot turn normalized commands into forces: one-line error
     with pytest.raises(InputError, match="/thrust/command: thrust commands in normalized need a thruster map"):
         estimate(only_cmd, EstimateSettings(model="dynamic"), default_vessel())
+
+
+def test_consistency_in_plain_words():
+    """A good run says nothing; a compass whose stated sigma is 100x too large, or one that
+    reads a constant while the boat turns, is named in plain words."""
+    from usvlog.estimate import EstimateSettings, estimate
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=60.0), seed=4)
+    assert estimate(log, EstimateSettings()).report.consistency() == []
+    over = log.copy(deep=True)
+    comp = over["/compass/heading"].copy()
+    comp["std_rad"] = comp["std_rad"] * 100.0
+    over.set("/compass/heading", comp)
+    rep = estimate(over, EstimateSettings()).report
+    assert rep.sensor("compass").mean_nis < 0.1
+    words = rep.consistency()
+    assert len(words) == 1 and words[0].startswith("compass NIS") and "overstated or it does not move" in words[0]
+    assert "warning: compass NIS" in rep.format() and rep.to_dict()["warnings"] == words
+    dead = log.copy(deep=True)
+    comp = dead["/compass/heading"].copy()
+    comp["heading_rad"] = 0.0
+    dead.set("/compass/heading", comp)
+    # the kinematic smoother follows a compass it cannot check: NIS near 0, named the same way
+    words = estimate(dead, EstimateSettings()).report.consistency()
+    assert any(w.startswith("compass NIS 0.0") and "does not move" in w for w in words), words

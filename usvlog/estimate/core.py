@@ -545,9 +545,39 @@ class EstimateReport:
                 return r
         raise KeyError(name)
 
+    def consistency(self) -> list[str]:
+        """Plain-word warnings from each sensor's NIS and gate (empty for a consistent run).
+
+        The mean NIS of a sensor whose noise is stated right is its dimension; below a tenth
+        of it the stated noise is far too large or the sensor does not move (a dead compass
+        fused with a large sigma), above five times it the noise is understated, the sensor
+        lags (latency) or the model does not fit; more than 20 % rejected by the gate says
+        the sensor and the track disagree.
+
+        Returns
+        -------
+        list of str
+            One line per finding.
+        """
+        out = []
+        for r in self.sensors:
+            n = r.accepted + r.rejected
+            if r.accepted and np.isfinite(r.mean_nis):
+                if r.mean_nis < 0.1 * r.dim:
+                    out.append(f"{r.sensor} NIS {r.mean_nis:.3f} (expected about {r.dim}): its noise is overstated "
+                               "or it does not move - check the sensor")
+                elif r.mean_nis > 5.0 * r.dim:
+                    out.append(f"{r.sensor} NIS {r.mean_nis:.3g} (expected about {r.dim}): its noise is understated, "
+                               "it lags (a latency), or the model does not fit")
+            if n and r.rejected > 0.2 * n:
+                out.append(f"{r.sensor}: {100.0 * r.rejected / n:.0f} % of its measurements rejected by the gate - "
+                           "the sensor and the track disagree")
+        return out
+
     def to_dict(self) -> dict:
-        """JSON-ready dict; dropouts carry ``start_ns``, a readable ``start`` and ``duration_s``."""
-        return {"model": self.model, "states": self.states, "steps": self.steps,
+        """JSON-ready dict; dropouts carry ``start_ns``, a readable ``start`` and ``duration_s``;
+        ``warnings`` are :meth:`consistency`'s plain-word findings."""
+        return {"warnings": self.consistency(), "model": self.model, "states": self.states, "steps": self.steps,
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
@@ -568,6 +598,7 @@ class EstimateReport:
         if self.tuned:
             lines.append("  tuned process noise: " + ", ".join(
                 f"{k} {v:.3g}" for k, v in self.tuned.items() if k.startswith("q_")))
+        lines += [f"  warning: {w}" for w in self.consistency()]
         return "\n".join(lines)
 
 
