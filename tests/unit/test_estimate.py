@@ -471,3 +471,24 @@ def test_consistency_in_plain_words():
     # the kinematic smoother follows a compass it cannot check: NIS near 0, named the same way
     words = estimate(dead, EstimateSettings()).report.consistency()
     assert any(w.startswith("compass NIS 0.0") and "does not move" in w for w in words), words
+
+
+def test_kinematic_model_needs_no_thruster_map():
+    """The kinematic model uses the yaw moment only for its steps (scale-free): pwm_us commands
+    that are an affine image of the forces, with no vessel map to convert them, give the same
+    estimate as the forces themselves; the dynamic model still refuses them."""
+    from usvlog.errors import InputError
+    from usvlog.estimate import EstimateSettings, estimate
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=60.0), seed=1)
+    ref = estimate(log, EstimateSettings(model="kinematic")).state
+    th = log["/thrust/command"].copy().drop(columns=["thrust_left_n", "thrust_right_n"])
+    th["left"], th["right"], th["unit"] = 1500 + 10 * th["left"], 1500 + 10 * th["right"], "pwm_us"
+    log.set("/thrust/command", th)
+    log.meta.pop("usvlog.vessel", None)
+    got = estimate(log, EstimateSettings(model="kinematic")).state
+    cols = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]
+    assert np.abs(got[cols].to_numpy() - ref[cols].to_numpy()).max() < 1e-9
+    with pytest.raises(InputError, match="thruster map"):
+        estimate(log, EstimateSettings(model="dynamic"))

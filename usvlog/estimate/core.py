@@ -136,9 +136,27 @@ def _col(frame: pd.DataFrame, name: str, default=np.nan) -> np.ndarray:
     return np.full(len(frame), default, dtype=float)
 
 
-def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel):
+PWM_NEUTRAL_US = 1500.0
+"""RC pulse width (us) of a stopped thruster: the centre of a pwm_us command."""
+
+
+def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free: bool = False):
     """(tau_u, tau_r, ok): forces from thrust_*_n, else from the command through the
-    thruster map; ``ok`` marks the usable records (tau has one entry per usable one)."""
+    thruster map; ``ok`` marks the usable records (tau has one entry per usable one).
+
+    ``vessel_free`` (the kinematic model, which uses the yaw moment only to find its steps,
+    scale-free): commands that the vessel's map cannot turn into newtons give a moment in
+    command units instead, port minus starboard about the neutral command (pwm_us: 1500),
+    so no thruster map is needed."""
+    if vessel_free:
+        try:
+            return _thrust_tau(log, frame, vessel)
+        except InputError:
+            left, right = _col(frame, "left"), _col(frame, "right")
+            units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "")
+            mid = np.where(units == "pwm_us", PWM_NEUTRAL_US, 0.0)
+            ok = np.isfinite(left) & np.isfinite(right)
+            return np.zeros(int(ok.sum())), (left - mid)[ok] - (right - mid)[ok], ok
     thr = vessel.thrusters
     fl, fr = _col(frame, "thrust_left_n"), _col(frame, "thrust_right_n")
     need = ~(np.isfinite(fl) & np.isfinite(fr))
@@ -260,7 +278,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     taus = np.zeros((len(t_ns), 2))
     skipped["thrust"] = 0
     if thrust is not None:
-        tu, tr, ok = _thrust_tau(log, thrust, vessel)
+        tu, tr, ok = _thrust_tau(log, thrust, vessel, vessel_free=s.model == "kinematic")
         tt = np.asarray(thrust.index, dtype=np.int64)[ok]
         skipped["thrust"] = int((~ok).sum())
         # zero-order hold: the step ending at k uses the command in force at t[k-1]
