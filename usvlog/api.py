@@ -819,6 +819,12 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
         if _is_path(x):
             _say(progress, f"reading {x}")
         read.append(_read(x, progress))
+    from .view.data import warnings  # heavy: numpy
+
+    for lg in read:
+        for w in warnings(lg):
+            if not w.startswith("input damaged"):   # _read said those already
+                _say(progress, f"warning: {lg.source or 'log'}: {w}")
     _say(progress, f"writing {out}")
     return write_rrd(read, out, names=None if names is None else list(names), force=force)
 
@@ -853,6 +859,11 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
     check_report_outputs(out, force)  # fail before the work, not after
     log = _read(log, progress)
     base = _read(baseline, progress) if baseline is not None else None
+    from .view.data import warnings  # heavy: numpy (with the report's imports above)
+
+    for w in warnings(log):
+        if not w.startswith("input damaged"):   # _read said those already
+            _say(progress, f"warning: {w}")
     _say(progress, f"writing report to {out}")
     return write_report(log, out, baseline=base, force=force, axes=axes)
 

@@ -71,3 +71,33 @@ def test_cli_report(tmp_path, view_file):
     r = subprocess.run([sys.executable, "-m", "usvlog", "report", str(view_file), "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "exists" in r.stderr
+
+
+def test_a_doubtful_estimate_is_flagged_in_report_view_and_on_the_console(tmp_path, capsys):
+    """An estimate whose compass NIS says 'overstated or not moving' carries that warning
+    into the report (first, in a box), the Rerun event log and the console of both verbs;
+    a clean estimate carries none."""
+    from usvlog.cli import main
+    from usvlog.estimate import EstimateSettings, estimate
+    from usvlog.io.mcap import write_log
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=60.0), seed=4)
+    clean = estimate(log, EstimateSettings()).to_log(log)
+    assert vd.warnings(clean) == []
+    comp = log["/compass/heading"].copy()
+    comp["heading_rad"] = 0.0                       # a compass stuck while the boat turns
+    bad = log.copy(deep=True)
+    bad.set("/compass/heading", comp)
+    est = estimate(bad, EstimateSettings()).to_log(bad)
+    words = vd.warnings(est)
+    assert len(words) == 1 and words[0].startswith("estimate: compass NIS 0.0")
+    assert [x.text for x in vd.events(est) if x.kind == "warning"] == words
+    src = tmp_path / "est.mcap"
+    write_log(est, src)
+    assert main(["report", str(src), "--out", str(tmp_path / "rep")]) == 0
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert html.index("<h2>Warnings</h2>") < html.index("<h2>Figures</h2>") and "compass NIS 0.0" in html
+    assert sum("warning: estimate: compass NIS" in x for x in capsys.readouterr().err.splitlines()) == 1
+    assert main(["view", str(src), "--out", str(tmp_path / "v.rrd")]) == 0
+    assert sum("warning:" in x and "compass NIS" in x for x in capsys.readouterr().err.splitlines()) == 1

@@ -265,9 +265,40 @@ def speed_steps(frame) -> list[tuple[int, float, float]]:
     return out
 
 
+def warnings(log: FieldLog) -> list[str]:
+    """What the stages that made this log could not vouch for, in plain words: a damaged
+    input (``input damaged: ...``) and the estimate's consistency findings (``estimate:
+    compass NIS 0.000 ...``), read from the provenance records (the latest estimate's only).
+
+    Returns
+    -------
+    list of str
+        One line each; empty for a log whose stages had nothing to say.
+    """
+    out: list[str] = []
+    est = None
+    for rec in log.provenance:
+        note = rec.get("input_damage")
+        if note and note not in out:
+            out.append(note)
+        if rec.get("producer") == "usvlog estimate":
+            est = rec
+    if est is not None:
+        try:
+            rep = json.loads(est.get("report") or "{}")
+        except json.JSONDecodeError:
+            rep = {}
+        out += [f"estimate: {w}" for w in rep.get("warnings", []) if isinstance(w, str)]
+    return out
+
+
 def events(log: FieldLog) -> list[Event]:
-    """Everything worth a line in the event log, sorted by time."""
+    """Everything worth a line in the event log, sorted by time (the :func:`warnings` first,
+    at the start of the log)."""
     ev: list[Event] = []
+    tr = log.time_range()
+    for w in warnings(log):
+        ev.append(Event(tr[0] if tr else 0, "WARN", "warning", w))
     rej = rejections(log, None)
     if rej is not None:
         for t, nis, s in zip(*rej):

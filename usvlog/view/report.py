@@ -461,6 +461,10 @@ def _html(log, baseline, shown, missing, axes_note: str) -> str:
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}"
              "td.num{text-align:right;font-variant-numeric:tabular-nums}</style></head><body>",
              f"<h1>{e(title)}</h1>"]
+    warn = vd.warnings(log)
+    if warn:   # first, where nobody misses it: the figures below rest on these
+        parts.append("<div class='warn' style='border:2px solid #c00;padding:0.5em 1em'><h2>Warnings</h2><ul>"
+                     + "".join(f"<li>{e(w)}</li>" for w in warn) + "</ul></div>")
     if tr:
         base = (" &middot; baseline: " + e(Path(baseline.source).name)
                 if baseline is not None and baseline.source else "")
