@@ -21,11 +21,9 @@ from usvlog.sim.simulate import SimSettings, simulate
 DATA = Path(__file__).resolve().parents[1] / "data"
 
 
-def _same(path):
-    streamed = api.inspect(path).to_dict()
-    whole = summarize(read_log(path)).to_dict()
-    assert streamed == whole
-    return streamed
+def _both(path):
+    """(streamed summary, summary of the whole loaded log) of one file, as dicts."""
+    return api.inspect(path).to_dict(), summarize(read_log(path)).to_dict()
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +38,9 @@ def small(tmp_path_factory):
 
 @pytest.mark.parametrize("name", sorted(p.name for p in DATA.glob("*.mcap")))
 def test_streamed_summary_equals_the_loaded_one_on_the_data_sets(name):
-    _same(DATA / name)
+    streamed, whole = _both(DATA / name)
+    assert streamed == whole
+    assert streamed["channels"] and streamed["recovery"] is None
 
 
 def test_streamed_summary_equals_the_loaded_one_on_damaged_files(small, tmp_path):
@@ -60,10 +60,12 @@ def test_streamed_summary_equals_the_loaded_one_on_damaged_files(small, tmp_path
     for name, blob in cases.items():
         p = tmp_path / f"{name}.mcap"
         p.write_bytes(blob)
-        s = _same(p)
+        s, whole = _both(p)
+        assert s == whole, name
         seen_damage += s["recovery"] is not None
     assert seen_damage == len(cases)
-    assert _same(tmp_path / "trailing.mcap")["recovery"]["trailing_bytes"] == 240
+    s, whole = _both(tmp_path / "trailing.mcap")
+    assert s == whole and s["recovery"]["trailing_bytes"] == 240
 
 
 def test_iter_chunks_yields_every_message_once_with_its_chunk_time_range(small):
