@@ -63,3 +63,21 @@ def test_identify_output_error_validate_on_another_manoeuvre(tmp_path, capsys):
     # the fitted model's track follows the measured one to about the GPS noise
     err = np.hypot(f["n_m"] - f["n_sim_m"], f["e_m"] - f["e_sim_m"]).to_numpy()
     assert np.sqrt(np.mean(err ** 2)) < 1.0
+
+
+def test_real_px4_log_without_a_thruster_map_is_refused_naming_file_and_channel(tmp_path, capsys):
+    """The real PX4 log's motor outputs are RC pulse widths: without the boat's thruster map
+    there is no force to identify from, so identify refuses in one line (exit 2, no TOML)."""
+    from pathlib import Path
+
+    from usvlog.cli import main
+
+    ulg = Path(__file__).resolve().parents[1] / "data" / "real" / "px4_sample_log_small.ulg"
+    log = tmp_path / "px4.mcap"
+    assert main(["import", str(ulg), "--out", str(log)]) == 0
+    capsys.readouterr()
+    out = tmp_path / "v.toml"
+    assert main(["identify", str(log), "--out", str(out)]) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if "error" in x]
+    assert len(err) == 1 and f"{log} /thrust/command" in err[0] and "thruster map" in err[0]
+    assert not out.exists()

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
@@ -106,8 +106,12 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     need = ~logged
     for unit in np.unique(units[need]):
         k = need & (units == unit)
-        fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy(float)[k], unit)
-        frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy(float)[k], unit)
+        try:
+            fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy(float)[k], unit)
+            frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy(float)[k], unit)
+        except ConfigError as err:   # say which log and channel, and what would help
+            raise ConfigError(f"{log.source or 'log'} /thrust/command: {err} (give --vessel with the boat's "
+                              "thruster map)") from err
     how = "newton" if set(np.unique(units[need])) == {"newton"} else f"{vessel.thrusters.map} map"
     return t_ns, fl, frr, how
 
