@@ -78,6 +78,6 @@ def test_real_px4_log_without_a_thruster_map_is_refused_naming_file_and_channel(
     capsys.readouterr()
     out = tmp_path / "v.toml"
     assert main(["identify", str(log), "--out", str(out)]) == 2
-    err = [x for x in capsys.readouterr().err.splitlines() if "error" in x]
+    err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("usvlog identify: error:")]
     assert len(err) == 1 and f"{log} /thrust/command" in err[0] and "thruster map" in err[0]
     assert not out.exists()
