@@ -90,3 +90,17 @@ def test_vessel_toml_round_trip_and_errors():
         vessel_from_toml("[model]\nmass = 3\n", "bad.toml")
     with pytest.raises(ConfigError, match="bad.toml"):
         vessel_from_toml("[model\n", "bad.toml")
+
+
+def test_forces_from_commands_converts_each_record_in_its_own_unit():
+    from usvlog.model.vessel import Thrusters
+
+    thr = Thrusters(map="linear", forward_n=20.0, reverse_n=12.0)
+    left = np.array([0.5, 1500.0, 3.0, -1.0])
+    right = np.array([-0.25, 1900.0, -3.0, 1.0])
+    units = np.array(["normalized", "pwm_us", "newton", "normalized"])
+    fl, fr = thr.forces_from_commands(left, right, units)
+    for i, u in enumerate(units):
+        assert fl[i] == thr.command_to_force(left[i:i + 1], u)[0]
+        assert fr[i] == thr.command_to_force(right[i:i + 1], u)[0]
+    assert fl[2] == 3.0 and fr[1] > 0

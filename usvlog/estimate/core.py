@@ -163,13 +163,10 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free:
     if need.any():
         units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "newton")
         left, right = _col(frame, "left"), _col(frame, "right")
-        for unit in np.unique(units[need]):
-            sel = need & (units == unit)
-            try:
-                fl[sel] = thr.command_to_force(left[sel], unit)
-                fr[sel] = thr.command_to_force(right[sel], unit)
-            except ConfigError as err:
-                raise InputError(f"{_where(log)}channel {THRUST_TOPIC}: {err}") from err
+        try:
+            fl[need], fr[need] = thr.forces_from_commands(left[need], right[need], units[need])
+        except ConfigError as err:
+            raise InputError(f"{_where(log)}channel {THRUST_TOPIC}: {err}") from err
     ok = np.isfinite(fl) & np.isfinite(fr)
     # a bad record is skipped: the command before it stays in force
     tu, tr = thr.tau_from_forces(fl[ok], fr[ok])

@@ -104,14 +104,12 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     # rows without logged forces: the commands through the thruster map
     units = fr["unit"].astype(str).to_numpy() if "unit" in fr else np.array(["newton"] * len(fr))
     need = ~logged
-    for unit in np.unique(units[need]):
-        k = need & (units == unit)
-        try:
-            fl[k] = vessel.thrusters.command_to_force(fr["left"].to_numpy(float)[k], unit)
-            frr[k] = vessel.thrusters.command_to_force(fr["right"].to_numpy(float)[k], unit)
-        except ConfigError as err:   # say which log and channel, and what would help
-            raise ConfigError(f"{log.source or 'log'} /thrust/command: {err} (give --vessel with the boat's "
-                              "thruster map)") from err
+    try:
+        fl[need], frr[need] = vessel.thrusters.forces_from_commands(
+            fr["left"].to_numpy(float)[need], fr["right"].to_numpy(float)[need], units[need])
+    except ConfigError as err:   # say which log and channel, and what would help
+        raise ConfigError(f"{log.source or 'log'} /thrust/command: {err} (give --vessel with the boat's "
+                          "thruster map)") from err
     how = "newton" if set(np.unique(units[need])) == {"newton"} else f"{vessel.thrusters.map} map"
     return t_ns, fl, frr, how
 

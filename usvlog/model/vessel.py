@@ -305,6 +305,34 @@ class Thrusters:
         return np.clip(np.asarray(force, dtype=float), -self.reverse_n, self.forward_n)
 
     # -- geometry ----------------------------------------------------------------
+    def forces_from_commands(self, left, right, units) -> tuple[np.ndarray, np.ndarray]:
+        """Both thrusters' forces from commands whose unit may change from record to record.
+
+        Parameters
+        ----------
+        left, right : array_like
+            Port and starboard commands, one per record.
+        units : array_like of str
+            Each record's unit (:data:`THRUST_UNITS`).
+
+        Returns
+        -------
+        f_left, f_right : numpy.ndarray
+            Forces in N (:meth:`command_to_force` per unit).
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            A unit this thruster map cannot turn into newtons.
+        """
+        left, right, units = np.asarray(left, float), np.asarray(right, float), np.asarray(units)
+        fl, fr = np.full(len(left), np.nan), np.full(len(right), np.nan)
+        for unit in np.unique(units):
+            k = units == unit
+            fl[k] = self.command_to_force(left[k], str(unit))
+            fr[k] = self.command_to_force(right[k], str(unit))
+        return fl, fr
+
     def tau_from_forces(self, f_left, f_right):
         """(tau_u, tau_r): port thruster pushing harder gives positive (starboard) r.
 
