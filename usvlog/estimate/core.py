@@ -39,6 +39,10 @@ GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thr
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
 _P0_EXTRA = {"kinematic": (0.3, 0.3, 0.3, 0.3), "dynamic": (0.3, 0.3)}  # accelerations (, k) / current
+POSITION_STD_LIMIT_M = 1e4
+"""A position one-sigma beyond this (m) is a filter that has lost the track, not an estimate
+(the forward pass restarts from the measurements there, see ``kernels.forward``)."""
+
 # random walk of the sway damping k of the kinematic model with sway damping, 1/s^3:
 # a constant in effect
 Q_SWAY_DAMPING = 1e-8
@@ -357,7 +361,8 @@ class RawRun:
     ``X``/``XS`` forward and smoothed states (N, nx), ``SDf``/``SDs`` their one-sigma,
     ``PBf``/``PBs`` their covariance block of states 2..4 (N, 3, 3); ``innov`` (M, 4)
     [res_0, res_1, nis, log-likelihood term] per measurement, ``accepted`` (M,)
-    0 rejected / 1 accepted / 2 accepted after too many rejections; ``loglik`` their sum.
+    0 rejected / 1 accepted / 2 accepted after too many rejections; ``loglik`` their sum;
+    ``resets`` (N,) the divergence guard's re-initialisations (``kernels.REINIT_*``, 0 none).
     Without the smoother the smoothed arrays are the forward ones.
     """
 
@@ -370,6 +375,7 @@ class RawRun:
     innov: np.ndarray      # (M, 4)
     accepted: np.ndarray   # (M,) 0/1/2
     loglik: float
+    resets: np.ndarray     # (N,) why the state was re-initialised at a step (kernels.REINIT_*), 0 for none
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
@@ -394,14 +400,27 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun
     PP = np.empty((N if smoother else 1, nx, nx))
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
+    resets = np.zeros(N, np.int8)
     ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
-                         pb.model, q, pb.gates, max_rej, X, PP, SDf, PBf, innov, acc)
+                         pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
+                         X, PP, SDf, PBf, innov, acc, resets)
     if smoother:
         XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
-        kernels.smooth(X, PP, pb.dts, pb.taus, pb.qjump, pb.prm, pb.model, q, XS, SDs, PBs)
+        kernels.smooth(X, PP, pb.dts, pb.taus, pb.qjump, pb.prm, pb.model, q, resets, XS, SDs, PBs)
     else:
         XS, SDs, PBs = X, SDf, PBf
-    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets)
+
+
+REINIT_GATE_FACTOR = 100.0
+"""A GNSS fix forced in after ``max_consecutive_rejects`` rejections whose NIS exceeds this
+many times its gate re-initialises the filter from the measurements (it lost the track)."""
+
+
+def reinit_nis(pb: Problem) -> float:
+    """NIS of a forced-in GNSS fix above which the filter restarts (0: never, the gate off)."""
+    g = float(pb.gates[GNSS])
+    return REINIT_GATE_FACTOR * g if math.isfinite(g) else 0.0
 
 
 def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
@@ -410,17 +429,19 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     X = np.empty((N, nx))
     one = np.empty((1, nx, nx))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR,
-                                 pb.prm, pb.model, q, pb.gates, max_rej, X, one, one[:, 0],
-                                 np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8)))
+                                 pb.prm, pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
+                                 X, one, one[:, 0], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
+                                 np.zeros(N, np.int8)))
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
     """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
-                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother)   # (kinematic: by nx)
-    X, SDf, PBf, XS, SDs, PBs, innov, acc, ll = out
-    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll))
+                        pb.model == DYNAMIC, q, pb.gates, max_rej, smoother,   # (kinematic: by nx)
+                        POSITION_STD_LIMIT_M ** 2, reinit_nis(pb))
+    X, SDf, PBf, XS, SDs, PBs, innov, acc, ll, resets = out
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets)
 
 
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
@@ -665,10 +686,6 @@ class EstimateResult:
                            vessel=self.vessel.name if self.vessel else "",
                            report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
         return out
-
-
-POSITION_STD_LIMIT_M = 1e4
-"""A position one-sigma beyond this (m) is a filter that has lost the track, not an estimate."""
 
 
 def _check_finite(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str) -> None:

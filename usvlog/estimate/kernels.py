@@ -59,6 +59,10 @@ R_00, R_01, R_11 = 0, 1, 2       # mR (M, 3): measurement covariance entries
 # measurement result (res, innov rows)
 RES_Y0, RES_Y1, RES_NIS, RES_LOGLIK = range(4)
 NRES = 4
+# why the forward pass re-initialised the state from the measurements at a step (resets)
+REINIT_NONFINITE, REINIT_COVARIANCE, REINIT_RESIDUALS = 1, 2, 3
+REINIT_REASONS = ("", "state not finite", "position covariance blow-up",
+                  "GNSS residuals far beyond the gate for a long stretch")
 
 _nu_dot = njit(nu_dot_terms)
 _nu_jac = njit(nu_dot_jacobian_terms)
@@ -264,8 +268,35 @@ class Work:
 
 
 @njit
+def health(x, P, pos_var_limit):
+    """0 for a usable state, else why not: REINIT_NONFINITE (a state or covariance entry
+    not finite) or REINIT_COVARIANCE (a position variance beyond ``pos_var_limit``, m^2)."""
+    nx = x.shape[0]
+    for a in range(nx):
+        if not math.isfinite(x[a]):
+            return REINIT_NONFINITE
+        for b in range(nx):
+            if not math.isfinite(P[a, b]):
+                return REINIT_NONFINITE
+    if P[X_N, X_N] > pos_var_limit or P[X_E, X_E] > pos_var_limit:
+        return REINIT_COVARIANCE
+    return 0
+
+
+@njit
+def reinitialise(x, P, x0, P0, n, e, psi):
+    """Restart from the measurements: x0 with position (n, e) and heading psi, P = P0."""
+    nx = x.shape[0]
+    for a in range(nx):
+        x[a] = x0[a]
+        for b in range(nx):
+            P[a, b] = P0[a, b]
+    x[X_N], x[X_E], x[X_PSI] = n, e, wrap_angle(psi)
+
+
+@njit
 def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
-            X, PP, SD, PB, innov, accepted):
+            pos_var_limit, reinit_nis, X, PP, SD, PB, innov, accepted, resets):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
     Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
@@ -273,6 +304,13 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     not stored), per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
     the log-likelihood terms.
+
+    Divergence guard: a GNSS fix forced in (after ``max_rej`` rejections in a row) with
+    a NIS above ``reinit_nis`` (0: off), or a step ending with a state that is not finite
+    or a position variance above ``pos_var_limit`` (m^2, see :func:`health`),
+    re-initialises the filter from the measurements (:func:`reinitialise`: the latest
+    fix, the latest accepted compass heading, P0); ``resets[k]`` records why
+    (REINIT_*, 0 for none) and the smoother does not smooth across it.
     """
     nx = x0.shape[0]
     N = dts.shape[0]
@@ -292,7 +330,9 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     rej = np.zeros(3, np.int64)
     ll = 0.0
     j = 0
+    fix_n, fix_e, psi_last = x0[X_N], x0[X_E], x0[X_PSI]   # latest measurements, for a restart
     for k in range(N):
+        resets[k] = 0
         if k > 0 and dts[k] > 0.0:
             predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
             for a in range(nx):
@@ -307,6 +347,16 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
             for a in range(NRES):
                 innov[j, a] = res[a]
             ll += res[RES_LOGLIK]
+            if kind == GNSS:
+                fix_n, fix_e = mz[j, Z_0], mz[j, Z_1]
+                if force and reinit_nis > 0.0 and not res[RES_NIS] <= reinit_nis:
+                    keep = psi_last if math.isfinite(psi_last) else x0[X_PSI]
+                    reinitialise(x, P, x0, P0, fix_n, fix_e, keep)
+                    resets[k] = REINIT_RESIDUALS
+                    update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
+                           gates[kind], True, res, K, P2)
+            elif kind == COMPASS and ok:
+                psi_last = mz[j, Z_0]
             if ok:
                 accepted[j] = 2 if force else 1
                 rej[kind] = 0
@@ -314,6 +364,10 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
                 accepted[j] = 0
                 rej[kind] += 1
             j += 1
+        why = health(x, P, pos_var_limit)
+        if why:
+            reinitialise(x, P, x0, P0, fix_n, fix_e, psi_last if math.isfinite(psi_last) else x0[X_PSI])
+            resets[k] = why
         for a in range(nx):
             X[k, a] = x[a]
         if store:
@@ -358,10 +412,12 @@ def _chol_solve(L, inv, A, B, X):
 
 
 @njit
-def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
+def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,
-    their one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB."""
+    their one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB.
+    A step the forward pass re-initialised (``resets[k] != 0``) starts a new segment: the
+    steps before it are smoothed from their own forward posterior, not across the restart."""
     N, nx = X.shape
     xp = np.zeros(nx)
     Pp = np.zeros((nx, nx))
@@ -385,6 +441,16 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, XS, SD, PB):
     for k in range(N - 2, -1, -1):
         Pk = PP[k]
         xk = X[k]
+        if resets[k + 1] != 0:   # a restart: a new segment ends at k
+            for a in range(nx):
+                XS[k, a] = xk[a]
+                SD[k, a] = math.sqrt(max(Pk[a, a], 0.0))
+                for b in range(nx):
+                    Ps[a, b] = Pk[a, b]
+            for a in range(PB_SIZE):
+                for b in range(PB_SIZE):
+                    PB[k, a, b] = Pk[PB_FIRST + a, PB_FIRST + b]
+            continue
         if dts[k + 1] > 0.0:
             predict(xk, Pk, taus[k + 1, TAU_U], taus[k + 1, TAU_R], dts[k + 1], prm, model, q, qjump[k + 1],
                     xp, Pp, Phi, f, F, tmp)

@@ -14,7 +14,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from ..model.frames import ssa
 from ..model.vessel import VesselParams, eta_dot, plant_jacobian, plant_rhs
-from .kernels import COMPASS, GNSS, SENSOR_DIM
+from .kernels import COMPASS, GNSS, REINIT_COVARIANCE, REINIT_NONFINITE, REINIT_RESIDUALS, SENSOR_DIM
 
 _SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}
 
@@ -123,7 +123,10 @@ class VesselEKF(ExtendedKalmanFilter):
         resid = _residual_angle if kind == COMPASS else np.subtract
         y = resid(z, H @ self.x)
         S = H @ self.P @ H.T + R
-        nis = float(y[:, 0] @ np.linalg.solve(S, y[:, 0]))
+        try:
+            nis = float(y[:, 0] @ np.linalg.solve(S, y[:, 0]))
+        except np.linalg.LinAlgError:   # a diverged covariance: the guard restarts the filter
+            nis = np.nan
         ll = -0.5 * (min(nis, gate) + np.log(np.linalg.det(S)) + m * np.log(2 * np.pi))
         res = (float(y[0, 0]), float(y[1, 0]) if m == 2 else np.nan, nis, ll)
         if nis > gate and not force:
@@ -133,11 +136,29 @@ class VesselEKF(ExtendedKalmanFilter):
         return (*res, True)
 
 
+def _health(x, P, pos_var_limit: float) -> int:
+    """0 for a usable state, else REINIT_NONFINITE or REINIT_COVARIANCE (see kernels.health)."""
+    if not (np.isfinite(x).all() and np.isfinite(P).all()):
+        return REINIT_NONFINITE
+    if P[0, 0] > pos_var_limit or P[1, 1] > pos_var_limit:
+        return REINIT_COVARIANCE
+    return 0
+
+
+def _restart(ekf, x0, P0, n, e, psi) -> None:
+    """x0 with the position (n, e) and heading psi, P0 (see kernels.reinitialise)."""
+    x = np.asarray(x0, float).copy()
+    x[0], x[1], x[2] = n, e, ssa(psi)
+    ekf.x = x.reshape(-1, 1)
+    ekf.P = np.asarray(P0, float).copy()
+
+
 def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynamic, q, gates, max_rej,
-                  smoother: bool):
+                  smoother: bool, pos_var_limit: float = np.inf, reinit_nis: float = 0.0):
     """Forward pass with filterpy, then the RTS smoother. Same inputs and outputs as the
     compiled path: (X, SD_forward, PB_forward, XS, SD_smoothed, PB_smoothed, innov,
-    accepted, loglik), PB the covariance block of states 2..4."""
+    accepted, loglik, resets), PB the covariance block of states 2..4, resets the
+    re-initialisations of the divergence guard (as ``kernels.forward``)."""
     nx = len(x0)
     N, M = len(dts), len(mstep)
     ekf = VesselEKF(nx, params, dynamic, q)
@@ -153,9 +174,12 @@ def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynami
     rej = [0, 0, 0]
     ll = 0.0
     j = 0
+    resets = np.zeros(N, np.int8)
+    fix_n, fix_e, psi_last = float(x0[0]), float(x0[1]), float(x0[2])   # latest measurements
     for k in range(N):
         if k > 0 and dts[k] > 0:
-            ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]), float(qjump[k]))
+            with np.errstate(all="ignore"):   # a diverging state is caught by the guard below
+                ekf.predict_step(float(dts[k]), float(taus[k, 0]), float(taus[k, 1]), float(qjump[k]))
             Fs[k] = ekf.F.copy()
         else:
             Fs[k] = np.eye(nx)
@@ -165,24 +189,47 @@ def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynami
             m = SENSOR_DIM[kind]
             R = np.array([[mR[j, 0], mR[j, 1]], [mR[j, 1], mR[j, 2]]])[:m, :m]
             force = rej[kind] >= max_rej
-            r0, r1, nis, l, ok = ekf.gated_update(kind, mz[j], R, float(gates[kind]), force)
+            with np.errstate(all="ignore"):
+                r0, r1, nis, l, ok = ekf.gated_update(kind, mz[j], R, float(gates[kind]), force)
             innov[j] = (r0, r1, nis, l)
             ll += l
+            if kind == GNSS:
+                fix_n, fix_e = float(mz[j, 0]), float(mz[j, 1])
+                if force and reinit_nis > 0 and not nis <= reinit_nis:
+                    _restart(ekf, x0, P0, fix_n, fix_e, psi_last if np.isfinite(psi_last) else x0[2])
+                    resets[k] = REINIT_RESIDUALS
+                    ekf.gated_update(kind, mz[j], R, float(gates[kind]), True)
+            elif kind == COMPASS and ok:
+                psi_last = float(mz[j, 0])
             accepted[j] = (2 if force else 1) if ok else 0
             rej[kind] = 0 if ok else rej[kind] + 1
             j += 1
+        why = _health(ekf.x[:, 0], ekf.P, pos_var_limit)
+        if why:
+            _restart(ekf, x0, P0, fix_n, fix_e, psi_last if np.isfinite(psi_last) else x0[2])
+            resets[k] = why
         X[k] = ekf.x[:, 0]
         Ppost[k] = ekf.P
+    return _smooth(X, Ppost, xs_prior, Ps_prior, Fs, resets, innov, accepted, ll, smoother)
+
+
+def _smooth(X, Ppost, xs_prior, Ps_prior, Fs, resets, innov, accepted, ll, smoother):
+    """The RTS smoother over the forward pass (not across a restart)."""
+    N = len(X)
     sd_f = np.sqrt(np.maximum(np.einsum("kii->ki", Ppost), 0.0))
     pb_f = Ppost[:, 2:5, 2:5].copy()
     if not smoother:
-        return X, sd_f, pb_f, X.copy(), sd_f.copy(), pb_f.copy(), innov, accepted, ll
+        return X, sd_f, pb_f, X.copy(), sd_f.copy(), pb_f.copy(), innov, accepted, ll, resets
     XS = np.zeros_like(X)
     SD = np.zeros_like(X)
     PB = np.zeros((N, 3, 3))
     XS[-1], Ps = X[-1], Ppost[-1]
     SD[-1], PB[-1] = sd_f[-1], pb_f[-1]
     for k in range(N - 2, -1, -1):
+        if resets[k + 1]:   # a restart: a new segment ends at k
+            XS[k], Ps = X[k], Ppost[k]
+            SD[k], PB[k] = sd_f[k], pb_f[k]
+            continue
         C = Ppost[k] @ Fs[k + 1].T @ np.linalg.inv(Ps_prior[k + 1])
         d = XS[k + 1] - xs_prior[k + 1]
         d[2] = ssa(d[2])
@@ -191,4 +238,4 @@ def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynami
         Ps = Ppost[k] + C @ (Ps - Ps_prior[k + 1]) @ C.T
         SD[k] = np.sqrt(np.maximum(np.diag(Ps), 0.0))
         PB[k] = Ps[2:5, 2:5]
-    return X, sd_f, pb_f, XS, SD, PB, innov, accepted, ll
+    return X, sd_f, pb_f, XS, SD, PB, innov, accepted, ll, resets
