@@ -15,6 +15,7 @@ from scipy.stats import chi2
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
+from ..log.summary import health_from_provenance
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, VesselParams, default_vessel
 from . import kernels
@@ -102,6 +103,8 @@ class Problem:
     gates: np.ndarray       # (3,) NIS thresholds per sensor
     dropouts: tuple         # ((start_ns, duration_s), ...) GNSS gaps bridged by prediction
     skipped: dict = field(default_factory=dict)   # sensor -> records skipped (non-finite, out of range)
+    mode: str = "gnss+compass"   # or "gps-only": no heading measurement fused
+    mode_reason: str = ""        # why GNSS only (empty with a compass)
 
     @property
     def nx(self) -> int:
@@ -206,7 +209,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     """
     s = settings
     gps = _channel(log, GNSS_TOPIC)
-    comp = _channel(log, COMPASS_TOPIC)
+    comp = _channel(log, COMPASS_TOPIC, required=False)
     thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
     yaw = _channel(log, s.yaw_rate_topic) if s.yaw_rate_topic else None
 
@@ -230,28 +233,17 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         fb = s.gps_fallback_m ** 2
         Rg = np.column_stack([np.where(ok, nn, fb), ne, np.where(ok, ee, fb)])
 
-    # compass -> true heading of the hull
-    tc = np.asarray(comp.index, dtype=np.int64)
-    hd = _col(comp, "heading_rad")
-    gc = np.isfinite(hd)
-    if not gc.any():
-        raise InputError(f"{_where(log)}channel {COMPASS_TOPIC}: no valid heading")
-    if "reference" in comp.columns:
-        magnetic = comp["reference"].astype(str).to_numpy() == "magnetic"
+    parts = [(tg, GNSS, np.column_stack([n, e]), Rg)]
+    mode_reason = _heading_unusable(log, comp, s)
+    if not mode_reason:
+        tc, psi, vc, skipped["compass"] = _compass_measurements(comp, s)
+        mode_reason = still_heading(psi, tg, n, e)
+    if not mode_reason:
+        parts.append((tc, COMPASS, np.column_stack([psi, np.zeros(len(tc))]),
+                      np.column_stack([vc, np.zeros(len(tc)), np.zeros(len(tc))])))
+        psi0 = float(psi[0])
     else:
-        magnetic = np.zeros(len(comp), bool)
-    psi = ssa(hd + np.where(magnetic, s.declination_rad, 0.0) - s.compass_offset_rad)[gc]
-    tc = tc[gc]
-    skipped["compass"] = int((~gc).sum())
-    if s.compass_noise_rad is not None:
-        vc = np.full(len(tc), s.compass_noise_rad ** 2)
-    else:
-        sd = _col(comp, "std_rad")[gc]
-        vc = np.where(np.isfinite(sd) & (sd > 0), sd, s.compass_fallback_rad) ** 2
-
-    parts = [(tg, GNSS, np.column_stack([n, e]), Rg),
-             (tc, COMPASS, np.column_stack([psi, np.zeros(len(tc))]),
-              np.column_stack([vc, np.zeros(len(tc)), np.zeros(len(tc))]))]
+        psi0 = initial_course(tg, n, e)
     if yaw is not None:
         ty = np.asarray(yaw.index, dtype=np.int64)
         ry = _col(yaw, "r_radps")
@@ -293,9 +285,11 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
 
     qjump = yaw_jump_variance(taus[:, 1], s)
 
+    if mode_reason:
+        s = gps_only_settings(s)
     nx = state_size(s)
     x0 = np.zeros(nx)
-    x0[0], x0[1], x0[2] = n[0], e[0], psi[0]
+    x0[0], x0[1], x0[2] = n[0], e[0], psi0
     P0 = initial_covariance(s)
     gate = chi2.ppf(s.gate_probability, [SENSOR_DIM[k] for k in range(3)]) if s.gate_probability < 1 \
         else np.full(3, np.inf)
@@ -310,7 +304,209 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     return Problem(t_ns=t_ns, is_grid=is_grid, dts=dts, taus=taus, qjump=qjump, m_t_ns=m_t, mstep=mstep, mkind=mkind,
                    mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
                    model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
-                   gates=np.asarray(gate, float), dropouts=drop, skipped=skipped)
+                   gates=np.asarray(gate, float), dropouts=drop, skipped=skipped,
+                   mode="gps-only" if mode_reason else "gnss+compass", mode_reason=mode_reason)
+
+
+HEADING_STILL_DEG = 2.0
+"""A heading whose unwrapped span stays under this (deg) while the track turns has not moved
+(as in the import's health audit)."""
+TRACK_TURN_DEG = 90.0
+"""The GNSS track's course must span at least this much (deg) to call a still heading dead."""
+TRACK_LEG_M = 10.0
+"""Legs of the (2 s averaged) track at least this long (m) give its course."""
+TRACK_SMOOTH_S = 2.0
+"""GNSS fixes are averaged over this long (s) before their course is taken (noise)."""
+
+
+def _heading_unusable(log: FieldLog, comp: pd.DataFrame | None, s: EstimateSettings) -> str:
+    """Why the heading channel is not fused ("" when it is): missing, not wanted, or
+    judged dead by the import's health audit (stored in the log's provenance)."""
+    if s.gps_only:
+        return "GNSS only was asked for (gps_only)"
+    if comp is None:
+        return f"the log has no heading channel ({COMPASS_TOPIC})"
+    if not np.isfinite(_col(comp, "heading_rad")).any():
+        return f"{COMPASS_TOPIC} has no valid heading"
+    health = health_from_provenance(log.provenance) or {}
+    if COMPASS_TOPIC in (health.get("dead") or []):
+        why = ((health.get("channels") or {}).get(COMPASS_TOPIC) or {}).get("why") or "dead"
+        return f"the import's health audit judged {COMPASS_TOPIC} dead ({why})"
+    return ""
+
+
+def _compass_measurements(comp: pd.DataFrame, s: EstimateSettings):
+    """(t_ns, true heading of the hull in rad, variance in rad^2, records skipped) of the
+    valid compass records."""
+    tc = np.asarray(comp.index, dtype=np.int64)
+    hd = _col(comp, "heading_rad")
+    gc = np.isfinite(hd)
+    if "reference" in comp.columns:
+        magnetic = comp["reference"].astype(str).to_numpy() == "magnetic"
+    else:
+        magnetic = np.zeros(len(comp), bool)
+    psi = ssa(hd + np.where(magnetic, s.declination_rad, 0.0) - s.compass_offset_rad)[gc]
+    tc = tc[gc]
+    if s.compass_noise_rad is not None:
+        vc = np.full(len(tc), s.compass_noise_rad ** 2)
+    else:
+        sd = _col(comp, "std_rad")[gc]
+        vc = np.where(np.isfinite(sd) & (sd > 0), sd, s.compass_fallback_rad) ** 2
+    return tc, psi, vc, int((~gc).sum())
+
+
+def track_courses(t_ns: np.ndarray, n: np.ndarray, e: np.ndarray, leg_m: float = TRACK_LEG_M,
+                  smooth_s: float = TRACK_SMOOTH_S) -> np.ndarray:
+    """Courses (rad, clockwise from north) of the legs of a GNSS track, in time order.
+
+    The fixes are first averaged over ``smooth_s`` (a moving mean), so that the noise of
+    single fixes does not pass for motion; each leg then ends at the first averaged
+    position at least ``leg_m`` from its start.
+
+    Parameters
+    ----------
+    t_ns : numpy.ndarray
+        Fix times, ns (for the rate).
+    n, e : numpy.ndarray
+        Positions in time order, m.
+    leg_m : float
+        Shortest leg, m.
+    smooth_s : float
+        Averaging window, s.
+
+    Returns
+    -------
+    numpy.ndarray
+        One course per leg (empty when the track never moves ``leg_m``).
+    """
+    if len(n) < 2:
+        return np.zeros(0)
+    dt = float(np.median(np.diff(t_ns))) * 1e-9
+    w = int(min(max(1, round(smooth_s / dt)) if dt > 0 else 1, len(n)))
+    kern = np.full(w, 1.0 / w)
+    n, e = np.convolve(n, kern, "valid"), np.convolve(e, kern, "valid")
+    out = []
+    i, N, look = 0, len(n), 64
+    while i < N - 1:
+        far = np.flatnonzero(np.hypot(n[i:i + look] - n[i], e[i:i + look] - e[i]) >= leg_m)
+        if not len(far):
+            if i + look >= N:
+                break
+            look *= 2     # a slow stretch: look further ahead
+            continue
+        j = i + int(far[0])
+        out.append(math.atan2(e[j] - e[i], n[j] - n[i]))
+        i, look = j, 64
+    return np.asarray(out)
+
+
+def still_heading(psi: np.ndarray, t_ns: np.ndarray, n: np.ndarray, e: np.ndarray) -> str:
+    """Why a heading that does not move while the GNSS track turns is not fused ("" when it moves).
+
+    The heading is still when its unwrapped span stays under :data:`HEADING_STILL_DEG`;
+    the track turns when the unwrapped courses of its legs (:func:`track_courses`) span
+    at least :data:`TRACK_TURN_DEG`.
+
+    Parameters
+    ----------
+    psi : numpy.ndarray
+        Headings, rad.
+    t_ns, n, e : numpy.ndarray
+        GNSS fix times (ns) and positions (m).
+
+    Returns
+    -------
+    str
+        The reason in words, or "".
+    """
+    span = math.degrees(float(np.ptp(np.unwrap(psi)))) if len(psi) else 0.0
+    if span >= HEADING_STILL_DEG:
+        return ""
+    c = track_courses(t_ns, n, e)
+    turn = math.degrees(float(np.ptp(np.unwrap(c)))) if len(c) > 1 else 0.0
+    if turn < TRACK_TURN_DEG:
+        return ""
+    return (f"{COMPASS_TOPIC} moved {span:.2f} deg in all while the GNSS track's course spanned {turn:.0f} deg: "
+            "a dead compass, not fused")
+
+
+def initial_course(t_ns: np.ndarray, n: np.ndarray, e: np.ndarray) -> float:
+    """Heading to start from without a compass: the course of the track's first leg
+    (:func:`track_courses`, rad), 0 if it never moves that far."""
+    c = track_courses(t_ns[:20000], n[:20000], e[:20000])
+    return float(c[0]) if len(c) else 0.0
+
+
+def gps_only_settings(settings: EstimateSettings) -> EstimateSettings:
+    """The settings a GNSS-only run uses: the kinematic model over ground in NED (no sway
+    damping: without a heading the sway is not observable), the dynamic model unchanged."""
+    if settings.model == "kinematic" and settings.sway_damping:
+        return replace(settings, sway_damping=False)
+    return settings
+
+
+COURSE_MIN_SPEED_MPS = 0.3
+"""GNSS-only kinematic estimate: above this speed over ground (m/s) the heading is the course
+over ground; below it the last such course is held (stated as unknown)."""
+
+
+def course_as_heading(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, gyro: bool,
+                      min_speed: float = COURSE_MIN_SPEED_MPS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Heading = course over ground for the kinematic (NED) model run without a compass.
+
+    Without a heading measurement the psi, r states of the kinematic model are not
+    observed; the boat's heading is taken as its course over ground while it moves
+    (sideslip unobservable: the over-ground body velocity then has v = 0) and the yaw rate
+    as the course rate (v_n a_e - v_e a_n) / |v|^2, unless a gyro measured r.
+
+    Parameters
+    ----------
+    X, SD : numpy.ndarray
+        States (N, 9) of the kinematic model and their one-sigma.
+    PB : numpy.ndarray
+        Covariance of (psi, v_n, v_e), (N, 3, 3).
+    gyro : bool
+        A yaw-rate channel was fused (keep the r state).
+    min_speed : float
+        Speed over ground (m/s) above which the course is the heading; below it the last
+        course is held with a one-sigma of pi / sqrt(3) (unknown) and r is 0 +- 0.3 rad/s.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        Copies of X, SD, PB with psi, r, their one-sigma and the psi rows of PB replaced
+        (first-order propagation of the velocity covariance).
+    """
+    X, SD, PB = X.copy(), SD.copy(), PB.copy()
+    vn, ve = X[:, kernels.X_VN], X[:, kernels.X_VE]
+    sp2 = vn * vn + ve * ve
+    moving = sp2 > min_speed ** 2
+    if not moving.any():
+        moving[:] = False
+    idx = np.maximum.accumulate(np.where(moving, np.arange(len(vn)), -1))
+    idx[idx < 0] = int(np.argmax(moving)) if moving.any() else 0
+    cog = np.arctan2(ve, vn)
+    psi = cog[idx] if moving.any() else np.zeros(len(vn))
+    safe = np.where(moving, sp2, 1.0)
+    J = np.stack([-ve / safe, vn / safe], -1)                    # d cog / d(v_n, v_e)
+    Pvv = PB[:, 1:, 1:]
+    cross = np.einsum("ki,kij->kj", J, Pvv)
+    var = np.einsum("kj,kj->k", cross, J)
+    unknown = math.pi / math.sqrt(3.0)
+    sd = np.where(moving, np.minimum(np.sqrt(np.maximum(var, 0.0)), unknown), unknown)
+    cross[~moving] = 0.0
+    X[:, kernels.X_PSI] = psi
+    SD[:, kernels.X_PSI] = sd
+    PB[:, 0, 0] = sd ** 2
+    PB[:, 0, 1:] = cross
+    PB[:, 1:, 0] = cross
+    if not gyro:
+        an, ae = X[:, kernels.X_AN], X[:, kernels.X_AE]
+        X[:, kernels.X_R] = np.where(moving, (vn * ae - ve * an) / safe, 0.0)
+        s_an, s_ae = SD[:, kernels.X_AN], SD[:, kernels.X_AE]
+        SD[:, kernels.X_R] = np.where(moving, np.sqrt(vn ** 2 * s_ae ** 2 + ve ** 2 * s_an ** 2) / safe,
+                                      _P0_SIGMA[kernels.X_R])
+    return X, SD, PB
 
 
 def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarray:
@@ -761,6 +957,8 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if vessel is None:
         vessel = log.vessel or default_vessel()
     pb = build_problem(log, settings, vessel)
+    if pb.mode == "gps-only":
+        settings = gps_only_settings(settings)
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
         settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
     tuned = None
@@ -773,8 +971,13 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
     _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid
-    state = _state_frame(raw.XS[g], raw.SDs[g], raw.PBs[g], pb.t_ns[g], pb.model)
-    forward = _state_frame(raw.X[g], raw.SDf[g], raw.PBf[g], pb.t_ns[g], pb.model)
+    XS, SDs, PBs, Xf, SDf, PBf = raw.XS[g], raw.SDs[g], raw.PBs[g], raw.X[g], raw.SDf[g], raw.PBf[g]
+    if pb.mode == "gps-only" and pb.model == KINEMATIC:
+        gyro = bool((pb.mkind == YAW_RATE).any())
+        XS, SDs, PBs = course_as_heading(XS, SDs, PBs, gyro)
+        Xf, SDf, PBf = course_as_heading(Xf, SDf, PBf, gyro)
+    state = _state_frame(XS, SDs, PBs, pb.t_ns[g], pb.model)
+    forward = _state_frame(Xf, SDf, PBf, pb.t_ns[g], pb.model)
     innov = frame_from_columns(
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),

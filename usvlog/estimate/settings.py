@@ -87,6 +87,10 @@ class EstimateSettings:
         Numba-compiled filter and smoother (False: the filterpy reference path).
     output_step_s : float, default 0.01
         The output grid step in s (also the prediction step), in [1e-4, 1].
+    gps_only : bool, default False
+        Fuse no heading even when the log has one (a rough or doubtful compass). Without a
+        usable heading channel (none, dead, or still while the track turns) the estimate
+        is GNSS-only anyway.
 
     Raises
     ------
@@ -115,6 +119,7 @@ class EstimateSettings:
     tune: bool = False
     fast: bool = True
     output_step_s: float = 0.01
+    gps_only: bool = False
 
     def __post_init__(self):
         if self.model not in MODELS:
