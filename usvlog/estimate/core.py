@@ -15,6 +15,7 @@ from scipy.stats import chi2
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
+from ..log.status import EstimateStatus, set_estimate_status
 from ..log.summary import health_from_provenance
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, VesselParams, default_vessel
@@ -324,14 +325,14 @@ def _heading_unusable(log: FieldLog, comp: pd.DataFrame | None, s: EstimateSetti
     judged dead by the import's health audit (stored in the log's provenance)."""
     if s.gps_only:
         return "GNSS only was asked for (gps_only)"
+    health = health_from_provenance(log.provenance) or {}
+    if COMPASS_TOPIC in (health.get("dead") or []):
+        why = ((health.get("channels") or {}).get(COMPASS_TOPIC) or {}).get("why") or "dead"
+        return f"the import's health audit judged {COMPASS_TOPIC} dead ({why}), not fused"
     if comp is None:
         return f"the log has no heading channel ({COMPASS_TOPIC})"
     if not np.isfinite(_col(comp, "heading_rad")).any():
         return f"{COMPASS_TOPIC} has no valid heading"
-    health = health_from_provenance(log.provenance) or {}
-    if COMPASS_TOPIC in (health.get("dead") or []):
-        why = ((health.get("channels") or {}).get(COMPASS_TOPIC) or {}).get("why") or "dead"
-        return f"the import's health audit judged {COMPASS_TOPIC} dead ({why})"
     return ""
 
 
@@ -746,6 +747,12 @@ class EstimateReport:
     tuned : dict or None
         Result of process-noise tuning (``q_uv``, ``q_r``, maybe ``q_current``,
         ``loglik``, ``evaluations``), None without tuning.
+    mode : str
+        ``gnss+compass``, or ``gps-only`` when no heading was fused.
+    mode_reason : str
+        Why GNSS only (empty with a compass).
+    reinits : tuple of (int, str)
+        Re-initialisations of the divergence guard: (time in ns since the Unix epoch, why).
     """
 
     model: str
@@ -758,6 +765,9 @@ class EstimateReport:
     thrust_skipped: int
     settings: dict
     tuned: dict | None = None
+    mode: str = "gnss+compass"
+    mode_reason: str = ""
+    reinits: tuple[tuple[int, str], ...] = ()
 
     @property
     def dropouts_bridged(self) -> int:
@@ -806,10 +816,42 @@ class EstimateReport:
                            "the sensor and the track disagree")
         return out
 
+    def mode_notes(self) -> list[str]:
+        """What the mode means for the estimate, in plain words (empty with a compass)."""
+        if self.mode != "gps-only":
+            return []
+        if self.model == "kinematic":
+            what = ("heading = course over ground while the boat moves (held below "
+                    f"{COURSE_MIN_SPEED_MPS:g} m/s); sideslip is not observable without a heading (v = 0)")
+        else:
+            what = "heading estimated through the vessel model from the thrust and the track (sideslip included)"
+        return [f"GNSS only: {self.mode_reason}; {what}"]
+
+    @property
+    def status(self) -> str:
+        """``ok``, or ``degraded`` when GNSS only, re-initialised or a sensor is inconsistent."""
+        return "degraded" if self.status_reasons() else "ok"
+
+    def status_reasons(self) -> list[str]:
+        """Why the estimate is degraded, in plain words (empty when ``ok``)."""
+        out = []
+        if self.mode == "gps-only":
+            out.append(f"gps-only: {self.mode_reason}")
+        if self.reinits:
+            first = self.reinits[0]
+            out.append(f"{len(self.reinits)} re-initialisation{'s' if len(self.reinits) > 1 else ''} "
+                       f"after divergence (first at {format_time(first[0])}: {first[1]})")
+        return out + self.consistency()
+
     def to_dict(self) -> dict:
         """JSON-ready dict; dropouts carry ``start_ns``, a readable ``start`` and ``duration_s``;
-        ``warnings`` are :meth:`consistency`'s plain-word findings."""
-        return {"warnings": self.consistency(), "model": self.model, "states": self.states, "steps": self.steps,
+        ``warnings`` are :meth:`consistency`'s plain-word findings, ``status`` and
+        ``status_reasons`` as :attr:`status`, ``reinitialisations`` the guard's restarts
+        (``t_ns``, ``time``, ``reason``)."""
+        return {"status": self.status, "status_reasons": self.status_reasons(), "mode": self.mode,
+                "mode_reason": self.mode_reason, "notes": self.mode_notes(),
+                "reinitialisations": [{"t_ns": t, "time": format_time(t), "reason": r} for t, r in self.reinits],
+                "warnings": self.consistency(), "model": self.model, "states": self.states, "steps": self.steps,
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
@@ -817,7 +859,9 @@ class EstimateReport:
 
     def format(self) -> str:
         """Human-readable multi-line summary (what ``usvlog estimate`` prints)."""
-        lines = [f"estimate ({self.model}, {self.states} states): {self.steps} steps over {self.duration_s:.1f} s"]
+        lines = [f"estimate ({self.model}, {self.states} states, {self.mode}): {self.steps} steps over "
+                 f"{self.duration_s:.1f} s; status {self.status}"]
+        lines += [f"  note: {x}" for x in self.mode_notes()]
         for r in self.sensors:
             lines.append(f"  {r.sensor:8s} accepted {r.accepted:7d}  rejected {r.rejected:5d}"
                          f"  mean NIS {r.mean_nis:6.3f} (dim {r.dim})"
@@ -830,6 +874,10 @@ class EstimateReport:
         if self.tuned:
             lines.append("  tuned process noise: " + ", ".join(
                 f"{k} {v:.3g}" for k, v in self.tuned.items() if k.startswith("q_")))
+        if self.reinits:
+            lines.append(f"  re-initialisations after divergence: {len(self.reinits)}"
+                         + "".join(f"\n    {format_time(t)}  {r}" for t, r in self.reinits[:20])
+                         + (f"\n    ... {len(self.reinits) - 20} more" if len(self.reinits) > 20 else ""))
         lines += [f"  warning: {w}" for w in self.consistency()]
         return "\n".join(lines)
 
@@ -873,7 +921,8 @@ class EstimateResult:
         return self.state
 
     def to_log(self, log: FieldLog) -> FieldLog:
-        """A copy of ``log`` plus /estimate/state, /estimate/innovations and provenance."""
+        """A copy of ``log`` plus /estimate/state, /estimate/innovations, provenance and the
+        estimate's status record (:mod:`usvlog.log.status`: ok or degraded, with reasons)."""
         out = log.copy()
         out.set(STATE_TOPIC, self.state)
         out.set(INNOVATION_TOPIC, self.innovations)
@@ -881,7 +930,33 @@ class EstimateResult:
                            settings=self.report.settings,
                            vessel=self.vessel.name if self.vessel else "",
                            report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
+        set_estimate_status(out, EstimateStatus(status=self.report.status, mode=self.report.mode,
+                                                reasons=tuple(self.report.status_reasons())))
         return out
+
+
+REINIT_LIMIT = 20
+"""More re-initialisations than this in one run: the filter cannot recover (exit 1)."""
+
+
+def _reinits(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str) -> tuple[tuple[int, str], ...]:
+    """The divergence guard's restarts as (t_ns, why); refuses a run that kept diverging.
+
+    Raises
+    ------
+    usvlog.errors.UnusableResultError
+        With more than :data:`REINIT_LIMIT` restarts, naming the first one and its reason.
+    """
+    k = np.flatnonzero(raw.resets)
+    out = tuple((int(pb.t_ns[i]), kernels.REINIT_REASONS[int(raw.resets[i])]) for i in k[:1000])
+    if len(k) > REINIT_LIMIT:
+        t_s = (int(pb.t_ns[k[0]]) - int(pb.t_ns[0])) * 1e-9
+        raise UnusableResultError(
+            f"{src}: the {settings.model} estimate diverged and could not recover: re-initialised from the "
+            f"measurements {len(k)} times (more than {REINIT_LIMIT}), first at t = {t_s:.1f} s from the start "
+            f"({out[0][1]}); nothing written: check the thrust units and the sensors' noise, or use the kinematic "
+            "model")
+    return out
 
 
 def _check_finite(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str) -> None:
@@ -969,6 +1044,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     q = process_noise(settings)
     runner = run_fast if settings.fast else run_reference_path
     raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
+    reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid
     XS, SDs, PBs, Xf, SDf, PBf = raw.XS[g], raw.SDs[g], raw.PBs[g], raw.X[g], raw.SDf[g], raw.PBf[g]
@@ -1001,6 +1077,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
                             duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
                             dropouts=pb.dropouts, loglik=raw.loglik,
-                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned)
+                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned,
+                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits)
     return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
                           settings=settings, vessel=vessel)
