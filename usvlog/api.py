@@ -492,7 +492,7 @@ def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, tru
 def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vessel=None,
              current: bool | None = None, tune: bool = False, sway_damping: bool | None = None,
              gate: float = 0.9999, smoother: bool = True, force: bool = False,
-             progress: Progress = None) -> EstimateResult:
+             progress: Progress = None, gps_only: bool = False) -> EstimateResult:
     """Estimate the state of a run with an EKF and RTS smoother (``usvlog estimate``).
 
     Parameters
@@ -523,6 +523,9 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         Replace an existing ``out``.
     progress : callable, optional
         Receives a line before the estimation starts.
+    gps_only : bool
+        Fuse no heading even when the log has one (without a usable heading channel the
+        estimate is GNSS-only anyway; ``report.mode`` says which).
 
     Returns
     -------
@@ -538,7 +541,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     if out is not None:
         check_output(out, force, parent=True)
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
-                                smoother=smoother, sway_damping=sway_damping)
+                                smoother=smoother, sway_damping=sway_damping, gps_only=gps_only)
     src = log if _is_path(log) else log.source
     log = _read(log, progress)
     ves = _vessel_file(vessel)
@@ -819,8 +822,10 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
         if _is_path(x):
             _say(progress, f"reading {x}")
         read.append(_read(x, progress))
-    from .view.data import warnings  # heavy: numpy
+    from .view.data import refuse_failed_estimate, warnings  # heavy: numpy
 
+    for lg in read:
+        refuse_failed_estimate(lg)
     for lg in read:
         for w in warnings(lg):
             if not w.startswith("input damaged"):   # _read said those already
@@ -859,8 +864,11 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
     check_report_outputs(out, force)  # fail before the work, not after
     log = _read(log, progress)
     base = _read(baseline, progress) if baseline is not None else None
-    from .view.data import warnings  # heavy: numpy (with the report's imports above)
+    from .view.data import refuse_failed_estimate, warnings  # heavy: numpy (with the report's imports above)
 
+    for lg in (log, base):
+        if lg is not None:
+            refuse_failed_estimate(lg)
     for w in warnings(log):
         if not w.startswith("input damaged"):   # _read said those already
             _say(progress, f"warning: {w}")

@@ -25,6 +25,9 @@ def register(sub) -> None:
                         "default: on for the kinematic model)")
     p.add_argument("--gate", type=float, default=0.9999, help="chi-square probability of the NIS gate (default 0.9999)")
     p.add_argument("--no-smoother", action="store_true", help="forward filter only")
+    p.add_argument("--gps-only", action="store_true",
+                   help="fuse no heading (a rough or doubtful compass); without a usable heading channel "
+                        "the estimate is GNSS-only anyway")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
@@ -35,7 +38,8 @@ def run(args) -> int:
 
     result = api.estimate(args.log, args.out, model=args.model, vessel=args.vessel or None, current=args.current,
                           tune=args.tune, sway_damping=args.sway_damping, gate=args.gate,
-                          smoother=not args.no_smoother, force=args.force, progress=stage)
+                          smoother=not args.no_smoother, force=args.force, progress=stage,
+                          gps_only=args.gps_only)
     stage(f"wrote {args.out}")
     if args.json:
         print_json(result.report.to_dict())

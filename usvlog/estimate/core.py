@@ -37,6 +37,7 @@ STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_
 STATE_TOPIC = "/estimate/state"
 INNOVATION_TOPIC = "/estimate/innovations"
 GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thrust/command"
+YAW_RATE_TOPIC = "/imu/yaw_rate"   # fused without being asked for when no heading is
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
@@ -189,11 +190,17 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     and counted. The steps are the output grid (``settings.output_step_s``) plus every
     measurement time; thrust is held (zero-order) between its records.
 
+    The heading is not fused (``mode`` "gps-only", ``mode_reason`` says why) when the log
+    has none, the import's health audit judged it dead, it stays still while the track
+    turns (:func:`still_heading`) or ``settings.gps_only``; the kinematic model then runs
+    over ground in NED (:func:`gps_only_settings`), the start heading is the track's first
+    course, and ``/imu/yaw_rate`` is fused when the log has it.
+
     Parameters
     ----------
     log : FieldLog
-        Needs ``/gnss/fix`` and ``/compass/heading``; ``/thrust/command`` for the
-        dynamic model (optional for the kinematic one); ``settings.yaw_rate_topic`` if set.
+        Needs ``/gnss/fix``; ``/compass/heading`` unless GNSS only; ``/thrust/command`` for
+        the dynamic model (optional for the kinematic one); ``settings.yaw_rate_topic`` if set.
     settings : EstimateSettings
     vessel : Vessel
         Thruster map for commands not in newtons and the model parameters.
@@ -212,7 +219,6 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     gps = _channel(log, GNSS_TOPIC)
     comp = _channel(log, COMPASS_TOPIC, required=False)
     thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
-    yaw = _channel(log, s.yaw_rate_topic) if s.yaw_rate_topic else None
 
     # GNSS -> NED about the datum
     tg = np.asarray(gps.index, dtype=np.int64)
@@ -245,6 +251,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         psi0 = float(psi[0])
     else:
         psi0 = initial_course(tg, n, e)
+    yaw_topic = s.yaw_rate_topic or (YAW_RATE_TOPIC if mode_reason and _alive(log, YAW_RATE_TOPIC) else None)
+    yaw = _channel(log, yaw_topic) if yaw_topic else None
     if yaw is not None:
         ty = np.asarray(yaw.index, dtype=np.int64)
         ry = _col(yaw, "r_radps")
@@ -318,6 +326,12 @@ TRACK_LEG_M = 10.0
 """Legs of the (2 s averaged) track at least this long (m) give its course."""
 TRACK_SMOOTH_S = 2.0
 """GNSS fixes are averaged over this long (s) before their course is taken (noise)."""
+
+
+def _alive(log: FieldLog, topic: str) -> bool:
+    """The log has ``topic`` with data and the import's health audit did not judge it dead."""
+    health = health_from_provenance(log.provenance) or {}
+    return topic not in (health.get("dead") or []) and _channel(log, topic, required=False) is not None
 
 
 def _heading_unusable(log: FieldLog, comp: pd.DataFrame | None, s: EstimateSettings) -> str:
@@ -996,10 +1010,13 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     Parameters
     ----------
     log : FieldLog
-        The run. Needs ``/gnss/fix`` (lat_deg, lon_deg, optional cov_*_m2) and
-        ``/compass/heading`` (heading_rad, optional std_rad and reference); the dynamic
-        model also needs ``/thrust/command`` (thrust_left_n / thrust_right_n in N, or
-        commands through the vessel's thruster map).
+        The run. Needs ``/gnss/fix`` (lat_deg, lon_deg, optional cov_*_m2); uses
+        ``/compass/heading`` (heading_rad, optional std_rad and reference) unless it is
+        missing, judged dead, still while the track turns or ``settings.gps_only`` (then
+        GNSS only, see :func:`build_problem`); the dynamic model also needs
+        ``/thrust/command`` (thrust_left_n / thrust_right_n in N, or commands through the
+        vessel's thruster map). A filter that diverges is re-initialised from the
+        measurements (counted in ``report.reinits``).
     settings : EstimateSettings, optional
         Model, noise, gating, smoother and tuning (default ``EstimateSettings()``: the
         kinematic model with the smoother on).
@@ -1021,8 +1038,9 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
         If a needed channel is missing or empty, time goes backwards in one, it has no
         valid record, or thrust commands cannot be converted to forces.
     usvlog.errors.UnusableResultError
-        If the filter diverged (a state not finite, or a position one-sigma beyond
-        :data:`POSITION_STD_LIMIT_M`): no estimate is returned rather than garbage.
+        If the filter kept diverging (more than :data:`REINIT_LIMIT` re-initialisations) or
+        a state is still not finite or has a position one-sigma beyond
+        :data:`POSITION_STD_LIMIT_M`: no estimate is returned rather than garbage.
 
     Examples
     --------

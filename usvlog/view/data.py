@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import UnusableResultError
 from ..log.fieldlog import FieldLog
+from ..log.status import estimate_status
 from ..model.frames import Datum, geodetic_to_ned, ssa, unwrap
 from ..model.stats import fit_percent, rms
 
@@ -188,8 +190,8 @@ class Event:
     """One line of the event log.
 
     ``t_ns``: ns since the Unix epoch; ``level``: ``INFO`` or ``WARN``; ``kind``:
-    ``gps_rejected``, ``<sensor>_rejected``, ``gps_dropout``, ``saturation_start``,
-    ``saturation_end`` or ``speed_step``; ``text``: the message.
+    ``warning``, ``estimate_reinit``, ``gps_rejected``, ``<sensor>_rejected``, ``gps_dropout``,
+    ``saturation_start``, ``saturation_end`` or ``speed_step``; ``text``: the message.
     """
 
     t_ns: int
@@ -265,10 +267,41 @@ def speed_steps(frame) -> list[tuple[int, float, float]]:
     return out
 
 
+def _estimate_report(log: FieldLog) -> dict:
+    """The report of the latest estimate, from its provenance record ({} without one)."""
+    est = None
+    for rec in log.provenance:
+        if rec.get("producer") == "usvlog estimate":
+            est = rec
+    if est is None:
+        return {}
+    try:
+        rep = json.loads(est.get("report") or "{}")
+    except json.JSONDecodeError:
+        return {}
+    return rep if isinstance(rep, dict) else {}
+
+
+def refuse_failed_estimate(log: FieldLog) -> None:
+    """Refuse a log whose stored estimate status is ``failed`` (:mod:`usvlog.log.status`):
+    nothing is drawn from an estimate its maker disowned.
+
+    Raises
+    ------
+    usvlog.errors.UnusableResultError
+        Naming the log and the status's reasons.
+    """
+    st = estimate_status(log)
+    if st is not None and st.status == "failed":
+        raise UnusableResultError(f"{log.source or 'log'}: {st.headline()}; not drawn - estimate it again")
+
+
 def warnings(log: FieldLog) -> list[str]:
-    """What the stages that made this log could not vouch for, in plain words: a damaged
-    input (``input damaged: ...``) and the estimate's consistency findings (``estimate:
-    compass NIS 0.000 ...``), read from the provenance records (the latest estimate's only).
+    """What the stages that made this log could not vouch for, in plain words: a degraded
+    estimate first (``estimate DEGRADED (gps-only): ...``, from its stored status), then a
+    damaged input (``input damaged: ...``) and the estimate's consistency findings
+    (``estimate: compass NIS 0.000 ...``), read from the provenance records (the latest
+    estimate's only).
 
     Returns
     -------
@@ -276,20 +309,17 @@ def warnings(log: FieldLog) -> list[str]:
         One line each; empty for a log whose stages had nothing to say.
     """
     out: list[str] = []
-    est = None
     for rec in log.provenance:
         note = rec.get("input_damage")
         if note and note not in out:
             out.append(note)
-        if rec.get("producer") == "usvlog estimate":
-            est = rec
-    if est is not None:
-        try:
-            rep = json.loads(est.get("report") or "{}")
-        except json.JSONDecodeError:
-            rep = {}
-        out += [f"estimate: {w}" for w in rep.get("warnings", []) if isinstance(w, str)]
-    return out
+    found = [w for w in _estimate_report(log).get("warnings", []) if isinstance(w, str)]
+    st = estimate_status(log)
+    if st is not None and st.status != "ok":   # first: the figures below rest on it
+        own = tuple(r for r in st.reasons if r not in found)   # the findings follow on their own lines
+        out.insert(0, replace(st, reasons=own).headline() + (" (sensor findings below)" if len(own) < len(st.reasons)
+                                                             else ""))
+    return out + [f"estimate: {w}" for w in found]
 
 
 def events(log: FieldLog) -> list[Event]:
@@ -299,6 +329,10 @@ def events(log: FieldLog) -> list[Event]:
     tr = log.time_range()
     for w in warnings(log):
         ev.append(Event(tr[0] if tr else 0, "WARN", "warning", w))
+    for r in _estimate_report(log).get("reinitialisations", []):
+        if isinstance(r, dict) and isinstance(r.get("t_ns"), int):
+            ev.append(Event(r["t_ns"], "WARN", "estimate_reinit",
+                            f"estimate re-initialised from the measurements after divergence ({r.get('reason', '')})"))
     rej = rejections(log, None)
     if rej is not None:
         for t, nis, s in zip(*rej):
