@@ -91,7 +91,8 @@ def test_a_doubtful_estimate_is_flagged_in_report_view_and_on_the_console(tmp_pa
     bad.set("/compass/heading", comp)
     est = estimate(bad, EstimateSettings()).to_log(bad)
     words = vd.warnings(est)
-    assert len(words) == 1 and words[0].startswith("estimate: compass NIS 0.0")
+    assert len(words) == 2 and words[0].startswith("estimate DEGRADED (gnss+compass)")
+    assert words[1].startswith("estimate: compass NIS 0.0")
     assert [x.text for x in vd.events(est) if x.kind == "warning"] == words
     src = tmp_path / "est.mcap"
     write_log(est, src)

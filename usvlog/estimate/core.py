@@ -1001,6 +1001,40 @@ def _check_finite(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str
         "units and the sensors' noise, or use the kinematic model")
 
 
+COMPASS_REJECT_LIMIT = 0.5
+"""A compass whose measurements the gate rejects more often than this is not fused: the
+estimate is made again from GNSS alone (a rough or wrong heading source)."""
+
+
+def _compass_disagrees(pb: Problem, raw: RawRun) -> str:
+    """Why a fused compass is dropped ("" to keep it): rejected by the gate more than
+    :data:`COMPASS_REJECT_LIMIT` of the time."""
+    sel = pb.mkind == COMPASS
+    if not sel.any():
+        return ""
+    rejected = float((raw.accepted[sel] == 0).mean())
+    if rejected <= COMPASS_REJECT_LIMIT:
+        return ""
+    return (f"{COMPASS_TOPIC} disagrees with the track ({100 * rejected:.0f} % of its headings rejected by the "
+            "gate): not fused")
+
+
+def _solve(pb: Problem, settings: EstimateSettings) -> tuple[EstimateSettings, RawRun, dict | None]:
+    """Settings in effect, the filter (and smoother) run and the tuning result for one problem."""
+    if pb.mode == "gps-only":
+        settings = gps_only_settings(settings)
+    if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
+        settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
+    tuned = None
+    if settings.tune:
+        tuned = tune_process_noise(pb, settings)
+        settings = replace(settings, q_uv=tuned["q_uv"], q_r=tuned["q_r"],
+                           q_current=tuned.get("q_current", settings.q_current), tune=False)
+    q = process_noise(settings)
+    runner = run_fast if settings.fast else run_reference_path
+    return settings, runner(pb, q, settings.max_consecutive_rejects, settings.smoother), tuned
+
+
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
              vessel: Vessel | None = None) -> EstimateResult:
     """Estimate the state of a run (forward EKF, then the extended RTS smoother).
@@ -1015,8 +1049,10 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
         missing, judged dead, still while the track turns or ``settings.gps_only`` (then
         GNSS only, see :func:`build_problem`); the dynamic model also needs
         ``/thrust/command`` (thrust_left_n / thrust_right_n in N, or commands through the
-        vessel's thruster map). A filter that diverges is re-initialised from the
-        measurements (counted in ``report.reinits``).
+        vessel's thruster map). A compass the gate rejects more than
+        :data:`COMPASS_REJECT_LIMIT` of the time is dropped and the run made again from
+        GNSS alone; a filter that diverges is re-initialised from the measurements
+        (counted in ``report.reinits``).
     settings : EstimateSettings, optional
         Model, noise, gating, smoother and tuning (default ``EstimateSettings()``: the
         kinematic model with the smoother on).
@@ -1050,18 +1086,12 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if vessel is None:
         vessel = log.vessel or default_vessel()
     pb = build_problem(log, settings, vessel)
-    if pb.mode == "gps-only":
-        settings = gps_only_settings(settings)
-    if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
-        settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
-    tuned = None
-    if settings.tune:
-        tuned = tune_process_noise(pb, settings)
-        settings = replace(settings, q_uv=tuned["q_uv"], q_r=tuned["q_r"],
-                           q_current=tuned.get("q_current", settings.q_current), tune=False)
-    q = process_noise(settings)
-    runner = run_fast if settings.fast else run_reference_path
-    raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
+    run_settings, raw, tuned = _solve(pb, settings)
+    why = _compass_disagrees(pb, raw)
+    if why:   # a heading source the track contradicts: GNSS only
+        pb = replace(build_problem(log, replace(settings, gps_only=True), vessel), mode_reason=why)
+        run_settings, raw, tuned = _solve(pb, settings)
+    settings = run_settings
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid

@@ -60,9 +60,12 @@ R_00, R_01, R_11 = 0, 1, 2       # mR (M, 3): measurement covariance entries
 RES_Y0, RES_Y1, RES_NIS, RES_LOGLIK = range(4)
 NRES = 4
 # why the forward pass re-initialised the state from the measurements at a step (resets)
-REINIT_NONFINITE, REINIT_COVARIANCE, REINIT_RESIDUALS = 1, 2, 3
+REINIT_NONFINITE, REINIT_COVARIANCE, REINIT_RESIDUALS, REINIT_IMPLAUSIBLE = 1, 2, 3, 4
 REINIT_REASONS = ("", "state not finite", "position covariance blow-up",
-                  "GNSS residuals far beyond the gate for a long stretch")
+                  "GNSS residuals far beyond the gate for a long stretch",
+                  "speed or yaw rate beyond any boat")
+MAX_SPEED_MPS = 50.0             # |velocity state| above this is a filter that lost the track
+MAX_YAW_RATE_RADPS = 2.0 * math.pi   # |r| above this (one turn a second) likewise
 
 _nu_dot = njit(nu_dot_terms)
 _nu_jac = njit(nu_dot_jacobian_terms)
@@ -270,7 +273,9 @@ class Work:
 @njit
 def health(x, P, pos_var_limit):
     """0 for a usable state, else why not: REINIT_NONFINITE (a state or covariance entry
-    not finite) or REINIT_COVARIANCE (a position variance beyond ``pos_var_limit``, m^2)."""
+    not finite), REINIT_COVARIANCE (a position variance beyond ``pos_var_limit``, m^2) or
+    REINIT_IMPLAUSIBLE (a velocity state beyond MAX_SPEED_MPS or r beyond MAX_YAW_RATE_RADPS:
+    states 3, 4 are velocities and 5 the yaw rate in every model)."""
     nx = x.shape[0]
     for a in range(nx):
         if not math.isfinite(x[a]):
@@ -280,6 +285,8 @@ def health(x, P, pos_var_limit):
                 return REINIT_NONFINITE
     if P[X_N, X_N] > pos_var_limit or P[X_E, X_E] > pos_var_limit:
         return REINIT_COVARIANCE
+    if abs(x[X_U]) > MAX_SPEED_MPS or abs(x[X_V]) > MAX_SPEED_MPS or abs(x[X_R]) > MAX_YAW_RATE_RADPS:
+        return REINIT_IMPLAUSIBLE
     return 0
 
 

@@ -14,7 +14,17 @@ from filterpy.kalman import ExtendedKalmanFilter
 
 from ..model.frames import ssa
 from ..model.vessel import VesselParams, eta_dot, plant_jacobian, plant_rhs
-from .kernels import COMPASS, GNSS, REINIT_COVARIANCE, REINIT_NONFINITE, REINIT_RESIDUALS, SENSOR_DIM
+from .kernels import (
+    COMPASS,
+    GNSS,
+    MAX_SPEED_MPS,
+    MAX_YAW_RATE_RADPS,
+    REINIT_COVARIANCE,
+    REINIT_IMPLAUSIBLE,
+    REINIT_NONFINITE,
+    REINIT_RESIDUALS,
+    SENSOR_DIM,
+)
 
 _SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}
 
@@ -137,11 +147,14 @@ class VesselEKF(ExtendedKalmanFilter):
 
 
 def _health(x, P, pos_var_limit: float) -> int:
-    """0 for a usable state, else REINIT_NONFINITE or REINIT_COVARIANCE (see kernels.health)."""
+    """0 for a usable state, else REINIT_NONFINITE, REINIT_COVARIANCE or REINIT_IMPLAUSIBLE
+    (see kernels.health)."""
     if not (np.isfinite(x).all() and np.isfinite(P).all()):
         return REINIT_NONFINITE
     if P[0, 0] > pos_var_limit or P[1, 1] > pos_var_limit:
         return REINIT_COVARIANCE
+    if abs(x[3]) > MAX_SPEED_MPS or abs(x[4]) > MAX_SPEED_MPS or abs(x[5]) > MAX_YAW_RATE_RADPS:
+        return REINIT_IMPLAUSIBLE
     return 0
 
 
