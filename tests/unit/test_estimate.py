@@ -340,9 +340,12 @@ def test_time_backwards_and_missing_channels_are_one_line_errors():
                        match=r"run.mcap: channel /gnss/fix: time goes backwards at message 31 \(2026-06-01T12:00:03"):
         estimate(bad)
     missing = log.copy()
-    del missing.channels["/compass/heading"]
-    with pytest.raises(InputError, match="channel /compass/heading is missing"):
+    del missing.channels["/gnss/fix"]
+    with pytest.raises(InputError, match="channel /gnss/fix is missing"):
         estimate(missing)
+    nocompass = log.copy()
+    del nocompass.channels["/compass/heading"]
+    assert estimate(nocompass).report.mode == "gps-only"   # GNSS alone (tests/unit/test_estimate_gps_only.py)
     nothrust = log.copy()
     del nothrust.channels["/thrust/command"]
     estimate(nothrust)                                  # kinematic needs no thrust
