@@ -3,9 +3,12 @@ filterpy loop (+ numpy RTS smoother) against the compiled fast path, side by sid
 
     python benchmarks/bench_estimate.py [--duration-s 3600] [--model kinematic|dynamic]
                                         [--reference-s SECONDS] [--[no-]sway-damping]
+                                        [--gps-only] [--gps-rate-hz 10]
 
 ``--reference-s`` times the filterpy loop on the first SECONDS only and scales its time
-to the whole run (the loop's cost is linear in the number of steps).
+to the whole run (the loop's cost is linear in the number of steps). ``--gps-only`` drops
+the compass channel (the GNSS-only path: the kinematic model over ground, heading = course;
+``estimate()`` as a whole is timed too, with its course post-processing).
 """
 
 from __future__ import annotations
@@ -20,10 +23,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from usvlog.estimate import EstimateSettings, build_problem  # noqa: E402
+from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
 from usvlog.estimate.core import process_noise, run_fast, run_reference_path  # noqa: E402
 from usvlog.model.vessel import default_vessel  # noqa: E402
-from usvlog.sim.simulate import SimSettings, simulate  # noqa: E402
+from usvlog.estimate.core import gps_only_settings  # noqa: E402
+from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
 
 
 def head(pb, k):
@@ -41,13 +45,23 @@ def main() -> None:
     ap.add_argument("--reference-s", type=float, default=None)
     ap.add_argument("--sway-damping", action=argparse.BooleanOptionalAction, default=None,
                     help="kinematic model with sway damping (default: as EstimateSettings, on for kinematic)")
+    ap.add_argument("--gps-only", action="store_true", help="no compass channel: the GNSS-only path")
+    ap.add_argument("--gps-rate-hz", type=float, default=10.0)
     args = ap.parse_args()
 
     t = time.perf_counter()
-    log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2), seed=1)
+    sens = SensorSettings(gps_rate_hz=args.gps_rate_hz)
+    log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2, sensors=sens), seed=1)
     print(f"simulated {args.duration_s:.0f} s in {time.perf_counter() - t:.1f} s")
+    if args.gps_only:
+        del log.channels["/compass/heading"]
     s = EstimateSettings(model=args.model, sway_damping=args.sway_damping)
+    t, c = time.perf_counter(), time.process_time()
     pb = build_problem(log, s, default_vessel())
+    t_build, c_build = time.perf_counter() - t, time.process_time() - c
+    if pb.mode == "gps-only":
+        s = gps_only_settings(s)
+    print(f"mode {pb.mode}; build_problem {t_build:.2f} s [{c_build:.2f} s]")
     q = process_noise(s)
     n = len(pb.dts)
     run_fast(head(pb, 1000), q, s.max_consecutive_rejects, True)   # compile / load the cache
@@ -70,6 +84,11 @@ def main() -> None:
     print(f"compiled fast path        : {t_fast:8.2f} s [{c_fast:7.2f} s]"
           f"  ({real / t_fast:6.0f}x [{real / c_fast:6.0f}x] real time)")
     print(f"speed-up                  : {t_ref / t_fast:8.1f}x [{c_ref / c_fast:6.1f}x]")
+    t, c = time.perf_counter(), time.process_time()
+    estimate(log, s)
+    t_all, c_all = time.perf_counter() - t, time.process_time() - c
+    print(f"estimate() as a whole     : {t_all:8.2f} s [{c_all:7.2f} s]  ({real / t_all:6.0f}x [{real / c_all:6.0f}x] "
+          "real time: inputs, filter, smoother, frames)")
     if k == n:
         d = max(float(np.max(np.abs(fast.XS - ref.XS))), float(np.max(np.abs(fast.X - ref.X))))
     else:  # compare the forward pass on the common head
