@@ -24,9 +24,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
-from usvlog.estimate.core import process_noise, run_fast, run_reference_path  # noqa: E402
+from usvlog.estimate.core import gps_only_settings, process_noise, run_fast, run_reference_path  # noqa: E402
 from usvlog.model.vessel import default_vessel  # noqa: E402
-from usvlog.estimate.core import gps_only_settings  # noqa: E402
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
 
 
