@@ -310,3 +310,49 @@ def test_cli_estimate_prints_mode_and_restarts(tmp_path, capsys):
                  "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["mode"] == "gps-only" and "asked for" in rep["mode_reason"]
+
+
+def _with_ground_velocity(log, rate_hz=10.0, noise_mps=0.05, seed=9):
+    """/gnss/velocity from the truth: speed and course over ground with 0.05 m/s noise per
+    NED component (course unknown below 0.1 m/s, as receivers report)."""
+    from usvlog.log.channels import channel_spec, frame_from_columns
+
+    tr = log["/truth/state"]
+    step = int(round(1.0 / (rate_hz * 0.01)))
+    tr = tr.iloc[::step]
+    psi, u, v = (tr[c].to_numpy() for c in ("psi_rad", "u_mps", "v_mps"))
+    rng = np.random.default_rng(seed)
+    vn = np.cos(psi) * u - np.sin(psi) * v + rng.normal(0, noise_mps, len(tr))
+    ve = np.sin(psi) * u + np.cos(psi) * v + rng.normal(0, noise_mps, len(tr))
+    sog = np.hypot(vn, ve)
+    cog = np.where(sog > 0.1, np.arctan2(ve, vn), np.nan)
+    t = tr.index.to_numpy()
+    out = log.copy()
+    out.set("/gnss/velocity", frame_from_columns({"stamp_ns": t, "sog_mps": sog, "cog_rad": cog}, t,
+                                                 channel_spec("/gnss/velocity")))
+    return out
+
+
+def test_gnss_velocity_is_fused_without_a_compass(turns_10hz):
+    """Speed and course over ground from the receiver sharpen the GNSS-only course; both
+    paths agree on them."""
+    log = _with_ground_velocity(_no_compass(turns_10hz))
+    res = estimate(log, EstimateSettings(gnss_velocity_noise_mps=0.05))
+    rep = res.report
+    assert [r.sensor for r in rep.sensors] == ["gnss", "gnss_velocity"]
+    vel = rep.sensor("gnss_velocity")
+    assert vel.skipped > 0 and vel.accepted > 2500 and 1.0 < vel.mean_nis < 3.0
+    sog, cog = _sog_cog_errors(res, turns_10hz["/truth/state"])
+    base_sog, base_cog = _sog_cog_errors(estimate(_no_compass(turns_10hz), EstimateSettings()),
+                                         turns_10hz["/truth/state"])
+    assert sog < 0.5 * base_sog and cog < 0.5 * base_cog, (sog, cog, base_sog, base_cog)
+    short = _with_ground_velocity(_no_compass(simulate("turns", SimSettings(duration_s=15.0), seed=3)))
+    s = EstimateSettings()
+    pb = build_problem(short, s, default_vessel())
+    assert (pb.mkind == 3).sum() > 100
+    from usvlog.estimate.core import gps_only_settings
+
+    q = process_noise(gps_only_settings(s))
+    fast, ref = run_fast(pb, q, 50, True), run_reference_path(pb, q, 50, True)
+    np.testing.assert_allclose(fast.XS, ref.XS, atol=1e-8, rtol=1e-8)
+    np.testing.assert_allclose(fast.innov, ref.innov, atol=1e-8, rtol=1e-8, equal_nan=True)

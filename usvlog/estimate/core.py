@@ -28,6 +28,7 @@ from .kernels import (
     KINEMATIC_SWAY,
     SENSOR_DIM,
     SENSORS,
+    VELOCITY,
     YAW_RATE,
 )
 from .reference import run_reference
@@ -38,6 +39,7 @@ STATE_TOPIC = "/estimate/state"
 INNOVATION_TOPIC = "/estimate/innovations"
 GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thrust/command"
 YAW_RATE_TOPIC = "/imu/yaw_rate"   # fused without being asked for when no heading is
+VELOCITY_TOPIC = "/gnss/velocity"  # speed and course over ground: fused by the kinematic model in NED
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)
@@ -194,7 +196,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     has none, the import's health audit judged it dead, it stays still while the track
     turns (:func:`still_heading`) or ``settings.gps_only``; the kinematic model then runs
     over ground in NED (:func:`gps_only_settings`), the start heading is the track's first
-    course, and ``/imu/yaw_rate`` is fused when the log has it.
+    course, and ``/imu/yaw_rate`` is fused when the log has it, and ``/gnss/velocity`` (speed
+    and course over ground) by the kinematic model.
 
     Parameters
     ----------
@@ -261,6 +264,9 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         vy = np.full(gy.sum(), s.yaw_rate_noise_radps ** 2)
         parts.append((ty[gy], YAW_RATE, np.column_stack([ry[gy], np.zeros(gy.sum())]),
                       np.column_stack([vy, np.zeros(len(vy)), np.zeros(len(vy))])))
+    vel = _channel(log, VELOCITY_TOPIC, required=False)
+    if vel is not None and s.model == "kinematic" and mode_reason:   # (the NED model of gps_only_settings)
+        parts.append(_velocity_measurements(vel, s, skipped))
     m_t = np.concatenate([p[0] for p in parts])
     mkind = np.concatenate([np.full(len(p[0]), p[1], np.int64) for p in parts])
     mz = np.concatenate([p[2] for p in parts])
@@ -300,8 +306,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     x0 = np.zeros(nx)
     x0[0], x0[1], x0[2] = n[0], e[0], psi0
     P0 = initial_covariance(s)
-    gate = chi2.ppf(s.gate_probability, [SENSOR_DIM[k] for k in range(3)]) if s.gate_probability < 1 \
-        else np.full(3, np.inf)
+    gate = chi2.ppf(s.gate_probability, list(SENSOR_DIM)) if s.gate_probability < 1 \
+        else np.full(len(SENSOR_DIM), np.inf)
 
     # GNSS gaps bridged by prediction: longer than 5 typical intervals and 1 s
     dtg = np.diff(tg)
@@ -348,6 +354,18 @@ def _heading_unusable(log: FieldLog, comp: pd.DataFrame | None, s: EstimateSetti
     if not np.isfinite(_col(comp, "heading_rad")).any():
         return f"{COMPASS_TOPIC} has no valid heading"
     return ""
+
+
+def _velocity_measurements(vel: pd.DataFrame, s: EstimateSettings, skipped: dict):
+    """(t_ns, GNSS, [v_n, v_e] in m/s, R) of the usable ``/gnss/velocity`` records (speed
+    and course over ground; a record without a course is skipped and counted)."""
+    sog, cog = _col(vel, "sog_mps"), _col(vel, "cog_rad")
+    ok = np.isfinite(sog) & np.isfinite(cog) & (sog >= 0)
+    skipped["gnss_velocity"] = int((~ok).sum())
+    t = np.asarray(vel.index, dtype=np.int64)[ok]
+    var = np.full(len(t), s.gnss_velocity_noise_mps ** 2)
+    z = np.column_stack([sog[ok] * np.cos(cog[ok]), sog[ok] * np.sin(cog[ok])])
+    return t, VELOCITY, z, np.column_stack([var, np.zeros(len(t)), var])
 
 
 def _compass_measurements(comp: pd.DataFrame, s: EstimateSettings):
@@ -711,7 +729,7 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
 class SensorReport:
     """Measurement counts and consistency of one sensor in an estimate.
 
-    ``sensor`` is ``gnss``, ``compass`` or ``yaw_rate`` and ``dim`` its measurement
+    ``sensor`` is ``gnss``, ``compass``, ``yaw_rate`` or ``gnss_velocity`` and ``dim`` its measurement
     dimension; ``forced`` counts measurements accepted after ``max_consecutive_rejects``
     rejections in a row (they are also in ``accepted``); ``mean_nis`` is the mean
     normalised innovation squared over the accepted ones (near ``dim`` for a consistent
@@ -789,7 +807,7 @@ class EstimateReport:
         return len(self.dropouts)
 
     def sensor(self, name: str) -> SensorReport:
-        """The report of sensor ``name`` (``gnss``, ``compass``, ``yaw_rate``).
+        """The report of sensor ``name`` (``gnss``, ``compass``, ``yaw_rate``, ``gnss_velocity``).
 
         Raises
         ------
@@ -1108,7 +1126,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
          "accepted": raw.accepted > 0},
         pb.m_t_ns, channel_spec(INNOVATION_TOPIC))
     reps = []
-    for k in range(3):
+    for k in range(len(SENSORS)):
         sel = pb.mkind == k
         if not sel.any():
             continue

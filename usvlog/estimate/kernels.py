@@ -21,7 +21,7 @@ step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity a
 current states (the kinematic accelerations carry the noise), plus, kinematic, a
 variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``core.yaw_jump_variance``).
 Measurements select state entries (GNSS: n, e; compass: psi, with the
-residual wrapped; yaw rate: r).
+residual wrapped; yaw rate: r; GNSS velocity: v_n, v_e of the kinematic model in NED).
 """
 
 from __future__ import annotations
@@ -35,9 +35,9 @@ from ..model.frames import wrap_angle
 from ..model.vessel import nu_dot_jacobian_terms, nu_dot_terms
 
 KINEMATIC, DYNAMIC, KINEMATIC_SWAY = 0, 1, 2
-GNSS, COMPASS, YAW_RATE = 0, 1, 2
-SENSORS = ("gnss", "compass", "yaw_rate")
-SENSOR_DIM = (2, 1, 1)
+GNSS, COMPASS, YAW_RATE, VELOCITY = 0, 1, 2, 3
+SENSORS = ("gnss", "compass", "yaw_rate", "gnss_velocity")
+SENSOR_DIM = (2, 1, 1, 2)
 
 # State positions. Every model starts with position and heading, and has the yaw rate at X_R.
 X_N, X_E, X_PSI = 0, 1, 2
@@ -190,9 +190,11 @@ def update(x, P, kind, z0, z1, R00, R01, R11, gate, force, res, K, P2):
     True when the measurement was applied (NIS within ``gate`` or ``force``).
     """
     nx = x.shape[0]
-    m = 2 if kind == GNSS else 1
+    m = 2 if kind == GNSS or kind == VELOCITY else 1
     if kind == GNSS:
         i0, i1 = X_N, X_E
+    elif kind == VELOCITY:   # the kinematic model's NED velocity
+        i0, i1 = X_VN, X_VE
     elif kind == COMPASS:
         i0, i1 = X_PSI, X_PSI
     else:
@@ -334,7 +336,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     K = np.zeros((nx, 2))
     res = np.zeros(NRES)
     store = PP.shape[0] == N
-    rej = np.zeros(3, np.int64)
+    rej = np.zeros(len(SENSORS), np.int64)
     ll = 0.0
     j = 0
     fix_n, fix_e, psi_last = x0[X_N], x0[X_E], x0[X_PSI]   # latest measurements, for a restart

@@ -73,7 +73,7 @@ class OnlineEKF:
 
         self._gates = np.array([chi2.ppf(s.gate_probability, d) if s.gate_probability < 1 else math.inf
                                 for d in kernels.SENSOR_DIM])
-        self._rej = [0, 0, 0]
+        self._rej = [0] * len(kernels.SENSORS)
         self._w = kernels.Work(self.nx)
         self.last_nis = math.nan
 

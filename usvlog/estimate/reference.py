@@ -26,7 +26,7 @@ from .kernels import (
     SENSOR_DIM,
 )
 
-_SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,)}
+_SELECT = {GNSS: (0, 1), COMPASS: (2,), 2: (5,), 3: (3, 4)}   # 3: GNSS velocity, kinematic NED model
 
 
 def rhs(x, tau_u, tau_r, params: VesselParams, dynamic: bool):
@@ -113,8 +113,8 @@ class VesselEKF(ExtendedKalmanFilter):
         Parameters
         ----------
         kind : int
-            ``GNSS`` (z = n, e in m), ``COMPASS`` (z = psi in rad) or yaw rate
-            (z = r in rad/s).
+            ``GNSS`` (z = n, e in m), ``COMPASS`` (z = psi in rad), yaw rate
+            (z = r in rad/s) or GNSS velocity (z = v_n, v_e in m/s, kinematic model).
         z : array_like
             Measurement; only the first ``SENSOR_DIM[kind]`` entries are used.
         R : numpy.ndarray
@@ -184,7 +184,7 @@ def run_reference(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, params, dynami
     Ppost = np.zeros((N, nx, nx))
     innov = np.zeros((M, 4))
     accepted = np.zeros(M, np.int8)
-    rej = [0, 0, 0]
+    rej = [0] * len(SENSOR_DIM)
     ll = 0.0
     j = 0
     resets = np.zeros(N, np.int8)

@@ -87,6 +87,9 @@ class EstimateSettings:
         Numba-compiled filter and smoother (False: the filterpy reference path).
     output_step_s : float, default 0.01
         The output grid step in s (also the prediction step), in [1e-4, 1].
+    gnss_velocity_noise_mps : float, default 0.1
+        One-sigma noise of each NED component of ``/gnss/velocity`` (speed and course over
+        ground), m/s; fused by the kinematic model when there is no heading (GNSS only).
     gps_only : bool, default False
         Fuse no heading even when the log has one (a rough or doubtful compass). Without a
         usable heading channel (none, dead, or still while the track turns) the estimate
@@ -119,6 +122,7 @@ class EstimateSettings:
     tune: bool = False
     fast: bool = True
     output_step_s: float = 0.01
+    gnss_velocity_noise_mps: float = 0.1
     gps_only: bool = False
 
     def __post_init__(self):
@@ -135,7 +139,8 @@ class EstimateSettings:
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"estimate setting {name} = {v} must be a finite number > 0")
-        for name in ("q_current", "gps_fallback_m", "compass_fallback_rad", "yaw_rate_noise_radps"):
+        for name in ("q_current", "gps_fallback_m", "compass_fallback_rad", "yaw_rate_noise_radps",
+                     "gnss_velocity_noise_mps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"estimate setting {name} = {v} must be a finite number > 0")
