@@ -356,3 +356,24 @@ def test_gnss_velocity_is_fused_without_a_compass(turns_10hz):
     fast, ref = run_fast(pb, q, 50, True), run_reference_path(pb, q, 50, True)
     np.testing.assert_allclose(fast.XS, ref.XS, atol=1e-8, rtol=1e-8)
     np.testing.assert_allclose(fast.innov, ref.innov, atol=1e-8, rtol=1e-8, equal_nan=True)
+
+
+def test_yaw_rate_gyro_is_fused_without_a_compass():
+    """GNSS only: /imu/yaw_rate is used without being asked for (the kinematic model's r is
+    then the gyro's, not the course rate)."""
+    from usvlog.log.channels import channel_spec, frame_from_columns
+
+    log = _no_compass(simulate("turns", SimSettings(duration_s=120.0), seed=3))
+    truth = log["/truth/state"]
+    tr = truth.iloc[::2]
+    t = tr.index.to_numpy()
+    gyro = log.copy()
+    r = tr["r_radps"].to_numpy() + np.random.default_rng(1).normal(0, 0.01, len(t))
+    gyro.set("/imu/yaw_rate", frame_from_columns({"stamp_ns": t, "r_radps": r}, t, channel_spec("/imu/yaw_rate")))
+    with_gyro, without = estimate(gyro, EstimateSettings()), estimate(log, EstimateSettings())
+    assert [s.sensor for s in with_gyro.report.sensors] == ["gnss", "yaw_rate"]
+
+    def r_err(res):
+        return math.degrees(_rms(res.state["r_radps"] - truth.reindex(res.state.index)["r_radps"]))
+
+    assert r_err(with_gyro) < 0.3 and r_err(with_gyro) < 0.1 * r_err(without)
