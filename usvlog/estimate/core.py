@@ -967,6 +967,13 @@ class EstimateResult:
         return out
 
 
+def _divergence_hint(settings: EstimateSettings) -> str:
+    """What to check after a divergence, by model."""
+    if settings.model == "dynamic":
+        return "check the thrust units and the sensors' noise, or use the kinematic model"
+    return "check the process noise (q_uv, q_r) and the sensors' noise"
+
+
 REINIT_LIMIT = 20
 """More re-initialisations than this in one run: the filter cannot recover (exit 1)."""
 
@@ -986,8 +993,7 @@ def _reinits(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str) -> 
         raise UnusableResultError(
             f"{src}: the {settings.model} estimate diverged and could not recover: re-initialised from the "
             f"measurements {len(k)} times (more than {REINIT_LIMIT}), first at t = {t_s:.1f} s from the start "
-            f"({out[0][1]}); nothing written: check the thrust units and the sensors' noise, or use the kinematic "
-            "model")
+            f"({out[0][1]}); nothing written: " + _divergence_hint(settings))
     return out
 
 
