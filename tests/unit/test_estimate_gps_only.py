@@ -262,12 +262,13 @@ def test_implausible_states_restart_the_filter():
 # status in the log, downstream
 # -----------------------------------------------------------------------------
 
-def test_status_stored_in_the_log_and_flagged_downstream(tmp_path, turns_10hz, capsys):
+def test_status_stored_in_the_log_and_flagged_downstream(tmp_path, capsys):
     from usvlog.cli import main
 
-    res = estimate(_no_compass(turns_10hz), EstimateSettings())
+    run = simulate("turns", SimSettings(duration_s=30.0), seed=3)   # short: the report draws every figure
+    res = estimate(_no_compass(run), EstimateSettings())
     path = tmp_path / "gps.mcap"
-    write_log(res.to_log(_no_compass(turns_10hz)), path)
+    write_log(res.to_log(_no_compass(run)), path)
     back = read_log(path)
     st = estimate_status(back)
     assert st == EstimateStatus(status="degraded", mode="gps-only", reasons=tuple(res.report.status_reasons()))
@@ -278,7 +279,7 @@ def test_status_stored_in_the_log_and_flagged_downstream(tmp_path, turns_10hz, c
     assert html.index("estimate DEGRADED") < html.index("<h2>Figures</h2>")
     assert "warning: estimate DEGRADED" in capsys.readouterr().err
     # a clean estimate: ok, nothing flagged
-    ok = estimate(turns_10hz, EstimateSettings()).to_log(turns_10hz)
+    ok = estimate(run, EstimateSettings()).to_log(run)
     assert estimate_status(ok).status == "ok" and vd.warnings(ok) == []
     # a failed one is refused by both verbs, exit 1
     set_estimate_status(back, EstimateStatus(status="failed", mode="gps-only", reasons=("diverged",)))
