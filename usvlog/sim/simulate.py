@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from .._jit import jitable
+from .._jit import jitable, njit
 from ..errors import ConfigError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, parse_time
@@ -222,6 +222,83 @@ def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
             x4 + w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]), x5 + w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]))
 
 
+@jitable
+def ieee_remainder(x, y):
+    """``math.remainder(x, y)`` (IEEE 754 remainder: x - n y, n the nearest integer to x / y,
+    ties to even), callable from compiled kernels; finite x, finite nonzero y.
+
+    The arithmetic of CPython's own implementation (every step is exact).
+
+    Parameters
+    ----------
+    x, y : float
+        Dividend and divisor (e.g. an angle and 2 pi, rad).
+
+    Returns
+    -------
+    float
+        The remainder, in [-|y| / 2, |y| / 2].
+    """
+    absx = abs(x)
+    absy = abs(y)
+    m = absx % absy   # fmod: exact, and both are >= 0
+    c = absy - m
+    if m < c:
+        r = m
+    elif m > c:
+        r = -c
+    else:   # half way: the even multiple
+        r = m - 2.0 * ((0.5 * (absx - m)) % absy)
+    return math.copysign(1.0, x) * r
+
+
+@njit
+def _open_loop_kernel(x0, tau_u, tau_r, prm, dt, cn, ce, rk4, zigzag, zz_prm):
+    """The open-loop plant (:func:`plant_step` at every step), compiled; the same kernel for
+    every open-loop scenario.
+
+    ``x0``: initial state (6-tuple); ``tau_u`` (N), ``tau_r`` (N m) per step, held over it;
+    ``prm`` the vessel parameters (PARAM_NAMES order); ``dt`` s; ``cn``, ``ce`` the current
+    (m/s); ``rk4`` or forward Euler. With ``zigzag`` the yaw moment is the excitation run's
+    20/20 zig-zag plus ``tau_r`` and both are realised by the saturated thrusters:
+    ``zz_prm`` = (steps per 90 deg turn of the base course, zig-zag angle rad, yaw moment
+    N m, thruster arm m, forward limit N, reverse limit N). Returns the states at every
+    step (N, 6) and the applied tau_u, tau_r (the inputs as given without ``zigzag``).
+    """
+    n = len(tau_u)
+    states = np.empty((n, 6))
+    tu_out = np.empty(n)
+    tr_out = np.empty(n)
+    period_steps, zz, yaw_moment, arm, fwd, rev = zz_prm
+    x = x0
+    sign = 1.0
+    base = x0[2]
+    for k in range(n):
+        tu = tau_u[k]
+        tr = tau_r[k]
+        if zigzag:
+            if k and k % period_steps == 0:
+                base += math.pi / 2
+            dev = ieee_remainder(x[2] - base, 2 * math.pi)
+            if sign > 0 and dev > zz:
+                sign = -1.0
+            elif sign < 0 and dev < -zz:
+                sign = 1.0
+            tr = sign * yaw_moment + tr
+            # realisable by the thrusters (Thrusters.forces_from_tau, saturate, tau_from_forces)
+            d = tr / arm
+            fl = min(max(0.5 * (tu + d), -rev), fwd)
+            fr = min(max(0.5 * (tu - d), -rev), fwd)
+            tu = fl + fr
+            tr = arm * (fl - fr)
+        tu_out[k] = tu
+        tr_out[k] = tr
+        for i in range(6):
+            states[k, i] = x[i]
+        x = plant_step(x, tu, tr, prm, dt, cn, ce, rk4)
+    return states, tu_out, tr_out
+
+
 def _multisine(t: np.ndarray, freqs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     phases = rng.uniform(0, 2 * np.pi, len(freqs))
     y = np.sin(2 * np.pi * freqs[None, :] * t[:, None] + phases[None, :]).sum(1)
@@ -252,34 +329,14 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     t = np.arange(n) * st.dt_s
     tau_u = 3.0 + 1.5 * _multisine(t, np.array([0.004, 0.011, 0.023, 0.041, 0.07, 0.12]), rng)
     tau_r_extra = 0.25 * _multisine(t, np.array([0.05, 0.13, 0.29]), rng)
-    yaw_moment = 1.2
-    zz = math.radians(20.0)
     prm = tuple(st.vessel.params.as_array().tolist())
     cn, ce = st.current_ne
-    rk4 = st.integrator == "rk4"
-    x = (*map(float, st.eta0), *map(float, st.nu0))
-    states = np.empty((n, 6))
-    tr = np.empty(n)
-    sign = 1.0
-    base = x[2]
-    period_steps = int(round(150.0 / st.dt_s))
+    x0 = (*map(float, st.eta0), *map(float, st.nu0))
     thr = st.vessel.thrusters
-    for k in range(n):
-        if k and k % period_steps == 0:
-            base += math.pi / 2
-        dev = math.remainder(x[2] - base, 2 * math.pi)
-        if sign > 0 and dev > zz:
-            sign = -1.0
-        elif sign < 0 and dev < -zz:
-            sign = 1.0
-        tau_r = sign * yaw_moment + tau_r_extra[k]
-        # realisable by the thrusters: saturate forces, recompute tau
-        fl, fr = thr.forces_from_tau(tau_u[k], tau_r)
-        fl, fr = float(thr.saturate(fl)), float(thr.saturate(fr))
-        tu, trr = fl + fr, thr.arm_m * (fl - fr)
-        tau_u[k], tr[k] = tu, trr
-        states[k] = x
-        x = plant_step(x, tu, trr, prm, st.dt_s, cn, ce, rk4)
+    zigzag = (int(round(150.0 / st.dt_s)), math.radians(20.0), 1.2, float(thr.arm_m), float(thr.forward_n),
+              float(thr.reverse_n))
+    states, tau_u, tr = _open_loop_kernel(x0, tau_u, tau_r_extra, prm, float(st.dt_s), float(cn), float(ce),
+                                          st.integrator == "rk4", True, zigzag)
     return field_log_from_run(st, t, states, tau_u, tr, rng, producer="usvlog simulate excitation",
                               scenario="excitation", seed=seed)
 
@@ -464,12 +521,10 @@ def _open_loop(settings: SimSettings, seed: int, tau_of_t, scenario: str) -> Fie
     tau_u, tau_r = thr.tau_from_forces(fl, fr)
     prm = tuple(st.vessel.params.as_array().tolist())
     cn, ce = st.current_ne
-    rk4 = st.integrator == "rk4"
-    x = (*map(float, st.eta0), *map(float, st.nu0))
-    states = np.empty((n, 6))
-    for k in range(n):
-        states[k] = x
-        x = plant_step(x, float(tau_u[k]), float(tau_r[k]), prm, st.dt_s, cn, ce, rk4)
+    x0 = (*map(float, st.eta0), *map(float, st.nu0))
+    states, _, _ = _open_loop_kernel(x0, np.ascontiguousarray(tau_u, float), np.ascontiguousarray(tau_r, float), prm,
+                                     float(st.dt_s), float(cn), float(ce), st.integrator == "rk4", False,
+                                     (1, 0.0, 0.0, 1.0, 0.0, 0.0))
     return field_log_from_run(st, t, states, tau_u, tau_r, rng, producer=f"usvlog simulate {scenario}",
                               scenario=scenario, seed=seed)
 
