@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from ..._jit import njit
+from ..._jit import jitable, njit
 from ...model.frames import wrap_angle
 from ..nmea import resolve_time_of_day
 
@@ -43,7 +43,7 @@ _POW10 = np.array([float(10 ** k) for k in range(23)])   # exact powers of ten
 _DEG = math.pi / 180.0
 
 
-@njit
+@jitable
 def _num(buf, a, b):
     """A plain decimal number ``[-]ddd[.ddd]`` (at most 15 digits) in buf[a:b].
 
@@ -76,7 +76,7 @@ def _num(buf, a, b):
     return 1, (-v if neg else v)
 
 
-@njit
+@jitable
 def _uint(buf, a, b):
     """Digits only (at most 18) -> (status, value) as :func:`_num`."""
     if a >= b:
@@ -92,7 +92,7 @@ def _uint(buf, a, b):
     return 1, m
 
 
-@njit
+@jitable
 def _tod(buf, a, b):
     """hhmmss(.sss) -> (status, ns since midnight); status 0 empty, 1 read, 2 not readable."""
     if a >= b:
@@ -122,7 +122,7 @@ def _tod(buf, a, b):
     return 1, ((h * 60 + mi) * 60 + s) * _NS + frac
 
 
-@njit
+@jitable
 def _days_from_civil(y, m, d):
     """Days since 1970-01-01 of a proleptic Gregorian date."""
     y -= m <= 2
@@ -133,7 +133,7 @@ def _days_from_civil(y, m, d):
     return era * 146097 + doe - 719468
 
 
-@njit
+@jitable
 def _date(buf, a, b):
     """ddmmyy -> (status, ns of that UTC midnight); years as ``%y`` (1969-2068)."""
     if a >= b:
@@ -152,7 +152,7 @@ def _date(buf, a, b):
     return 1, _days_from_civil(y, mo, d) * _DAY_NS
 
 
-@njit
+@jitable
 def _dm(buf, a, b, width):
     """(d)ddmm.mmmm -> (ok, unsigned degrees)."""
     k = b
@@ -171,7 +171,7 @@ def _dm(buf, a, b, width):
     return True, deg + minutes / 60.0
 
 
-@njit
+@jitable
 def _position(buf, fa, fb, i):
     """Fields i..i+3 (lat, N/S, lon, E/W) -> (status, lat, lon): 0 empty (no fix), 1 read, 2 not."""
     if fa[i] >= fb[i] or fa[i + 2] >= fb[i + 2]:
@@ -188,7 +188,7 @@ def _position(buf, fa, fb, i):
     return 1, (-la if ns == 83 else la), (-lo if ew == 87 else lo)
 
 
-@njit
+@jitable
 def _angle(buf, a, b):
     """Degrees in [0, 360] -> (status, rad wrapped to [-pi, pi)); status as :func:`_num`,
     2 also when out of range."""
@@ -200,17 +200,17 @@ def _angle(buf, a, b):
     return 1, wrap_angle(h * _DEG)
 
 
-@njit
+@jitable
 def _is(buf, fa, fb, i, ch):
     return fb[i] - fa[i] == 1 and buf[fa[i]] == ch
 
 
-@njit
+@jitable
 def _ws(c):
     return c == 32 or 9 <= c <= 13 or 28 <= c <= 31
 
 
-@njit
+@jitable
 def _prefix_ns(buf, s, e, want_utc):
     """The epoch/relative seconds at the start of a line prefix buf[s:e] (the default or
     ``auto`` reading of :func:`usvlog.io.importers.nmea.prefix_time`).
@@ -458,7 +458,7 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
     return status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog, cog
 
 
-@njit
+@jitable
 def _emit(pend_i, npend, base, step, typ, h_i, h_t, h_s, nh, v_i, v_t, v_s, nv):
     """Untimed sentences spread evenly after ``base`` (ns) by ``step`` (ns): headings and
     velocities appended to their rows; returns the new row counts."""
