@@ -168,6 +168,16 @@ def test_fast_import_equals_reference_on_generated_logs(tmp_path, prefix, kw):
     assert len(ref["gnss"]["t_ns"]) > 1000
 
 
+@pytest.mark.parametrize("prefix", ["", "epoch"])
+def test_fast_import_in_small_blocks_equals_reference(tmp_path, monkeypatch, prefix):
+    """Blocks of a few lines: held fixes and untimed sentences carried from block to block."""
+    monkeypatch.setattr(nmea, "_BLOCK_BYTES", 997)
+    p = tmp_path / "gen.nmea"
+    p.write_bytes(_generated(np.random.default_rng(5), 800, prefix).encode("latin-1"))
+    ref, rep = _assert_same(p)
+    assert rep.skipped["gnss_no_fix"] > 0 and len(ref["heading"]["t_ns"]) > 500
+
+
 def test_fast_import_without_vtg_and_with_lone_cr(tmp_path):
     rng = np.random.default_rng(3)
     p = tmp_path / "rmc.nmea"

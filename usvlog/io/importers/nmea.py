@@ -403,9 +403,8 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool = True) 
             _put(buf, kind, t, t, vals)
         pending = []
 
-    out = _read_fast(p, report, sc, mode, use_prefix, offset, velocity_from, day0, prefix_hint) if fast else None
-    if out is not None:
-        yield from _chunks(out, opts.chunk_rows)
+    if fast and not _lone_cr(p):
+        yield from _read_fast(p, report, sc, mode, use_prefix, offset, velocity_from, day0, prefix_hint)
         return
     for lineno, line in enumerate(_lines(p), 1):
         n_lines += 1
@@ -531,40 +530,117 @@ class _LineSkips:
         self.skips.add(self.line, reason, n, where)
 
 
+_BLOCK_BYTES = 4 << 20   # the fast path reads the file in blocks of whole lines of about this size
+
+
+def _lone_cr(p) -> bool:
+    """The file breaks lines with a CR alone somewhere (old Mac line ends)."""
+    prev = b""
+    with reading(p), open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(_BLOCK_BYTES), b""):
+            b = prev + block
+            cr = b.count(b"\r")
+            if cr and cr != b.count(b"\r\n") + (b[-1:] == b"\r"):
+                return True
+            prev = b[-1:]
+    return False
+
+
+def _blocks(p, size: int) -> Iterator[bytes]:
+    """The file's bytes in blocks that end at a line end (the last one maybe not)."""
+    rest = b""
+    with reading(p), open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(size), b""):
+            data = rest + block
+            cut = data.rfind(b"\n") + 1
+            if cut == 0:
+                rest = data
+                continue
+            rest = data[cut:]
+            yield data[:cut]
+    if rest:
+        yield rest
+
+
+_COLUMNS = ("typ", "tod", "date", "tpre", "fix", "lat", "lon", "alt", "hdg", "ref", "sog", "cog")
+
+
 def _read_fast(p, report, sc: _Scan, mode, use_prefix: bool, offset: int, velocity_from: str,
-               day0: int | None, prefix_hint: str) -> dict | None:
+               day0: int | None, prefix_hint: str) -> Iterator[dict]:
     """The role streams of :func:`read` through the compiled kernels of :mod:`.nmea_fast` (the
-    lines they leave alone parsed by :func:`_line_sample`, as the reference loop does); None
-    for a file with lone CR line breaks (the reference loop reads those)."""
+    lines they leave alone parsed by :func:`_line_sample`, as the reference loop does), block
+    by block of the file (memory bounded by a block). Not for files with lone CR line breaks."""
     from . import nmea_fast as nf  # the compiled kernels: loaded when an NMEA file is read
 
-    with reading(p), open(p, "rb") as fh:
-        data = fh.read()
-    cr = data.count(b"\r")
-    if cr and cr != data.count(b"\r\n"):
-        return None
-    buf = np.frombuffer(data, np.uint8)
     numeric_prefix = sc.kind in ("utc", "relative") and mode in (None, "auto")
     kernel_prefix = 0 if not use_prefix else (1 if numeric_prefix else 2)
+    state = nf.new_state()
+    carry = {k: v[:0] for k, v in _block_columns(nf, np.zeros(0, np.uint8), 0, sc, mode, use_prefix, offset,
+                                                   kernel_prefix, _Skips())[0].items()}
+    n_pending = 0
+    line0 = 0
+    names = {nf.SKIP_UNSUPPORTED: "nmea_unsupported", nf.SKIP_NO_FIX: "gnss_no_fix", nf.SKIP_UNTIMED: "nmea_untimed"}
+    kinds = {v: k for k, v in nf.TYPE_CODE.items()}
+    blocks = _blocks(p, _BLOCK_BYTES)
+    data = next(blocks, None)
+    if data is None:
+        raise InputError(f"{p}: empty file")
+    while data is not None:
+        nxt = next(blocks, None)
+        skips = _Skips()
+        cols, line_no, n_lines, n_records = _block_columns(nf, np.frombuffer(data, np.uint8), line0, sc, mode,
+                                                           use_prefix, offset, kernel_prefix, skips)
+        report.records += n_records
+        nc = len(carry["typ"])
+        c = {k: np.concatenate([carry[k], cols[k]]) for k in _COLUMNS}
+        line_no = np.concatenate([np.full(nc, -1), line_no])
+        (g_i, g_t, g_s, h_i, h_t, h_s, v_i, v_t, v_s, k_i, k_r, k_n, undecided) = nf.sequence(
+            c["typ"], c["tod"], c["date"], c["tpre"], c["fix"], c["sog"], int(day0 or 0), velocity_from == "VTG",
+            FixSelector().window_ns, state, nc, n_pending, nxt is None)
+        end = line0 + n_lines
+        for j, r, n in zip(k_i.tolist(), k_r.tolist(), k_n.tolist()):
+            where = None
+            if r == nf.SKIP_NO_FIX:
+                where = f"line {line_no[j] + 1}: {kinds[int(c['typ'][j])]} without a fix"
+            elif r == nf.SKIP_UNTIMED:
+                where = "sentences without a time of their own and no timed sentence around them" + prefix_hint
+            skips.add(end if j >= len(line_no) else int(line_no[j]), names[r], n, where)
+        skips.replay(report)
+        out = {}
+        if len(g_i):
+            out["gnss"] = {"t_ns": g_t, "stamp_ns": g_s, "lat_deg": c["lat"][g_i], "lon_deg": c["lon"][g_i],
+                           "alt_m": c["alt"][g_i]}
+        if len(h_i):
+            out["heading"] = {"t_ns": h_t, "stamp_ns": h_s, "heading_rad": c["hdg"][h_i],
+                              "reference": np.array(["true", "magnetic"], dtype=object)[c["ref"][h_i]]}
+        if len(v_i):
+            out["velocity"] = {"t_ns": v_t, "stamp_ns": v_s, "sog_mps": c["sog"][v_i], "cog_rad": c["cog"][v_i]}
+        yield out
+        carry = {k: v[undecided] for k, v in c.items()}
+        n_pending = len(undecided) - int(state[5] != 0)
+        line0 = end
+        data = nxt
+
+
+def _block_columns(nf, buf: np.ndarray, line0: int, sc: _Scan, mode, use_prefix: bool, offset: int,
+                   kernel_prefix: int, skips: _Skips):
+    """The parsed sentences of one block: columns (:data:`_COLUMNS`), their line indices, the
+    block's line count and its non-blank line count; skipped lines into ``skips``."""
     (status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog,
      cog) = nf.scan_lines(buf, kernel_prefix, sc.kind == "utc", int(offset))
-    n_lines = len(status)
-    if n_lines == 0:
-        raise InputError(f"{p}: empty file")
-    skips = _Skips()
-    ref = np.zeros(n_lines, np.int8)                  # heading reference: 0 true, 1 magnetic
+    ref = np.zeros(len(status), np.int8)                  # heading reference: 0 true, 1 magnetic
     no_sentence = np.flatnonzero(status == nf.NO_SENTENCE)
     if len(no_sentence):
         i = int(no_sentence[0])
-        line = data[start[i]:end[i]].decode("ascii")
-        skips.add(i, "nmea_garbage", 1, f"line {i + 1}: no sentence ({line[:30]!r})")
-        skips.add(i, "nmea_garbage", len(no_sentence) - 1)
+        line = bytes(buf[start[i]:end[i]]).decode("ascii")
+        skips.add(line0 + i, "nmea_garbage", 1, f"line {line0 + i + 1}: no sentence ({line[:30]!r})")
+        skips.add(line0 + i, "nmea_garbage", len(no_sentence) - 1)
     for i in np.flatnonzero(status == nf.FALLBACK).tolist():
-        line = data[start[i]:end[i]].decode("ascii", "replace").strip()
+        line = bytes(buf[start[i]:end[i]]).decode("ascii", "replace").strip()
         if not line:   # whitespace the kernel does not strip (non-ASCII): as Python reads it
             status[i] = nf.BLANK
             continue
-        got = _line_sample(line, i + 1, sc, mode, use_prefix, offset, _LineSkips(skips, i))
+        got = _line_sample(line, line0 + i + 1, sc, mode, use_prefix, offset, _LineSkips(skips, line0 + i))
         if got is None:
             continue
         smp, t_prefix = got
@@ -582,45 +658,10 @@ def _read_fast(p, report, sc: _Scan, mode, use_prefix: bool, offset: int, veloci
             ref[i] = smp.reference == "magnetic"
         sog[i] = math.nan if smp.sog_mps is None else smp.sog_mps
         cog[i] = math.nan if smp.cog_rad is None else smp.cog_rad
-    report.records += int(np.count_nonzero(status != nf.BLANK))
     rec = np.flatnonzero(status == nf.OK)
-    (g_i, g_t, g_s, h_i, h_t, h_s, v_i, v_t, v_s, k_i, k_r,
-     k_n) = nf.sequence(typ[rec], tod[rec], date[rec], tpre[rec], fix[rec], sog[rec], int(day0 or 0),
-                        velocity_from == "VTG", FixSelector().window_ns)
-    names = {nf.SKIP_UNSUPPORTED: "nmea_unsupported", nf.SKIP_NO_FIX: "gnss_no_fix", nf.SKIP_UNTIMED: "nmea_untimed"}
-    kinds = {v: k for k, v in nf.TYPE_CODE.items()}
-    first = set()
-    for j, r, n in zip(k_i.tolist(), k_r.tolist(), k_n.tolist()):
-        where = None
-        if r == nf.SKIP_NO_FIX and r not in first:
-            where = f"line {rec[j] + 1}: {kinds[int(typ[rec[j]])]} without a fix"
-        elif r == nf.SKIP_UNTIMED:
-            where = ("sentences without a time of their own and no timed sentence around them" + prefix_hint)
-        first.add(r)
-        skips.add(n_lines if r == nf.SKIP_UNTIMED else int(rec[j]) if j < len(rec) else n_lines, names[r], n, where)
-    skips.replay(report)
-    out = {}
-    if len(g_i):
-        ix = rec[g_i]
-        out["gnss"] = {"t_ns": g_t, "stamp_ns": g_s, "lat_deg": lat[ix], "lon_deg": lon[ix], "alt_m": alt[ix]}
-    if len(h_i):
-        ix = rec[h_i]
-        out["heading"] = {"t_ns": h_t, "stamp_ns": h_s, "heading_rad": hdg[ix],
-                          "reference": np.array(["true", "magnetic"], dtype=object)[ref[ix]]}
-    if len(v_i):
-        ix = rec[v_i]
-        out["velocity"] = {"t_ns": v_t, "stamp_ns": v_s, "sog_mps": sog[ix], "cog_rad": cog[ix]}
-    return out
-
-
-def _chunks(out: dict, rows: int) -> Iterator[dict]:
-    """Role streams in batches of at most ``rows`` samples per role."""
-    n = max((len(d["t_ns"]) for d in out.values()), default=0)
-    if n == 0:
-        yield {}
-        return
-    for a in range(0, n, max(1, rows)):
-        yield {role: {k: v[a:a + rows] for k, v in d.items()} for role, d in out.items() if len(d["t_ns"]) > a}
+    cols = dict(zip(_COLUMNS, (typ, tod, date, tpre, fix, lat, lon, alt, hdg, ref, sog, cog)))
+    return ({k: v[rec] for k, v in cols.items()}, line0 + rec, len(status),
+            int(np.count_nonzero(status != nf.BLANK)))
 
 
 def _values(s: NmeaSample, clock: _Clock):

@@ -475,7 +475,7 @@ def _emit(pend_i, npend, base, step, typ, h_i, h_t, h_s, nh, v_i, v_t, v_s, nv):
 
 
 @njit
-def sequence(typ, tod, date, tpre, fix, sog, day0, velocity_vtg, window_ns):
+def sequence(typ, tod, date, tpre, fix, sog, day0, velocity_vtg, window_ns, state, n_carry, n_pending, final):
     """Times, one fix per epoch and untimed sentences of the parsed sentences, in order.
 
     The importer loop of :func:`usvlog.io.importers.nmea.read` after the parsing: ``typ``,
@@ -484,8 +484,16 @@ def sequence(typ, tod, date, tpre, fix, sog, day0, velocity_vtg, window_ns):
     date (ns); ``velocity_vtg`` whether velocity comes from VTG (else RMC); ``window_ns``
     the FixSelector window.
 
-    Returns rows (sentence index, t_ns, stamp_ns) of gnss, heading and velocity, and skip
-    events (sentence index, reason, count).
+    A file goes through in blocks: ``state`` (int64, :func:`new_state`) carries the clocks
+    and the fix selection from one block to the next (updated in place); the first
+    ``n_carry`` sentences are the previous block's still undecided ones (the first
+    ``n_pending`` untimed ones, then the held fix, if ``state`` says there is one, at index
+    ``n_pending``), not sentences of this block. ``final``: the last block (the held fix and
+    the untimed sentences are settled).
+
+    Returns rows (sentence index, t_ns, stamp_ns) of gnss, heading and velocity, skip
+    events (sentence index, reason, count; index ``len(typ)`` for the end of the block) and
+    the indices of the sentences still undecided (untimed ones, then the held fix).
     """
     n = len(typ)
     g_i, g_t, g_s = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -494,23 +502,17 @@ def sequence(typ, tod, date, tpre, fix, sog, day0, velocity_vtg, window_ns):
     k_i, k_r, k_n = np.empty(n + 1, np.int64), np.empty(n + 1, np.int64), np.empty(n + 1, np.int64)
     ng = nh = nv = nk = 0
     pend_i = np.empty(n, np.int64)    # pending untimed: sentence index
-    npend = 0
-    last_t = NONE_I64
-    last_dt = 100_000_000
-    clock_last = NONE_I64
+    for kk in range(n_pending):
+        pend_i[kk] = kk
+    npend = n_pending
+    clock_last, last_t, last_dt, epoch = state[0], state[1], state[2], state[3]
+    epoch_set, held, held_p, held_i = state[4] != 0, state[5] != 0, state[6], n_pending
+    held_t, held_s, done = state[8], state[9], state[10] != 0
     # FixSelector state: per kind (GGA, RMC, GLL) last offered (t, tod, seen)
-    seen_t = np.zeros(3, np.int64)
-    seen_tod = np.full(3, NONE_I64, np.int64)
-    seen = np.zeros(3, np.bool_)
-    epoch = NONE_I64
-    epoch_set = False
-    held = False
-    held_p = 0
-    held_i = 0
-    held_t = 0
-    held_s = 0
-    done = False
-    for j in range(n):
+    seen = state[11:14] != 0
+    seen_t = state[14:17].copy()
+    seen_tod = state[17:20].copy()
+    for j in range(n_carry, n):
         ty = typ[j]
         if ty == ZDA:
             if date[j] != NONE_I64 and tod[j] != NONE_I64:
@@ -600,14 +602,34 @@ def sequence(typ, tod, date, tpre, fix, sog, day0, velocity_vtg, window_ns):
             else:
                 h_i[nh], h_t[nh], h_s[nh] = j, t, st
                 nh += 1
-    if held:
+    if final and held:
         g_i[ng], g_t[ng], g_s[ng] = held_i, held_t, held_s
         ng += 1
-    if npend:   # emit_pending(None)
+        held = False
+    if final and npend:   # emit_pending(None)
         if last_t == NONE_I64:
             k_i[nk], k_r[nk], k_n[nk] = n, SKIP_UNTIMED, npend
             nk += 1
         else:
             nh, nv = _emit(pend_i, npend, last_t, last_dt / (npend + 1), typ, h_i, h_t, h_s, nh, v_i, v_t, v_s, nv)
+        npend = 0
+    undecided = np.empty(npend + (1 if held else 0), np.int64)
+    undecided[:npend] = pend_i[:npend]
+    if held:
+        undecided[npend] = held_i
+    state[0], state[1], state[2], state[3] = clock_last, last_t, last_dt, epoch
+    state[4], state[5], state[6], state[7] = epoch_set, held, held_p, 0
+    state[8], state[9], state[10] = held_t, held_s, done
+    for kd in range(3):
+        state[11 + kd], state[14 + kd], state[17 + kd] = seen[kd], seen_t[kd], seen_tod[kd]
     return (g_i[:ng], g_t[:ng], g_s[:ng], h_i[:nh], h_t[:nh], h_s[:nh], v_i[:nv], v_t[:nv], v_s[:nv],
-            k_i[:nk], k_r[:nk], k_n[:nk])
+            k_i[:nk], k_r[:nk], k_n[:nk], undecided)
+
+
+def new_state() -> np.ndarray:
+    """The :func:`sequence` state at the start of a file (nothing seen)."""
+    st = np.zeros(20, np.int64)
+    st[0] = st[1] = st[3] = NONE_I64       # clock, last time, epoch: none
+    st[2] = 100_000_000                      # the step assumed before two timed sentences
+    st[17:20] = NONE_I64
+    return st
