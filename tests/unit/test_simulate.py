@@ -89,12 +89,17 @@ def test_same_seed_same_log_other_seed_differs():
 
 # -- the compiled open-loop plant -------------------------------------------------------
 
-@pytest.mark.parametrize("scenario,integrator", [("excitation", "rk4"), ("excitation", "euler"), ("turns", "rk4")])
-def test_compiled_open_loop_equals_python_loop(monkeypatch, scenario, integrator):
-    """The compiled kernel and the same loop run as plain Python give the same log (to 1e-12)."""
+@pytest.mark.parametrize("scenario,integrator,vessel", [("excitation", "rk4", None), ("excitation", "euler", None),
+                                                        ("turns", "rk4", None), ("excitation", "rk4", "catamaran"),
+                                                        ("straight", "euler", "catamaran")])
+def test_compiled_open_loop_equals_python_loop(monkeypatch, scenario, integrator, vessel):
+    """The compiled kernel and the same loop run as plain Python give the same log (to 1e-12),
+    for the paper's vessel and one of the extended structure with a thruster lag."""
+    from usvlog.io.config import load_vessel
     from usvlog.sim import simulate as sim
 
-    st = SimSettings(duration_s=120.0, integrator=integrator, current_mps=0.2, current_dir_deg=40.0)
+    st = SimSettings(duration_s=120.0, integrator=integrator, current_mps=0.2, current_dir_deg=40.0,
+                     vessel=load_vessel(vessel))
     fast = simulate(scenario, st, seed=7)
     monkeypatch.setattr(sim, "_open_loop_kernel", sim._open_loop_kernel.py_func)
     ref = simulate(scenario, st, seed=7)
