@@ -1,26 +1,37 @@
-"""Import speed and memory: CSV rows/s and NMEA lines/s, peak RSS at 1x and 10x the file size.
+"""Import speed and memory: CSV rows/s and NMEA lines/s of a 1-hour log, peak RSS.
+
+The default files are one hour long: a 100 Hz merged-logger CSV (360,000 rows) and an
+NMEA capture at 40 lines/s (144,000 lines: GGA, RMC and two HDT per 0.1 s, epoch-seconds
+prefixes). ``--scales 1,10`` adds files 10x as long (memory should stay flat).
 
 Each measurement runs in its own Python process (peak RSS = that process's ru_maxrss),
-so the sizes do not share memory. Two figures per file:
+so the sizes do not share memory. Figures per file:
 
-* ``parse``: reading + mapping + validating into canonical frames (the importer itself);
+* ``parse``: reading + mapping + validating into canonical frames (the importer itself,
+  timed inside the process after its imports);
+* ``parse-py``: the same through the per-line Python NMEA parser (the reference the
+  compiled one is tested against), for comparison;
 * ``to mcap``: the same, streamed into an MCAP file (JSON encoding + mcap writer included),
-  as ``usvlog import`` does.
+  as ``usvlog import`` does, timed inside the process;
+* ``cli``: ``python -m usvlog import SRC --out OUT`` end to end, start-up (imports, numba
+  cache load) included: wall time from spawning the process to its exit.
 
 Records/s is given per wall-clock second and per CPU second of the process (the second
 is the fairer figure on a machine shared with other work).
 
-Run:  python benchmarks/bench_import.py [--rows 300000] [--lines 100000]
+Run:  python benchmarks/bench_import.py [--rows 360000] [--lines 144000] [--scales 1,10]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
 import textwrap
+import time
 from pathlib import Path
 
 import numpy as np
@@ -86,14 +97,15 @@ CHILD = textwrap.dedent("""
     src, mode, out = sys.argv[1], sys.argv[2], sys.argv[3]
     t0 = time.perf_counter()
     c0 = time.process_time()
-    if mode == "parse":
+    if mode in ("parse", "parse-py"):
         from usvlog.io.importers import detect_format, _MODULES
         fmt = detect_format(src)
         mod = importlib.import_module("usvlog.io.importers." + _MODULES[fmt])
         rep = ImportReport()
         asm = Assembler(rep)
         n_out = 0
-        for batch in mod.read(__import__("pathlib").Path(src), ImportOptions(), rep, fmt=fmt):
+        kw = {{"fast": False}} if mode == "parse-py" else {{}}
+        for batch in mod.read(__import__("pathlib").Path(src), ImportOptions(), rep, fmt=fmt, **kw):
             n_out += sum(len(f) for f in asm.process(batch).values())
         n_out += sum(len(f) for f in asm.finish().values())
         records = rep.records
@@ -109,16 +121,39 @@ CHILD = textwrap.dedent("""
 
 
 def measure(src: Path, mode: str, out: Path) -> dict:
+    if mode == "cli":
+        return measure_cli(src, out)
     r = subprocess.run([sys.executable, "-c", CHILD, str(src), mode, str(out)], capture_output=True, text=True)
     if r.returncode != 0:
         raise SystemExit(r.stderr)
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
+def measure_cli(src: Path, out: Path) -> dict:
+    """``usvlog import`` as a user runs it: wall from spawn to exit, the child's CPU and peak RSS."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    t0 = time.perf_counter()
+    with tempfile.TemporaryFile("w+") as so, tempfile.TemporaryFile("w+") as se:
+        p = subprocess.Popen([sys.executable, "-m", "usvlog", "import", str(src), "--out", str(out), "--force",
+                              "--json"], stdout=so, stderr=se, text=True, env=env)
+        _, status, ru = os.wait4(p.pid, 0)
+        p.returncode = os.waitstatus_to_exitcode(status)
+        dt = time.perf_counter() - t0
+        so.seek(0)
+        se.seek(0)
+        stdout, stderr = so.read(), se.read()
+    if p.returncode != 0:
+        raise SystemExit(stderr)
+    rep = json.loads(stdout)
+    return {"records": rep["records"], "samples": sum(rep["channels"].values()), "seconds": dt,
+            "cpu_seconds": ru.ru_utime + ru.ru_stime, "peak_rss_mb": ru.ru_maxrss / 1024}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--rows", type=int, default=300_000, help="CSV rows of the 1x file")
-    ap.add_argument("--lines", type=int, default=100_000, help="NMEA lines of the 1x file")
+    ap.add_argument("--rows", type=int, default=360_000, help="CSV rows of the 1x file (1 hour at 100 Hz)")
+    ap.add_argument("--lines", type=int, default=144_000, help="NMEA lines of the 1x file (1 hour at 40 lines/s)")
+    ap.add_argument("--scales", default="1", help="file lengths to run, comma-separated multiples of 1x")
     ap.add_argument("--skip-mcap", action="store_true", help="only the parse figures")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="usvlog-bench-") as d:
@@ -126,12 +161,14 @@ def main() -> None:
         print(f"{'file':<20} {'MB':>6} {'records':>9} {'mode':>8} {'wall s':>7} {'records/s':>10} "
               f"{'CPU s':>7} {'rec/CPU-s':>10} {'peak RSS MB':>12}")
         for kind, n, make in (("csv", args.rows, make_csv), ("nmea", args.lines, make_nmea)):
-            for scale in (1, 10):
+            for scale in (int(x) for x in args.scales.split(",")):
                 src = d / f"{kind}_{scale}x.{kind}"
                 make(src, n * scale)
                 mb = src.stat().st_size / 1e6
-                for mode in ("parse",) + (() if args.skip_mcap else ("to mcap",)):
-                    m = measure(src, "parse" if mode == "parse" else "mcap", d / "out.mcap")
+                modes = ("parse",) + (("parse-py",) if kind == "nmea" else ()) + \
+                    (() if args.skip_mcap else ("to mcap", "cli"))
+                for mode in modes:
+                    m = measure(src, "mcap" if mode == "to mcap" else mode, d / "out.mcap")
                     print(f"{src.name:<20} {mb:>6.1f} {m['records']:>9} {mode:>8} {m['seconds']:>7.2f} "
                           f"{m['records'] / m['seconds']:>10,.0f} {m['cpu_seconds']:>7.2f} "
                           f"{m['records'] / m['cpu_seconds']:>10,.0f} {m['peak_rss_mb']:>12.0f}", flush=True)

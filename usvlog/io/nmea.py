@@ -43,6 +43,7 @@ import re
 from functools import lru_cache
 from typing import NamedTuple
 
+from .._jit import jitable
 from ..model.frames import ssa
 
 _NS = 1_000_000_000
@@ -351,18 +352,20 @@ def parse_sentence(text: str, *, require_checksum: bool = True) -> NmeaSample:
     return NmeaSample(kind, talker)
 
 
+@jitable
 def resolve_time_of_day(time_of_day_ns: int, reference_ns: int) -> int:
     """Place a UTC time of day on the day that puts it nearest ``reference_ns``.
 
     For sentences without a date (GGA, GLL). The recorder's reference is the receive
     time corrected by the clock offset; the importer's is the previous sentence's
-    time. Either way a midnight roll-over lands on the right day.
+    time. Either way a midnight roll-over lands on the right day. Callable from compiled
+    kernels too (the importer's fast path).
     """
     day0 = (reference_ns // _DAY_NS) * _DAY_NS
-    best = None
-    for d in (day0 - _DAY_NS, day0, day0 + _DAY_NS):
+    best = day0 - _DAY_NS + time_of_day_ns
+    for d in (day0, day0 + _DAY_NS):   # the earlier day on a tie
         cand = d + time_of_day_ns
-        if best is None or abs(cand - reference_ns) < abs(best - reference_ns):
+        if abs(cand - reference_ns) < abs(best - reference_ns):
             best = cand
     return int(best)
 

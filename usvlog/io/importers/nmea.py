@@ -320,7 +320,7 @@ def _empty_heading(body: str) -> bool:
     return head[-3:] in _HEADING and rest.split("*")[0].split(",")[0].strip() == ""
 
 
-def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
+def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool = True) -> Iterator[dict]:
     """Batches of role streams (``gnss``, ``heading``, ``velocity``) from an NMEA 0183 log.
 
     See :mod:`usvlog.io.importers.core` for the batch layout and this module's docstring
@@ -347,6 +347,10 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
         Unused (one signature for every reader).
     on_mapping : callable, optional
         Called with ``report`` before the sentences are read.
+    fast : bool, default True
+        Parse through the compiled kernels of :mod:`usvlog.io.importers.nmea_fast` (lines
+        they do not read are parsed here); False: the per-line Python loop, the reference
+        (the same samples, skips and counts; batch boundaries may differ).
 
     Raises
     ------
@@ -399,6 +403,9 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
             _put(buf, kind, t, t, vals)
         pending = []
 
+    if fast and not _lone_cr(p):
+        yield from _read_fast(p, report, sc, mode, use_prefix, offset, velocity_from, day0, prefix_hint)
+        return
     for lineno, line in enumerate(_lines(p), 1):
         n_lines += 1
         report.records += 1
@@ -406,45 +413,10 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
         if not line:
             report.records -= 1
             continue
-        m = _SENTENCE.search(line)
-        if m is None:
-            report.skip("nmea_garbage", 1, where=f"line {lineno}: no sentence ({line[:30]!r})")
+        got = _line_sample(line, lineno, sc, mode, use_prefix, offset, report)
+        if got is None:
             continue
-        body = line[m.start():]
-        t_prefix = None
-        if use_prefix and m.start():
-            try:
-                pre = prefix_time(line[:m.start()], mode)
-            except PrefixTimeError as err:
-                report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time {err}")
-                continue
-            if pre is not None:
-                if pre[1] != sc.kind:
-                    report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time of another kind "
-                                f"({pre[1]}, the file's are {sc.kind})")
-                    continue
-                t_prefix = pre[0] + offset
-                if not 0 <= t_prefix < 2**62:
-                    report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time out of range")
-                    continue
-        if sc.checksummed and "*" not in body:
-            report.skip("nmea_no_checksum", 1, where=f"line {lineno}: sentence without its checksum "
-                        f"({body[:30]!r})")
-            continue
-        try:
-            smp = parse_sentence(body, require_checksum=False)
-        except NmeaChecksumError:
-            report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
-            continue
-        except NmeaFieldError:
-            if _empty_heading(body):
-                report.skip("nmea_heading_empty", 1, where=f"line {lineno}: {body[:40]!r}")
-            else:
-                report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
-            continue
-        except NmeaError:
-            report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
-            continue
+        smp, t_prefix = got
         typ = smp.kind
         if typ == "ZDA":
             if smp.date is not None and smp.time_of_day_ns is not None:
@@ -487,6 +459,209 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None) -> Iterator[dict]:
     if n_lines == 0:
         raise InputError(f"{p}: empty file")
     yield buf.batch()
+
+
+def _line_sample(line: str, lineno: int, sc: _Scan, mode, use_prefix: bool, offset: int, report):
+    """(sample, prefix time ns or None) of one stripped, non-blank line, or None when the
+    line is skipped (counted in ``report`` with its reason)."""
+    m = _SENTENCE.search(line)
+    if m is None:
+        report.skip("nmea_garbage", 1, where=f"line {lineno}: no sentence ({line[:30]!r})")
+        return None
+    body = line[m.start():]
+    t_prefix = None
+    if use_prefix and m.start():
+        try:
+            pre = prefix_time(line[:m.start()], mode)
+        except PrefixTimeError as err:
+            report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time {err}")
+            return None
+        if pre is not None:
+            if pre[1] != sc.kind:
+                report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time of another kind "
+                            f"({pre[1]}, the file's are {sc.kind})")
+                return None
+            t_prefix = pre[0] + offset
+            if not 0 <= t_prefix < 2**62:
+                report.skip("nmea_bad_time", 1, where=f"line {lineno}: prefix time out of range")
+                return None
+    if sc.checksummed and "*" not in body:
+        report.skip("nmea_no_checksum", 1, where=f"line {lineno}: sentence without its checksum "
+                    f"({body[:30]!r})")
+        return None
+    try:
+        smp = parse_sentence(body, require_checksum=False)
+    except NmeaChecksumError:
+        report.skip("nmea_bad_checksum", 1, where=f"line {lineno}: {body[:40]!r}")
+        return None
+    except NmeaFieldError:
+        if _empty_heading(body):
+            report.skip("nmea_heading_empty", 1, where=f"line {lineno}: {body[:40]!r}")
+        else:
+            report.skip("nmea_bad_field", 1, where=f"line {lineno}: {body[:60]!r}")
+        return None
+    except NmeaError:
+        report.skip("nmea_garbage", 1, where=f"line {lineno}: {body[:40]!r}")
+        return None
+    return smp, t_prefix
+
+
+class _Skips:
+    """A report stand-in that records skips with their line, to hand them on in line order."""
+
+    def __init__(self):
+        self.events: list = []   # (line index, reason, n, where)
+
+    def add(self, line: int, reason: str, n: int = 1, where: str | None = None) -> None:
+        self.events.append((line, reason, n, where))
+
+    def replay(self, report) -> None:
+        for _, reason, n, where in sorted(self.events, key=lambda ev: ev[0]):
+            report.skip(reason, n, where=where)
+
+
+class _LineSkips:
+    """``report.skip`` of one line, into :class:`_Skips`."""
+
+    def __init__(self, skips: _Skips, line: int):
+        self.skips, self.line = skips, line
+
+    def skip(self, reason: str, n: int = 1, where: str | None = None) -> None:
+        self.skips.add(self.line, reason, n, where)
+
+
+_BLOCK_BYTES = 4 << 20   # the fast path reads the file in blocks of whole lines of about this size
+
+
+def _lone_cr(p) -> bool:
+    """The file breaks lines with a CR alone somewhere (old Mac line ends)."""
+    prev = b""
+    with reading(p), open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(_BLOCK_BYTES), b""):
+            b = prev + block
+            cr = b.count(b"\r")
+            if cr and cr != b.count(b"\r\n") + (b[-1:] == b"\r"):
+                return True
+            prev = b[-1:]
+    return False
+
+
+def _blocks(p, size: int) -> Iterator[bytes]:
+    """The file's bytes in blocks that end at a line end (the last one maybe not)."""
+    rest = b""
+    with reading(p), open(p, "rb") as fh:
+        for block in iter(lambda: fh.read(size), b""):
+            data = rest + block
+            cut = data.rfind(b"\n") + 1
+            if cut == 0:
+                rest = data
+                continue
+            rest = data[cut:]
+            yield data[:cut]
+    if rest:
+        yield rest
+
+
+_COLUMNS = ("typ", "tod", "date", "tpre", "fix", "lat", "lon", "alt", "hdg", "ref", "sog", "cog")
+
+
+def _read_fast(p, report, sc: _Scan, mode, use_prefix: bool, offset: int, velocity_from: str,
+               day0: int | None, prefix_hint: str) -> Iterator[dict]:
+    """The role streams of :func:`read` through the compiled kernels of :mod:`.nmea_fast` (the
+    lines they leave alone parsed by :func:`_line_sample`, as the reference loop does), block
+    by block of the file (memory bounded by a block). Not for files with lone CR line breaks."""
+    from . import nmea_fast as nf  # the compiled kernels: loaded when an NMEA file is read
+
+    numeric_prefix = sc.kind in ("utc", "relative") and mode in (None, "auto")
+    kernel_prefix = 0 if not use_prefix else (1 if numeric_prefix else 2)
+    state = nf.new_state()
+    carry = {k: v[:0] for k, v in _block_columns(nf, np.zeros(0, np.uint8), 0, sc, mode, use_prefix, offset,
+                                                   kernel_prefix, _Skips())[0].items()}
+    n_pending = 0
+    line0 = 0
+    names = {nf.SKIP_UNSUPPORTED: "nmea_unsupported", nf.SKIP_NO_FIX: "gnss_no_fix", nf.SKIP_UNTIMED: "nmea_untimed"}
+    kinds = {v: k for k, v in nf.TYPE_CODE.items()}
+    blocks = _blocks(p, _BLOCK_BYTES)
+    data = next(blocks, None)
+    if data is None:
+        raise InputError(f"{p}: empty file")
+    while data is not None:
+        nxt = next(blocks, None)
+        skips = _Skips()
+        cols, line_no, n_lines, n_records = _block_columns(nf, np.frombuffer(data, np.uint8), line0, sc, mode,
+                                                           use_prefix, offset, kernel_prefix, skips)
+        report.records += n_records
+        nc = len(carry["typ"])
+        c = {k: np.concatenate([carry[k], cols[k]]) for k in _COLUMNS}
+        line_no = np.concatenate([np.full(nc, -1), line_no])
+        (g_i, g_t, g_s, h_i, h_t, h_s, v_i, v_t, v_s, k_i, k_r, k_n, undecided) = nf.sequence(
+            c["typ"], c["tod"], c["date"], c["tpre"], c["fix"], c["sog"], int(day0 or 0), velocity_from == "VTG",
+            FixSelector().window_ns, state, nc, n_pending, nxt is None)
+        end = line0 + n_lines
+        for j, r, n in zip(k_i.tolist(), k_r.tolist(), k_n.tolist()):
+            where = None
+            if r == nf.SKIP_NO_FIX:
+                where = f"line {line_no[j] + 1}: {kinds[int(c['typ'][j])]} without a fix"
+            elif r == nf.SKIP_UNTIMED:
+                where = "sentences without a time of their own and no timed sentence around them" + prefix_hint
+            skips.add(end if j >= len(line_no) else int(line_no[j]), names[r], n, where)
+        skips.replay(report)
+        out = {}
+        if len(g_i):
+            out["gnss"] = {"t_ns": g_t, "stamp_ns": g_s, "lat_deg": c["lat"][g_i], "lon_deg": c["lon"][g_i],
+                           "alt_m": c["alt"][g_i]}
+        if len(h_i):
+            out["heading"] = {"t_ns": h_t, "stamp_ns": h_s, "heading_rad": c["hdg"][h_i],
+                              "reference": np.array(["true", "magnetic"], dtype=object)[c["ref"][h_i]]}
+        if len(v_i):
+            out["velocity"] = {"t_ns": v_t, "stamp_ns": v_s, "sog_mps": c["sog"][v_i], "cog_rad": c["cog"][v_i]}
+        yield out
+        carry = {k: v[undecided] for k, v in c.items()}
+        n_pending = len(undecided) - int(state[5] != 0)
+        line0 = end
+        data = nxt
+
+
+def _block_columns(nf, buf: np.ndarray, line0: int, sc: _Scan, mode, use_prefix: bool, offset: int,
+                   kernel_prefix: int, skips: _Skips):
+    """The parsed sentences of one block: columns (:data:`_COLUMNS`), their line indices, the
+    block's line count and its non-blank line count; skipped lines into ``skips``."""
+    (status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog,
+     cog) = nf.scan_lines(buf, kernel_prefix, sc.kind == "utc", int(offset))
+    ref = np.zeros(len(status), np.int8)                  # heading reference: 0 true, 1 magnetic
+    no_sentence = np.flatnonzero(status == nf.NO_SENTENCE)
+    if len(no_sentence):
+        i = int(no_sentence[0])
+        line = bytes(buf[start[i]:end[i]]).decode("ascii")
+        skips.add(line0 + i, "nmea_garbage", 1, f"line {line0 + i + 1}: no sentence ({line[:30]!r})")
+        skips.add(line0 + i, "nmea_garbage", len(no_sentence) - 1)
+    for i in np.flatnonzero(status == nf.FALLBACK).tolist():
+        line = bytes(buf[start[i]:end[i]]).decode("ascii", "replace").strip()
+        if not line:   # whitespace the kernel does not strip (non-ASCII): as Python reads it
+            status[i] = nf.BLANK
+            continue
+        got = _line_sample(line, line0 + i + 1, sc, mode, use_prefix, offset, _LineSkips(skips, line0 + i))
+        if got is None:
+            continue
+        smp, t_prefix = got
+        status[i] = nf.OK
+        typ[i] = nf.TYPE_CODE.get(smp.kind, nf.OTHER)
+        tod[i] = nf.NONE_I64 if smp.time_of_day_ns is None else smp.time_of_day_ns
+        date[i] = nf.NONE_I64 if smp.date is None else date_ns(smp.date)
+        tpre[i] = nf.NONE_I64 if t_prefix is None else t_prefix
+        fix[i] = smp.has_fix
+        if smp.has_fix:
+            lat[i], lon[i] = smp.lat_deg, smp.lon_deg
+            alt[i] = math.nan if smp.alt_m is None else smp.alt_m
+        if smp.heading_rad is not None:
+            hdg[i] = smp.heading_rad
+            ref[i] = smp.reference == "magnetic"
+        sog[i] = math.nan if smp.sog_mps is None else smp.sog_mps
+        cog[i] = math.nan if smp.cog_rad is None else smp.cog_rad
+    rec = np.flatnonzero(status == nf.OK)
+    cols = dict(zip(_COLUMNS, (typ, tod, date, tpre, fix, lat, lon, alt, hdg, ref, sog, cog)))
+    return ({k: v[rec] for k, v in cols.items()}, line0 + rec, len(status),
+            int(np.count_nonzero(status != nf.BLANK)))
 
 
 def _values(s: NmeaSample, clock: _Clock):
