@@ -28,6 +28,7 @@ from .kernels import (
     SENSORS,
     YAW_RATE,
 )
+from .latency import META_LATENCY, DelayEstimate, find_delays, latency_record
 from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
@@ -173,13 +174,36 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free:
     return tu, tr, ok
 
 
+DELAYED_TOPICS = {GNSS_TOPIC: "gnss_delay_s", "/gnss/velocity": "gnss_delay_s", COMPASS_TOPIC: "compass_delay_s"}
+"""Channel -> the :class:`EstimateSettings` field holding its latency in s."""
+
+
+def delayed_log(log: FieldLog, settings: EstimateSettings) -> FieldLog:
+    """``log`` with each sensor's stamps moved back by its latency (a shallow copy; ``log``
+    itself when there is none): a record stamped t describes the boat at t - delay.
+
+    The channels of :data:`DELAYED_TOPICS` are shifted by the setting named there (s);
+    the order of the records within a channel is kept.
+    """
+    shift = {t: int(round(getattr(settings, f) * 1e9)) for t, f in DELAYED_TOPICS.items()}
+    shift = {t: ns for t, ns in shift.items() if ns and t in log.channels}
+    if not shift:
+        return log
+    out = log.copy()
+    for topic, ns in shift.items():
+        frame = log.channels[topic]
+        out.channels[topic] = frame.set_axis(pd.Index(np.asarray(frame.index, np.int64) - ns, name="t_ns"), axis=0)
+    return out
+
+
 def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
     """Collect the filter's inputs from a log: measurements, step grid, thrust, gates.
 
     GNSS fixes become NED positions about the log's datum (else its first valid fix),
     compass headings true hull headings; non-finite or out-of-range records are skipped
     and counted. The steps are the output grid (``settings.output_step_s``) plus every
-    measurement time; thrust is held (zero-order) between its records.
+    measurement time; thrust is held (zero-order) between its records. Measurement times
+    are the stamps minus the sensor's latency (``gnss_delay_s``, ``compass_delay_s``).
 
     Parameters
     ----------
@@ -201,6 +225,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         record, or thrust commands cannot be turned into forces.
     """
     s = settings
+    log = delayed_log(log, s)   # latency: stamps -> the times the measurements describe
     gps = _channel(log, GNSS_TOPIC)
     comp = _channel(log, COMPASS_TOPIC)
     thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
@@ -266,7 +291,13 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     # step grid: the output grid plus every measurement time
     t_start, t_end = int(m_t[0]), int(m_t[-1])
     step_ns = int(round(s.output_step_s * 1e9))
+    # the grid's phase is that of the first stamp, whatever the latencies: moving it with a
+    # delay would move the thrust's steps within the grid's (the likelihood would ripple)
+    stamp = m_t + np.where(mkind == GNSS, int(round(s.gnss_delay_s * 1e9)),
+                           np.where(mkind == COMPASS, int(round(s.compass_delay_s * 1e9)), 0))
+    t_start = t_start - (t_start - int(stamp.min())) % step_ns
     grid = t_start + step_ns * np.arange((t_end - t_start) // step_ns + 1, dtype=np.int64)
+    grid = grid[grid >= m_t[0]]
     t_ns = np.union1d(grid, m_t)
     is_grid = np.isin(t_ns, grid)
     mstep = np.searchsorted(t_ns, m_t)
@@ -529,6 +560,8 @@ class EstimateReport:
     tuned : dict or None
         Result of process-noise tuning (``q_uv``, ``q_r``, maybe ``q_current``,
         ``loglik``, ``evaluations``), None without tuning.
+    latency : tuple of DelayEstimate
+        The sensor delays searched (``settings.estimate_delays``), empty without a search.
     """
 
     model: str
@@ -541,6 +574,7 @@ class EstimateReport:
     thrust_skipped: int
     settings: dict
     tuned: dict | None = None
+    latency: tuple[DelayEstimate, ...] = ()
 
     @property
     def dropouts_bridged(self) -> int:
@@ -596,7 +630,8 @@ class EstimateReport:
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
-                "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned}
+                "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned,
+                "latency": [d.to_dict() for d in self.latency]}
 
     def format(self) -> str:
         """Human-readable multi-line summary (what ``usvlog estimate`` prints)."""
@@ -613,6 +648,7 @@ class EstimateReport:
         if self.tuned:
             lines.append("  tuned process noise: " + ", ".join(
                 f"{k} {v:.3g}" for k, v in self.tuned.items() if k.startswith("q_")))
+        lines += [f"  {d.format()}" for d in self.latency]
         lines += [f"  warning: {w}" for w in self.consistency()]
         return "\n".join(lines)
 
@@ -656,7 +692,9 @@ class EstimateResult:
         return self.state
 
     def to_log(self, log: FieldLog) -> FieldLog:
-        """A copy of ``log`` plus /estimate/state, /estimate/innovations and provenance."""
+        """A copy of ``log`` plus /estimate/state, /estimate/innovations, provenance and the
+        sensor delays applied (metadata record ``usvlog.latency``, see
+        :func:`usvlog.estimate.latency.stored_delays`)."""
         out = log.copy()
         out.set(STATE_TOPIC, self.state)
         out.set(INNOVATION_TOPIC, self.innovations)
@@ -664,6 +702,7 @@ class EstimateResult:
                            settings=self.report.settings,
                            vessel=self.vessel.name if self.vessel else "",
                            report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
+        out.meta[META_LATENCY] = latency_record(self.settings, self.report.latency)
         return out
 
 
@@ -746,12 +785,23 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     pb = build_problem(log, settings, vessel)
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
         settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
+    latency: tuple[DelayEstimate, ...] = ()
+
+    def search_delays(st: EstimateSettings, q: np.ndarray):
+        lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
+                                                                       s_.max_consecutive_rejects))
+        return lat, st, build_problem(log, st, vessel)
+
     tuned = None
     if settings.tune:
+        if settings.estimate_delays:   # first the delays, so that the tuned noise does not absorb them
+            latency, settings, pb = search_delays(settings, process_noise(settings))
         tuned = tune_process_noise(pb, settings)
         settings = replace(settings, q_uv=tuned["q_uv"], q_r=tuned["q_r"],
                            q_current=tuned.get("q_current", settings.q_current), tune=False)
     q = process_noise(settings)
+    if settings.estimate_delays:   # (again) with the noise in effect
+        latency, settings, pb = search_delays(settings, q)
     runner = run_fast if settings.fast else run_reference_path
     raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother)
     _check_finite(raw, pb, settings, log.source or "log")
@@ -781,6 +831,6 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
                             duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
                             dropouts=pb.dropouts, loglik=raw.loglik,
-                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned)
+                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned, latency=latency)
     return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
                           settings=settings, vessel=vessel)
