@@ -63,7 +63,7 @@ def test_profile_refuses_flat_or_edge_likelihoods():
 def delayed_run():
     """10-minute excitation run, GNSS 0.3 m stamped 0.20 s late (the simulator's latency)."""
     sens = SensorSettings(gps_noise_m=0.3, gps_delay_s=0.2)
-    return simulate("excitation", SimSettings(duration_s=600.0, sensors=sens), seed=5)
+    return simulate("excitation", SimSettings(duration_s=600.0, sensors=sens), seed=3)
 
 
 def test_simulator_stamps_fixes_late(delayed_run):
@@ -99,21 +99,34 @@ def test_build_problem_moves_the_stamps_by_the_delay(delayed_run):
 
 def test_gnss_delay_recovered_and_stored(delayed_run, tmp_path):
     """The issue's target: a 0.20 s GNSS delay recovered within +-0.03 s (dynamic model, the
-    recorded thrust); its one-sigma covers the error; stored in the output log."""
-    res = estimate(delayed_run, EstimateSettings(model="dynamic", estimate_delays=("gnss", "compass")))
-    g, c = res.report.latency
+    recorded thrust, tuned process noise); its one-sigma covers the error; stored in the
+    output log."""
+    res = estimate(delayed_run, EstimateSettings(model="dynamic", tune=True, estimate_delays="gnss"))
+    (g,) = res.report.latency
     assert g.sensor == "gnss" and g.status == "estimated", g
     assert abs(g.delay_s - 0.2) < 0.03, g
-    assert 0 < g.std_s < 0.05 and abs(g.delay_s - 0.2) < 3 * g.std_s, g
+    assert 0 < g.std_s < 0.03 and abs(g.delay_s - 0.2) < 3 * g.std_s, g
     assert res.settings.gnss_delay_s == g.delay_s and g.loglik_gain > PROFILE_DROP
-    assert c.status == "estimated" and abs(c.delay_s) < 0.01, c      # the compass has none
     assert "gnss delay" in res.report.format() and res.report.to_dict()["latency"][0]["delay_s"] == g.delay_s
     path = tmp_path / "est.mcap"
     write_log(res.to_log(delayed_run), path)
     back = read_log(path)
-    assert stored_delays(back) == pytest.approx({"gnss": g.delay_s, "compass": c.delay_s})
+    assert stored_delays(back) == pytest.approx({"gnss": g.delay_s, "compass": 0.0})
     assert back.meta[META_LATENCY]["gnss_delay_status"] == "estimated"
     assert run_data(back).gnss_delay_s == g.delay_s
+
+
+def test_compass_delay_recovered():
+    """A compass stamped 0.05 s late, 200 s of an excitation run, default noise: the dynamic
+    model ties the heading to the recorded yaw moment, so the delay is sharp; the GNSS
+    delay is searched after it (none here)."""
+    sens = SensorSettings(compass_delay_s=0.05)
+    log = simulate("excitation", SimSettings(duration_s=200.0, sensors=sens), seed=6)
+    res = estimate(log, EstimateSettings(model="dynamic", estimate_delays=("compass", "gnss")))
+    c, g = res.report.latency
+    assert c.status == "estimated" and abs(c.delay_s - 0.05) < 0.02 and c.std_s < 0.01, c
+    assert abs(c.delay_s - 0.05) < 3 * c.std_s, c
+    assert g.status == "not identifiable" or abs(g.delay_s) < 3 * g.std_s, g
 
 
 def test_kinematic_model_says_the_gnss_delay_is_not_identifiable(delayed_run):

@@ -786,10 +786,11 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
         settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
     latency: tuple[DelayEstimate, ...] = ()
+    given = {"gnss": settings.gnss_delay_s, "compass": settings.compass_delay_s}
 
     def search_delays(st: EstimateSettings, q: np.ndarray):
         lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
-                                                                       s_.max_consecutive_rejects))
+                                                                       s_.max_consecutive_rejects), given=given)
         return lat, st, build_problem(log, st, vessel)
 
     tuned = None

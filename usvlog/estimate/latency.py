@@ -256,8 +256,8 @@ def _hint(settings: EstimateSettings, sensor: str) -> str:
     return "; a run with more manoeuvring (thrust steps, turns) or a longer one would help"
 
 
-def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn,
-                window_s: float = WINDOW_S) -> tuple[tuple[DelayEstimate, ...], EstimateSettings]:
+def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn, window_s: float = WINDOW_S,
+                given: dict[str, float] | None = None) -> tuple[tuple[DelayEstimate, ...], EstimateSettings]:
     """Estimate the latency of each sensor in ``settings.estimate_delays``, in that order
     (a later search uses the delays found before it), on :func:`search_window`.
 
@@ -271,6 +271,9 @@ def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn,
         ``loglik(log, settings)``: the forward filter's innovation log-likelihood.
     window_s : float
         Length of the part of the run searched, s.
+    given : dict, optional
+        Delay (s) per sensor kept where the data do not determine it, and the reference of
+        ``loglik_gain``; default the values in ``settings``.
 
     Returns
     -------
@@ -284,22 +287,28 @@ def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn,
     length = float(tg[-1] - tg[0]) * 1e-9
     out = []
     for sensor in settings.estimate_delays:
-        name = f"{sensor}_delay_s"
-        given = float(getattr(settings, name))
+        keep = float((given or {}).get(sensor, getattr(settings, f"{sensor}_delay_s")))
 
-        def at(d, _st=settings, _name=name):
-            return loglik(sub, replace(_st, **{_name: d}))
+        def at(d, _st=settings, _name=sensor):
+            return loglik(sub, with_settings_delays(_st, {_name: d}))
         prof = profile_delay(at)
-        gain = prof.loglik_max - float(at(given))
+        gain = prof.loglik_max - float(at(keep))
         if prof.identifiable:
             est = DelayEstimate(sensor, prof.optimum_s, "estimated", prof.std_s, prof.optimum_s, gain,
                                 prof.evaluations + 1, length)
-            settings = replace(settings, **{name: prof.optimum_s})
+            settings = with_settings_delays(settings, {sensor: prof.optimum_s})
         else:
-            est = DelayEstimate(sensor, given, "not identifiable", float("nan"), prof.optimum_s, gain,
+            est = DelayEstimate(sensor, keep, "not identifiable", float("nan"), prof.optimum_s, gain,
                                 prof.evaluations + 1, length, prof.reason + _hint(settings, sensor))
+            settings = with_settings_delays(settings, {sensor: keep})
         out.append(est)
     return tuple(out), settings
+
+
+def with_settings_delays(settings: EstimateSettings, delays_s: dict[str, float]) -> EstimateSettings:
+    """``settings`` with the delays (s) of ``delays_s`` (``{"gnss": 0.2}``) replaced."""
+    return replace(settings, gnss_delay_s=float(delays_s.get("gnss", settings.gnss_delay_s)),
+                   compass_delay_s=float(delays_s.get("compass", settings.compass_delay_s)))
 
 
 def latency_record(settings: EstimateSettings, delays: tuple[DelayEstimate, ...] = ()) -> dict[str, str]:
