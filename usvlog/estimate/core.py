@@ -298,8 +298,10 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     t_start = t_start - (t_start - int(stamp.min())) % step_ns
     grid = t_start + step_ns * np.arange((t_end - t_start) // step_ns + 1, dtype=np.int64)
     grid = grid[grid >= m_t[0]]
-    t_ns = np.union1d(grid, m_t)
-    is_grid = np.isin(t_ns, grid)
+    t_ns = np.sort(np.concatenate([grid, m_t]))    # union1d / isin, by sorting (several times faster)
+    t_ns = t_ns[np.concatenate([[True], t_ns[1:] != t_ns[:-1]])]
+    is_grid = np.zeros(len(t_ns), bool)
+    is_grid[np.searchsorted(t_ns, grid)] = True
     mstep = np.searchsorted(t_ns, m_t)
     dts = np.diff(t_ns, prepend=t_ns[0]).astype(float) * 1e-9
 
