@@ -5,7 +5,7 @@ A measurement stamped t describes the boat at t - delay (``EstimateSettings.gnss
 ``compass_delay_s``; :func:`usvlog.estimate.core.build_problem` moves the stamps). The
 delay is the maximiser of the forward filter's innovation log-likelihood over a window of
 the run (a profile likelihood: every other setting held): a coarse grid over
-:data:`SEARCH_RANGE_S`, then parabolic refinement, whose curvature gives the one-sigma
+:data:`SEARCH_RANGE_S` (:data:`SEARCH_GRID_S`), then parabolic refinement, whose curvature gives the one-sigma
 uncertainty 1 / sqrt(-d2 loglik / d delay2).
 
 What makes a delay observable is a model tying the sensor's timing to something else: the
@@ -36,8 +36,8 @@ from .settings import DELAY_SENSORS, EstimateSettings
 
 SEARCH_RANGE_S = (-0.1, 0.5)
 """Delays searched, s: a fix may lag its stamp by up to 0.5 s (or the clocks be offset a little)."""
-COARSE_STEP_S = 0.1
-"""Grid step of the first pass, s."""
+SEARCH_GRID_S = (-0.1, 0.0, 0.125, 0.25, 0.375, 0.5)
+"""Delays of the first pass over :data:`SEARCH_RANGE_S`, s (0 among them: the usual given value)."""
 FINE_STEP_S = 0.04
 """Half-width of the parabolic refinement, s."""
 WINDOW_S = 600.0
@@ -87,19 +87,19 @@ def _parabola(x, y) -> tuple[float, float, float]:
     return 2 * a, float(x[1] + v), float(c - b * b / (4 * a))
 
 
-def profile_delay(loglik: Callable[[float], float], lo: float = SEARCH_RANGE_S[0], hi: float = SEARCH_RANGE_S[1],
-                  coarse: float = COARSE_STEP_S, fine: float = FINE_STEP_S) -> DelayProfile:
-    """Maximise ``loglik(delay)`` over [lo, hi]: a grid of step ``coarse``, then parabolas
-    through three points ``fine`` apart about the running optimum (at most three).
+def profile_delay(loglik: Callable[[float], float], grid=SEARCH_GRID_S, fine: float = FINE_STEP_S) -> DelayProfile:
+    """Maximise ``loglik(delay)`` over the span of ``grid``: the grid, then parabolas through
+    three points ``fine`` apart about the running optimum (at most three, while it moves by
+    more than ``fine`` / 2).
 
     Parameters
     ----------
     loglik : callable
         Log-likelihood of a delay in s.
-    lo, hi : float
-        Search range, s.
-    coarse, fine : float
-        Grid step and half-width of the refinement, s.
+    grid : sequence of float
+        Delays of the first pass (increasing), s; their span is the search range.
+    fine : float
+        Half-width of the refinement, s.
 
     Returns
     -------
@@ -114,7 +114,8 @@ def profile_delay(loglik: Callable[[float], float], lo: float = SEARCH_RANGE_S[0
             seen[d] = v if math.isfinite(v) else -math.inf
         return seen[d]
 
-    grid = np.round(np.arange(lo, hi + 1e-9, coarse), 6)
+    grid = np.round(np.asarray(grid, float), 6)
+    lo, hi = float(grid[0]), float(grid[-1])
     ys = np.array([f(d) for d in grid])
     i = int(np.argmax(ys))
     opt, std, reason = float(grid[i]), float("nan"), ""
@@ -134,7 +135,7 @@ def profile_delay(loglik: Callable[[float], float], lo: float = SEARCH_RANGE_S[0
             std = 1.0 / math.sqrt(-d2)
             step = min(max(v, opt - 2 * fine), opt + 2 * fine) - opt
             opt = float(np.clip(opt + step, lo, hi))
-            if abs(step) <= 0.25 * fine:
+            if abs(step) <= 0.5 * fine:
                 break
     xs = np.array(sorted(seen))
     ll = np.array([seen[x] for x in xs])
@@ -288,18 +289,22 @@ def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn, win
     out = []
     for sensor in settings.estimate_delays:
         keep = float((given or {}).get(sensor, getattr(settings, f"{sensor}_delay_s")))
+        seen: dict[float, float] = {}
 
-        def at(d, _st=settings, _name=sensor):
-            return loglik(sub, with_settings_delays(_st, {_name: d}))
+        def at(d: float, _st=settings, _name=sensor, _seen=seen) -> float:
+            d = round(float(d), 6)
+            if d not in _seen:
+                _seen[d] = loglik(sub, with_settings_delays(_st, {_name: d}))
+            return _seen[d]
         prof = profile_delay(at)
         gain = prof.loglik_max - float(at(keep))
         if prof.identifiable:
             est = DelayEstimate(sensor, prof.optimum_s, "estimated", prof.std_s, prof.optimum_s, gain,
-                                prof.evaluations + 1, length)
+                                len(seen), length)
             settings = with_settings_delays(settings, {sensor: prof.optimum_s})
         else:
             est = DelayEstimate(sensor, keep, "not identifiable", float("nan"), prof.optimum_s, gain,
-                                prof.evaluations + 1, length, prof.reason + _hint(settings, sensor))
+                                len(seen), length, prof.reason + _hint(settings, sensor))
             settings = with_settings_delays(settings, {sensor: keep})
         out.append(est)
     return tuple(out), settings
