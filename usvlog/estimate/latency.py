@@ -254,7 +254,9 @@ def _hint(settings: EstimateSettings, sensor: str) -> str:
     if settings.model == "kinematic" and sensor == "gnss":
         return ("; the kinematic model ties the track to neither the thrust nor (without sway damping) the "
                 "heading: use the dynamic model with the recorded thrust")
-    return "; a run with more manoeuvring (thrust steps, turns) or a longer one would help"
+    return ("; tuned process noise (--tune), a longer run or more manoeuvring (thrust steps, turns) would help"
+            if not settings.tune and settings.q_uv is None
+            else "; a longer run or more manoeuvring (thrust steps, turns) would help")
 
 
 def find_delays(log: FieldLog, settings: EstimateSettings, loglik: LoglikFn, window_s: float = WINDOW_S,
