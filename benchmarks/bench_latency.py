@@ -5,7 +5,7 @@ GNSS stamped 0.2 s late): the compiled path end to end (build, search, filter, s
                                        [--delays gnss|gnss,compass] [--gps-noise-m 1.5]
 
 The search evaluates the forward filter's likelihood on a window of
-``usvlog.estimate.latency.WINDOW_S`` seconds, so its cost does not grow with the log.
+``usvlog.estimate.latency.WINDOW_S`` seconds per sensor, so its cost does not grow with the log.
 """
 
 from __future__ import annotations
