@@ -491,7 +491,8 @@ def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, tru
 
 def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vessel=None,
              current: bool | None = None, tune: bool = False, sway_damping: bool | None = None,
-             gate: float = 0.9999, smoother: bool = True, force: bool = False,
+             gate: float = 0.9999, smoother: bool = True, gnss_delay_s: float | str = 0.0,
+             compass_delay_s: float | str = 0.0, force: bool = False,
              progress: Progress = None, gps_only: bool = False) -> EstimateResult:
     """Estimate the state of a run with an EKF and RTS smoother (``usvlog estimate``).
 
@@ -519,6 +520,10 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         Chi-square probability of the NIS gate on each measurement (1.0: no gate).
     smoother : bool
         Run the RTS smoother (False: the forward filter only).
+    gnss_delay_s, compass_delay_s : float or "auto"
+        Sensor latency in s (a record stamped t describes the boat at t - delay), or
+        ``"auto"``: estimated from the data (reported in ``report.latency``; not applied
+        when the data do not determine it). Stored in ``out`` for identification.
     force : bool
         Replace an existing ``out``.
     progress : callable, optional
@@ -540,12 +545,19 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
 
     if out is not None:
         check_output(out, force, parent=True)
+    delays = {"gnss": gnss_delay_s, "compass": compass_delay_s}
+    auto = tuple(k for k, v in delays.items() if v == "auto")
+    for k, v in delays.items():
+        if v != "auto" and not isinstance(v, (int, float)):
+            raise ConfigError(f"{k}_delay_s = {v!r} must be a number of seconds or 'auto'")
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
-                                smoother=smoother, sway_damping=sway_damping, gps_only=gps_only)
+                                smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
+                                **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
     src = log if _is_path(log) else log.source
     log = _read(log, progress)
     ves = _vessel_file(vessel)
-    _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''})")
+    _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
+                   f"{''.join(f', estimating the {k} delay' for k in auto)})")
     result = run_estimate(log, settings, ves)
     if out is not None:
         save(result.to_log(log), out, force=force)
@@ -554,7 +566,8 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
 
 def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "output-error",
              validate=None, holdout: float = 0.0, fix: dict[str, float] | None = None, current: bool = True,
-             out_log: PathLike | None = None, force: bool = False, progress: Progress = None) -> Identifier:
+             out_log: PathLike | None = None, force: bool = False, progress: Progress = None,
+             gnss_delay_s: float | None = None) -> Identifier:
     """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
 
     Parameters
@@ -583,6 +596,10 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         Replace existing outputs.
     progress : callable, optional
         Receives a line before the fit starts.
+    gnss_delay_s : float, optional
+        GNSS latency in s of every log (a fix stamped t describes the boat at t - delay);
+        default: the delay an estimate stored in each log (``usvlog estimate
+        --gnss-delay-s``), else 0.
 
     Returns
     -------
@@ -603,6 +620,13 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     ves = _vessel_file(vessel)
     runs = [_read(x, progress) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
     val_log = _read(validate, progress) if validate is not None else None
+    if gnss_delay_s is not None:
+        from .estimate.latency import with_delays  # heavy: numpy
+
+        if not (isinstance(gnss_delay_s, (int, float)) and -1.0 <= gnss_delay_s <= 5.0):
+            raise ConfigError(f"gnss_delay_s = {gnss_delay_s!r} must be a latency in [-1, 5] s")
+        runs = [with_delays(r, gnss=gnss_delay_s) for r in runs]
+        val_log = with_delays(val_log, gnss=gnss_delay_s) if val_log is not None else None
     _say(progress, f"identifying ({method}) from {len(runs)} log(s)")
     idf.fit(runs, ves)
     if val_log is not None:

@@ -28,9 +28,27 @@ def register(sub) -> None:
     p.add_argument("--gps-only", action="store_true",
                    help="fuse no heading (a rough or doubtful compass); without a usable heading channel "
                         "the estimate is GNSS-only anyway")
+    p.add_argument("--gnss-delay-s", type=delay_arg, default=0.0, metavar="auto|VALUE",
+                   help="GNSS latency in s (a fix stamped t describes the boat at t - delay), or auto: estimated "
+                        "from the data (needs the dynamic model and the recorded thrust), default 0")
+    p.add_argument("--compass-delay-s", type=delay_arg, default=0.0, metavar="auto|VALUE",
+                   help="compass latency in s, or auto (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
+
+
+def delay_arg(text: str) -> float | str:
+    """``auto`` or a latency in s (a number in [-1, 5]) for --gnss-delay-s / --compass-delay-s."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor a number of seconds") from None
+    if not (-1.0 <= v <= 5.0):  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text!r}: a latency must be in [-1, 5] s")
+    return v
 
 
 def run(args) -> int:
@@ -38,7 +56,8 @@ def run(args) -> int:
 
     result = api.estimate(args.log, args.out, model=args.model, vessel=args.vessel or None, current=args.current,
                           tune=args.tune, sway_damping=args.sway_damping, gate=args.gate,
-                          smoother=not args.no_smoother, force=args.force, progress=stage,
+                          smoother=not args.no_smoother, gnss_delay_s=args.gnss_delay_s,
+                          compass_delay_s=args.compass_delay_s, force=args.force, progress=stage,
                           gps_only=args.gps_only)
     stage(f"wrote {args.out}")
     if args.json:

@@ -23,6 +23,9 @@ def register(sub) -> None:
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help=f"known parameter ({', '.join(PARAM_NAMES)}), e.g. --fix m=33.0 (repeatable)")
     p.add_argument("--no-current", action="store_true", help="do not fit a water current")
+    p.add_argument("--gnss-delay-s", type=float, default=None, metavar="VALUE",
+                   help="GNSS latency in s (a fix stamped t describes the boat at t - delay); default: the one "
+                        "`usvlog estimate` stored in the log, else 0")
     p.add_argument("--out", required=True, help="output vessel TOML with the identified parameters")
     p.add_argument("--out-log", default=None, help="copy of the first log with the /identify/fit channel")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -55,8 +58,10 @@ def run(args) -> int:
     fix = parse_fix(args.fix)
     idf = api.identify(args.logs, args.out, vessel=args.vessel or None, method=args.method,
                        validate=args.validate or None, holdout=args.holdout, fix=fix, current=not args.no_current,
-                       out_log=args.out_log or None, force=args.force, progress=stage)
+                       out_log=args.out_log or None, force=args.force, progress=stage,
+                       gnss_delay_s=args.gnss_delay_s)
     d = idf.to_dict()
+    d["gnss_delay_s"] = [r.gnss_delay_s for r in idf.runs_]   # taken off the GNSS stamps of each run
     if args.json:
         print_json(d)
     else:
@@ -73,6 +78,8 @@ def format_report(d: dict) -> str:
         lines.append(f"  {k:<5} {d['params'][k]:12.5g} {d['stderr'][k]:11.3g}   [{lo:10.5g}, {hi:10.5g}]"
                      f"   ({d['equation_error']['params'][k]:.4g}){fixed}")
     lines.append(f"Iz - m xg^2 = {d['Iz_minus_m_xg2']:.4g} (Theorem 3.1 condition 1 needs > 0)")
+    if any(d.get("gnss_delay_s") or ()):
+        lines.append("GNSS delay taken off the fix stamps: " + ", ".join(f"{x:.3f} s" for x in d["gnss_delay_s"]))
     for i, c in enumerate(d["current_ne_mps"]):
         lines.append(f"current run {i}: north {c[0]:+.3f} m/s, east {c[1]:+.3f} m/s")
     if d.get("condition_number") is not None:

@@ -31,6 +31,7 @@ from .kernels import (
     VELOCITY,
     YAW_RATE,
 )
+from .latency import META_LATENCY, DelayEstimate, find_delays, latency_record
 from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
@@ -184,13 +185,36 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free:
     return tu, tr, ok
 
 
+DELAYED_TOPICS = {GNSS_TOPIC: "gnss_delay_s", "/gnss/velocity": "gnss_delay_s", COMPASS_TOPIC: "compass_delay_s"}
+"""Channel -> the :class:`EstimateSettings` field holding its latency in s."""
+
+
+def delayed_log(log: FieldLog, settings: EstimateSettings) -> FieldLog:
+    """``log`` with each sensor's stamps moved back by its latency (a shallow copy; ``log``
+    itself when there is none): a record stamped t describes the boat at t - delay.
+
+    The channels of :data:`DELAYED_TOPICS` are shifted by the setting named there (s);
+    the order of the records within a channel is kept.
+    """
+    shift = {t: int(round(getattr(settings, f) * 1e9)) for t, f in DELAYED_TOPICS.items()}
+    shift = {t: ns for t, ns in shift.items() if ns and t in log.channels}
+    if not shift:
+        return log
+    out = log.copy()
+    for topic, ns in shift.items():
+        frame = log.channels[topic]
+        out.channels[topic] = frame.set_axis(pd.Index(np.asarray(frame.index, np.int64) - ns, name="t_ns"), axis=0)
+    return out
+
+
 def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
     """Collect the filter's inputs from a log: measurements, step grid, thrust, gates.
 
     GNSS fixes become NED positions about the log's datum (else its first valid fix),
     compass headings true hull headings; non-finite or out-of-range records are skipped
     and counted. The steps are the output grid (``settings.output_step_s``) plus every
-    measurement time; thrust is held (zero-order) between its records.
+    measurement time; thrust is held (zero-order) between its records. Measurement times
+    are the stamps minus the sensor's latency (``gnss_delay_s``, ``compass_delay_s``).
 
     The heading is not fused (``mode`` "gps-only", ``mode_reason`` says why) when the log
     has none, the import's health audit judged it dead, it stays still while the track
@@ -219,6 +243,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
         record, or thrust commands cannot be turned into forces.
     """
     s = settings
+    log = delayed_log(log, s)   # latency: stamps -> the times the measurements describe
     gps = _channel(log, GNSS_TOPIC)
     comp = _channel(log, COMPASS_TOPIC, required=False)
     thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
@@ -277,9 +302,17 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     # step grid: the output grid plus every measurement time
     t_start, t_end = int(m_t[0]), int(m_t[-1])
     step_ns = int(round(s.output_step_s * 1e9))
+    # the grid's phase is that of the first stamp, whatever the latencies: moving it with a
+    # delay would move the thrust's steps within the grid's (the likelihood would ripple)
+    stamp = m_t + np.where((mkind == GNSS) | (mkind == VELOCITY), int(round(s.gnss_delay_s * 1e9)),
+                           np.where(mkind == COMPASS, int(round(s.compass_delay_s * 1e9)), 0))
+    t_start = t_start - (t_start - int(stamp.min())) % step_ns
     grid = t_start + step_ns * np.arange((t_end - t_start) // step_ns + 1, dtype=np.int64)
-    t_ns = np.union1d(grid, m_t)
-    is_grid = np.isin(t_ns, grid)
+    grid = grid[grid >= m_t[0]]
+    t_ns = np.sort(np.concatenate([grid, m_t]))    # union1d / isin, by sorting (several times faster)
+    t_ns = t_ns[np.concatenate([[True], t_ns[1:] != t_ns[:-1]])]
+    is_grid = np.zeros(len(t_ns), bool)
+    is_grid[np.searchsorted(t_ns, grid)] = True
     mstep = np.searchsorted(t_ns, m_t)
     dts = np.diff(t_ns, prepend=t_ns[0]).astype(float) * 1e-9
 
@@ -785,6 +818,8 @@ class EstimateReport:
         Why GNSS only (empty with a compass).
     reinits : tuple of (int, str)
         Re-initialisations of the divergence guard: (time in ns since the Unix epoch, why).
+    latency : tuple of DelayEstimate
+        The sensor delays searched (``settings.estimate_delays``), empty without a search.
     """
 
     model: str
@@ -800,6 +835,7 @@ class EstimateReport:
     mode: str = "gnss+compass"
     mode_reason: str = ""
     reinits: tuple[tuple[int, str], ...] = ()
+    latency: tuple[DelayEstimate, ...] = ()
 
     @property
     def dropouts_bridged(self) -> int:
@@ -887,7 +923,8 @@ class EstimateReport:
                 "duration_s": self.duration_s, "sensors": {r.sensor: r.to_dict() for r in self.sensors},
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
-                "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned}
+                "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned,
+                "latency": [d.to_dict() for d in self.latency]}
 
     def format(self) -> str:
         """Human-readable multi-line summary (what ``usvlog estimate`` prints)."""
@@ -910,6 +947,7 @@ class EstimateReport:
             lines.append(f"  re-initialisations after divergence: {len(self.reinits)}"
                          + "".join(f"\n    {format_time(t)}  {r}" for t, r in self.reinits[:20])
                          + (f"\n    ... {len(self.reinits) - 20} more" if len(self.reinits) > 20 else ""))
+        lines += [f"  {d.format()}" for d in self.latency]
         lines += [f"  warning: {w}" for w in self.consistency()]
         return "\n".join(lines)
 
@@ -954,7 +992,9 @@ class EstimateResult:
 
     def to_log(self, log: FieldLog) -> FieldLog:
         """A copy of ``log`` plus /estimate/state, /estimate/innovations, provenance and the
-        estimate's status record (:mod:`usvlog.log.status`: ok or degraded, with reasons)."""
+        estimate's status record (:mod:`usvlog.log.status`: ok or degraded, with reasons) and the
+        sensor delays applied (metadata record ``usvlog.latency``, see
+        :func:`usvlog.estimate.latency.stored_delays`)."""
         out = log.copy()
         out.set(STATE_TOPIC, self.state)
         out.set(INNOVATION_TOPIC, self.innovations)
@@ -964,6 +1004,7 @@ class EstimateResult:
                            report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
         set_estimate_status(out, EstimateStatus(status=self.report.status, mode=self.report.mode,
                                                 reasons=tuple(self.report.status_reasons())))
+        out.meta[META_LATENCY] = latency_record(self.settings, self.report.latency)
         return out
 
 
@@ -1043,20 +1084,35 @@ def _compass_disagrees(pb: Problem, raw: RawRun) -> str:
             "gate): not fused")
 
 
-def _solve(pb: Problem, settings: EstimateSettings) -> tuple[EstimateSettings, RawRun, dict | None]:
-    """Settings in effect, the filter (and smoother) run and the tuning result for one problem."""
+def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vessel
+           ) -> tuple[EstimateSettings, RawRun, dict | None, tuple[DelayEstimate, ...], Problem]:
+    """Settings in effect, the filter (and smoother) run, the tuning result, the sensor delays
+    searched and the problem they give, for one run (``pb`` built from ``log`` with
+    ``settings``)."""
     if pb.mode == "gps-only":
         settings = gps_only_settings(settings)
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
         settings = replace(settings, q_r=Q_R_KINEMATIC_NO_JUMPS)   # no thrust record
+    latency: tuple[DelayEstimate, ...] = ()
+    given = {"gnss": settings.gnss_delay_s, "compass": settings.compass_delay_s}
+
+    def search_delays(st: EstimateSettings, q: np.ndarray):
+        lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
+                                                                       s_.max_consecutive_rejects), given=given)
+        return lat, st, build_problem(log, st, vessel)
+
     tuned = None
     if settings.tune:
+        if settings.estimate_delays:   # first the delays, so that the tuned noise does not absorb them
+            latency, settings, pb = search_delays(settings, process_noise(settings))
         tuned = tune_process_noise(pb, settings)
         settings = replace(settings, q_uv=tuned["q_uv"], q_r=tuned["q_r"],
                            q_current=tuned.get("q_current", settings.q_current), tune=False)
     q = process_noise(settings)
+    if settings.estimate_delays:   # (again) with the noise in effect
+        latency, settings, pb = search_delays(settings, q)
     runner = run_fast if settings.fast else run_reference_path
-    return settings, runner(pb, q, settings.max_consecutive_rejects, settings.smoother), tuned
+    return settings, runner(pb, q, settings.max_consecutive_rejects, settings.smoother), tuned, latency, pb
 
 
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
@@ -1110,11 +1166,13 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if vessel is None:
         vessel = log.vessel or default_vessel()
     pb = build_problem(log, settings, vessel)
-    run_settings, raw, tuned = _solve(pb, settings)
+    run_settings, raw, tuned, latency, pb = _solve(pb, settings, log, vessel)
     why = _compass_disagrees(pb, raw)
     if why:   # a heading source the track contradicts: GNSS only
-        pb = replace(build_problem(log, replace(settings, gps_only=True), vessel), mode_reason=why)
-        run_settings, raw, tuned = _solve(pb, settings)
+        settings = replace(settings, gps_only=True)
+        pb = build_problem(log, settings, vessel)
+        run_settings, raw, tuned, latency, pb = _solve(pb, settings, log, vessel)
+        pb = replace(pb, mode_reason=why)
     settings = run_settings
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
@@ -1150,6 +1208,6 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
                             duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
                             dropouts=pb.dropouts, loglik=raw.loglik,
                             thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned,
-                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits)
+                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits, latency=latency)
     return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
                           settings=settings, vessel=vessel)

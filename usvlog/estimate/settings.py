@@ -22,6 +22,9 @@ DEFAULT_Q = {
 
 Q_R_KINEMATIC_NO_JUMPS = 0.01
 
+DELAY_SENSORS = ("gnss", "compass")
+"""Sensors whose latency the estimator can apply and estimate (``<name>_delay_s``)."""
+
 
 @dataclass(frozen=True, kw_only=True)
 class EstimateSettings:
@@ -94,6 +97,15 @@ class EstimateSettings:
         Fuse no heading even when the log has one (a rough or doubtful compass). Without a
         usable heading channel (none, dead, or still while the track turns) the estimate
         is GNSS-only anyway.
+    gnss_delay_s : float, default 0.0
+        GNSS latency in s, in [-1, 5]: a fix (and a GNSS velocity) stamped t describes the
+        boat at t - gnss_delay_s (see ``usvlog.estimate.latency`` to estimate it).
+    compass_delay_s : float, default 0.0
+        Compass latency in s, in [-1, 5], likewise for ``/compass/heading``.
+    estimate_delays : tuple of str, default ()
+        Sensors (``"gnss"``, ``"compass"``) whose latency is estimated from the data by
+        maximising the innovation likelihood (``usvlog.estimate.latency``); the value
+        above is kept where the data do not determine it.
 
     Raises
     ------
@@ -124,6 +136,9 @@ class EstimateSettings:
     output_step_s: float = 0.01
     gnss_velocity_noise_mps: float = 0.1
     gps_only: bool = False
+    gnss_delay_s: float = 0.0
+    compass_delay_s: float = 0.0
+    estimate_delays: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.model not in MODELS:
@@ -156,6 +171,15 @@ class EstimateSettings:
             raise ConfigError(f"max_consecutive_rejects = {self.max_consecutive_rejects} must be >= 1")
         if not (1e-4 <= self.output_step_s <= 1.0):
             raise ConfigError(f"output_step_s = {self.output_step_s} must be in [1e-4, 1] s")
+        for name in ("gnss_delay_s", "compass_delay_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and -1.0 <= v <= 5.0):
+                raise ConfigError(f"estimate setting {name} = {v} must be a latency in [-1, 5] s")
+        names = self.estimate_delays
+        object.__setattr__(self, "estimate_delays", (names,) if isinstance(names, str) else tuple(names))
+        for name in self.estimate_delays:
+            if name not in DELAY_SENSORS:
+                raise ConfigError(f"estimate_delays: {name!r} is not one of {', '.join(DELAY_SENSORS)}")
 
     @property
     def use_current(self) -> bool:

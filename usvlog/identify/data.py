@@ -3,6 +3,8 @@
 Thrust -> forces through the vessel's thruster map and geometry (the logged
 ``thrust_left_n``/``thrust_right_n`` when present), GPS fixes -> local NED about the
 log's datum, compass headings; all times in seconds from the run's first thrust sample.
+GNSS and compass times are the stamps minus the sensor latency an estimate stored in the
+log (``usvlog.estimate.latency.stored_delays``; ``with_delays`` sets a known one).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from ..estimate.latency import stored_delays
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
@@ -31,7 +34,9 @@ class RunData:
     ``sigma_gps`` (m, one sigma per fix and axis). ``t_compass`` with ``psi_compass``
     (rad, true heading wrapped to [-pi, pi)) and ``sigma_compass`` (rad).
     ``thrust_source``: ``"logged newtons"`` or how forces were made from commands;
-    ``thrust_skipped``: non-finite thrust records skipped; ``source``: the log's name.
+    ``thrust_skipped``: non-finite thrust records skipped; ``source``: the log's name;
+    ``gnss_delay_s``, ``compass_delay_s``: the latencies (s) taken off the GNSS and compass
+    stamps (a record stamped t describes the boat at t - delay).
     """
 
     t0_ns: int
@@ -48,6 +53,8 @@ class RunData:
     thrust_source: str = "newton"   # "logged newtons" or the map used
     thrust_skipped: int = 0         # non-finite thrust records skipped
     source: str = ""
+    gnss_delay_s: float = 0.0
+    compass_delay_s: float = 0.0
 
     @property
     def duration_s(self) -> float:
@@ -127,7 +134,8 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     Returns
     -------
     RunData
-        GNSS and compass samples inside the thrust record only.
+        GNSS and compass samples inside the thrust record only, at their stamps minus the
+        latencies stored in the log (:func:`usvlog.estimate.latency.stored_delays`).
 
     Raises
     ------
@@ -151,8 +159,9 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     tau_u, tau_r = vessel.thrusters.tau_from_forces(fl, frr)
     t0 = int(t_ns[0])
 
+    delay = stored_delays(log)
     g = log["/gnss/fix"]
-    tg = np.asarray(g.index, dtype=np.int64)
+    tg = np.asarray(g.index, dtype=np.int64) - int(round(delay.get("gnss", 0.0) * 1e9))
     lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
     ok = np.isfinite(lat) & np.isfinite(lon)
     datum = log.datum
@@ -171,7 +180,7 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     ok &= (tg >= t_ns[0]) & (tg <= t_ns[-1])
 
     c = log["/compass/heading"]
-    tc = np.asarray(c.index, dtype=np.int64)
+    tc = np.asarray(c.index, dtype=np.int64) - int(round(delay.get("compass", 0.0) * 1e9))
     hd = c["heading_rad"].to_numpy(float)
     sc = c["std_rad"].to_numpy(float) if "std_rad" in c else np.full(len(c), np.nan)
     sc = np.where(np.isfinite(sc) & (sc > 0), sc, DEFAULT_COMPASS_SIGMA_RAD)
@@ -182,4 +191,5 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     return RunData(t0_ns=t0, t_thrust=(t_ns - t0) / 1e9, tau_u=np.asarray(tau_u, float),
                    tau_r=np.asarray(tau_r, float), t_gps=(tg[ok] - t0) / 1e9, n_gps=n[ok], e_gps=e[ok],
                    sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
-                   sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src)
+                   sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src,
+                   gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))

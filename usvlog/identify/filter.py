@@ -12,6 +12,7 @@ from scipy.optimize import minimize
 
 from ..estimate import EstimateSettings, build_problem
 from ..estimate.core import forward_loglik, process_noise
+from ..estimate.latency import stored_delays, with_settings_delays
 from ..log.fieldlog import FieldLog
 from ..model.vessel import PARAM_NAMES, Vessel
 
@@ -64,7 +65,7 @@ def fit_filter_error(logs: list[FieldLog], vessel: Vessel, theta0, *, free_mask=
     """
     free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
     s = EstimateSettings(model="dynamic", current=current, gate_probability=1.0)
-    pbs = [build_problem(log, s, vessel) for log in logs]
+    pbs = [build_problem(log, with_settings_delays(s, stored_delays(log)), vessel) for log in logs]
     q = process_noise(s)
     theta0 = np.asarray(theta0, float)
     pos = np.array([True, True, True, True, True, False])   # searched in log space

@@ -106,7 +106,9 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
 
 def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
     """Smoothed over-ground states of a run (the estimator's kinematic EKF + RTS smoother)."""
-    st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT), vessel).state
+    st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT,
+                                        gnss_delay_s=run.gnss_delay_s, compass_delay_s=run.compass_delay_s),
+                  vessel).state
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))

@@ -58,6 +58,10 @@ class SensorSettings:
         Rate of the recorded thrust commands, Hz (> 0).
     truth_rate_hz : float or None, default None
         Rate of ``/truth/state``, Hz (None: every integration step).
+    gps_delay_s : float, default 0.0
+        GNSS latency, s (>= 0): a fix describing the boat at t is stamped t + gps_delay_s.
+    compass_delay_s : float, default 0.0
+        Compass latency, s (>= 0), likewise.
 
     Raises
     ------
@@ -76,6 +80,8 @@ class SensorSettings:
     compass_bias_deg: float = 0.0
     thrust_rate_hz: float = 100.0
     truth_rate_hz: float | None = None   # rate of /truth/state (None: every integration step)
+    gps_delay_s: float = 0.0             # latency: a fix describing time t is stamped t + delay
+    compass_delay_s: float = 0.0
 
     def __post_init__(self):
         if self.truth_rate_hz is not None and not self.truth_rate_hz > 0:
@@ -83,7 +89,7 @@ class SensorSettings:
         for name in ("gps_rate_hz", "compass_rate_hz", "thrust_rate_hz", "gps_bias_tau_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"sensor setting {name} = {getattr(self, name)} must be > 0")
-        for name in ("gps_noise_m", "compass_noise_deg", "gps_bias_sigma_m"):
+        for name in ("gps_noise_m", "compass_noise_deg", "gps_bias_sigma_m", "gps_delay_s", "compass_delay_s"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"sensor setting {name} = {getattr(self, name)} must be >= 0")
 
@@ -668,23 +674,25 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     lat, lon, alt = ned_to_geodetic(pn, pe, np.zeros_like(pn), datum=st.datum)
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
-    gps = {"stamp_ns": t_ns[gi], "frame_id": np.array(["gnss"] * len(gi), dtype=object),
+    tg_ns = t_ns[gi] + int(round(sn.gps_delay_s * 1e9))   # stamped late by the latency
+    gps = {"stamp_ns": tg_ns, "frame_id": np.array(["gnss"] * len(gi), dtype=object),
            "lat_deg": np.round(lat, _QUANTUM["latlon"]), "lon_deg": np.round(lon, _QUANTUM["latlon"]),
            "alt_m": np.round(alt, _QUANTUM["alt"]),
            "cov_ee_m2": z + var, "cov_en_m2": z, "cov_eu_m2": z, "cov_ne_m2": z, "cov_nn_m2": z + var,
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
     gps = {k: np.asarray(v)[keep] for k, v in gps.items()}
-    log.set("/gnss/fix", frame_from_columns(gps, t_ns[gi][keep], channel_spec("/gnss/fix")))
+    log.set("/gnss/fix", frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix")))
 
     # compass
     ci = noise["compass_index"]
     std = math.radians(sn.compass_noise_deg)
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
-    comp = {"stamp_ns": t_ns[ci], "heading_rad": np.round(hd, _QUANTUM["heading"]),
+    tc_ns = t_ns[ci] + int(round(sn.compass_delay_s * 1e9))
+    comp = {"stamp_ns": tc_ns, "heading_rad": np.round(hd, _QUANTUM["heading"]),
             "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
-    log.set("/compass/heading", frame_from_columns(comp, t_ns[ci], channel_spec("/compass/heading")))
+    log.set("/compass/heading", frame_from_columns(comp, tc_ns, channel_spec("/compass/heading")))
 
     settings = {"scenario": scenario, "seed": seed, "duration_s": st.duration_s, "dt_s": st.dt_s,
                 "integrator": st.integrator, "current_mps": st.current_mps,
