@@ -199,10 +199,10 @@ def write_csv(frame, path) -> None:
         The file to write.
     """
     # heavy: pyarrow, only when a CSV is written
+    import csv
+
     import pyarrow as pa
     import pyarrow.csv as pacsv
-
-    import csv
 
     names = [str(frame.index.name or "")] + [str(c) for c in frame.columns]
     cols = [pa.Array.from_pandas(frame.index)] + [pa.Array.from_pandas(frame[c]) for c in frame.columns]  # NaN -> null
