@@ -160,7 +160,10 @@ class McapWriter:
     packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
-    plus one batch) is held. Each message's ``sequence`` is its row number in its
+    plus one batch) and the chunks being compressed are held. Chunks are compressed
+    on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
+    compresses in the calling thread) while the caller encodes the next batch, and
+    written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's ``sequence`` is its row number in its
     channel over all batches, as :func:`read_log` expects; within a batch messages
     are ordered by (time, channel, row).
     """
