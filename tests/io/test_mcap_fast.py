@@ -309,6 +309,22 @@ def _msg(i, **kw):
     return orjson.dumps(o)
 
 
+def test_decode_in_blocks_with_the_cached_layout_equals_reference(monkeypatch):
+    """Blocks of messages decoded against the channel's cached layout; a block laid out
+    otherwise (keys reordered, spaces) is matched on its own layout, a mixed one falls back
+    to the reference: every way gives the reference's columns."""
+    from usvlog.io.mcap import codec as codec_mod
+
+    monkeypatch.setattr(codec_mod, "_DECODE_BLOCK", 8)
+    codec = Codec(SCHEMA)
+    plain = [_msg(i) for i in range(20)]
+    spaced = [json.dumps(json.loads(_msg(i)), indent=1).encode() for i in range(20, 36)]
+    mixed = plain[:5] + spaced[:3] + plain[5:]
+    for msgs in (plain, plain + spaced, spaced + plain, mixed, plain):
+        buf, s, e = _spans(msgs)
+        _same_columns(codec.decode_spans(buf, s, e), codec.decode_reference(msgs))
+
+
 @pytest.mark.parametrize("case", [
     "plain", "null", "exponents", "spaces", "key_order", "missing", "big_int", "escape", "extra_key",
     "array_len", "float_in_int", "null_string"])
