@@ -163,8 +163,8 @@ class McapWriter:
     plus one batch) and the chunks being compressed are held. Chunks are compressed
     on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
     compresses in the calling thread) while the caller encodes the next batch, and
-    written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's ``sequence`` is its row number in its
-    channel over all batches, as :func:`read_log` expects; within a batch messages
+    written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's
+    ``sequence`` is its row number in its channel over all batches, as :func:`read_log` expects; within a batch messages
     are ordered by (time, channel, row).
     """
 
