@@ -22,17 +22,18 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 # holds data) until the test signals it
 SLOW_EXPORT = textwrap.dedent("""
     import os, sys, time
-    import pandas as pd
+    import pyarrow.csv
     from usvlog.cli import main
 
-    real = pd.DataFrame.to_csv
+    real = pyarrow.csv.write_csv
 
-    def slow(self, path, *a, **k):
-        real(self, path, *a, **k)
+    def slow(table, out, *a, **k):
+        real(table, out, *a, **k)
+        out.flush()
         open(os.environ["READY"], "w").close()
         time.sleep(60)
 
-    pd.DataFrame.to_csv = slow
+    pyarrow.csv.write_csv = slow
     sys.exit(main(sys.argv[1:]))
 """)
 

@@ -134,7 +134,8 @@ def export_log(log: FieldLog, out_dir, *, fmt: str = "csv", force: bool = False)
     out_dir : str or os.PathLike
         Directory for the files (created if missing).
     fmt : {"csv", "parquet"}, default "csv"
-        CSV floats are written with 17 significant digits (exact round trip).
+        CSV floats are written as the shortest text that reads back as the same
+        double (exact round trip; :func:`write_csv`).
     force : bool, default False
         Overwrite existing files.
 
@@ -176,8 +177,38 @@ def export_log(log: FieldLog, out_dir, *, fmt: str = "csv", force: bool = False)
         frame = log.channels[topic]
         with atomic_path(path, force=force) as tmp:
             if fmt == "csv":
-                frame.to_csv(tmp, float_format="%.17g")
+                write_csv(frame, tmp)
             else:
                 frame.to_parquet(tmp)
         written.append(path)
     return written
+
+
+def write_csv(frame, path) -> None:
+    """Write ``frame`` (its index as the first column) as CSV through pyarrow's writer.
+
+    Floats are written as the shortest text that reads back as the same double (an exact
+    round trip, as ``%.17g`` but shorter), NaN as an empty field, booleans as
+    ``true``/``false``; a header name or string is quoted only when it needs it.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        One channel (index ``t_ns``, int64 ns since the Unix epoch).
+    path : str or os.PathLike
+        The file to write.
+    """
+    # heavy: pyarrow, only when a CSV is written
+    import csv
+
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    names = [str(frame.index.name or "")] + [str(c) for c in frame.columns]
+    cols = [pa.Array.from_pandas(frame.index)] + [pa.Array.from_pandas(frame[c]) for c in frame.columns]  # NaN -> null
+    table = pa.Table.from_arrays(cols, names=[f"c{i}" for i in range(len(cols))])
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh, lineterminator="\n").writerow(names)   # the header as pandas writes it
+    with open(path, "ab") as fh:
+        pacsv.write_csv(table, fh, pacsv.WriteOptions(include_header=False, quoting_style="needed",
+                                                      batch_size=1 << 16))

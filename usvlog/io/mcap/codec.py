@@ -65,6 +65,7 @@ class Codec:
         self.spec: ChannelSpec = spec_for_schema(schema)
         self.name: str = self.spec.name
         self.fields: tuple[FieldSpec, ...] = self.spec.fields
+        self._template = None   # the message layout decoded last (see _decode_layout)
 
     @property
     def columns(self) -> list[str]:
@@ -233,9 +234,18 @@ class Codec:
         """
         if len(starts) == 0:
             return self.empty_columns()
-        out = _decode_layout(self, buf, np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64))
-        if out is not None:
-            return out
+        starts, ends = np.asarray(starts, dtype=np.int64), np.asarray(ends, dtype=np.int64)
+        # a block of messages at a time: the scan's temporaries stay small whatever the count
+        parts = []
+        for a in range(0, len(starts), _DECODE_BLOCK):
+            out = _decode_layout(self, buf, starts[a:a + _DECODE_BLOCK], ends[a:a + _DECODE_BLOCK])
+            if out is None:
+                break
+            parts.append(out)
+        else:
+            if len(parts) == 1:
+                return parts[0]
+            return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
         b = buf.tobytes() if isinstance(buf, np.ndarray) else bytes(buf)
         return self.decode_reference([b[s:e] for s, e in zip(starts.tolist(), ends.tolist())], topic)
 
@@ -387,10 +397,14 @@ class _Mismatch(Exception):
     pass
 
 
-def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
-                   ) -> dict[str, np.ndarray] | None:
-    """The fast path of :meth:`Codec.decode_spans`; None when it does not apply."""
-    layout = _layout(buf[starts[0]:ends[0]].tobytes())
+_DECODE_BLOCK = 1 << 16   # messages decoded by one compiled scan
+
+
+def _template(codec: Codec, msg: bytes):
+    """The decoding plan of messages laid out as ``msg``: (literal bytes, their offsets,
+    value paths, the plan of :func:`_decode_layout`), or None when ``msg`` has no usable
+    layout. The last plan is kept on the codec (checked again per message by the scan)."""
+    layout = _layout(msg)
     if layout is None:
         return None
     lits, paths = layout
@@ -416,6 +430,34 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     except _Mismatch:
         return None
     lit_buf, lit_off = _pack(lits)
+    return lit_buf, lit_off, paths, plan
+
+
+def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                   ) -> dict[str, np.ndarray] | None:
+    """The fast path of :meth:`Codec.decode_spans`; None when it does not apply.
+
+    The messages are matched against the template the codec last used (a channel's
+    messages share one layout: it is worked out once, not once per block or chunk);
+    when they do not match it, against the first message's own layout."""
+    cached = codec._template
+    if cached is not None:
+        out = _decode_template(codec, cached, buf, starts, ends)
+        if out is not None:
+            return out
+    tpl = _template(codec, buf[starts[0]:ends[0]].tobytes())
+    if tpl is None or (cached is not None and tpl[0].tobytes() == cached[0].tobytes()
+                       and np.array_equal(tpl[1], cached[1])):
+        return None
+    codec._template = tpl
+    return _decode_template(codec, tpl, buf, starts, ends)
+
+
+def _decode_template(codec: Codec, tpl, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
+                     ) -> dict[str, np.ndarray] | None:
+    """Messages decoded against one template (see :func:`_template`); None when one
+    does not match it."""
+    lit_buf, lit_off, paths, plan = tpl
 
     def columns(kinds_wanted: tuple[str, ...]) -> tuple[list[int], np.ndarray]:
         slots = [k for f, ks in plan if f.kind in kinds_wanted for k in ks]

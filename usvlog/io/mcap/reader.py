@@ -633,17 +633,24 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None):
         pos, base = resume, base + n + 1
 
 
-def _scan_fast(data: bytes) -> _Scan:
+def _scan_fast(data, release=None, release_all=None) -> _Scan:
     """The same reading as :func:`.reference._scan_reference`, with the per-message work
     done by compiled loops (:func:`_walk`): a message is kept when its channel was defined
     before it (compared by record ordinals), or, when its definition was lost, the summary
-    still defines the channel. Every message's bytes go into one arena."""
+    still defines the channel. Every message's bytes go into one arena.
+
+    ``data`` is the file's bytes or a memory map of it; with a map, ``release(offset)``
+    and ``release_all()`` drop its pages behind the walk (see :class:`ChunkStream`), so
+    the file is not held in memory next to the arena."""
     scan = _Scan()
-    _layout(scan, data)
+    if release_all is None:
+        _layout(scan, data)
+    else:
+        _layout_windowed(scan, data, release_all)
     parts = []                       # (arena offset, cid, seq, t, start, end, ordinal)
     arena = _Arena(0)
     walked = None
-    for records, (cid, seq, t, ps, pe, ordinal), _at, _t0, _t1 in _walk(scan, data):
+    for records, (cid, seq, t, ps, pe, ordinal), _at, _t0, _t1 in _walk(scan, data, release):
         if scan.walked is not walked:   # a new run of records: room for its chunks at once
             walked = scan.walked
             ops, offs, lens = walked
@@ -651,7 +658,10 @@ def _scan_fast(data: bytes) -> _Scan:
             arena.reserve(min(sum(_U64.unpack_from(data, int(offs[i]) + 9 + 16)[0] for i in chunk_ops.tolist()
                                   if lens[i] >= 24), 64 * len(data)))
         parts.append((arena.put(records), cid, seq, t, ps, pe, ordinal))
-    _finish(scan, data)
+    if release_all is None:
+        _finish(scan, data)
+    else:
+        _finish_windowed(scan, data, release_all)
     defined = scan.defined
     # messages -> per-channel arrays into one arena of bytes
     scan.arena = arena.buf[:arena.used]
@@ -730,8 +740,15 @@ def _read_bytes(p: Path) -> bytes:
 def scan_file(path, *, scanner=None) -> tuple[_Scan, int]:
     """Walk an MCAP file's records: (scan, file size). ``scanner`` is ``_scan_fast``
     unless given (the tests pass :func:`.reference._scan_reference`)."""
-    data = _read_bytes(Path(path))
-    return (scanner or _scan_fast)(data), len(data)
+    if scanner is not None:
+        data = _read_bytes(Path(path))
+        return scanner(data), len(data)
+    # the fast scan reads a memory map, giving its pages back as it goes
+    with ChunkStream(path) as stream:
+        data = stream._map
+        if data[:8] != MAGIC and _find_footer_windowed(data, stream._release_all) < 0:
+            raise FormatError(f"{stream.path}: not an MCAP file (bad magic bytes)")
+        return _scan_fast(data, stream._release, stream._release_all), len(data)
 
 
 def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> FieldLog:

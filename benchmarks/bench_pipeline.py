@@ -1,0 +1,112 @@
+"""The whole pipeline as a user runs it: every verb a separate process on a simulated log.
+
+    python benchmarks/bench_pipeline.py              # a 1-hour log
+    python benchmarks/bench_pipeline.py --hours 1 3  # and a 3-hour one: memory flat, time ~3x
+
+For each length: ``simulate excitation``, ``inspect``, ``estimate``, ``identify --json``,
+``replay --scenario paper-sine``, ``view`` (to an .rrd file, no viewer) and ``report``, each
+``python -m usvlog ...`` in its own process, timed from start to exit; its peak resident
+memory is the child's ``ru_maxrss`` (``os.wait4``). Then one plain read of the estimate's
+file with the mcap library (the fastest library loop: ``NonSeekingReader`` records in file
+order, ``orjson.loads`` per message, no CRC checks), in the same run, for the "sum <= 2x a
+plain read" comparison. The load average is printed: on a shared machine the figures are
+only comparable at the same load.
+
+Targets (issue 17): 1 hour, the seven verbs' sum <= 15 s and every verb <= 1.5 GB; at
+3 hours every verb <= 1.5 GB and the sum <= 3.2x the 1-hour sum.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+VERBS = [
+    ("simulate", ["simulate", "excitation", "--out", "raw.mcap", "--duration-s", "{seconds}"]),
+    ("inspect", ["inspect", "raw.mcap"]),
+    ("estimate", ["estimate", "raw.mcap", "--out", "e.mcap"]),
+    ("identify", ["identify", "e.mcap", "--json", "--out", "fit.json"]),
+    ("replay", ["replay", "e.mcap", "--scenario", "paper-sine", "--out", "r.mcap"]),
+    ("view", ["view", "e.mcap", "--out", "e.rrd"]),
+    ("report", ["report", "e.mcap", "--out", "report"]),
+]
+
+PLAIN_READ = """
+import sys, time, orjson
+from mcap.reader import NonSeekingReader
+t = time.perf_counter()
+n = 0
+with open(sys.argv[1], "rb") as fh:
+    for _schema, _channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
+        orjson.loads(message.data)
+        n += 1
+print(n, time.perf_counter() - t)
+"""
+
+
+def run(cmd: list[str], cwd: Path) -> tuple[float, float, float, str]:
+    """(wall s, CPU s, peak RSS MB, stderr) of one process, started and waited for here."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    _pid, status, ru = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode not in (0, 1):   # identify may exit 1 on a fit it flags; anything else is a failure
+        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{err}")
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024, err
+
+
+def pipeline(hours: float, work: Path) -> dict[str, tuple[float, float, float]]:
+    out = {}
+    for name, args in VERBS:
+        args = [a.format(seconds=int(hours * 3600)) for a in args]
+        wall, cpu, peak, _ = run([sys.executable, "-m", "usvlog", *args], work)
+        out[name] = (wall, cpu, peak)
+        print(f"  {name:9s} {wall:7.2f} s wall {cpu:7.2f} s CPU {peak:7.0f} MB peak", flush=True)
+    wall, cpu, peak, _ = run([sys.executable, "-c", PLAIN_READ, str(work / "e.mcap")], work)
+    out["plain read"] = (wall, cpu, peak)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, nargs="+", default=[1.0], help="log lengths (hours)")
+    ap.add_argument("--keep", type=Path, help="work in this directory (kept) instead of a temporary one")
+    a = ap.parse_args()
+    sums = {}
+    for h in a.hours:
+        print(f"{h:g} h log; load average {os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs", flush=True)
+        with tempfile.TemporaryDirectory() as tmp:
+            work = a.keep / f"{h:g}h" if a.keep else Path(tmp)
+            work.mkdir(parents=True, exist_ok=True)
+            res = pipeline(h, work)
+            size = (work / "e.mcap").stat().st_size / 1e6
+        pw, pc, pp = res.pop("plain read")
+        wall = sum(r[0] for r in res.values())
+        cpu = sum(r[1] for r in res.values())
+        peak = max(r[2] for r in res.values())
+        sums[h] = wall
+        print(f"  {'sum':9s} {wall:7.2f} s wall {cpu:7.2f} s CPU {peak:7.0f} MB largest peak"
+              f"  (targets at 1 h: <= 15 s, <= 1500 MB)")
+        print(f"  plain read of e.mcap ({size:.0f} MB) with the mcap library (NonSeekingReader loop + orjson):"
+              f" {pw:.2f} s process wall, {pc:.2f} s CPU, {pp:.0f} MB; sum / plain read = {wall / pw:.1f}x"
+              f" (target <= 2x)")
+        print(f"  load average after: {os.getloadavg()[0]:.2f}", flush=True)
+    if len(sums) > 1:
+        h0 = min(sums)
+        for h, s in sums.items():
+            if h != h0:
+                print(f"{h:g} h / {h0:g} h time: {s / sums[h0]:.2f}x (target <= 3.2x for 3 h / 1 h)")
+
+
+if __name__ == "__main__":
+    main()
