@@ -112,7 +112,9 @@ def test_fixed_mass_is_kept_and_thrust_map_guess_reported(excitation_log):
     log.channels["/thrust/command"] = fr
     idf = Identifier("equation-error", fix={"m": 33.0}).fit([log], guess)
     assert idf.params_.m == 33.0 and idf.stderr_["m"] == 0.0
-    assert any("thruster map is only a guess" in v for v in idf.verdict_)
+    # a guessed map gives no force scale: identified in command units, the gain from the fixed mass
+    assert idf.thrust_scale_.case == "gain identified"
+    assert any("gain identified from the fixed m" in v for v in idf.verdict_)
 
 
 def test_two_runs_fitted_jointly_each_with_its_own_current():

@@ -25,6 +25,7 @@ from .output import (
     simulate_run,
 )
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
+from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
 
 METHODS = IDENTIFY_METHODS
 Z95 = 1.959963984540054
@@ -176,6 +177,10 @@ class Identifier:
     verdict_ : list of str
         Warnings about identifiability, excitation, correlations and the thruster map
         (empty when nothing stands out).
+    thrust_scale_ : ThrustScale
+        Whether the thrust had a known force scale; if not, the fit is in command units
+        (per unit of full forward command) or, with one physical value fixed, scaled to
+        physical units with the thrust gains found (:mod:`usvlog.identify.thrust_scale`).
     equation_error_ : EquationErrorResult
         The equation-error fit (always computed: the output-error start and a comparison).
     oe_ : OutputErrorResult or None
@@ -255,6 +260,10 @@ class Identifier:
         if not logs:
             raise InputError("no logs to identify from")
         vessel = vessel or logs[0].vessel or default_vessel()
+        # thrust without a known force scale: the model in command units (and the gain from a fixed value)
+        if not getattr(self, "_command_units", False) and not all(thrust_scale_known(lg, vessel) for lg in logs):
+            return fit_in_command_units(self, logs, vessel)
+        self.thrust_scale_ = ThrustScale()
         self.vessel_in_ = vessel
         runs, kin = [], []
         held = []
@@ -560,7 +569,8 @@ class Identifier:
              "fixed": dict(self.fix),
              "equation_error": {"params": self.equation_error_.to_dict(),
                                 "stderr": dict(self.equation_error_.stderr)},
-             "Iz_minus_m_xg2": self.params_.Iz_eff}
+             "Iz_minus_m_xg2": self.params_.Iz_eff,
+             "thrust_scale": self.thrust_scale_.to_dict()}
         if val is not None:
             d["validation"] = val.to_dict()
         return d
