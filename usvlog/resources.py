@@ -1,7 +1,8 @@
-"""Locate the data shipped with usvlog: channel schemas and replay scenarios.
+"""Locate the data shipped with usvlog: channel schemas, replay scenarios and vessels.
 
-In a wheel they live inside the package (``usvlog/_schemas``, ``usvlog/_replay``);
-in a source checkout they are the top-level ``schemas/`` and ``replay/`` folders.
+In a wheel they live inside the package (``usvlog/_schemas``, ``usvlog/_replay``,
+``usvlog/_vessels``); in a source checkout they are the top-level ``schemas/``,
+``replay/`` and ``vessels/`` folders.
 """
 
 from __future__ import annotations
@@ -34,3 +35,12 @@ def replay_dir() -> Path:
     does (the caller reports the missing file).
     """
     return _find("_replay", "replay")
+
+
+def vessels_dir() -> Path:
+    """The directory of the shipped vessel TOML files (``usvlog/_vessels`` in a wheel, else ``vessels/``).
+
+    The packaged directory wins when both exist; the path is returned even when neither
+    does (the caller reports the missing file).
+    """
+    return _find("_vessels", "vessels")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..model.vessel import Vessel, default_vessel, vessel_from_dict, vessel_from_toml
+from ..resources import vessels_dir
 from .atomic import reading
 
 
@@ -50,7 +51,9 @@ def load_vessel(path=None) -> Vessel:
     Parameters
     ----------
     path : str or os.PathLike, optional
-        Vessel file (``name``, ``[model]``, ``[thrusters]``; see README).
+        Vessel file (``name``, ``[model]`` or ``[extended]``, ``[thrusters]``; see README),
+        or the name of a vessel shipped with usvlog (``catamaran`` or ``catamaran.toml``)
+        when no such file exists.
 
     Returns
     -------
@@ -65,7 +68,31 @@ def load_vessel(path=None) -> Vessel:
     """
     if path is None:
         return default_vessel()
-    return vessel_from_toml(read_text(path), source=str(path))
+    return vessel_from_toml(read_text(shipped_vessel(path)), source=str(path))
+
+
+def shipped_vessel(path) -> Path:
+    """``path`` itself, or the shipped vessel file of that name when ``path`` does not exist.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A vessel file, or a bare name (``catamaran``, ``catamaran.toml``) of a file in
+        :func:`usvlog.resources.vessels_dir`.
+
+    Returns
+    -------
+    pathlib.Path
+        The file to read (``path`` unchanged when it exists, has a directory part or no
+        shipped file has its name; reading it then reports the missing file).
+    """
+    p = Path(path)
+    if p.exists() or p.parent != Path("."):
+        return p
+    for cand in (vessels_dir() / p.name, vessels_dir() / f"{p.name}.toml"):
+        if cand.is_file():
+            return cand
+    return p
 
 
 def load_vessel_or_scenario_vessel(path) -> Vessel:
@@ -84,8 +111,9 @@ def load_vessel_or_scenario_vessel(path) -> Vessel:
     usvlog.errors.ConfigError
         If the file is neither a vessel file nor a scenario with ``[vessel]``, or invalid.
     """
+    path = shipped_vessel(path)
     doc = read_toml(path)
-    if "model" in doc or "thrusters" in doc:
+    if "model" in doc or "extended" in doc or "thrusters" in doc:
         return vessel_from_toml(read_text(path), source=str(path))
     v = doc.get("vessel")
     if isinstance(v, dict):

@@ -8,6 +8,17 @@ Expanding M nu_dot + C(nu) nu + D nu = tau with (4)-(6):
     m u_dot                      = tau_u + m (xg r + v) r - d11 u
     m v_dot + m xg r_dot         = -m u r - d22 v
     m xg v_dot + Iz r_dot        = tau_r - m xg u r - d33 r
+
+The extended model (:class:`ExtendedParams`, Fossen's 3-DOF form with added mass and
+quadratic damping) has M = [[m11, 0, 0], [0, m22, m26], [0, m26, m66]],
+C(nu) nu = [-(m22 v + m26 r) r, m11 u r, (m22 - m11) u v + m26 u r] and
+D(nu) nu = [(d11 + d11q |u|) u, (d22 + d22q |v|) v, (d33 + d33q |r|) r]:
+
+    m11 u_dot                    = tau_u + (m22 v + m26 r) r - d11 u - d11q |u| u
+    m22 v_dot + m26 r_dot        = -m11 u r - d22 v - d22q |v| v
+    m26 v_dot + m66 r_dot        = tau_r - (m22 - m11) u v - m26 u r - d33 r - d33q |r| r
+
+With m11 = m22 = m, m26 = m xg, m66 = Iz and no quadratic damping it is the paper's model.
 """
 
 from __future__ import annotations
@@ -20,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from .._jit import jitable
-from ..choices import PARAM_NAMES, THRUST_UNITS
+from ..choices import EXTENDED_PARAM_NAMES, PARAM_NAMES, THRUST_UNITS
 from ..errors import ConfigError, InputError
 
 
@@ -123,6 +134,117 @@ class VesselParams:
 
 
 @dataclass(frozen=True, kw_only=True)
+class ExtendedParams:
+    """Parameters of the extended 3-DOF model (see the module docstring), SI units.
+
+    Inertia terms are rigid body plus added mass, about the body origin. The paper's
+    model is the special case m11 = m22 = m, m26 = m xg, m66 = Iz, d11q = d22q = d33q = 0
+    (:meth:`from_paper`).
+
+    Parameters
+    ----------
+    m11 : float
+        Surge inertia m - X_udot in kg, > 0.
+    m22 : float
+        Sway inertia m - Y_vdot in kg, > 0.
+    m26 : float
+        Sway-yaw coupling m xg - Y_rdot (= m xg - N_vdot) in kg m.
+    m66 : float
+        Yaw inertia Iz - N_rdot in kg m^2, > 0; m22 m66 - m26^2 must be > 0.
+    d11, d22 : float
+        Linear surge and sway damping in kg/s, >= 0.
+    d33 : float
+        Linear yaw damping in kg m^2/s, >= 0.
+    d11q, d22q : float, default 0.0
+        Quadratic surge and sway damping in kg/m, >= 0 (force d11q |u| u).
+    d33q : float, default 0.0
+        Quadratic yaw damping in kg m^2, >= 0 (moment d33q |r| r).
+    map_u_mps, map_v_mps, map_r_radps : float, default 1.0, 0.1, 0.2
+        Typical |u| (m/s), |v| (m/s) and |r| (rad/s) at which :meth:`paper_terms` folds the
+        quadratic damping into the paper's linear terms, >= 0.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If a value is not a finite number, an inertia is not positive, the sway-yaw
+        block is not positive definite or a damping coefficient is negative.
+    """
+
+    m11: float
+    m22: float
+    m26: float
+    m66: float
+    d11: float
+    d22: float
+    d33: float
+    d11q: float = 0.0
+    d22q: float = 0.0
+    d33q: float = 0.0
+    map_u_mps: float = 1.0
+    map_v_mps: float = 0.1
+    map_r_radps: float = 0.2
+
+    def __post_init__(self):
+        require_finite(self, EXTENDED_PARAM_NAMES + ("map_u_mps", "map_v_mps", "map_r_radps"),
+                       "vessel parameter")
+        for f in ("m11", "m22", "m66"):
+            if getattr(self, f) <= 0:
+                raise ConfigError(f"vessel parameter {f} = {getattr(self, f)} must be > 0")
+        for f in ("d11", "d22", "d33", "d11q", "d22q", "d33q", "map_u_mps", "map_v_mps", "map_r_radps"):
+            if getattr(self, f) < 0:
+                raise ConfigError(f"vessel parameter {f} = {getattr(self, f)} must be >= 0")
+        if self.m22 * self.m66 - self.m26 ** 2 <= 0:
+            raise ConfigError(f"vessel parameters m22 m66 - m26^2 = {self.m22 * self.m66 - self.m26 ** 2:.6g} "
+                              "must be > 0 (a positive definite inertia)")
+
+    @classmethod
+    def from_paper(cls, p: VesselParams) -> ExtendedParams:
+        """The paper's model written in the extended form (exactly the same dynamics).
+
+        Parameters
+        ----------
+        p : VesselParams
+
+        Returns
+        -------
+        ExtendedParams
+            m11 = m22 = m, m26 = m xg, m66 = Iz, the paper's linear damping, no quadratic.
+        """
+        return cls(m11=p.m, m22=p.m, m26=p.m * p.xg, m66=p.Iz, d11=p.d11, d22=p.d22, d33=p.d33)
+
+    def paper_terms(self) -> VesselParams:
+        """The paper's model nearest to this one, for the paper's controller and estimator.
+
+        m = m11 (surge inertia), Iz = m66, xg = m26 / m11, and each damping linearised
+        at its typical speed: d11 + d11q map_u_mps, d22 + d22q map_v_mps,
+        d33 + d33q map_r_radps. The sway inertia m22 and the Munk moment (m22 - m11) u v
+        have no place in the paper's model and are dropped.
+
+        Returns
+        -------
+        VesselParams
+        """
+        return VesselParams(m=self.m11, Iz=self.m66, xg=self.m26 / self.m11,
+                            d11=self.d11 + self.d11q * self.map_u_mps,
+                            d22=self.d22 + self.d22q * self.map_v_mps,
+                            d33=self.d33 + self.d33q * self.map_r_radps)
+
+    def as_array(self) -> np.ndarray:
+        """Parameters as a float array of shape (10,), in the order of ``EXTENDED_PARAM_NAMES``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``[m11, m22, m26, m66, d11, d11q, d22, d22q, d33, d33q]`` (SI units).
+        """
+        return np.array([getattr(self, f) for f in EXTENDED_PARAM_NAMES], dtype=float)
+
+    def to_dict(self) -> dict[str, float]:
+        """Every field (the parameters and the typical speeds) as Python floats, SI units."""
+        return {f.name: float(getattr(self, f.name)) for f in fields(self)}
+
+
+@dataclass(frozen=True, kw_only=True)
 class Thrusters:
     """Twin-thruster geometry and the map from recorded command to force (N).
 
@@ -148,6 +270,9 @@ class Thrusters:
         PWM offset from neutral giving full thrust, in microseconds, > 0.
     known : bool, default True
         False when the map is only a guess (identification reports it).
+    lag_s : float, default 0.0
+        Time constant in s of a first-order lag between the command and the force
+        (T dF/dt = F_cmd - F; the simulator applies it, 0 = none), >= 0.
 
     Raises
     ------
@@ -162,8 +287,11 @@ class Thrusters:
     pwm_neutral_us: float = 1500.0
     pwm_span_us: float = 400.0
     known: bool = True  # False when the map is only a guess (reported by identification)
+    lag_s: float = 0.0  # first-order force lag of the thrusters, s (simulated plant)
 
     def __post_init__(self):
+        if not (self.lag_s >= 0 and math.isfinite(self.lag_s)):
+            raise ConfigError(f"thruster lag_s = {self.lag_s} must be a finite number >= 0")
         if self.map not in THRUSTER_MAPS:
             raise ConfigError(f"thruster map {self.map!r} is not one of {', '.join(THRUSTER_MAPS)}")
         if not (self.arm_m > 0 and math.isfinite(self.arm_m)):
@@ -380,9 +508,15 @@ class Vessel:
     name : str, default "paper-section-iv"
         Name stored in logs and reports.
     params : VesselParams, default VesselParams()
-        Model parameters of eq. (3) (the paper's Section IV vessel by default).
+        Model parameters of eq. (3) (the paper's Section IV vessel by default). For a vessel
+        of the extended structure: the paper terms of ``extended``
+        (:meth:`ExtendedParams.paper_terms`), which the paper's controller and the
+        estimator use.
     thrusters : Thrusters, default Thrusters()
         Thruster geometry and command-to-force map.
+    extended : ExtendedParams or None, default None
+        The extended model, when the vessel has that structure; the simulated plant
+        then follows it (see :func:`extended_vessel`).
 
     See Also
     --------
@@ -392,6 +526,22 @@ class Vessel:
     name: str = "paper-section-iv"
     params: VesselParams = field(default_factory=VesselParams)
     thrusters: Thrusters = field(default_factory=Thrusters)
+    extended: ExtendedParams | None = None
+
+    @property
+    def structure(self) -> str:
+        """``"extended"`` when the vessel has an extended model, else ``"paper"``."""
+        return "paper" if self.extended is None else "extended"
+
+    def plant_params(self) -> ExtendedParams:
+        """The model the simulated plant follows, in the extended form.
+
+        Returns
+        -------
+        ExtendedParams
+            ``extended``, or the paper's parameters written in the extended form.
+        """
+        return self.extended if self.extended is not None else ExtendedParams.from_paper(self.params)
 
     def to_toml(self) -> str:
         """The vessel as a TOML document that :func:`vessel_from_toml` reads back exactly.
@@ -399,15 +549,23 @@ class Vessel:
         Returns
         -------
         str
-            ``name``, a ``[model]`` table (paper symbols, SI units) and a ``[thrusters]``
-            table; floats are written with ``repr`` (no rounding), infinities as ``inf``.
+            ``name``, a ``[model]`` table (paper symbols, SI units) or, for the extended
+            structure, ``structure = "extended"`` and an ``[extended]`` table, and a
+            ``[thrusters]`` table; floats are written with ``repr`` (no rounding),
+            infinities as ``inf``.
         """
         p, t = self.params, self.thrusters
-        lines = [f'name = "{self.name}"', "", "[model]"]
-        lines += [f"{k} = {_toml_float(v)}" for k, v in p.to_dict().items()]
+        lines = [f'name = "{self.name}"']
+        if self.extended is None:
+            lines += ["", "[model]"] + [f"{k} = {_toml_float(v)}" for k, v in p.to_dict().items()]
+        else:
+            lines += ['structure = "extended"', "", "[extended]"]
+            lines += [f"{k} = {_toml_float(v)}" for k, v in self.extended.to_dict().items()]
         lines += ["", "[thrusters]"]
         for f in fields(Thrusters):
             v = getattr(t, f.name)
+            if f.name == "lag_s" and v == 0.0:
+                continue  # the default: files of vessels without a lag stay as they were
             if isinstance(v, bool):
                 lines.append(f"{f.name} = {'true' if v else 'false'}")
             elif isinstance(v, str):
@@ -422,12 +580,16 @@ class Vessel:
         Returns
         -------
         dict of str to str
-            ``name``, ``model.<symbol>`` and ``thrusters.<field>`` entries; read back by
-            :meth:`from_dict`.
+            ``name``, ``model.<symbol>`` (the paper terms), ``extended.<field>`` (extended
+            structure only) and ``thrusters.<field>`` entries (``lag_s`` only when not 0);
+            read back by :meth:`from_dict`.
         """
         d = {"name": self.name}
         d.update({f"model.{k}": repr(v) for k, v in self.params.to_dict().items()})
-        d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()})
+        if self.extended is not None:
+            d.update({f"extended.{k}": repr(v) for k, v in self.extended.to_dict().items()})
+        d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()
+                  if not (k == "lag_s" and v == 0.0)})
         return d
 
     @classmethod
@@ -459,6 +621,9 @@ class Vessel:
             if key in d:
                 v = d[key]
                 thr[f.name] = v if f.type == "str" else (v == "True") if f.type == "bool" else float(v)
+        ext = {k.split(".", 1)[1]: float(v) for k, v in d.items() if k.startswith("extended.")}
+        if ext:
+            return extended_vessel(d.get("name", "vessel"), ExtendedParams(**ext), Thrusters(**thr))
         return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr))
 
     def with_params(self, **changes) -> Vessel:
@@ -473,9 +638,31 @@ class Vessel:
         Returns
         -------
         Vessel
-            The same name and thrusters with the new parameters (checked again).
+            The same name and thrusters with the new parameters (checked again). An
+            extended model is dropped: the copy is a vessel of the paper's structure.
         """
-        return replace(self, params=replace(self.params, **changes))
+        return replace(self, params=replace(self.params, **changes), extended=None)
+
+
+def extended_vessel(name: str, ext: ExtendedParams, thrusters: Thrusters | None = None) -> Vessel:
+    """A vessel of the extended structure, its paper terms derived from the extended model.
+
+    Parameters
+    ----------
+    name : str
+        Vessel name.
+    ext : ExtendedParams
+        The extended model (the simulated plant follows it).
+    thrusters : Thrusters, optional
+        Default ``Thrusters()``.
+
+    Returns
+    -------
+    Vessel
+        ``params`` = :meth:`ExtendedParams.paper_terms` (what the paper's controller and
+        the estimator use), ``extended`` = ``ext``.
+    """
+    return Vessel(name=str(name), params=ext.paper_terms(), thrusters=thrusters or Thrusters(), extended=ext)
 
 
 def _toml_float(v: float) -> str:
@@ -490,8 +677,10 @@ def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
     Parameters
     ----------
     text : str
-        The TOML document: ``name``, ``[model]`` (paper symbols, SI units) and
-        ``[thrusters]`` (fields of :class:`Thrusters`); missing keys take the defaults.
+        The TOML document: ``name``, ``[model]`` (paper symbols, SI units) or, for the
+        extended structure, ``[extended]`` (fields of :class:`ExtendedParams`; optionally
+        ``structure = "extended"``), and ``[thrusters]`` (fields of :class:`Thrusters`);
+        missing keys take the defaults.
     source : str, default "<vessel>"
         Name of the document (usually its path), for error messages.
 
@@ -528,25 +717,62 @@ def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
     Raises
     ------
     usvlog.errors.ConfigError
-        On an unknown key or a value that is not a number or out of range.
+        On an unknown key or a value that is not a number or out of range, or a
+        structure that does not match the tables given.
     """
+    structure = doc.get("structure", "extended" if "extended" in doc else "paper")
+    if structure not in ("paper", "extended"):
+        raise ConfigError(f"{source}: structure {structure!r} is not paper or extended")
+    if structure == "extended":
+        return _extended_from_dict(doc, source)
+    if "extended" in doc:
+        raise ConfigError(f"{source}: an [extended] table needs structure = \"extended\"")
     model = doc.get("model", {})
-    thr = doc.get("thrusters", {})
     known_m = set(PARAM_NAMES)
-    known_t = {f.name for f in fields(Thrusters)}
     for k in model:
         if k not in known_m:
             raise ConfigError(f"{source}: [model] has unknown key {k!r} (expected {', '.join(PARAM_NAMES)})")
+    thrusters = _thrusters_from_dict(doc.get("thrusters", {}), source)
+    try:
+        params = VesselParams(**{k: float(v) for k, v in model.items()})
+    except (ConfigError, TypeError, ValueError) as err:
+        raise ConfigError(f"{source}: {err}") from err
+    return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters)
+
+
+def _thrusters_from_dict(thr: dict, source: str) -> Thrusters:
+    known_t = {f.name for f in fields(Thrusters)}
     for k in thr:
         if k not in known_t:
             raise ConfigError(f"{source}: [thrusters] has unknown key {k!r}")
     try:
-        params = VesselParams(**{k: float(v) for k, v in model.items()})
         tvals: dict[str, Any] = {k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in thr.items()}
-        thrusters = Thrusters(**tvals)
+        return Thrusters(**tvals)
     except (ConfigError, TypeError, ValueError) as err:
         raise ConfigError(f"{source}: {err}") from err
-    return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters)
+
+
+def _extended_from_dict(doc: dict, source: str) -> Vessel:
+    """A vessel of the extended structure from its parsed document (``[extended]``, no ``[model]``)."""
+    if "model" in doc:
+        raise ConfigError(f"{source}: an extended vessel takes [extended], not [model] (its paper terms are "
+                          "derived from the extended model)")
+    ext = doc.get("extended")
+    if not isinstance(ext, dict):
+        raise ConfigError(f"{source}: structure = \"extended\" needs an [extended] table")
+    known = {f.name for f in fields(ExtendedParams)}
+    for k in ext:
+        if k not in known:
+            raise ConfigError(f"{source}: [extended] has unknown key {k!r} (expected {', '.join(sorted(known))})")
+    for k in ("m11", "m22", "m26", "m66", "d11", "d22", "d33"):
+        if k not in ext:
+            raise ConfigError(f"{source}: [extended] lacks {k}")
+    try:
+        params = ExtendedParams(**{k: float(v) for k, v in ext.items()})
+    except (ConfigError, TypeError, ValueError) as err:
+        raise ConfigError(f"{source}: {err}") from err
+    return extended_vessel(str(doc.get("name", "vessel")), params, _thrusters_from_dict(doc.get("thrusters", {}),
+                                                                                        source))
 
 
 def default_vessel() -> Vessel:
@@ -629,6 +855,43 @@ def nu_dot_terms(u, v, r, tau_u, tau_r, m, Iz, d11, d22, d33, xg):
     f3 = tau_r - m * xg * u * r - d33 * r
     det = m * Iz - (m * xg) * (m * xg)
     return f1 / m, (Iz * f2 - m * xg * f3) / det, (m * f3 - m * xg * f2) / det
+
+
+@jitable
+def nu_dot_ext_terms(u, v, r, tau_u, tau_r, m11, m22, m26, m66, d11, d11q, d22, d22q, d33, d33q):
+    """(u_dot, v_dot, r_dot) of the extended model (module docstring) in closed form.
+
+    Plain arithmetic like :func:`nu_dot_terms` (scalars and arrays, Python and numba);
+    parameters in ``EXTENDED_PARAM_NAMES`` order, SI units.
+    """
+    f1 = tau_u + (m22 * v + m26 * r) * r - d11 * u - d11q * abs(u) * u
+    f2 = -m11 * u * r - d22 * v - d22q * abs(v) * v
+    f3 = tau_r - (m22 - m11) * u * v - m26 * u * r - d33 * r - d33q * abs(r) * r
+    det = m22 * m66 - m26 * m26
+    return f1 / m11, (m66 * f2 - m26 * f3) / det, (m22 * f3 - m26 * f2) / det
+
+
+def nu_dot_ext(nu, tau_u, tau_r, p: ExtendedParams):
+    """nu_dot of the extended model, vectorised over leading axes.
+
+    Parameters
+    ----------
+    nu : array_like, shape (..., 3)
+        Body velocity relative to the water [u (m/s), v (m/s), r (rad/s)].
+    tau_u : float or array_like
+        Surge force in N.
+    tau_r : float or array_like
+        Yaw moment in N m.
+    p : ExtendedParams
+
+    Returns
+    -------
+    numpy.ndarray, shape (..., 3)
+        [u_dot (m/s^2), v_dot (m/s^2), r_dot (rad/s^2)].
+    """
+    nu = np.asarray(nu, float)
+    ud, vd, rd = nu_dot_ext_terms(nu[..., 0], nu[..., 1], nu[..., 2], tau_u, tau_r, *p.as_array())
+    return np.stack(np.broadcast_arrays(ud, vd, rd), -1)
 
 
 def nu_dot(nu, tau_u, tau_r, p: VesselParams):

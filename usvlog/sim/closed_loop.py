@@ -34,10 +34,13 @@ from ..model.frames import ssa
 from ..model.vessel import Vessel
 from .scenario import META_PATH, Scenario
 from .simulate import (
+    PlantStepper,
     SimSettings,
     draw_sensor_noise,
     field_log_from_run,
+    plant_form,
     plant_step,
+    plant_step_ext,
 )
 
 
@@ -51,6 +54,7 @@ class ClosedLoopRun:
     tick: np.ndarray       # plant-step index of every controller tick
     ctrl: np.ndarray       # (M, NOUT) controller rows (see usvlog.control.law.OUT_COLUMNS)
     controller_input: str  # "truth" or "ekf"
+    applied: np.ndarray | None = None  # (N, 2) force the plant felt (a thruster lag); None: tau
 
     def to_dataframe(self):
         """Plant states and applied forces at every step (index: time in s)."""
@@ -59,7 +63,8 @@ class ClosedLoopRun:
         cols = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]
         df = pd.DataFrame(self.states, columns=cols, index=pd.Index(self.t, name="t_s"))
         df["psi_rad"] = ssa(df["psi_rad"].to_numpy())
-        df["tau_u_n"], df["tau_r_nm"] = self.tau[:, 0], self.tau[:, 1]
+        tau = self.tau if self.applied is None else self.applied
+        df["tau_u_n"], df["tau_r_nm"] = tau[:, 0], tau[:, 1]
         return df
 
     def controller_dataframe(self):
@@ -71,18 +76,22 @@ class ClosedLoopRun:
 
 @njit
 def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, current_n, current_e, rk4, ctrl_state,
-                        path_kind, path_prm, gains, params, settings, thrusters):
+                        path_kind, path_prm, gains, params, settings, thrusters, ext, ext_prm):
     """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled.
 
     ``state0``: the initial plant state (6-tuple); the controller ticks every ``every`` plant
     steps of ``dt`` (s); ``u_ref``, ``dtheta`` per plant step; ``plant_prm`` the plant's
     parameters (PARAM_NAMES order), ``current_n``, ``current_e`` the current (m/s, NED);
-    the controller arguments as :func:`usvlog.control.law.control_tick`. Returns the plant
-    states (n_steps, 6), the applied (tau_u, tau_r) (n_steps, 2) and the controller rows.
+    the controller arguments as :func:`usvlog.control.law.control_tick`; ``ext`` True steps
+    the plant with ``plant_step_ext`` and ``ext_prm`` (extended model and thruster lag)
+    instead. Returns the plant states (n_steps, 6), the commanded (tau_u, tau_r)
+    (n_steps, 2), the controller rows and the applied (lagged) force (n_steps, 2).
     """
     x = state0
     states = np.empty((n_steps, 6))
     tau = np.empty((n_steps, 2))
+    applied = np.empty((n_steps, 2))
+    force = (0.0, 0.0)
     ctrl = np.empty(((n_steps + every - 1) // every, NOUT))
     xa = np.empty(6)
     tu = 0.0
@@ -101,8 +110,19 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
             states[k, i] = x[i]
         tau[k, 0] = tu
         tau[k, 1] = tr
-        x = plant_step(x, tu, tr, plant_prm, dt, current_n, current_e, rk4)
-    return states, tau, ctrl
+        if ext:
+            if ext_prm[10] > 0.0:
+                applied[k, 0] = force[0]
+                applied[k, 1] = force[1]
+            else:
+                applied[k, 0] = tu
+                applied[k, 1] = tr
+            x, force = plant_step_ext(x, force, tu, tr, ext_prm, dt, current_n, current_e, rk4)
+        else:
+            applied[k, 0] = tu
+            applied[k, 1] = tr
+            x = plant_step(x, tu, tr, plant_prm, dt, current_n, current_e, rk4)
+    return states, tau, ctrl, applied
 
 
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
@@ -116,6 +136,7 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
     u_ref = speed_at(schedule, t)
     dtheta = speed_at(schedule, t, 2) if schedule.shape[1] > 2 else np.full(n, controller.guidance.delta_theta)
     prm = tuple(plant.params.as_array().tolist())
+    ext, ext_prm = plant_form(plant)
     cn, ce = float(current_ne[0]), float(current_ne[1])
     rk4 = integrator == "rk4"
     x = tuple(float(a) for a in (*eta0, *nu0))
@@ -123,17 +144,19 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
     controller.reset(x)
     if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
         c = controller
-        states, tau, ctrl = _closed_loop_kernel(x, n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta),
-                                                prm, cn, ce, rk4, c.cs, c.path.kind, c.path.prm,
-                                                c.G, c.P, c.S, c.T)
-        return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth")
+        states, tau, ctrl, applied = _closed_loop_kernel(
+            x, n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs, c.path.kind,
+            c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm if ext else (0.0,) * 11)
+        return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth", applied if ext else None)
     # the controller on an estimate: plant and controller stepped from Python
     states = np.empty((n, 6))
     tau = np.empty((n, 2))
+    applied = np.empty((n, 2))
     ctrl = np.empty((len(ticks), NOUT))
     tu = tr = 0.0
     j = 0
     step = controller.step
+    plant_step_of = PlantStepper(plant, dt_s, (cn, ce), rk4)
     for k in range(n):
         if k % every == 0:
             row = step(estimator(k, x, (tu, tr)), u_ref[k], dt_ctrl, ctrl[j], dtheta[k])
@@ -142,8 +165,9 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
         states[k] = x
         tau[k, 0] = tu
         tau[k, 1] = tr
-        x = plant_step(x, tu, tr, prm, dt_s, cn, ce, rk4)
-    return ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf")
+        x = plant_step_of(x, tu, tr)
+        applied[k] = plant_step_of.applied
+    return ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf", applied if ext else None)
 
 
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):
@@ -290,7 +314,7 @@ def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: in
              "scenario_file": scen.source}
     log = field_log_from_run(st, run.t, run.states, run.tau[:, 0], run.tau[:, 1], rng,
                              producer="usvlog simulate (closed loop)", scenario=scen.name, seed=seed,
-                             extra_settings=extra, noise=noise)
+                             extra_settings=extra, noise=noise, tau_applied=run.applied)
     t0 = int(log["/truth/state"].index[0])
     t_ns = t0 + np.round(run.t[run.tick] * 1e9).astype(np.int64)
     if est is not None:  # the onboard estimate the controller ran on, as a boat's log has it

@@ -1,7 +1,8 @@
 """The paper's plant and sensor models -> synthetic field logs.
 
 Integrates eqs. (1)-(3) (RK4, or first-order like the paper's Section IV) with the
-model acting on water-relative velocity when there is a current, then samples GPS
+model acting on water-relative velocity when there is a current (a vessel of the
+extended structure, or with a thruster lag, follows :func:`plant_step_ext`), then samples GPS
 (10 Hz, noise, optional wandering bias, optional jumps and dropouts), compass
 (20 Hz, noise, optional constant bias) and thrust commands (100 Hz). Everything
 random comes from one seeded numpy Generator, so a seed reproduces a run bit for bit.
@@ -20,7 +21,7 @@ from ..errors import ConfigError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, parse_time
 from ..model.frames import Datum, ned_to_geodetic, ssa
-from ..model.vessel import Vessel, default_vessel, nu_dot_terms
+from ..model.vessel import Vessel, default_vessel, nu_dot_ext_terms, nu_dot_terms
 
 DEFAULT_START_UTC = "2026-06-01T12:00:00+00:00"
 DEFAULT_DATUM = Datum(lat_deg=43.4723, lon_deg=-80.5449, alt_m=0.0)  # a lake near Clearpath's home
@@ -222,6 +223,161 @@ def plant_step(state, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
             x4 + w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]), x5 + w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5]))
 
 
+@jitable
+def _plant_rhs_ext(n, e, psi, u, v, r, tau_u, tau_r, prm, cn, ce):
+    """Time derivative of [n, e, psi, u, v, r] under the extended model (prm: EXTENDED_PARAM_NAMES order)."""
+    c, s = math.cos(psi), math.sin(psi)
+    ud, vd, rd = nu_dot_ext_terms(u, v, r, tau_u, tau_r, prm[0], prm[1], prm[2], prm[3], prm[4], prm[5], prm[6],
+                                  prm[7], prm[8], prm[9])
+    return (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
+
+
+@jitable
+def _lagged(cmd, f0, t, lag_s):
+    """Force t s into a step of a first-order lag (time constant lag_s) from f0 towards cmd."""
+    if lag_s <= 0.0:
+        return cmd
+    return cmd + (f0 - cmd) * math.exp(-t / lag_s)
+
+
+@jitable
+def plant_step_ext(state, force, tau_u, tau_r, prm, dt, cn, ce, rk4=True):
+    """One integration step of the extended model with a first-order thruster lag.
+
+    The applied force follows T dF/dt = F_cmd - F exactly (F_cmd held over the step); the
+    stages of RK4 see the force at their own times. Plain Python, also callable from
+    numba-compiled loops.
+
+    Parameters
+    ----------
+    state : tuple of 6 floats
+        [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)], u, v relative to the water.
+    force : tuple of 2 floats
+        Applied (lagged) surge force (N) and yaw moment (N m) at the start of the step.
+    tau_u, tau_r : float
+        Commanded surge force (N) and yaw moment (N m), held over the step.
+    prm : tuple or ndarray of 11 floats
+        The extended model in EXTENDED_PARAM_NAMES order (SI units), then the lag time
+        constant in s (0: none, the force is the command).
+    dt : float
+        Step, s.
+    cn, ce : float
+        Water current, north and east, m/s.
+    rk4 : bool
+        RK4 (True) or forward Euler.
+
+    Returns
+    -------
+    state : tuple of 6 floats
+        The state after ``dt``.
+    force : tuple of 2 floats
+        The applied force and moment after ``dt``.
+    """
+    lag = prm[10]
+    x0, x1, x2, x3, x4, x5 = state
+    fu0 = _lagged(tau_u, force[0], 0.0, lag) if lag > 0.0 else tau_u
+    fr0 = _lagged(tau_r, force[1], 0.0, lag) if lag > 0.0 else tau_r
+    fu1, fr1 = _lagged(tau_u, force[0], dt, lag), _lagged(tau_r, force[1], dt, lag)
+    k1 = _plant_rhs_ext(x0, x1, x2, x3, x4, x5, fu0, fr0, prm, cn, ce)
+    if not rk4:
+        return ((x0 + dt * k1[0], x1 + dt * k1[1], x2 + dt * k1[2], x3 + dt * k1[3], x4 + dt * k1[4],
+                 x5 + dt * k1[5]), (fu1, fr1))
+    h = 0.5 * dt
+    fuh, frh = _lagged(tau_u, force[0], h, lag), _lagged(tau_r, force[1], h, lag)
+    k2 = _plant_rhs_ext(x0 + h * k1[0], x1 + h * k1[1], x2 + h * k1[2], x3 + h * k1[3], x4 + h * k1[4],
+                        x5 + h * k1[5], fuh, frh, prm, cn, ce)
+    k3 = _plant_rhs_ext(x0 + h * k2[0], x1 + h * k2[1], x2 + h * k2[2], x3 + h * k2[3], x4 + h * k2[4],
+                        x5 + h * k2[5], fuh, frh, prm, cn, ce)
+    k4 = _plant_rhs_ext(x0 + dt * k3[0], x1 + dt * k3[1], x2 + dt * k3[2], x3 + dt * k3[3], x4 + dt * k3[4],
+                        x5 + dt * k3[5], fu1, fr1, prm, cn, ce)
+    w = dt / 6.0
+    return ((x0 + w * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]), x1 + w * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]),
+             x2 + w * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2]), x3 + w * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3]),
+             x4 + w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4]), x5 + w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5])),
+            (fu1, fr1))
+
+
+def plant_form(vessel: Vessel) -> tuple[bool, tuple]:
+    """Which step a vessel's plant takes, and its parameter tuple.
+
+    Parameters
+    ----------
+    vessel : Vessel
+
+    Returns
+    -------
+    extended : bool
+        True for :func:`plant_step_ext` (a vessel of the extended structure, or with a
+        thruster lag), False for the paper's :func:`plant_step`.
+    prm : tuple of float
+        The parameters that step takes: PARAM_NAMES order (6), or the extended model in
+        EXTENDED_PARAM_NAMES order and the lag time constant in s (11).
+    """
+    if vessel.extended is None and vessel.thrusters.lag_s == 0.0:
+        return False, tuple(vessel.params.as_array().tolist())
+    return True, (*vessel.plant_params().as_array().tolist(), float(vessel.thrusters.lag_s))
+
+
+class PlantStepper:
+    """A vessel's plant stepped from Python: :func:`plant_step` or :func:`plant_step_ext`.
+
+    Parameters
+    ----------
+    vessel : Vessel
+        The plant (its extended model and thruster lag when it has them).
+    dt : float
+        Step, s.
+    current_ne : (float, float)
+        Water current, north and east, m/s.
+    rk4 : bool
+        RK4 (True) or forward Euler.
+
+    Notes
+    -----
+    The lagged force starts at zero (thrusters at rest). ``applied`` is the force and
+    moment (N, N m) at the start of the last step taken: the command itself without a lag.
+    """
+
+    def __init__(self, vessel: Vessel, dt: float, current_ne, rk4: bool):
+        self.extended, self.prm = plant_form(vessel)
+        self.dt, self.rk4 = float(dt), bool(rk4)
+        self.cn, self.ce = float(current_ne[0]), float(current_ne[1])
+        self.force = (0.0, 0.0)
+        self.applied = (0.0, 0.0)
+
+    def __call__(self, x, tau_u: float, tau_r: float):
+        """The state after one step from ``x`` (6-tuple) under the command (tau_u N, tau_r N m)."""
+        if not self.extended:
+            self.applied = (tau_u, tau_r)
+            return plant_step(x, tau_u, tau_r, self.prm, self.dt, self.cn, self.ce, self.rk4)
+        lag = self.prm[10]
+        self.applied = self.force if lag > 0.0 else (tau_u, tau_r)
+        x, self.force = plant_step_ext(x, self.force, tau_u, tau_r, self.prm, self.dt, self.cn, self.ce, self.rk4)
+        return x
+
+
+def excitation_scale(vessel: Vessel) -> tuple[float, float]:
+    """Factors on the open-loop scenarios' surge thrust and yaw moment for a vessel.
+
+    The scenarios were designed for the paper's vessel (damping 5); a vessel of the
+    extended structure gets them scaled by its linearised damping (the paper terms)
+    over 5, so it reaches the same speeds and turn rates. Vessels of the paper's
+    structure keep the scenarios as they are.
+
+    Parameters
+    ----------
+    vessel : Vessel
+
+    Returns
+    -------
+    (float, float)
+        Surge and yaw factors (1, 1 for the paper's structure).
+    """
+    if vessel.extended is None:
+        return 1.0, 1.0
+    return vessel.params.d11 / 5.0, vessel.params.d33 / 5.0
+
+
 def _multisine(t: np.ndarray, freqs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     phases = rng.uniform(0, 2 * np.pi, len(freqs))
     y = np.sin(2 * np.pi * freqs[None, :] * t[:, None] + phases[None, :]).sum(1)
@@ -234,6 +390,7 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     The zig-zag is the classic manoeuvre: full yaw moment one way until the heading is
     20 deg off the base course, then the other way; the base course turns by 90 deg
     every 150 s so the run covers all headings (which separates current from drag).
+    Thrust and moment are scaled by :func:`excitation_scale` (1 for the paper's structure).
 
     Parameters
     ----------
@@ -250,16 +407,18 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     st = settings
     n = st.n_steps
     t = np.arange(n) * st.dt_s
+    su, sr = excitation_scale(st.vessel)
     tau_u = 3.0 + 1.5 * _multisine(t, np.array([0.004, 0.011, 0.023, 0.041, 0.07, 0.12]), rng)
     tau_r_extra = 0.25 * _multisine(t, np.array([0.05, 0.13, 0.29]), rng)
-    yaw_moment = 1.2
+    if su != 1.0 or sr != 1.0:
+        tau_u, tau_r_extra = su * tau_u, sr * tau_r_extra
+    yaw_moment = 1.2 * sr
     zz = math.radians(20.0)
-    prm = tuple(st.vessel.params.as_array().tolist())
-    cn, ce = st.current_ne
-    rk4 = st.integrator == "rk4"
+    step = PlantStepper(st.vessel, st.dt_s, st.current_ne, st.integrator == "rk4")
     x = (*map(float, st.eta0), *map(float, st.nu0))
     states = np.empty((n, 6))
     tr = np.empty(n)
+    applied = np.empty((n, 2))
     sign = 1.0
     base = x[2]
     period_steps = int(round(150.0 / st.dt_s))
@@ -279,9 +438,10 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
         tu, trr = fl + fr, thr.arm_m * (fl - fr)
         tau_u[k], tr[k] = tu, trr
         states[k] = x
-        x = plant_step(x, tu, trr, prm, st.dt_s, cn, ce, rk4)
+        x = step(x, tu, trr)
+        applied[k] = step.applied
     return field_log_from_run(st, t, states, tau_u, tr, rng, producer="usvlog simulate excitation",
-                              scenario="excitation", seed=seed)
+                              scenario="excitation", seed=seed, tau_applied=applied)
 
 
 # -----------------------------------------------------------------------------
@@ -348,7 +508,7 @@ def draw_sensor_noise(st: SimSettings, t: np.ndarray, rng: np.random.Generator) 
 def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u: np.ndarray,
                        tau_r: np.ndarray, rng: np.random.Generator, *, producer: str,
                        scenario: str, seed: int, extra_settings: dict | None = None,
-                       noise: dict | None = None) -> FieldLog:
+                       noise: dict | None = None, tau_applied: np.ndarray | None = None) -> FieldLog:
     """Turn a simulated trajectory (states at times t, thrust held over each step) into a log.
 
     ``noise``: sensor noise drawn beforehand by :func:`draw_sensor_noise` (a closed loop
@@ -362,7 +522,8 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     states : numpy.ndarray, shape (N, 6)
         n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s) at ``t``.
     tau_u, tau_r : numpy.ndarray, shape (N,)
-        Surge force (N) and yaw moment (N m) applied over each step.
+        Surge force (N) and yaw moment (N m) commanded over each step (recorded as
+        ``/thrust/command``; also the applied ones unless ``tau_applied`` is given).
     rng : numpy.random.Generator
     producer, scenario : str
         Provenance: the producing command and the scenario name.
@@ -372,6 +533,9 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
         More provenance settings.
     noise : dict, optional
         From :func:`draw_sensor_noise`.
+    tau_applied : numpy.ndarray, shape (N, 2), optional
+        The force and moment the plant felt at each step (a thruster lag), recorded in
+        ``/truth/state``; default the commanded ones.
 
     Returns
     -------
@@ -395,6 +559,8 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
              "u_mps": states[si, 3], "v_mps": states[si, 4], "r_radps": states[si, 5],
              "current_n_mps": np.full(len(si), cn), "current_e_mps": np.full(len(si), ce),
              "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
+    if tau_applied is not None:
+        truth["tau_u_n"], truth["tau_r_nm"] = tau_applied[si, 0], tau_applied[si, 1]
     log.set("/truth/state", frame_from_columns(truth, t_ns[si], channel_spec("/truth/state")))
 
     # thrust commands as recorded
@@ -458,20 +624,23 @@ def _open_loop(settings: SimSettings, seed: int, tau_of_t, scenario: str) -> Fie
     n = st.n_steps
     t = np.arange(n) * st.dt_s
     tu_cmd, tr_cmd = tau_of_t(t, rng)
+    su, sr = excitation_scale(st.vessel)
+    if su != 1.0 or sr != 1.0:
+        tu_cmd, tr_cmd = su * tu_cmd, sr * tr_cmd
     thr = st.vessel.thrusters
     fl, fr = thr.forces_from_tau(tu_cmd, tr_cmd)
     fl, fr = thr.saturate(fl), thr.saturate(fr)
     tau_u, tau_r = thr.tau_from_forces(fl, fr)
-    prm = tuple(st.vessel.params.as_array().tolist())
-    cn, ce = st.current_ne
-    rk4 = st.integrator == "rk4"
+    step = PlantStepper(st.vessel, st.dt_s, st.current_ne, st.integrator == "rk4")
     x = (*map(float, st.eta0), *map(float, st.nu0))
     states = np.empty((n, 6))
+    applied = np.empty((n, 2))
     for k in range(n):
         states[k] = x
-        x = plant_step(x, float(tau_u[k]), float(tau_r[k]), prm, st.dt_s, cn, ce, rk4)
+        x = step(x, float(tau_u[k]), float(tau_r[k]))
+        applied[k] = step.applied
     return field_log_from_run(st, t, states, tau_u, tau_r, rng, producer=f"usvlog simulate {scenario}",
-                              scenario=scenario, seed=seed)
+                              scenario=scenario, seed=seed, tau_applied=applied)
 
 
 def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
@@ -541,5 +710,6 @@ def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) 
 
 
 __all__ = ["SensorSettings", "SimSettings", "excitation_run", "turns_run", "straight_run",
-           "field_log_from_run", "draw_sensor_noise", "plant_step",
+           "field_log_from_run", "draw_sensor_noise", "plant_step", "plant_step_ext", "plant_form",
+           "PlantStepper", "excitation_scale",
            "simulate", "start_ns", "SCENARIOS", "replace", "pd"]
