@@ -95,10 +95,14 @@ class Validation:
 
     @property
     def score(self) -> float:
-        """The figure candidates are compared by: mean fit % of u and r (-inf when diverged)."""
+        """The figure candidates are compared by: mean fit % of the track and of r (-inf when
+        diverged). The track (smoothed GPS positions, whose errors are small beside the
+        track's extent) judges u and v: a free run's position error integrates their errors.
+        The smoothed u and v themselves carry errors of the smoother that are partly
+        systematic, so a candidate fitted to them would be favoured for copying them."""
         if self.diverged:
             return -math.inf
-        s = 0.5 * (self.fit_percent["u"] + self.fit_percent["r"])
+        s = 0.5 * (self.fit_percent["track"] + self.fit_percent["r"])
         return float(s) if math.isfinite(s) else -math.inf
 
     def to_dict(self) -> dict:
@@ -442,6 +446,7 @@ class Identifier:
             logs = [logs]
         if not logs:
             raise InputError("no logs to identify from")
+        self._prior_given = vessel is not None
         vessel = vessel or logs[0].vessel or default_vessel()
         self.vessel_in_ = vessel
         self.health_ = [health_from_provenance(lg.provenance) or {} for lg in logs]
@@ -470,7 +475,14 @@ class Identifier:
         for st in self.candidate_starts(ee, vessel):
             cands.append(self._fit_candidate(st, runs, kin, fit_logs, vessel, held))
         self.candidates_ = cands
-        chosen = self._pick(cands)
+        try:
+            chosen = self._pick(cands)
+        except UnusableResultError as err:   # say what would help
+            hint = _excitation_warnings(kin)
+            if hint:
+                err.reasons = list(getattr(err, "reasons", [])) + hint    # type: ignore[attr-defined]
+                err.args = (f"{err}; {'; '.join(hint)}",)
+            raise
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
@@ -499,7 +511,8 @@ class Identifier:
         ee : EquationErrorResult
             The equation-error fit on the fit part of the runs.
         vessel : Vessel
-            The vessel given (its values are a start of their own when they differ).
+            The vessel (its values are a start of their own when it was given to :meth:`fit`
+            and they differ by more than 10 %).
 
         Returns
         -------
@@ -519,7 +532,7 @@ class Identifier:
         for i, k in enumerate(PARAM_NAMES):
             if k in self.fix:
                 prior[i] = self.fix[k]
-        if np.max(np.abs(prior[:5] / th[:5] - 1)) > 0.1:
+        if getattr(self, "_prior_given", True) and np.max(np.abs(prior[:5] / th[:5] - 1)) > 0.1:
             out.append(Start(name="output error with velocities from the vessel's values", kind="output-error",
                              theta=prior, vel_weight=VEL_WEIGHT))
         return out + [ee_start]
