@@ -445,8 +445,9 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     """
     import copy
 
-    per_unit_fix, scale_by = scale_fix(ident.fix)
-    carrying = [k for k in ident.fix if k not in SCALE_FREE]
+    fix_all = dict(ident.fix)
+    per_unit_fix, scale_by = scale_fix(fix_all)
+    carrying = [k for k in fix_all if k not in SCALE_FREE]
     if len(carrying) > 1:
         raise ConfigError(f"with an unknown thrust scale fix one of m, Iz, d11, d22, d33 (it sets the thrust gain), "
                           f"not {len(carrying)} ({', '.join(carrying)})")
@@ -465,44 +466,41 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     inner = copy.copy(ident)
     inner.fix = per_unit_fix
     inner._command_units = True
+    inner.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape)
     prior = VesselParams(**dict(zip(PARAM_NAMES, map(float, base))))
     vcmd = command_unit_vessel(replace(vessel, params=prior, extended=None), rho)
     inner.fit([without_logged_forces(lg) for lg in logs], vcmd)
-    fitted = {k: v for k, v in inner.__dict__.items() if k.endswith("_") and not k.startswith("__")}
-    fitted["_kin"] = inner._kin
-    ident.__dict__.update(fitted)
+    ident.__dict__.update(inner.__dict__)
+    ident.fix = dict(fix_all)
+    ident._command_units = False
     if scale_by is None:
-        ident.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape)
-        ident.vessel_in_ = vcmd
-    else:
-        names = list(inner.corr_.index)
-        theta, cov, names2, g, g_se = scale_results(inner.theta_, inner.cov_, names, ident.fix, scale_by)
-        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        stderr = {k: 0.0 for k in PARAM_NAMES}
-        for i, k in enumerate(names2):
-            if k in stderr:
-                stderr[k] = float(se[i])
-        if "xg" in ident.fix:
-            stderr["xg"] = 0.0
-        ident.theta_ = theta
-        ident.params_ = VesselParams(**{k: float(v) for k, v in zip(PARAM_NAMES, theta)})
-        ident.stderr_ = stderr
-        ident.ci95_ = {k: (float(v - Z95 * stderr[k]), float(v + Z95 * stderr[k])) for k, v in
-                       zip(PARAM_NAMES, theta)}
-        ident.cov_ = cov
-        sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-        ident.corr_ = pd.DataFrame(cov / np.outer(sd, sd), index=list(names2), columns=list(names2))
-        ident.runs_ = [replace(r, tau_u=g * r.tau_u, tau_r=g * r.tau_r) for r in inner.runs_]
-        ee = inner.equation_error_
-        k_scale = np.array([1.0 if k in SCALE_FREE else g for k in PARAM_NAMES])
-        ident.equation_error_ = replace(ee, theta=ee.theta * k_scale,
-                                        stderr={k: v * (1.0 if k in SCALE_FREE else g) for k, v in ee.stderr.items()})
-        t = vessel.thrusters
-        ident.vessel_in_ = replace(vessel, thrusters=replace(t, map=shape, forward_n=g, reverse_n=g * rho, known=True,
-                                                             scale="known"))
-        ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
-                                          forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape)
-    ident.verdict_ = list(ident.verdict_) + [ident.thrust_scale_.message()]
+        return ident
+    names = list(inner.corr_.index)
+    theta, cov, names2, g, g_se = scale_results(inner.theta_, inner.cov_, names, fix_all, scale_by)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    stderr = {k: 0.0 for k in PARAM_NAMES}
+    for i, k in enumerate(names2):
+        if k in stderr:
+            stderr[k] = float(se[i])
+    ident.theta_ = theta
+    ident.params_ = VesselParams(**{k: float(v) for k, v in zip(PARAM_NAMES, theta)})
+    ident.stderr_ = stderr
+    ident.ci95_ = {k: (float(v - Z95 * stderr[k]), float(v + Z95 * stderr[k])) for k, v in zip(PARAM_NAMES, theta)}
+    ident.cov_ = cov
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    ident.corr_ = pd.DataFrame(cov / np.outer(sd, sd), index=list(names2), columns=list(names2))
+    ident.runs_ = [replace(r, tau_u=g * r.tau_u, tau_r=g * r.tau_r) for r in inner.runs_]
+    ee = inner.equation_error_
+    k_scale = np.array([1.0 if k in SCALE_FREE else g for k in PARAM_NAMES])
+    ident.equation_error_ = replace(ee, theta=ee.theta * k_scale,
+                                    stderr={k: v * (1.0 if k in SCALE_FREE else g) for k, v in ee.stderr.items()})
+    t = vessel.thrusters
+    ident.vessel_in_ = replace(vessel, thrusters=replace(t, map=shape, forward_n=g, reverse_n=g * rho, known=True,
+                                                         scale="known"))
+    ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
+                                      forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape)
+    ident.reasons_, ident.verdict_ = ident._verdict(ident.vessel_in_, ident.runs_, ident._kin)
+    ident.usable_ = ident.verdict_ != "unusable"
     return ident
 
 
