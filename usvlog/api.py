@@ -565,9 +565,9 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
 
 
 def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "output-error",
-             validate=None, holdout: float = 0.0, fix: dict[str, float] | None = None, current: bool = True,
+             validate=None, holdout: float | None = None, fix: dict[str, float] | None = None, current: bool = True,
              out_log: PathLike | None = None, force: bool = False, progress: Progress = None,
-             gnss_delay_s: float | None = None) -> Identifier:
+             max_current_mps: float = 0.5, gnss_delay_s: float | None = None) -> Identifier:
     """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
 
     Parameters
@@ -584,8 +584,9 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     validate : FieldLog or path, optional
         A run not fitted on: the identified model's free run is compared with it (fit %);
         the result is the Identifier's ``validation_``.
-    holdout : float
-        Hold out this last fraction (0 to 0.9) of each run for validation instead.
+    holdout : float, optional
+        Hold out this last fraction (0 to 0.9) of each run for validation; 0: no validation.
+        Default: 0.3 of one run, several runs left out in turn (none with ``validate``).
     fix : dict, optional
         Known parameters by name in SI units, e.g. ``{"m": 33.0}`` (kg).
     current : bool
@@ -593,9 +594,12 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     out_log : str or os.PathLike, optional
         Write a copy of the first log with the ``/identify/fit`` channel (measured vs model).
     force : bool
-        Replace existing outputs.
+        Replace existing outputs, and write them even when the verdict is unusable (the
+        TOML then says ``usable = false``).
     progress : callable, optional
         Receives a line before the fit starts.
+    max_current_mps : float
+        Bound on each component of a fitted current, m/s.
     gnss_delay_s : float, optional
         GNSS latency in s of every log (a fix stamped t describes the boat at t - delay);
         default: the delay an estimate stored in each log (``usvlog estimate
@@ -604,8 +608,16 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     Returns
     -------
     Identifier
-        Fitted: ``params_``, ``stderr_``, ``ci95_``, ``corr_``, ``current_``, ``verdict_``,
-        ``validation_``; ``to_vessel()``, ``to_dict()``.
+        Fitted: ``params_``, ``stderr_``, ``ci95_``, ``corr_``, ``current_``, ``verdict_``
+        (usable / usable with caveats / unusable), ``reasons_``, ``validation_``;
+        ``to_vessel()``, ``to_dict()``.
+
+    Raises
+    ------
+    UnusableResultError
+        The verdict is unusable and ``force`` is not set: nothing is written; the error's
+        ``identifier`` is the fitted Identifier (None when nothing could be fitted) and
+        ``reasons`` the reasons.
     """
     from .identify import Identifier  # heavy: numpy, scipy, numba kernels
     from .io.atomic import check_output, write_text_atomic
@@ -616,7 +628,10 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         check_output(out_log, force, parent=True)
     if validate is not None and holdout:
         raise ConfigError("validate on a log or hold out a fraction, not both")
-    idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout)
+    if holdout is None and validate is not None:
+        holdout = 0.0
+    idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
+                     max_current_mps=max_current_mps)
     ves = _vessel_file(vessel)
     runs = [_read(x, progress) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
     val_log = _read(validate, progress) if validate is not None else None
@@ -630,10 +645,12 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     _say(progress, f"identifying ({method}) from {len(runs)} log(s)")
     idf.fit(runs, ves)
     if val_log is not None:
-        idf.validation_ = idf.validate(val_log)
+        idf.use_validation([idf.validate(val_log)])
+    if not force:
+        idf.raise_if_unusable()
     if out is not None:
         damage = [f"# {r.source}: {r.recovery.one_line()}\n" for r in runs if r.recovery is not None]
-        write_text_atomic(out, "".join(damage) + idf.to_vessel().to_toml(), force=force)
+        write_text_atomic(out, "".join(damage) + idf.to_vessel().to_toml() + idf.toml_record(), force=force)
     if out_log is not None:
         save(fit_log(idf, runs[0]), out_log, force=force)
     return idf

@@ -240,7 +240,8 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         if ok.any():
             c_rms = rms(d, omit_nonfinite=True)   # over the ticks both sides have
             c_max = float(np.max(np.abs(d[ok])))
-        if {"thrust_left_n", "thrust_right_n"} <= set(rec.columns):
+        # a vessel identified in command units has no newtons to compare with
+        if thr.scale != "command" and {"thrust_left_n", "thrust_right_n"} <= set(rec.columns):
             df = np.concatenate([frame["thrust_left_n"].to_numpy() - rec["thrust_left_n"].to_numpy(dtype=float),
                                  frame["thrust_right_n"].to_numpy() - rec["thrust_right_n"].to_numpy(dtype=float)])
             okf = np.isfinite(df)

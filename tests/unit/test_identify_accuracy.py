@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from usvlog.errors import ConfigError, InputError
+from usvlog.errors import ConfigError, UnusableResultError
 from usvlog.identify import Identifier
 from usvlog.model.vessel import PARAM_NAMES, VesselParams
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
@@ -63,7 +63,7 @@ def test_output_error_accuracy_ten_minutes(current):
 def test_straight_line_run_warns_yaw_not_excited():
     log = simulate("straight", SimSettings(duration_s=150.0), seed=3)
     idf = Identifier("output-error", segment_s=150.0).fit([log])
-    assert any("yaw barely excited" in v for v in idf.verdict_), idf.verdict_
+    assert any("yaw barely excited" in v for v in idf.reasons_), idf.reasons_
     # surge is still determined (m, d11 from thrust steps)
     assert abs(idf.params_.d11 / TRUE.d11 - 1) < 0.05
 
@@ -72,10 +72,10 @@ def test_straight_line_equation_error_warns_too():
     log = simulate("straight", SimSettings(duration_s=120.0), seed=3)
     try:
         idf = Identifier("equation-error").fit([log])
-    except InputError as err:   # impossible values: refused, with the reason
+    except UnusableResultError as err:   # impossible values: refused, with the reason
         assert "yaw barely excited" in str(err)
     else:
-        assert any("yaw barely excited" in v for v in idf.verdict_), idf.verdict_
+        assert any("yaw barely excited" in v for v in idf.reasons_), idf.reasons_
 
 
 def test_filter_error_accuracy_fast():
@@ -112,7 +112,9 @@ def test_fixed_mass_is_kept_and_thrust_map_guess_reported(excitation_log):
     log.channels["/thrust/command"] = fr
     idf = Identifier("equation-error", fix={"m": 33.0}).fit([log], guess)
     assert idf.params_.m == 33.0 and idf.stderr_["m"] == 0.0
-    assert any("thruster map is only a guess" in v for v in idf.verdict_)
+    # a guessed map gives no force scale: identified in command units, the gain from the fixed mass
+    assert idf.thrust_scale_.case == "gain identified"
+    assert any("gain identified from the fixed m" in v for v in idf.reasons_)
 
 
 def test_two_runs_fitted_jointly_each_with_its_own_current():
@@ -145,7 +147,7 @@ def test_bad_thrust_records_skipped_and_counted(excitation_log):
     keep[2000] = False
     np.testing.assert_array_equal(bad.tau_u, good.tau_u[keep])
     idf = Identifier("equation-error").fit([log])
-    assert any("1 thrust record(s) not finite" in v for v in idf.verdict_)
+    assert any("1 thrust record(s) not finite" in v for v in idf.reasons_)
 
 
 def test_gps_jumps_dropped_as_outliers_not_fitted():
@@ -157,4 +159,4 @@ def test_gps_jumps_dropped_as_outliers_not_fitted():
     assert idf.oe_.outliers == {"gps": 4, "compass": 0}
     err = _errors(idf)
     assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
-    assert any("4 GNSS fix(es)" in v for v in idf.verdict_)
+    assert any("4 GNSS fix(es)" in v for v in idf.reasons_)

@@ -206,7 +206,10 @@ def identify_stage(log, out: Path) -> None:
               f"   ({ee[k]:.4g})")
     cn, ce = idf.current_[0]
     print(f"  current north {cn:+.3f} east {ce:+.3f} m/s (true +0.100 +0.173)")
-    for v in idf.verdict_:
+    fp = idf.validation_fit_percent_()
+    print(f"  validation on the held-out last 30 %: fit u {fp['u']:.1f} %, v {fp['v']:.1f} %, r {fp['r']:.1f} %")
+    print(f"  verdict: {idf.verdict_}")
+    for v in idf.reasons_:
         print(f"  - {v}")
 
 

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
+import sys
 
 from ..choices import IDENTIFY_METHODS, PARAM_NAMES
-from ..errors import ConfigError
+from ..errors import ConfigError, UnusableResultError
 from .common import print_json, stage
 
 
@@ -19,16 +20,23 @@ def register(sub) -> None:
                         "(dynamic EKF likelihood; slower)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validate", default=None, metavar="LOG", help="validate on this log (not fitted)")
-    g.add_argument("--holdout", type=float, default=0.0, help="hold out this last fraction of each log")
+    g.add_argument("--holdout", type=float, default=None,
+                   help="hold out this last fraction of each log for validation (default 0.3 of one log; "
+                        "several logs: each left out in turn)")
+    g.add_argument("--no-validate", action="store_true", help="no validation (the verdict says so)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help=f"known parameter ({', '.join(PARAM_NAMES)}), e.g. --fix m=33.0 (repeatable)")
     p.add_argument("--no-current", action="store_true", help="do not fit a water current")
     p.add_argument("--gnss-delay-s", type=float, default=None, metavar="VALUE",
                    help="GNSS latency in s (a fix stamped t describes the boat at t - delay); default: the one "
                         "`usvlog estimate` stored in the log, else 0")
+    p.add_argument("--max-current-mps", type=float, default=0.5,
+                   help="bound on each component of a fitted current in m/s (default 0.5)")
     p.add_argument("--out", required=True, help="output vessel TOML with the identified parameters")
     p.add_argument("--out-log", default=None, help="copy of the first log with the /identify/fit channel")
-    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite existing outputs, and write the TOML even when the verdict is unusable "
+                        "(it then says usable = false)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=run)
 
@@ -56,10 +64,26 @@ def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
 
     fix = parse_fix(args.fix)
-    idf = api.identify(args.logs, args.out, vessel=args.vessel or None, method=args.method,
-                       validate=args.validate or None, holdout=args.holdout, fix=fix, current=not args.no_current,
-                       out_log=args.out_log or None, force=args.force, progress=stage,
-                       gnss_delay_s=args.gnss_delay_s)
+    holdout = 0.0 if args.no_validate else args.holdout
+    try:
+        idf = api.identify(args.logs, args.out, vessel=args.vessel or None, method=args.method,
+                           validate=args.validate or None, holdout=holdout, fix=fix,
+                           current=not args.no_current, out_log=args.out_log or None, force=args.force,
+                           progress=stage, max_current_mps=args.max_current_mps, gnss_delay_s=args.gnss_delay_s)
+    except UnusableResultError as err:
+        reasons = getattr(err, "reasons", None)
+        if reasons is None:
+            raise
+        fitted = getattr(err, "identifier", None)
+        d = fitted.to_dict() if fitted is not None else {"verdict": "unusable", "reasons": list(reasons),
+                                                          "usable": False}
+        if args.json:
+            print_json({**d, "error": " ".join(str(err).split())})
+        else:
+            print(format_report(d) if fitted is not None else format_verdict(d))
+        print(f"usvlog identify: error: {err}; nothing written (--force writes it with usable = false)",
+              file=sys.stderr)
+        return int(err.exit_code)
     d = idf.to_dict()
     d["gnss_delay_s"] = [r.gnss_delay_s for r in idf.runs_]   # taken off the GNSS stamps of each run
     if args.json:
@@ -67,29 +91,52 @@ def run(args) -> int:
     else:
         print(format_report(d))
     stage(f"wrote {args.out}" + (f" and {args.out_log}" if args.out_log else ""))
-    return 0
+    return 1 if not idf.usable_ else 0
+
+
+def _num(x, digits: int = 5) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.{digits}g}"
+
+
+def _pct(x) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else ("< -999" if x < -999 else f"{x:.1f}")
+
+
+def format_verdict(d: dict) -> str:
+    """The verdict line and its reasons, one per line."""
+    lines = [f"verdict: {d['verdict']}"]
+    lines += [f"  - {r}" for r in d.get("reasons", [])]
+    return "\n".join(lines)
 
 
 def format_report(d: dict) -> str:
-    lines = [f"method: {d['method']}", "parameter        value      stderr        95% interval    (equation error)"]
+    """Text report of ``Identifier.to_dict()``: parameters, intervals, current, fit %, verdict.
+
+    A standard error that is not finite or below 1e-9 of its value (a degenerate fit, not a
+    precise one) is shown as ``n/a``, with no interval; fit % below -999 as ``< -999``."""
+    lines = [f"method: {d['method']} (chosen: {d.get('chosen', d['method'])})",
+             "parameter        value      stderr        95% interval    (equation error)"]
     for k in PARAM_NAMES:
         lo, hi = d["ci95"][k]
-        fixed = "  (fixed)" if k in d["fixed"] else ""
-        lines.append(f"  {k:<5} {d['params'][k]:12.5g} {d['stderr'][k]:11.3g}   [{lo:10.5g}, {hi:10.5g}]"
-                     f"   ({d['equation_error']['params'][k]:.4g}){fixed}")
-    lines.append(f"Iz - m xg^2 = {d['Iz_minus_m_xg2']:.4g} (Theorem 3.1 condition 1 needs > 0)")
+        v, se = d["params"][k], d["stderr"][k]
+        fixed = k in d["fixed"]
+        meaningful = se is not None and math.isfinite(se) and se > 1e-9 * max(abs(v), 1e-300)
+        if fixed:
+            interval, se_s = "(fixed)".center(26), "0"
+        elif meaningful:
+            interval, se_s = f"[{_num(lo):>10}, {_num(hi):>10}]", _num(se, 3)
+        else:
+            interval, se_s = "(not computable)".center(26), "n/a"
+        lines.append(f"  {k:<5} {_num(v):>12} {se_s:>11}   {interval}   ({_num(d['equation_error']['params'][k], 4)})")
+    lines.append(f"Iz - m xg^2 = {_num(d['Iz_minus_m_xg2'], 4)} (Theorem 3.1 condition 1 needs > 0)")
     if any(d.get("gnss_delay_s") or ()):
         lines.append("GNSS delay taken off the fix stamps: " + ", ".join(f"{x:.3f} s" for x in d["gnss_delay_s"]))
     for i, c in enumerate(d["current_ne_mps"]):
         lines.append(f"current run {i}: north {c[0]:+.3f} m/s, east {c[1]:+.3f} m/s")
     if d.get("condition_number") is not None:
-        lines.append(f"condition number {d['condition_number']:.3g}")
+        lines.append(f"condition number {_num(d['condition_number'], 3)}")
     fp = d["fit_percent"]
-    lines.append(f"fit % ({d['fit_percent_on']}): u {fp['u']:.1f}, v {fp['v']:.1f}, r {fp['r']:.1f}, "
-                 f"track {fp['track']:.1f}")
-    if d["verdict"]:
-        lines.append("verdict:")
-        lines += [f"  - {v}" for v in d["verdict"]]
-    else:
-        lines.append("verdict: all parameters well determined")
+    lines.append(f"fit % ({d['fit_percent_on']}): u {_pct(fp['u'])}, v {_pct(fp['v'])}, r {_pct(fp['r'])}, "
+                 f"track {_pct(fp['track'])}")
+    lines.append(format_verdict(d))
     return "\n".join(lines)

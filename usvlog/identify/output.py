@@ -20,10 +20,19 @@ from scipy.optimize import least_squares
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
-from .shoot import NS, shoot
+from .shoot import NS, SENS_CUR_E, SENS_CUR_N, shoot
 
 MAX_DT = 0.05
 OUTLIER_SIGMA = 5.0
+# residual rows: GPS north, east; compass heading; ground velocity north, east; yaw rate
+R_N, R_E, R_PSI, R_VN, R_VE, R_R = range(6)
+SENSOR_OF_ROW = np.array([0, 0, 1, 2, 2, 3])
+SENSORS = ("gps", "compass", "velocity", "yaw_rate")
+# one-sigma of the smoothed velocities as measurements (m/s, rad/s) before reweighting
+VEL_SIGMA = (0.05, 0.02)
+VEL_STEP_S = 0.5        # spacing of the velocity measurements (s)
+MAX_STIFFNESS = 50.0    # 1/s: a velocity time constant under 20 ms is no boat's
+DIVERGED = 1e3          # |u|, |v| (m/s) or |r| (rad/s) beyond this: the simulation diverged
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -39,7 +48,8 @@ class OutputErrorResult:
     ``rms``: RMS of the noise-weighted residuals per sensor (``gps``, ``compass``);
     ``n_residuals``; ``x0s`` (n_segments, 6): each segment's fitted initial state
     [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]; ``nfev``: model evaluations;
-    ``outliers``: measurements dropped as outliers, per sensor.
+    ``outliers``: measurements dropped as outliers, per sensor; ``diverged``: the model's
+    simulation left the finite range at the solution (a failed fit, not a number).
     """
 
     theta: np.ndarray          # all six model parameters (fixed ones included)
@@ -54,12 +64,19 @@ class OutputErrorResult:
     x0s: np.ndarray            # per-segment initial states
     nfev: int
     outliers: dict | None = None  # measurements dropped as outliers, per sensor
+    diverged: bool = False     # the simulation left the finite range at the solution
 
 
 class Problem:
-    """Runs cut into segments, measurements ordered by segment, residual rows indexed."""
+    """Runs cut into segments, measurements ordered by segment, residual rows indexed.
 
-    def __init__(self, runs: list[RunData], segment_s: float):
+    ``velocities``: per run None or (t (s), vn, ve (m/s, over ground), r (rad/s)) smoothed
+    velocities, fitted alongside the raw GPS and compass (residual rows of sensor groups 2:
+    ground velocity, 3: yaw rate) with one-sigma ``vel_sigma`` (m/s, rad/s).
+    """
+
+    def __init__(self, runs: list[RunData], segment_s: float, velocities=None,
+                 vel_sigma: tuple[float, float] = VEL_SIGMA):
         tg, tu, tr = [], [], []
         seg_i0: list[int] = []
         seg_i1: list[int] = []
@@ -85,11 +102,17 @@ class Problem:
                 seg_i1.append(off + b)
                 seg_run.append(ri)
                 # measurement times relative to the concatenated grid
-                for sensor, tt, val, sig in ((0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g]], 1),
-                                              run.sigma_gps[g]),
-                                             (1, run.t_compass[c],
-                                              np.stack([run.psi_compass[c], 0 * run.psi_compass[c]], 1),
-                                              run.sigma_compass[c])):
+                sensors = [(0, run.t_gps[g], np.stack([run.n_gps[g], run.e_gps[g], 0 * run.n_gps[g]], 1),
+                            run.sigma_gps[g]),
+                           (1, run.t_compass[c], np.stack([run.psi_compass[c], 0 * run.psi_compass[c],
+                                                           0 * run.psi_compass[c]], 1), run.sigma_compass[c])]
+                vel = velocities[ri] if velocities is not None else None
+                if vel is not None:
+                    tv = vel[0]
+                    sv = (tv >= ta) & ((tv < tb) | ((b == n - 1) & (tv <= tb)))
+                    sensors.append((2, tv[sv], np.stack([vel[1][sv], vel[2][sv], vel[3][sv]], 1),
+                                    np.ones(int(sv.sum()))))
+                for sensor, tt, val, sig in sensors:
                     m_t.append(tt)
                     m_kind.append(np.full(len(tt), sensor))
                     m_val.append(val)
@@ -119,22 +142,29 @@ class Problem:
         self.n_seg = len(seg_i0)
         gi = np.flatnonzero(self.kind == 0)
         ci = np.flatnonzero(self.kind == 1)
-        # residual rows: (measurement index, state row)
-        r_meas = np.concatenate([gi, gi, ci])
-        r_state = np.concatenate([np.zeros(len(gi), int), np.ones(len(gi), int), np.full(len(ci), 2)])
+        vi = np.flatnonzero(self.kind == 2)
+        # residual rows: (measurement index, quantity): R_N, R_E (GPS), R_PSI (compass),
+        # R_VN, R_VE (ground velocity), R_R (yaw rate)
+        r_meas = np.concatenate([gi, gi, ci, vi, vi, vi])
+        r_state = np.concatenate([np.full(len(gi), R_N), np.full(len(gi), R_E), np.full(len(ci), R_PSI),
+                                  np.full(len(vi), R_VN), np.full(len(vi), R_VE), np.full(len(vi), R_R)])
         r_seg = self.meas_seg[r_meas]
         o = np.argsort(r_seg, kind="stable")
         self.r_meas, self.r_state, self.r_seg = r_meas[o], r_state[o], r_seg[o]
-        self.r_sensor = np.where(self.r_state == 2, 1, 0)   # 0 gps, 1 compass
-        self.r_val = np.where(self.r_state == 1, self.val[self.r_meas, 1], self.val[self.r_meas, 0])
-        self.r_sig0 = self.sig[self.r_meas]
+        self.r_sensor = SENSOR_OF_ROW[self.r_state]   # 0 gps, 1 compass, 2 ground velocity, 3 yaw rate
+        col = np.array([0, 1, 0, 0, 1, 2])[self.r_state]
+        self.r_val = self.val[self.r_meas, col]
+        self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
+                                                                         self.sig[self.r_meas]))
         self.r_w = 1.0 / self.r_sig0
+        self.r_run = self.seg_run[self.r_seg]
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         self.n_res = len(self.r_meas)
 
-    def set_sensor_scale(self, scale_gps: float, scale_compass: float) -> None:
-        """Scale each sensor's stated noise (residual weight 1 / (sigma scale)), e.g. by its scatter."""
-        self.r_w = 1.0 / (self.r_sig0 * np.where(self.r_sensor == 0, scale_gps, scale_compass))
+    def set_sensor_scale(self, scales) -> None:
+        """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
+        scatter; ``scales``: one factor per group (gps, compass, ground velocity, yaw rate)."""
+        self.r_w = 1.0 / (self.r_sig0 * np.asarray(scales, float)[self.r_sensor])
 
     def simulate(self, theta, currents, x0s, sens=True):
         """Integrate every segment and sample it at the measurement times.
@@ -163,19 +193,44 @@ class Problem:
         out_x = np.zeros((nm, 6))
         out_S = np.zeros((nm, 6, NS)) if sens else np.zeros((1, 6, NS))
         shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, np.ascontiguousarray(x0s, float),
-              np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, MAX_DT, sens, out_x, out_S)
+              np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, max_step(theta), sens, out_x, out_S)
         return out_x, out_S
 
-    def residuals(self, out_x):
-        """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped."""
-        sim = out_x[self.r_meas, self.r_state]
+    def residuals(self, out_x, currents):
+        """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped.
+
+        ``currents`` (n_runs, 2): north, east in m/s (the ground velocity includes them)."""
+        x = out_x[self.r_meas]
+        sim = x[np.arange(len(x)), np.minimum(self.r_state, 2)]
+        vel = self.r_state >= R_VN
+        if vel.any():
+            psi, u, v = x[vel, 2], x[vel, 3], x[vel, 4]
+            c, s = np.cos(psi), np.sin(psi)
+            cur = np.asarray(currents, float)[self.r_run[vel]]
+            st = self.r_state[vel]
+            sim[vel] = np.where(st == R_VN, c * u - s * v + cur[:, 0],
+                                np.where(st == R_VE, s * u + c * v + cur[:, 1], x[vel, 5]))
         d = self.r_val - sim
-        d = np.where(self.r_state == 2, ssa(d), d)
+        d = np.where(self.r_state == R_PSI, ssa(d), d)
         return d * self.r_w
 
-    def jac_rows(self, out_S):
+    def jac_rows(self, out_S, out_x):
         """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
-        return -out_S[self.r_meas, self.r_state, :] * self.r_w[:, None]
+        S = out_S[self.r_meas]
+        J = S[np.arange(len(S)), np.minimum(self.r_state, 2), :].copy()
+        vel = self.r_state >= R_VN
+        if vel.any():
+            x = out_x[self.r_meas[vel]]
+            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
+            c, s = np.cos(psi), np.sin(psi)
+            Sv = S[vel]
+            st = self.r_state[vel]
+            dvn = (-s * u - c * v)[:, None] * Sv[:, 2] + c[:, None] * Sv[:, 3] - s[:, None] * Sv[:, 4]
+            dve = (c * u - s * v)[:, None] * Sv[:, 2] + s[:, None] * Sv[:, 3] + c[:, None] * Sv[:, 4]
+            dvn[:, SENS_CUR_N] += 1.0
+            dve[:, SENS_CUR_E] += 1.0
+            J[vel] = np.where((st == R_VN)[:, None], dvn, np.where((st == R_VE)[:, None], dve, Sv[:, 5]))
+        return -J * self.r_w[:, None]
 
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
@@ -191,6 +246,19 @@ class Problem:
         return x0
 
 
+def stiffness(theta) -> float:
+    """Fastest decay rate of the model's velocities, 1/s: max(d11/m, d22/m, d33/(Iz - m xg^2))."""
+    m, Iz, d11, d22, d33, xg = np.asarray(theta, float)
+    iz = Iz - m * xg * xg
+    return float(max(d11 / m, d22 / m, d33 / iz if iz > 0 else np.inf))
+
+
+def max_step(theta) -> float:
+    """Integration sub-step (s): MAX_DT, shorter for stiff parameters (RK4 stays stable)."""
+    k = stiffness(theta)
+    return float(min(MAX_DT, 1.0 / k)) if np.isfinite(k) and k > 0 else MAX_DT
+
+
 def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     """Solve each segment's initial state (Gauss-Newton, per-segment step halving);
     return residuals, sensitivity rows, initial states and the per-segment normal matrices."""
@@ -199,7 +267,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     step = np.zeros_like(x0s)
     for it in range(max_iter + 1):
         out_x, out_S = prob.simulate(theta, currents, x0s)
-        r = prob.residuals(out_x)
+        out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
+        r = prob.residuals(out_x, currents)
         r = np.where(np.isfinite(r), r, 1e6)
         seg_cost = prob.seg_sum(r * r)
         if seg_cost_prev is not None:
@@ -210,7 +279,7 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 step[~worse] = 0.0
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
-        J = prob.jac_rows(out_S)
+        J = prob.jac_rows(out_S, out_x)
         J = np.where(np.isfinite(J), J, 0.0)
         Jx = J[:, :6]
         JtJ = prob.seg_sum(Jx[:, :, None] * Jx[:, None, :])
@@ -240,6 +309,7 @@ class _VP:
         self.currents0 = np.asarray(currents0, float)
         self._key = None
         self.nfev = 0
+        self.diverged = False
 
     def unpack(self, p):
         theta = self.theta0.copy()
@@ -259,12 +329,16 @@ class _VP:
         if key == self._key:
             return
         theta, cur = self.unpack(p)
-        if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] < 0)
-                or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]):   # outside the model's domain
+        if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] <= 0)
+                or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]
+                or stiffness(theta) > MAX_STIFFNESS):   # outside the model's domain
             self._key, self._r = key, np.full(self.prob.n_res, 1e3)
             self._J = np.zeros((self.prob.n_res, len(p)))
+            self.diverged = True
             return
-        r, J, x0s, JtJ = _inner(self.prob, theta, cur, self.x0s)
+        with np.errstate(over="ignore", invalid="ignore"):
+            r, J, x0s, JtJ = _inner(self.prob, theta, cur, self.x0s)
+        self.diverged = bool(np.any(np.abs(r) >= 1e6))
         self.nfev += 1
         if np.all(np.isfinite(r)):
             self.x0s = x0s
@@ -299,15 +373,39 @@ class _VP:
         return self._J
 
 
-def _bounds(free_mask, n_cur):
-    lo = np.array([1e-3, 1e-4, 0.0, 0.0, 0.0, -np.inf])[free_mask]
+def _bounds(free_mask, n_cur, max_current=np.inf):
+    """Box of [free params, currents]: inertias and damping positive, |current| per axis bounded."""
+    lo = np.array([1e-3, 1e-4, 1e-6, 1e-6, 1e-6, -np.inf])[free_mask]
     hi = np.full(len(lo), np.inf)
-    return (np.concatenate([lo, np.full(n_cur, -np.inf)]), np.concatenate([hi, np.full(n_cur, np.inf)]))
+    return (np.concatenate([lo, np.full(n_cur, -max_current)]), np.concatenate([hi, np.full(n_cur, max_current)]))
+
+
+def _group_scales(prob: Problem, robust, vel_weight: float) -> np.ndarray:
+    """Noise scale per sensor group: the robust scatter, and for the velocity groups a factor
+    that gives them ``vel_weight`` times the weight of the position rows in total."""
+    out = np.asarray(robust, float).copy()
+    n_pos = int(np.sum(prob.r_sensor <= 1))
+    for k in (2, 3):
+        n_k = int(np.sum(prob.r_sensor == k))
+        if n_k and vel_weight > 0:
+            out[k] /= np.sqrt(vel_weight * n_pos / (2 * n_k))
+        elif n_k:
+            out[k] = 1e12   # weight zero
+    return out
+
+
+def velocity_samples(t, vn, ve, r, step_s: float = VEL_STEP_S):
+    """Every ``step_s`` of smoothed ground velocity (north, east, m/s) and yaw rate (rad/s) at
+    times ``t`` (s), as the velocity measurements of :func:`fit_output_error`."""
+    t = np.asarray(t, float)
+    k = max(1, int(round(step_s / max(float(np.median(np.diff(t))), 1e-9)))) if len(t) > 1 else 1
+    return t[::k], np.asarray(vn, float)[::k], np.asarray(ve, float)[::k], np.asarray(r, float)[::k]
 
 
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
                      currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
-                     max_nfev=60, verbose=0, warm_span_s=None) -> OutputErrorResult:
+                     max_nfev=60, verbose=0, warm_span_s=None, velocities=None, vel_weight=0.0,
+                     max_current_mps=np.inf) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -340,30 +438,46 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Passed to :func:`scipy.optimize.least_squares`.
     warm_span_s : float, optional
         Fit the warm-up stage only on the first ``warm_span_s`` s of each run.
+    velocities : list, optional
+        Per run None or (t (s), vn, ve (m/s over ground), r (rad/s)) smoothed velocities
+        (:func:`velocity_samples`), fitted too so that a wrong current cannot buy a better
+        position fit with absurd dynamics.
+    vel_weight : float, default 0.0
+        Total weight of the velocity rows relative to the GPS and compass rows (0: not fitted).
+    max_current_mps : float, default inf
+        Bound on each current component, m/s.
 
     Returns
     -------
     OutputErrorResult
+        Standard errors come from the GPS and compass rows only (the velocities are
+        derived from them: counting them again would overstate the information).
+        ``diverged`` is True when the model's simulation left the finite range at the end.
     """
     free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
     cur = np.zeros((len(runs), 2)) if currents0 is None else np.asarray(currents0, float)
+    cur = np.clip(cur, -max_current_mps, max_current_mps)
     theta = np.asarray(theta0, float).copy()
     nfev = 0
     stages = [warm_segment_s, segment_s] if warm_segment_s and warm_segment_s < segment_s else [segment_s]
-    sensor_scale = (1.0, 1.0)
+    robust = np.ones(4)
     x0_kin = x0_fn
+
+    def problem(rr, seg_s):
+        return Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+
     for si, seg_s in enumerate(stages):
         last = si == len(stages) - 1
         runs_s = runs
         if not last and warm_span_s:
             # the warm-up only needs to get close: fit it on the first warm_span_s of each run
             runs_s = [r.window(r.t_thrust[0], r.t_thrust[0] + warm_span_s) for r in runs]
-        prob = Problem(runs_s, seg_s)
-        prob.set_sensor_scale(*sensor_scale)
+        prob = problem(runs_s, seg_s)
+        prob.set_sensor_scale(_group_scales(prob, robust, vel_weight))
         x0s = prob.initial_states(x0_fn)
         vp = _VP(prob, theta, free, fit_current, x0s, cur)
         p0 = vp.pack(theta, cur)
-        lo, hi = _bounds(free, len(p0) - int(free.sum()))
+        lo, hi = _bounds(free, len(p0) - int(free.sum()), max_current_mps)
         p0 = np.clip(p0, lo + 1e-9, hi)
         if not last:
             # keep the warm-up stage near the start: short segments leave slow modes weak
@@ -373,7 +487,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             nf = int(free.sum())
             lo = lo.copy()
             hi = hi.copy()
-            lo[:nf], hi[:nf] = th_lo[free], th_hi[free]
+            lo[:nf], hi[:nf] = np.maximum(th_lo[free], lo[:nf]), th_hi[free]
             p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
         sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
                             ftol=1e-8 if last else 1e-6, xtol=1e-8 if last else 1e-6,
@@ -382,8 +496,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         theta, cur = vp.unpack(sol.x)
         vp._eval(sol.x)
         if reweight:   # each sensor weighted by its own (robust) residual scatter from here on
-            sc = _robust_scale(prob, vp._r)
-            sensor_scale = (sensor_scale[0] * sc[0], sensor_scale[1] * sc[1])
+            robust = robust * np.asarray(_robust_scale(prob, vp._r))
         # capture initial states for the next stage
         x0_prev = (prob, vp.x0s.copy())
 
@@ -397,50 +510,54 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     # sigmas and solve again from where it stands (same segments, warm initial states)
     outliers = {"gps": 0, "compass": 0}
     for _ in range(3):
-        sc = _robust_scale(prob, vp._r)
-        bad = np.abs(vp._r) > OUTLIER_SIGMA * np.where(prob.r_sensor == 0, sc[0], sc[1])
+        sc = np.asarray(_robust_scale(prob, vp._r))
+        bad = (np.abs(vp._r) > OUTLIER_SIGMA * sc[prob.r_sensor]) & (prob.r_sensor <= 1)
         if not bad.any():
             break
         runs, n_gps, n_comp = _drop_measurements(prob, runs, bad)
         outliers["gps"] += n_gps
         outliers["compass"] += n_comp
-        prob = Problem(runs, stages[-1])
-        prob.set_sensor_scale(*sensor_scale)
+        prob = problem(runs, stages[-1])
+        prob.set_sensor_scale(_group_scales(prob, robust, vel_weight))
         vp = _VP(prob, theta, free, fit_current, vp.x0s, cur)
         p0 = vp.pack(theta, cur)
-        lo, hi = _bounds(free, len(p0) - int(free.sum()))
+        lo, hi = _bounds(free, len(p0) - int(free.sum()), max_current_mps)
         sol = least_squares(vp.fun, np.clip(p0, lo + 1e-9, hi), jac=vp.jac, bounds=(lo, hi), x_scale="jac",
                             method="trf", ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=max_nfev, verbose=verbose)
         nfev += vp.nfev
         theta, cur = vp.unpack(sol.x)
         vp._eval(sol.x)
     r, G = vp._r, vp._J
+    diverged = bool(vp.diverged)
+    pos = prob.r_sensor <= 1          # the raw measurements carry the information
+    r, G = r[pos], G[pos]
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
     colnorm = np.linalg.norm(G, axis=0)
     colnorm[colnorm == 0] = 1.0
     Gs = G / colnorm
-    cond = float(np.linalg.cond(Gs))
-    cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm)
+    cond = float(np.linalg.cond(Gs)) if np.all(np.isfinite(Gs)) else float("inf")
+    cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm) if np.isfinite(cond) else \
+        np.full((G.shape[1], G.shape[1]), np.nan)
     names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
     if fit_current:
         names += tuple(f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e"))
-    rms = {"gps": float(np.sqrt(np.mean(r[prob.r_sensor == 0] ** 2))),
-           "compass": float(np.sqrt(np.mean(r[prob.r_sensor == 1] ** 2)))}
+    rms = {k: float(np.sqrt(np.mean(vp._r[prob.r_sensor == i] ** 2)))
+           for i, k in enumerate(SENSORS) if np.any(prob.r_sensor == i)}
     return OutputErrorResult(theta=theta, free=tuple(n for n, f in zip(PARAM_NAMES, free) if f),
                              currents=np.asarray(cur, float) if fit_current else np.zeros((len(runs), 2)),
                              cov=cov, names=names, cond=cond, sigma2=sigma2, rms=rms, n_residuals=n_res,
-                             x0s=vp.x0s, nfev=nfev, outliers=outliers)
+                             x0s=vp.x0s, nfev=nfev, outliers=outliers, diverged=diverged)
 
 
-def _robust_scale(prob: Problem, r) -> tuple[float, float]:
-    """Per-sensor scatter of whitened residuals, 1.4826 median |r| (sigma for Gaussian noise)."""
+def _robust_scale(prob: Problem, r) -> tuple[float, ...]:
+    """Per-sensor-group scatter of whitened residuals, 1.4826 median |r| (sigma for Gaussian noise)."""
     out = []
-    for k in (0, 1):
+    for k in range(4):
         a = np.abs(r[prob.r_sensor == k])
         out.append(float(1.4826 * np.median(a)) if len(a) else 1.0)
-    return out[0] or 1.0, out[1] or 1.0
+    return tuple(x or 1.0 for x in out)
 
 
 def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[list[RunData], int, int]:
@@ -483,7 +600,7 @@ class _SingleSeg:
         out_S = np.zeros((1, 6, NS))
         shoot(p.tg, p.tau_u, p.tau_r, np.array([i0]), np.array([i1]), x0[None, :].astype(float),
               np.asarray(theta, float), np.asarray(cur, float)[None, :], np.array([float(self.t)]),
-              np.array([0, 1], np.int64), MAX_DT, False, out_x, out_S)
+              np.array([0, 1], np.int64), max_step(theta), False, out_x, out_S)
         return out_x, out_S
 
 
@@ -503,7 +620,7 @@ def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarr
     ox = np.zeros((len(tt), 6))
     shoot(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
           np.asarray(x0, float)[None, :], np.asarray(theta, float), np.asarray(current, float)[None, :],
-          tt, np.array([0, len(tt)], np.int64), MAX_DT, False, ox, out_S)
+          tt, np.array([0, len(tt)], np.int64), max_step(theta), False, ox, out_S)
     out_x[ok] = ox
     return out_x
 

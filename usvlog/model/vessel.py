@@ -273,6 +273,10 @@ class Thrusters:
     lag_s : float, default 0.0
         Time constant in s of a first-order lag between the command and the force
         (T dF/dt = F_cmd - F; the simulator applies it, 0 = none), >= 0.
+    scale : {"known", "command"}, default "known"
+        ``command`` when the forces are in command units (an identification without a
+        known thrust scale: ``forward_n = 1`` is the full forward command, and the model
+        parameters are per unit of its force); ``known``: newtons.
 
     Raises
     ------
@@ -288,8 +292,11 @@ class Thrusters:
     pwm_span_us: float = 400.0
     known: bool = True  # False when the map is only a guess (reported by identification)
     lag_s: float = 0.0  # first-order force lag of the thrusters, s (simulated plant)
+    scale: str = "known"  # "command": forces (and the model) in command units, thrust gain unknown
 
     def __post_init__(self):
+        if self.scale not in ("known", "command"):
+            raise ConfigError(f"thruster scale {self.scale!r} is not known or command")
         if not (self.lag_s >= 0 and math.isfinite(self.lag_s)):
             raise ConfigError(f"thruster lag_s = {self.lag_s} must be a finite number >= 0")
         if self.map not in THRUSTER_MAPS:
@@ -564,8 +571,8 @@ class Vessel:
         lines += ["", "[thrusters]"]
         for f in fields(Thrusters):
             v = getattr(t, f.name)
-            if f.name == "lag_s" and v == 0.0:
-                continue  # the default: files of vessels without a lag stay as they were
+            if (f.name, v) in (("lag_s", 0.0), ("scale", "known")):
+                continue  # the defaults: files of vessels without them stay as they were
             if isinstance(v, bool):
                 lines.append(f"{f.name} = {'true' if v else 'false'}")
             elif isinstance(v, str):
@@ -581,7 +588,8 @@ class Vessel:
         -------
         dict of str to str
             ``name``, ``model.<symbol>`` (the paper terms), ``extended.<field>`` (extended
-            structure only) and ``thrusters.<field>`` entries (``lag_s`` only when not 0);
+            structure only) and ``thrusters.<field>`` entries (``lag_s`` and ``scale``
+            only when not the default);
             read back by :meth:`from_dict`.
         """
         d = {"name": self.name}
@@ -589,7 +597,7 @@ class Vessel:
         if self.extended is not None:
             d.update({f"extended.{k}": repr(v) for k, v in self.extended.to_dict().items()})
         d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()
-                  if not (k == "lag_s" and v == 0.0)})
+                  if (k, v) not in (("lag_s", 0.0), ("scale", "known"))})
         return d
 
     @classmethod

@@ -21,6 +21,7 @@ from ..control.gains import gains_from_dict
 from ..errors import ConfigError, UsvlogError
 from ..estimate import EstimateSettings, estimate
 from ..identify import Identifier
+from ..identify.identifier import VERDICTS
 from ..io.mcap import read_log
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
@@ -228,7 +229,9 @@ def stage_identify(run: _Run) -> None:
     Sets ``run.vessel`` to the identified vessel and adds to ``run.metrics``:
     ``identify.<param>`` for each parameter (m in kg, Iz in kg m^2, d11/d22 in N s/m,
     d33 in N m s/rad, xg in m), ``identify.fit_<u|v|r|track>_pct`` (% fit of the model's
-    free run on the same log) and ``identify.warnings`` (count of verdict warnings). When
+    validation: the held-out part, or without one a free run on the same log),
+    ``identify.warnings`` (count of the verdict's reasons) and ``identify.verdict_level``
+    (0 usable, 1 usable with caveats, 2 unusable). When
     the log has ``/truth/state`` (simulated datasets), also ``identify.<param>_err_pct``
     (% of the true value), ``identify.xg_err_m`` (m) and, when the current is fitted,
     ``identify.current_err_mps`` (m/s, against the truth's mean current).
@@ -269,10 +272,11 @@ def stage_identify(run: _Run) -> None:
         cn, ce = ident.current_[0]
         m["identify.current_err_mps"] = float(np.hypot(cn - tr["current_n_mps"].mean(),
                                                        ce - tr["current_e_mps"].mean()))
-    val = ident.validate(run.log)
-    for k, v in val.fit_percent.items():
+    fp = ident.validation_fit_percent_() if ident.validations_ else ident.validate(run.log).fit_percent
+    for k, v in fp.items():
         m[f"identify.fit_{k}_pct"] = float(v)
-    m["identify.warnings"] = float(len(ident.verdict_))
+    m["identify.warnings"] = float(len(ident.reasons_))
+    m["identify.verdict_level"] = float(VERDICTS.index(ident.verdict_))
 
 
 def stage_replay(run: _Run) -> None:
@@ -426,7 +430,8 @@ def _default_direction(name: str) -> str:
     leaf = name.split(".", 1)[1]
     if leaf.startswith("fit_"):
         return "smaller"
-    if name.startswith("identify.") and not leaf.endswith(("_err_pct", "_err_m")) and leaf != "warnings":
+    if name.startswith("identify.") and not leaf.endswith(("_err_pct", "_err_m")) and leaf not in (
+            "warnings", "verdict_level"):
         return "either"                    # a parameter moving either way is a change
     if leaf.endswith("_mean_nis"):
         return "either"                    # consistency: NIS should stay near its dimension
@@ -450,7 +455,7 @@ def _default_tol(name: str) -> tuple[float, float]:
         return (1e-6, 0.0)                 # the same code makes the same decisions
     if leaf in ("command_rms", "force_rms_n"):
         return (1e-9, 1e-6)                # replayed vs recorded: any change of decisions shows
-    if leaf.endswith("_rejected") or leaf in ("dropouts_bridged", "warnings"):
+    if leaf.endswith("_rejected") or leaf in ("dropouts_bridged", "warnings", "verdict_level"):
         return (0.0, 0.0)
     if leaf.endswith("_pct") and leaf.startswith("fit_"):
         return (1.0, 0.0)                  # fit % points

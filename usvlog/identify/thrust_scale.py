@@ -1,0 +1,508 @@
+"""Identification when the log's thrust has no known force scale.
+
+Commands in ``counts``, ``normalized`` or PWM units become forces only through a thruster
+map; when that map is missing or only a guess (the import's health record says
+``force_scale = "unknown"``, or the vessel's ``thrusters.known`` is false), the forces are
+known up to the thrust gain g: F = g_f s(c) for a forward command, g_r s(c) for a reverse
+one, with s the map's shape (c or c|c|, c the normalized command). Dividing eq. (3) by
+g_f,
+
+    (M / g_f) nu_dot + (C(nu) / g_f) nu + (D / g_f) nu = s+(c) + rho s-(c),   rho = g_r / g_f,
+
+shows what the log can tell: the model *per unit of command* (m / g_f, Iz / g_f, d / g_f;
+xg is a length and unchanged) and the reverse-to-forward ratio rho. So the fit runs in
+command units (a thruster map with forward_n = 1 and reverse_n = rho), and only ratios of
+the physical parameters are identified. One physical value known (``--fix m=33``: a
+weighed mass) fixes the scale: g_f = 33 / (m / g_f) and every per-unit value times g_f is
+the physical one; the gains forward_n = g_f and reverse_n = rho g_f come out as well.
+
+rho is estimated by equation error (the per-unit model is linear in it), where the model's
+inertia terms, biased by the smoother, do not enter the ratio of the two input columns
+much; the output-error fit then runs with rho held.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..errors import ConfigError
+from ..log.fieldlog import FieldLog
+from ..log.summary import health_from_provenance
+from ..model.vessel import PARAM_NAMES, Vessel, VesselParams
+from .data import run_data
+from .equation import regressors
+from .smooth import derivative, kinematic_states, smooth_like, thrust_on_grid
+
+SCALE_FREE = ("xg",)
+"""Parameters the thrust gain does not scale (lengths)."""
+
+Z95 = 1.959963984540054
+EE_ACC_S = 6.0  # smoothing window (s) of the ratio's equation-error fit, as the identifier's
+
+
+@dataclass(frozen=True, kw_only=True)
+class ThrustScale:
+    """Which thrust-scale case an identification is, and what it found about the gain.
+
+    Attributes
+    ----------
+    case : {"known", "command units", "gain identified"}
+        ``known``: forces in newtons (logged or through a known map); ``command units``:
+        the model per unit of full forward command (only ratios identified);
+        ``gain identified``: as ``command units``, scaled by a fixed physical value.
+    ratio : float
+        Reverse-to-forward gain ratio rho (NaN when known).
+    ratio_from : str
+        ``"equation error"`` or ``"vessel"`` (no reverse thrust in the log to tell).
+    fixed_by : str or None
+        The fixed parameter that set the scale (``gain identified``).
+    forward_n, reverse_n : float
+        Gains in N at full forward and reverse command (``gain identified``; NaN else).
+    forward_stderr_n : float
+        Standard error of ``forward_n`` in N (reverse: times ``ratio``).
+    shape : {"linear", "quadratic"}
+        Map shape s(c) the commands went through.
+    """
+
+    case: str = "known"
+    ratio: float = float("nan")
+    ratio_from: str = ""
+    fixed_by: str | None = None
+    forward_n: float = float("nan")
+    reverse_n: float = float("nan")
+    forward_stderr_n: float = float("nan")
+    shape: str = "linear"
+
+    @property
+    def known(self) -> bool:
+        """True when the forces were known in newtons."""
+        return self.case == "known"
+
+    def to_dict(self) -> dict:
+        """JSON-ready: case, ratio, ratio_from, fixed_by, forward_n, reverse_n, forward_stderr_n, shape
+        (NaN written as None)."""
+        def num(x):
+            return None if x is None or not math.isfinite(x) else float(x)
+        return {"case": self.case, "ratio": num(self.ratio), "ratio_from": self.ratio_from or None,
+                "fixed_by": self.fixed_by, "forward_n": num(self.forward_n), "reverse_n": num(self.reverse_n),
+                "forward_stderr_n": num(self.forward_stderr_n), "shape": self.shape}
+
+    def message(self) -> str:
+        """One plain line for the verdict ("" when known)."""
+        if self.case == "command units":
+            return (f"thrust scale unknown: identified in command units (m, Iz and the damping per unit of full "
+                    f"forward command; only their ratios are physical; reverse/forward gain {self.ratio:.3g} "
+                    f"from {self.ratio_from}); --fix one physical value (e.g. a weighed m) to get the gain")
+        if self.case == "gain identified":
+            return (f"thrust scale unknown: gain identified from the fixed {self.fixed_by}: "
+                    f"{self.forward_n:.4g} N forward, {self.reverse_n:.4g} N reverse at full command "
+                    f"(+- {self.forward_stderr_n:.2g} N)")
+        return ""
+
+
+def thrust_scale_known(log: FieldLog, vessel: Vessel) -> bool:
+    """Whether a log's thrust has a known force scale.
+
+    Parameters
+    ----------
+    log : FieldLog
+        Needs ``/thrust/command``.
+    vessel : Vessel
+        The vessel the identification uses (its thruster map).
+
+    Returns
+    -------
+    bool
+        False when some commands are not newtons and the import judged the force scale
+        unknown, the vessel's thruster map is only a guess (``known = false``) or there
+        is no map (``identity``) and no logged forces; True otherwise.
+    """
+    fr = log["/thrust/command"]
+    units = set(fr["unit"].astype(str)) if "unit" in fr else {"newton"}
+    if units <= {"newton"}:
+        return True
+    if (health_from_provenance(log.provenance) or {}).get("thrust", {}).get("force_scale") == "unknown":
+        return False
+    if not vessel.thrusters.known:
+        return False
+    logged = ("thrust_left_n" in fr and "thrust_right_n" in fr
+              and np.isfinite(fr["thrust_left_n"].to_numpy(float)).all()
+              and np.isfinite(fr["thrust_right_n"].to_numpy(float)).all())
+    return bool(logged or vessel.thrusters.map != "identity")
+
+
+def command_unit_vessel(vessel: Vessel, ratio: float) -> Vessel:
+    """The vessel with thrusters in command units: forward_n = 1, reverse_n = ``ratio``.
+
+    Parameters
+    ----------
+    vessel : Vessel
+        Gives the arm, the map shape (``identity`` becomes ``linear``) and PWM settings.
+    ratio : float
+        Reverse-to-forward gain ratio, > 0.
+
+    Returns
+    -------
+    Vessel
+        Thrusters ``scale = "command"``, ``known = true``; the model unchanged.
+    """
+    t = vessel.thrusters
+    shape = t.map if t.map in ("linear", "quadratic") else "linear"
+    return replace(vessel, thrusters=replace(t, map=shape, forward_n=1.0, reverse_n=float(ratio), known=True,
+                                             scale="command"))
+
+
+def without_logged_forces(log: FieldLog) -> FieldLog:
+    """A copy of ``log`` whose ``/thrust/command`` has no logged forces (they were a guess)."""
+    out = log.copy()
+    fr = out["/thrust/command"].copy()
+    for c in ("thrust_left_n", "thrust_right_n"):
+        if c in fr:
+            fr[c] = np.nan
+    out.channels["/thrust/command"] = fr
+    return out
+
+
+def reverse_ratio(logs: list[FieldLog], vessel: Vessel) -> tuple[float, str]:
+    """Reverse-to-forward thrust gain ratio by equation error in command units.
+
+    Surge and yaw of eq. (3) divided by the forward gain are linear in (m, m xg, Iz, d11,
+    d33) per unit and in the ratio rho: A theta - rho s- = s+. Solved by least squares,
+    each equation weighted by its residual scatter (two passes).
+
+    Parameters
+    ----------
+    logs : list of FieldLog
+        Runs with ``/thrust/command`` (commands), ``/gnss/fix`` and ``/compass/heading``.
+    vessel : Vessel
+        Arm and map shape.
+
+    Returns
+    -------
+    ratio : float
+        rho > 0; the vessel's own reverse_n / forward_n when the runs have too little
+        reverse thrust to tell (or the estimate is not positive).
+    source : str
+        ``"equation error"`` or ``"vessel"``.
+    """
+    rows_A, rows_p, rows_n = [], [], []
+    for log in logs:
+        log = without_logged_forces(log)
+        r1 = run_data(log, command_unit_vessel(vessel, 1.0))
+        r2 = run_data(log, command_unit_vessel(vessel, 2.0))
+        ks = kinematic_states(log, r1, vessel)
+        nu = ks.nu((0.0, 0.0))
+        t = ks.t
+        s1, s2 = thrust_on_grid(r1, t), thrust_on_grid(r2, t)
+        neg = [smooth_like(t, b - a, EE_ACC_S) for a, b in zip(s1, s2)]        # s-: (tau_u, tau_r)
+        pos = [smooth_like(t, 2 * a - b, EE_ACC_S) for a, b in zip(s1, s2)]    # s+
+        A = regressors(smooth_like(t, nu, EE_ACC_S), derivative(t, nu, EE_ACC_S))
+        rows_A.append(A[[0, 2]][:, :, [0, 1, 2, 3, 5]])
+        rows_p.append(np.stack(pos))
+        rows_n.append(np.stack(neg))
+    A = np.concatenate(rows_A, 1)
+    sp = np.concatenate(rows_p, 1)
+    sn = np.concatenate(rows_n, 1)
+    fallback = vessel.thrusters.reverse_n / vessel.thrusters.forward_n
+    total = np.abs(sp).sum() + np.abs(sn).sum()
+    if total == 0 or np.abs(sn).sum() < 0.02 * total:
+        return float(fallback), "vessel"
+    X = np.concatenate([A, -sn[:, :, None]], 2)       # (2, N, 6)
+    w = np.ones(2)
+    for _ in range(2):
+        Xw = (X * w[:, None, None]).reshape(-1, X.shape[2])
+        yw = (sp * w[:, None]).reshape(-1)
+        sol = np.linalg.lstsq(Xw, yw, rcond=None)[0]
+        res = sp - X @ sol
+        w = 1.0 / np.maximum(np.sqrt(np.mean(res ** 2, axis=1)), 1e-12)
+    rho = float(sol[-1])
+    if not (math.isfinite(rho) and rho > 0):
+        return float(fallback), "vessel"
+    return rho, "equation error"
+
+
+def _pm_runs(logs: list[FieldLog], vessel: Vessel):
+    """Per log: (RunData at rho = 1, its s+ and s- thrust (tau_u, tau_r) on the thrust grid, kinematic states)."""
+    out = []
+    for log in logs:
+        log = without_logged_forces(log)
+        r1 = run_data(log, command_unit_vessel(vessel, 1.0))
+        r2 = run_data(log, command_unit_vessel(vessel, 2.0))
+        neg = (r2.tau_u - r1.tau_u, r2.tau_r - r1.tau_r)
+        pos = (r1.tau_u - neg[0], r1.tau_r - neg[1])
+        out.append((r1, pos, neg, kinematic_states(log, r1, vessel)))
+    return out
+
+
+def with_ratio(r1, pos, neg, rho: float):
+    """The run's thrust in command units for reverse-to-forward ratio ``rho``: s+ + rho s-."""
+    return replace(r1, tau_u=pos[0] + rho * neg[0], tau_r=pos[1] + rho * neg[1])
+
+
+def profile_ratio(logs: list[FieldLog], vessel: Vessel, rho0: float, *, free_mask, fit_current: bool,
+                  segment_s: float, fix_theta=None, rel_tol: float = 0.003,
+                  max_eval: int = 8) -> tuple[float, np.ndarray]:
+    """Reverse-to-forward ratio minimising the output-error cost (parameters refitted at each).
+
+    A parabola through the three best (ratio, cost) points, from ``rho0`` and +-10 %, moved
+    until the ratio changes by less than ``rel_tol``. Each cost is an output-error fit of the
+    per-unit model (one stage, the stated sensor noise as weights so costs compare), started
+    from the best fit so far.
+
+    Parameters
+    ----------
+    logs : list of FieldLog
+    vessel : Vessel
+        Arm and map shape.
+    rho0 : float
+        Starting ratio (equation error), > 0.
+    free_mask : array_like of bool, shape (6,)
+        Which per-unit parameters are fitted (PARAM_NAMES order).
+    fit_current : bool
+        Fit a current per run.
+    segment_s : float
+        Multiple-shooting segment length, s.
+    fix_theta : array_like, shape (6,), optional
+        Values of the parameters not fitted (default the vessel's).
+    rel_tol : float, default 0.003
+        Relative change of the ratio that ends the search.
+    max_eval : int, default 8
+        Most output-error fits.
+
+    Returns
+    -------
+    rho : float
+        The ratio, > 0.
+    theta : numpy.ndarray, shape (6,)
+        The per-unit parameters of the best fit (PARAM_NAMES order).
+    """
+    from .equation import fit_equation_error  # local: only this search needs a start from it
+    from .output import fit_output_error
+
+    data = _pm_runs(logs, vessel)
+    kin = [d[3] for d in data]
+    runs0 = [with_ratio(d[0], d[1], d[2], rho0) for d in data]
+    # start: equation error of the per-unit model at rho0, else the vessel's values
+    nus, nuds, tus, trs = [], [], [], []
+    for run, ks in zip(runs0, kin):
+        nu = ks.nu((0.0, 0.0))
+        tu, tr = thrust_on_grid(run, ks.t)
+        nus.append(smooth_like(ks.t, nu, EE_ACC_S))
+        nuds.append(derivative(ks.t, nu, EE_ACC_S))
+        tus.append(smooth_like(ks.t, tu, EE_ACC_S))
+        trs.append(smooth_like(ks.t, tr, EE_ACC_S))
+    free = np.asarray(free_mask, bool)
+    base = np.asarray(fix_theta if fix_theta is not None else vessel.params.as_array(), float)
+    ee = fit_equation_error(np.concatenate(nus), np.concatenate(nuds), np.concatenate(tus), np.concatenate(trs),
+                            fix={k: float(base[i]) for i, k in enumerate(PARAM_NAMES) if not free[i]})
+    theta = np.where(free, ee.theta, base) if ee.valid else base.copy()
+    cur = np.zeros((len(logs), 2))
+    seen: dict[float, float] = {}
+    best: dict[str, Any] = {"cost": np.inf, "theta": theta, "cur": cur}
+
+    def cost(rho: float) -> float:
+        runs = [with_ratio(d[0], d[1], d[2], rho) for d in data]
+        first = not seen
+        oe = fit_output_error(runs, best["theta"], lambda i, t: kin[i].at(t), free_mask=free,
+                              fit_current=fit_current, currents0=best["cur"], segment_s=segment_s,
+                              warm_segment_s=0.0, reweight=False, max_nfev=60 if first else 20)
+        c = float(oe.sigma2) if np.all(np.isfinite(oe.theta)) else np.inf
+        seen[rho] = c
+        if c < best["cost"]:
+            best.update(cost=c, theta=oe.theta, cur=oe.currents)
+        return c
+
+    for rho in (rho0, 0.9 * rho0, 1.1 * rho0):
+        cost(rho)
+    rho = rho0
+    while len(seen) < max_eval:
+        pts = sorted(seen.items(), key=lambda kv: kv[1])[:3]
+        x = np.array([p[0] for p in pts])
+        y = np.array([p[1] for p in pts])
+        a, b, _ = np.polyfit(x, y, 2)
+        lo, hi = 0.5 * x.min(), 1.5 * x.max()
+        new = float(np.clip(-b / (2 * a), lo, hi)) if a > 0 else float(x[0] + (x[0] - x[-1]))
+        new = max(new, 1e-3)
+        if abs(new - x[0]) <= rel_tol * x[0] or any(abs(new - k) <= 1e-4 * k for k in seen):
+            rho = new if a > 0 else float(x[0])
+            break
+        cost(new)
+        rho = min(seen, key=lambda k: seen[k])
+    return float(rho), np.asarray(best["theta"], float)
+
+
+def scale_fix(fix: dict) -> tuple[dict, str | None]:
+    """Split fixed values into those valid in command units and the one setting the scale.
+
+    Parameters
+    ----------
+    fix : dict of str to float
+        Fixed parameters by paper symbol, SI units.
+
+    Returns
+    -------
+    per_unit_fix : dict
+        Fixed values the command-unit fit can hold (``xg``, a length).
+    scale_by : str or None
+        The physical parameter that sets the thrust gain (``m`` preferred, then ``Iz``,
+        ``d11``, ``d33``, ``d22``); None without one.
+    """
+    per_unit = {k: v for k, v in fix.items() if k in SCALE_FREE}
+    for k in ("m", "Iz", "d11", "d33", "d22"):
+        if k in fix:
+            return per_unit, k
+    return per_unit, None
+
+
+def scale_results(theta, cov, names, fix: dict, scale_by: str):
+    """Physical parameters, their covariance and the forward gain from a command-unit fit.
+
+    With p_f fixed, g = p_f / q_f and p_k = g q_k for every parameter k the gain scales
+    (q: per-unit values); the covariance by the delta method from the per-unit one.
+
+    Parameters
+    ----------
+    theta : array_like, shape (6,)
+        Per-unit m, Iz, d11, d22, d33 and xg (PARAM_NAMES order).
+    cov : numpy.ndarray
+        Covariance of the fitted quantities ``names`` (per-unit parameters, currents).
+    names : sequence of str
+        Row names of ``cov``.
+    fix : dict
+        The user's fixed values (physical).
+    scale_by : str
+        The fixed parameter that sets the scale.
+
+    Returns
+    -------
+    theta : numpy.ndarray, shape (6,)
+        Physical parameters (fixed ones at their values).
+    cov : numpy.ndarray
+        Covariance of the physical free quantities, rows ``names`` without ``scale_by``.
+    names : tuple of str
+    gain : float
+        Forward thrust gain g (N at full forward command, per unit of the map shape).
+    gain_se : float
+        Its standard error, N.
+    """
+    theta = np.asarray(theta, float)
+    names = list(names)
+    q_f = theta[PARAM_NAMES.index(scale_by)]
+    g = fix[scale_by] / q_f
+    n = len(names)
+    Jm = np.zeros((n, n))   # d(physical free quantities)/d(per-unit fitted ones)
+    i_f = names.index(scale_by) if scale_by in names else None
+    for i, k in enumerate(names):
+        if k in PARAM_NAMES and k not in SCALE_FREE:
+            Jm[i, i] = g
+            if i_f is not None:
+                Jm[i, i_f] = -g * theta[PARAM_NAMES.index(k)] / q_f
+        else:
+            Jm[i, i] = 1.0
+    cov_p = Jm @ cov @ Jm.T
+    gain_se = float(g / q_f * math.sqrt(max(cov[i_f, i_f], 0.0))) if i_f is not None else 0.0
+    keep = [i for i, k in enumerate(names) if k != scale_by]
+    out = theta.copy()
+    for i, k in enumerate(PARAM_NAMES):
+        if k not in SCALE_FREE:
+            out[i] = g * theta[i]
+    out[PARAM_NAMES.index(scale_by)] = fix[scale_by]
+    return out, cov_p[np.ix_(keep, keep)], tuple(names[i] for i in keep), float(g), gain_se
+
+
+
+
+def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
+    """:meth:`usvlog.identify.Identifier.fit` for runs whose thrust has no known force scale.
+
+    The reverse-to-forward ratio first (equation error, then refined by output error for
+    that method), then the identifier's own fit in command units; with one physical value
+    fixed, everything scaled to physical units and the gains found. Sets the fitted
+    attributes of ``ident`` (``thrust_scale_`` says which case it is) and returns it.
+
+    Parameters
+    ----------
+    ident : usvlog.identify.Identifier
+        The identifier (its settings; its fitted attributes are set).
+    logs : list of FieldLog
+    vessel : Vessel
+        Arm and map shape (its forces are not trusted).
+
+    Returns
+    -------
+    usvlog.identify.Identifier
+        ``ident``, fitted.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If more than one scale-carrying value (m, Iz, d11, d22, d33) is fixed.
+    """
+    import copy
+
+    fix_all = dict(ident.fix)
+    per_unit_fix, scale_by = scale_fix(fix_all)
+    carrying = [k for k in fix_all if k not in SCALE_FREE]
+    if len(carrying) > 1:
+        raise ConfigError(f"with an unknown thrust scale fix one of m, Iz, d11, d22, d33 (it sets the thrust gain), "
+                          f"not {len(carrying)} ({', '.join(carrying)})")
+    shape = vessel.thrusters.map if vessel.thrusters.map in ("linear", "quadratic") else "linear"
+    rho, how = reverse_ratio(logs, vessel)
+    # the prior in command units: the vessel's values per newton of its (guessed) full forward force
+    base = vessel.params.as_array()
+    base[[PARAM_NAMES.index(k) for k in PARAM_NAMES if k not in SCALE_FREE]] /= vessel.thrusters.forward_n
+    for k, v in per_unit_fix.items():
+        base[PARAM_NAMES.index(k)] = v
+    if how == "equation error" and ident.method == "output-error":
+        free = np.array([k not in per_unit_fix for k in PARAM_NAMES])
+        rho, base = profile_ratio(logs, vessel, rho, free_mask=free, fit_current=ident.current,
+                                  segment_s=min(ident.segment_s, 120.0), fix_theta=base)
+        how = "output error"
+    inner = copy.copy(ident)
+    inner.fix = per_unit_fix
+    inner._command_units = True
+    inner.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape)
+    prior = VesselParams(**dict(zip(PARAM_NAMES, map(float, base))))
+    vcmd = command_unit_vessel(replace(vessel, params=prior, extended=None), rho)
+    inner.fit([without_logged_forces(lg) for lg in logs], vcmd)
+    ident.__dict__.update(inner.__dict__)
+    ident.fix = dict(fix_all)
+    ident._command_units = False
+    if scale_by is None:
+        return ident
+    names = list(inner.corr_.index)
+    theta, cov, names2, g, g_se = scale_results(inner.theta_, inner.cov_, names, fix_all, scale_by)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    stderr = {k: 0.0 for k in PARAM_NAMES}
+    for i, k in enumerate(names2):
+        if k in stderr:
+            stderr[k] = float(se[i])
+    ident.theta_ = theta
+    ident.params_ = VesselParams(**{k: float(v) for k, v in zip(PARAM_NAMES, theta)})
+    ident.stderr_ = stderr
+    ident.ci95_ = {k: (float(v - Z95 * stderr[k]), float(v + Z95 * stderr[k])) for k, v in zip(PARAM_NAMES, theta)}
+    ident.cov_ = cov
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    ident.corr_ = pd.DataFrame(cov / np.outer(sd, sd), index=list(names2), columns=list(names2))
+    ident.runs_ = [replace(r, tau_u=g * r.tau_u, tau_r=g * r.tau_r) for r in inner.runs_]
+    ee = inner.equation_error_
+    k_scale = np.array([1.0 if k in SCALE_FREE else g for k in PARAM_NAMES])
+    ident.equation_error_ = replace(ee, theta=ee.theta * k_scale,
+                                    stderr={k: v * (1.0 if k in SCALE_FREE else g) for k, v in ee.stderr.items()})
+    t = vessel.thrusters
+    ident.vessel_in_ = replace(vessel, thrusters=replace(t, map=shape, forward_n=g, reverse_n=g * rho, known=True,
+                                                         scale="known"))
+    ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
+                                      forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape)
+    ident.reasons_, ident.verdict_ = ident._verdict(ident.vessel_in_, ident.runs_, ident._kin)
+    ident.usable_ = ident.verdict_ != "unusable"
+    return ident
+
+
+__all__ = ["ThrustScale", "command_unit_vessel", "fit_in_command_units", "profile_ratio", "reverse_ratio",
+           "scale_fix", "scale_results", "thrust_scale_known", "with_ratio", "without_logged_forces"]
