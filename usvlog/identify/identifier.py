@@ -560,13 +560,11 @@ class Identifier:
             failed = "its simulation diverged"
         vals = []
         if not failed:
-            fitted_cur = st.kind != "equation-error" and self.current
+            # the same runs: their fitted current held (equation error's model has none: zero)
             if held:
-                vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None)
-                        for i, (r, k) in enumerate(held)]
+                vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
             else:   # without held-out data: free runs of the fitted runs judge it
-                vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None)
-                        for i, (r, k) in enumerate(zip(runs, kin))]
+                vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
             if any(v.diverged for v in vals):
                 failed = "its free run diverged"
         return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
@@ -611,8 +609,7 @@ class Identifier:
                 return chosen
         if physical_problem(theta):
             return chosen
-        fitted_cur = st.kind != "equation-error" and self.current
-        vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None) for i, (r, k) in enumerate(held)]
+        vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
         again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals)
         if again.score < chosen.score - PREFER_WITHIN:
             return chosen
