@@ -76,7 +76,9 @@ def test_identify_keeps_the_damage_note_in_its_vessel_file(damaged, tmp_path, ca
 
     _good, bad = damaged
     out = tmp_path / "v.toml"
-    assert main(["identify", str(bad), "--out", str(out), "--method", "equation-error", "--json"]) == 0
+    # a 60 s run is too short to validate on (the verdict would refuse it): the damage note is the point here
+    assert main(["identify", str(bad), "--out", str(out), "--method", "equation-error", "--no-validate",
+                 "--json"]) == 0
     text = out.read_text()
     assert text.startswith(f"# {bad}: input damaged: ") and "1 chunk(s) lost" in text.splitlines()[0]
     assert tomllib.loads(text)["model"]["m"] > 0          # still a vessel file

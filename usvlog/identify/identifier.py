@@ -19,7 +19,7 @@ from ..model.stats import fit_percent
 from ..model.vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
-from .filter import fit_filter_error
+from .filter import FilterErrorResult, fit_filter_error
 from .output import (
     OutputErrorResult,
     fit_initial_state,
@@ -43,7 +43,7 @@ VERDICTS = ("usable", "usable with caveats", "unusable")
 # verdict thresholds: validation fit % of u and r; relative standard error of m, Iz, d11, d33
 FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
 U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of points
-REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.5
+REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
 
 
@@ -473,8 +473,8 @@ class Identifier:
             self.validation_mode_ = "holdout" if holdout > 0 else "none"
         runs, kin, held, fit_logs = [], [], [], []
         for log, run, ks in zip(logs, all_runs, all_kin):
-            if self.validation_mode_ == "holdout":
-                t_cut = run.t_thrust[0] + (1 - float(holdout or 0.0)) * run.duration_s
+            if holdout is not None and holdout > 0:
+                t_cut = run.t_thrust[0] + (1 - holdout) * run.duration_s
                 held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf)))
                 run, ks = run.window(-np.inf, t_cut), ks.window(-np.inf, t_cut)
                 log = _log_before(log, run.t0_ns + int(t_cut * 1e9))
@@ -573,13 +573,11 @@ class Identifier:
             failed = "its simulation diverged"
         vals = []
         if not failed:
-            fitted_cur = st.kind != "equation-error" and self.current
+            # the same runs: their fitted current held (equation error's model has none: zero)
             if held:
-                vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None)
-                        for i, (r, k) in enumerate(held)]
+                vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
             else:   # without held-out data: free runs of the fitted runs judge it
-                vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None)
-                        for i, (r, k) in enumerate(zip(runs, kin))]
+                vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
             if any(v.diverged for v in vals):
                 failed = "its free run diverged"
         return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
@@ -603,26 +601,28 @@ class Identifier:
         """The chosen candidate fitted again on all the data from its values; kept only if it
         validates (now in-sample) at least as well as the candidate did, less PREFER_WITHIN."""
         st = chosen.start
+        fitted: object
         if st.kind == "filter-error":
-            return chosen
-        fitted: EquationErrorResult | OutputErrorResult
-        if st.kind == "equation-error":
+            fe = fit_filter_error(logs, vessel, chosen.theta, current=self.current,
+                                  free_mask=np.array([k not in self.fix for k in PARAM_NAMES]))
+            theta, fitted = fe.theta, fe
+            cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in logs])
+        elif st.kind == "equation-error":
             ee = self._equation_error(runs, kin)
             theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
         else:
             vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
-            fitted = fit_output_error(runs, chosen.theta, lambda i, t: kin[i].at(t),
-                                      free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
-                                      fit_current=self.current, currents0=chosen.currents,
-                                      segment_s=self.segment_s, warm_segment_s=0.0, velocities=vel,
-                                      vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
-            theta, cur = fitted.theta, np.asarray(fitted.currents, float)
-            if fitted.diverged:
+            oe = fit_output_error(runs, chosen.theta, lambda i, t: kin[i].at(t),
+                                  free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
+                                  fit_current=self.current, currents0=chosen.currents,
+                                  segment_s=self.segment_s, warm_segment_s=0.0, velocities=vel,
+                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
+            theta, cur, fitted = oe.theta, np.asarray(oe.currents, dtype=np.float64), oe
+            if oe.diverged:
                 return chosen
         if physical_problem(theta):
             return chosen
-        fitted_cur = st.kind != "equation-error" and self.current
-        vals = [self._validate_run(r, k, theta, cur[i] if fitted_cur else None) for i, (r, k) in enumerate(held)]
+        vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
         again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals)
         if again.score < chosen.score - PREFER_WITHIN:
             return chosen
@@ -702,8 +702,9 @@ class Identifier:
             self.cond_ = fitted.cond
             self.residual_rms_ = dict(fitted.rms)
         else:   # filter error
+            assert isinstance(fitted, FilterErrorResult)
             self.fe_ = fitted
-            names, cov = list(fitted.free), fitted.cov  # type: ignore[attr-defined]
+            names, cov = list(fitted.free), fitted.cov
             d = np.sqrt(np.maximum(np.diag(cov), 0))
             for i, k in enumerate(names):
                 se[PARAM_NAMES.index(k)] = d[i]
