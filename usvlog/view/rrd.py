@@ -525,10 +525,10 @@ SERIES_VIEWS = [  # (key, title: its unit; the series it holds are appended from
     ("fit_r", "Identification: r (deg/s)"),
 ]
 # the smallest y span a plot shows (in its unit), so a nearly constant series is not blown up to noise
-MIN_SPAN = {"u": 0.2, "v": 0.1, "r": 5.0, "cross_track": 0.5, "tau_u": 2.0, "tau_r": 1.0, "nis": 2.0,
+MIN_SPAN = {"psi": 20.0, "u": 0.2, "v": 0.1, "r": 5.0, "cross_track": 0.5, "tau_u": 2.0, "tau_r": 1.0, "nis": 2.0,
             "current": 0.1, "fit_u": 0.2, "fit_v": 0.1, "fit_r": 5.0}
 FIXED_RANGE = {"psi": (-185.0, 185.0), "saturation": (-0.1, 1.1)}
-LEGEND_ROOM = 0.45   # head room above the data, as a fraction of the span, where the legend sits
+LEGEND_ROOM = 0.35   # head room above the data, as a fraction of the span, where the legend sits
 
 
 def series_title(key: str, base: str, names: list[str], max_names: int = 5) -> str:
@@ -543,8 +543,8 @@ def series_title(key: str, base: str, names: list[str], max_names: int = 5) -> s
 
 def y_range(key: str, lo: float, hi: float) -> tuple[float, float]:
     """The y range of a plot holding values in [lo, hi]: at least ``MIN_SPAN``, with room for the legend
-    above the data (fixed for the heading, -180 to 180 degrees, and the 0/1 saturation flag)."""
-    if key in FIXED_RANGE:
+    above the data (fixed for a heading that wraps, -180 to 180 degrees, and the 0/1 saturation flag)."""
+    if key in FIXED_RANGE and not (key == "psi" and hi - lo < 300.0):   # a heading that never wraps: fitted
         a, b = FIXED_RANGE[key]
         return a, b + LEGEND_ROOM * (b - a)
     span = max(hi - lo, MIN_SPAN.get(key, 0.0), 1e-9)
