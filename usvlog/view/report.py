@@ -547,8 +547,9 @@ def _fig_estimate_series(plt, log):
             if tru is not None and q in tru.columns:
                 ax.plot(_seconds(tru.index.to_numpy(), t0), _wrap_deg(_col(tru, q)), "--", color="k", lw=0.8,
                         label="truth (simulated)", zorder=4)
-            ax.set_ylim(-185, 185)
-            ax.set_yticks([-180, -90, 0, 90, 180])
+            if np.nanmax(yd) - np.nanmin(yd) > 300.0:   # it wraps: the whole circle
+                ax.set_ylim(-185, 185)
+                ax.set_yticks([-180, -90, 0, 90, 180])
         else:
             if sd is not None and _finite(sd):
                 ax.fill_between(t, (y - sd) * scale, (y + sd) * scale, color="C0", alpha=0.25, lw=0,
