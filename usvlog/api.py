@@ -682,7 +682,8 @@ def fit_log(idf: Identifier, log: FieldLog) -> FieldLog:
     out.set(FIT_TOPIC, frame_from_columns(cols, t_ns, channel_spec(FIT_TOPIC)))
     out.add_provenance(producer="usvlog identify", source=str(log.source or ""),
                        settings={"method": idf.method, "fix": idf.fix, "current": idf.current,
-                                 "params": idf.params_.to_dict()})
+                                 "params": idf.params_.to_dict()},
+                       result=idf.to_dict())   # params, intervals and verdict, for the report
     return out
 
 

@@ -13,6 +13,7 @@ Pure: no file I/O.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -50,9 +51,38 @@ class TrackingMetrics:
     surge_error_rms_mps: float
     time_saturated_s: float
 
+    @property
+    def window(self) -> str:
+        """The time window the metrics cover, as it is written after their names: ``t>60s`` or
+        ``whole run``."""
+        return f"t>{self.start_s:g}s" if self.start_s > 0 else "whole run"
+
+    def named(self) -> dict[str, float]:
+        """The metric values by name with their window: ``{"cross_track_rms_m[t>60s]": ...}``
+        (units in the names: m, rad, m/s, s; ``n_ticks``, ``start_s`` and ``duration_s`` left out)."""
+        return {f"{f.name}[{self.window}]": float(getattr(self, f.name)) for f in fields(self)
+                if f.name not in ("n_ticks", "start_s", "duration_s")}
+
+    def display(self) -> list[tuple[str, str, str]]:
+        """[(name with window, value as text, unit)] for people: the console and the report
+        print these same lines (heading error in degrees; stored values stay in radians)."""
+        w = self.window
+        return [(f"cross_track_rms_m[{w}]", f"{self.cross_track_rms_m:.4f}", "m"),
+                (f"cross_track_p95_m[{w}]", f"{self.cross_track_p95_m:.4f}", "m"),
+                (f"cross_track_max_m[{w}]", f"{self.cross_track_max_m:.4f}", "m"),
+                (f"heading_error_rms_deg[{w}]", f"{math.degrees(self.heading_error_rms_rad):.3f}", "deg"),
+                (f"surge_error_rms_mps[{w}]", f"{self.surge_error_rms_mps:.5f}", "m/s"),
+                (f"time_saturated_s[{w}]", f"{self.time_saturated_s:.2f}", "s")]
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrackingMetrics:
+        """The metrics back from :meth:`to_dict` (e.g. a provenance record; ``window`` ignored)."""
+        return cls(**{f.name: d[f.name] for f in fields(cls)})
+
     def to_dict(self) -> dict:
-        """The metrics as a JSON-ready dict, by field name (units in the names: m, rad, m/s, s)."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        """The metrics as a JSON-ready dict, by field name (units in the names: m, rad, m/s, s),
+        plus ``window`` (:attr:`window`)."""
+        return {**{f.name: getattr(self, f.name) for f in fields(self)}, "window": self.window}
 
 
 def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) -> TrackingMetrics:
@@ -96,6 +126,76 @@ def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) ->
                            time_saturated_s=float(dt[sel][r[:, COL["saturated"]] != 0].sum()))
 
 
+OFF_PATH = "the run does not follow the scenario's path"
+OFF_PATH_CARROTS = 3.0   # median |cross-track| above this many carrot distances: not the scenario's path
+
+
+def path_following_warning(cross_track_m: np.ndarray, t_s: np.ndarray, start_s: float,
+                           carrot_m: float) -> str | None:
+    """A warning when a run does not follow the path it is measured against, else None.
+
+    Parameters
+    ----------
+    cross_track_m : numpy.ndarray
+        Cross-track error per controller tick (m).
+    t_s : numpy.ndarray
+        Tick times (s).
+    start_s : float
+        Start of the metrics window (s after the first tick), as :func:`tracking_metrics`.
+    carrot_m : float
+        The largest carrot distance (look-ahead) of the scenario (m).
+
+    Returns
+    -------
+    str or None
+        ``"the run does not follow the scenario's path: median |cross-track| 57.1 m over
+        t>60s is more than 3 carrot distances (3 x 1.63 m)..."`` when the median absolute
+        cross-track error over the window exceeds :data:`OFF_PATH_CARROTS` carrot distances.
+    """
+    t_s = np.asarray(t_s, float)
+    sel = t_s - t_s[0] >= start_s
+    if not sel.any():
+        sel, start_s = np.ones(len(t_s), bool), 0.0
+    xt = np.abs(np.asarray(cross_track_m, float)[sel])
+    xt = xt[np.isfinite(xt)]
+    if not len(xt):
+        return None
+    med = float(np.median(xt))
+    limit = OFF_PATH_CARROTS * carrot_m
+    if med <= limit:
+        return None
+    window = f"t>{start_s:g}s" if start_s > 0 else "whole run"
+    return (f"{OFF_PATH}: median |cross-track| {med:.3g} m over {window} is more than "
+            f"{OFF_PATH_CARROTS:g} carrot distances ({OFF_PATH_CARROTS:g} x {carrot_m:.3g} m); "
+            "its tracking metrics do not measure path following (was it replayed against the right scenario?)")
+
+
+def tracking_metrics_of(frame, start_s: float = 0.0) -> TrackingMetrics:
+    """:func:`tracking_metrics` of a controller channel (``/control/state``, ``/replay/controller``,
+    ``/replay/whatif/controller``) as stored in a log.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The channel, indexed by ``t_ns``, with ``cross_track_m``, ``psi_e_rad``, ``u_e_mps`` and
+        ``saturated`` columns (missing ones count as NaN, ``saturated`` as 0).
+    start_s : float
+        Start of the window (s after the first tick).
+
+    Returns
+    -------
+    TrackingMetrics
+        As :func:`tracking_metrics`.
+    """
+    n = len(frame)
+    rows = np.zeros((n, max(COL.values()) + 1))
+    for name in ("cross_track_m", "psi_e_rad", "u_e_mps", "saturated"):
+        rows[:, COL[name]] = (np.asarray(frame[name].to_numpy(), dtype=float) if name in frame.columns
+                              else (0.0 if name == "saturated" else np.nan))
+    t_s = (np.asarray(frame.index, dtype=np.int64) - int(frame.index[0])) / 1e9
+    return tracking_metrics(rows, t_s, start_s)
+
+
 @dataclass(frozen=True)
 class ReplayMetrics:
     """Open-loop replay vs what was recorded, and the what-if run."""
@@ -112,12 +212,19 @@ class ReplayMetrics:
     decisions_max_abs: float | None   # max |replayed - recorded| of forces and moments there (N, N m)
     whatif_controller: str | None
     whatif: TrackingMetrics | None
+    warnings: tuple[str, ...] = ()    # e.g. the run does not follow the scenario's path
+
+    @property
+    def follows_path(self) -> bool:
+        """False when the replayed run does not follow the scenario's path (see ``warnings``)."""
+        return not any(w.startswith(OFF_PATH) for w in self.warnings)
 
     def to_dict(self) -> dict:
         """The metrics as a JSON-ready dict, ``replay`` and ``whatif`` as nested dicts (or None)."""
         d = {f.name: getattr(self, f.name) for f in fields(self)}
         d["replay"] = self.replay.to_dict()
         d["whatif"] = None if self.whatif is None else self.whatif.to_dict()
+        d["warnings"] = list(self.warnings)
         return d
 
 
@@ -260,6 +367,8 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
             b = rec_cs[cols].to_numpy(dtype=float)[j[hit]]
             dec_max = float(np.nanmax(np.abs(a - b)))
     m_replay = tracking_metrics(rows, t_rel, scen.metrics_start_s)
+    carrot = float(np.max(scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
+    off = path_following_warning(rows[:, COL["cross_track_m"]], t_rel, scen.metrics_start_s, carrot)
     m_whatif = None
     if whatif:
         cur = _current_of(log, topic)
@@ -282,7 +391,8 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
                             command_unit=unit if sel is not None else None, n_commands_compared=n_cmp,
                             command_rms=c_rms, command_max_abs=c_max, force_rms_n=f_rms,
                             decisions_compared=n_dec, decisions_max_abs=dec_max,
-                            whatif_controller=wif_name if whatif else None, whatif=m_whatif)
+                            whatif_controller=wif_name if whatif else None, whatif=m_whatif,
+                            warnings=(off,) if off else ())
     out.add_provenance(producer="usvlog replay", source=src,
                        settings={"scenario": scen.source or scen.name, "state_source": topic,
                                  "controller": ctl_name, "whatif_controller": wif_name if whatif else None,
@@ -293,4 +403,4 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
 
 
 __all__ = ["replay_log", "ReplayResult", "ReplayMetrics", "TrackingMetrics", "tracking_metrics",
-           ]
+           "path_following_warning", "OFF_PATH", "tracking_metrics_of"]

@@ -104,7 +104,7 @@ def test_interrupted_report_writes_nothing(tmp_path, monkeypatch):
     monkeypatch.undo()
     page = report.write_report(log, tmp_path / "rep")
     names = sorted(p.name for p in page.parent.iterdir())
-    assert names == ["fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_heading.png", "report.html"]
+    assert names == ["fig1_track.png", "fig2_errors.png", "fig5_speed_heading.png", "report.html"]  # no Fig. 4
     assert all((page.parent / n).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for n in names if n.endswith(".png"))
 
 

@@ -40,6 +40,6 @@ def test_paper_circle_report(tmp_path, circle_logs):
     full, base = circle_logs
     page = write_report(full, tmp_path / "rep", baseline=base)
     html = page.read_text()
-    for name in ("fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_heading.png"):
+    for name in ("fig1_track.png", "fig2_errors.png", "fig5_speed_heading.png"):
         assert (tmp_path / "rep" / name).stat().st_size > 15_000 and f"src='{name}'" in html
-    assert "baseline PI/PID" in html or "Baseline" in html
+    assert "baseline PI/PID" in html and "Baseline log" in html

@@ -29,7 +29,7 @@ def test_failed_replacement_keeps_the_earlier_report(tmp_path, raw_log, view_log
     out = tmp_path / "rep"
     write_report(raw_log, out)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    assert set(before) == {PAGE, "fig1_track.png", "fig4_path.png"}
+    assert set(before) == {PAGE, "fig4_path.png"}   # a raw log: its GPS track
     monkeypatch.setattr(rp, "_fig_fit_track", _boom)
     with pytest.raises(KeyboardInterrupt):
         write_report(view_log, out, force=True)
@@ -46,5 +46,5 @@ def test_shared_directory_keeps_other_files(tmp_path, raw_log, view_log):
     write_report(view_log, tmp_path)
     assert {p.name for p in tmp_path.iterdir()} == {"notes.txt", PAGE, *FIGURES}
     write_report(raw_log, tmp_path, force=True)  # fewer figures: the earlier report's others go
-    assert {p.name for p in tmp_path.iterdir()} == {"notes.txt", PAGE, "fig1_track.png", "fig4_path.png"}
+    assert {p.name for p in tmp_path.iterdir()} == {"notes.txt", PAGE, "fig4_path.png"}
     assert (tmp_path / "notes.txt").read_text() == "mine"

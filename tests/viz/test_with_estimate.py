@@ -45,4 +45,5 @@ def test_estimate_channels_in_rrd(tmp_path, estimated):
 def test_estimate_report(tmp_path, estimated):
     html = write_report(estimated, tmp_path / "r").read_text()
     assert "src='fig4_path.png'" in html and "approximate current" not in html  # the arrow is in the PNG
-    assert "mean NIS, gnss" in html
+    assert "src='estimate_series.png'" in html
+    assert "mean NIS, gnss" in html and "<h2 id='estimate'>Estimate: " in html

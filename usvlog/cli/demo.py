@@ -153,11 +153,11 @@ def run(args) -> int:
     export_log(log, out / "csv", fmt="csv", force=True)
     own.claim("csv")
     step("identify: output error on the simulated run (true vs identified)")
-    identify_stage(read_log(raw), out)
+    identified = identify_stage(read_log(raw), out, fit_on=log)
     own.claim("identified.toml")
     circle_replay = _control_stages(out, step)
     own.claim("paper-circle.mcap", "paper-circle-replay.mcap")
-    _view_stages(out, step, excitation=log, circle=circle_replay)
+    _view_stages(out, step, excitation=identified, circle=circle_replay)
     own.claim("demo.rrd", "estimate.rrd", "report")
     stage(f"done: results in {out}/")
     return 0
@@ -191,8 +191,11 @@ def _import_stage(log, out: Path, step) -> None:
     print(f"import    skipped records: {dict(res.report.skipped) or 'none'}")
 
 
-def identify_stage(log, out: Path) -> None:
-    from ..identify import Identifier  # heavy: imported only when the verb runs
+def identify_stage(log, out: Path, fit_on=None):
+    """Identify the model from ``log``, write ``identified.toml``, print the parameters and the
+    verdict; returns ``fit_on`` (default ``log``) with the ``/identify/fit`` channel and the result."""
+    from ..api import fit_log  # heavy: imported only when the verb runs
+    from ..identify import Identifier
     from ..io.atomic import write_text_atomic
 
     idf = Identifier("output-error").fit([log])
@@ -211,6 +214,7 @@ def identify_stage(log, out: Path) -> None:
     print(f"  verdict: {idf.verdict_}")
     for v in idf.reasons_:
         print(f"  - {v}")
+    return fit_log(idf, log if fit_on is None else fit_on)
 
 
 def _control_stages(out: Path, step) -> Path:
@@ -241,8 +245,6 @@ def _control_stages(out: Path, step) -> Path:
 def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
     """Rerun recordings of both runs and the report with the paper's figures."""
     from ..io.mcap import read_log  # heavy: imported only when the verb runs
-    from ..sim.closed_loop import simulate_scenario
-    from ..sim.scenario import load_scenario
     from ..view.report import write_report
     from ..view.rrd import to_rrd
 
@@ -252,10 +254,12 @@ def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
     replayed = read_log(circle)
     to_rrd(replayed, rrd, names=["paper_circle"], force=True)
     est_rrd = out / "estimate.rrd"
-    step(f"view: excitation run with its estimate -> {est_rrd}")
+    step(f"view: excitation run with its estimate and identification fit -> {est_rrd}")
     to_rrd(excitation, est_rrd, names=["excitation"], force=True)
     rep = out / "report"
-    step(f"report: the paper's Fig. 1, 2, 4, 5 for paper-circle (baseline PI/PID for Fig. 2) "
-          f"-> {rep / 'report.html'}")
-    baseline = simulate_scenario(load_scenario("paper-circle"), controller="baseline")
-    write_report(replayed, rep, force=True, baseline=baseline)
+    step(f"report: the excitation run (raw GPS vs estimate, identification and its verdict) -> "
+         f"{rep / 'report.html'}; the paper's Fig. 1, 2, 5 for paper-circle (what-if: baseline PI/PID) -> "
+         f"{rep / 'paper-circle' / 'report.html'}")
+    write_report(replayed, rep / "paper-circle", force=True)
+    write_report(excitation, rep, force=True,
+                 links=[("paper-circle/report.html", "paper-circle replay: the paper's Fig. 1, 2 and 5")])

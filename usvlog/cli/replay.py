@@ -35,6 +35,8 @@ def run(args) -> int:
                      whatif_controller=args.whatif_controller, force=args.force, progress=stage)
     m = res.metrics
     if args.json:
+        for w in m.warnings:   # the JSON carries them too; a person reading the terminal sees them here
+            stage(f"warning: {w}")
         print_json(m.to_dict())
     else:
         print(format_metrics(m))
@@ -42,16 +44,16 @@ def run(args) -> int:
 
 
 def format_metrics(m) -> str:
-    lines = [f"state source: {m.state_source}; controller: {m.controller}"]
+    """The replay metrics as console lines: each with its window (``[t>60s]``), angles in degrees
+    (``--json`` keeps the stored radians); the replay's warnings first."""
+    lines = [f"warning: {w}" for w in m.warnings]
+    lines.append(f"state source: {m.state_source}; controller: {m.controller}")
 
     def block(name, t):
-        lines.append(f"{name}: {t.n_ticks} ticks, {t.duration_s:.1f} s from t = {t.start_s:g} s")
-        lines.append(f"  cross-track RMS {t.cross_track_rms_m:.4f} m, p95 {t.cross_track_p95_m:.4f} m, "
-                     f"max {t.cross_track_max_m:.4f} m")
-        lines.append(f"  heading error RMS {t.heading_error_rms_rad:.5f} rad, surge error RMS "
-                     f"{t.surge_error_rms_mps:.5f} m/s, saturated {t.time_saturated_s:.1f} s")
+        lines.append(f"{name}: {t.n_ticks} ticks, {t.duration_s:.1f} s, metrics over [{t.window}]")
+        lines.extend(f"  {k:<32} {v:>10} {u}" for k, v, u in t.display())
 
-    block("replay (recorded states)", m.replay)
+    block("replay (recorded states)" + ("  [NOT on the scenario's path]" if not m.follows_path else ""), m.replay)
     if m.command_rms is not None:
         lines.append(f"  replayed vs recorded commands ({m.command_unit}, {m.n_commands_compared} ticks): "
                      f"RMS {m.command_rms:.3g}, max {m.command_max_abs:.3g}"

@@ -219,11 +219,18 @@ def gps_rejections(log: FieldLog):
 
 
 def gps_dropouts(log: FieldLog) -> list[tuple[int, int]]:
-    """[(start_ns, end_ns)] of gaps between fixes longer than 3 nominal periods."""
+    """[(start_ns, end_ns)] of gaps between fixes longer than 3 nominal periods (a fix repeated at
+    the same position, e.g. republished by several nodes, counts once)."""
     f = nonempty(log, "/gnss/fix")
     if f is None or len(f) < 3:
         return []
     t = _times(f)
+    lat, lon = _col(f, "lat_deg"), _col(f, "lon_deg")
+    if lat is not None and lon is not None:   # a fix republished (same position again) is not a new fix
+        new = np.r_[True, (np.diff(lat) != 0) | (np.diff(lon) != 0)]
+        t = t[new]
+    if len(t) < 3:
+        return []
     dt = np.diff(t)
     period = float(np.median(dt))
     if period <= 0:
@@ -351,6 +358,25 @@ def events(log: FieldLog) -> list[Event]:
             ev.append(Event(t, "INFO", "speed_step", f"{desc}: speed step u_d {u0:.2f} -> {u1:.2f} m/s"))
     ev.sort(key=lambda e: e.t_ns)
     return ev
+
+
+def events_once(log: FieldLog) -> list[Event]:
+    """:func:`events`, each said once: the same speed step seen by several controllers at the same
+    tick (the closed loop, its replay and the what-if run follow one schedule) is one event whose
+    text names them all (``closed-loop controller, replayed controller: speed step ...``)."""
+    groups: dict[tuple, list[Event]] = {}
+    for x in events(log):
+        who, sep, what = x.text.partition(": ")
+        key = (x.kind, x.t_ns // 10_000_000, what) if x.kind == "speed_step" and sep else (x.kind, x.t_ns, x.text)
+        groups.setdefault(key, []).append(x)
+    out = []
+    for key, items in groups.items():
+        x = items[0]
+        if len(items) > 1 and x.kind == "speed_step":
+            who = ", ".join(dict.fromkeys(i.text.partition(": ")[0] for i in items))
+            x = Event(x.t_ns, x.level, x.kind, f"{who}: {key[2]}")
+        out.append(x)
+    return sorted(out, key=lambda e: e.t_ns)
 
 
 # -----------------------------------------------------------------------------

@@ -47,6 +47,7 @@ OVERLAY_HZ = 10.0
 DEFAULT_HOST = "127.0.0.1"
 
 # colours of the roles (single log); several logs are coloured by run instead
+TRACK_LABELS = {"estimate": "smoothed estimate", "truth": "truth (simulated)", "whatif": "what-if run"}
 ROLE = {
     "gps": (150, 150, 150), "gps_rejected": (230, 30, 30), "estimate": (31, 119, 180),
     "truth": (60, 60, 60), "whatif": (148, 103, 189), "path": (255, 170, 0), "boat": (255, 90, 0),
@@ -55,6 +56,9 @@ ROLE = {
     "control": (214, 39, 40), "replay": (140, 86, 75), "compass": (150, 150, 150),
     "n": (31, 119, 180), "e": (214, 39, 40),
 }
+# distinct colours of the series in one plot (Tableau 10)
+SERIES_PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189), (140, 86, 75),
+                  (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 RUN_COLORS = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14), (23, 190, 207)]
 
 
@@ -87,6 +91,11 @@ class _Writer:
         self.rec, self.log, self.name, self.index, self.multi = rec, log, name, index, multi
         self.prefix = f"/runs/{name}"
         self.views: dict[str, list[str]] = defaultdict(list)
+        self.series: dict[str, list[str]] = defaultdict(list)     # view -> series names, in order
+        self.ranges: dict[str, list[float]] = {}                  # view -> [min, max] of its values
+        self.hidden: list[str] = []                               # entities drawn but toggled off by default
+        self.colors: dict[str, list] = defaultdict(list)          # view -> colours its series use
+        self.tags: list[tuple] = []                               # (x, y, label, colour) of the local view's layers
         self.geo_box: list[np.ndarray] = []   # [lat_min, lon_min, lat_max, lon_max] of what went on the map
         tr = log.time_range()
         self.t0 = tr[0] if tr else 0
@@ -117,19 +126,34 @@ class _Writer:
             cols.append(rr.TimeColumn("elapsed", duration=(t_ns - self.t0).astype("timedelta64[ns]")))
         return cols
 
-    def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color, width: float = 1.5,
-                step: bool = False) -> None:
+    def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color=None, width: float = 1.5,
+                step: bool = False, gaps: bool = False) -> None:
+        """One time series; ``color`` None picks the next distinct colour of the view; ``gaps``
+        keeps NaN samples that follow a finite one (a break in the line, e.g. where a heading wraps)."""
         y = np.asarray(y, dtype=float)
         t_ns = np.asarray(t_ns, dtype=np.int64)
         ok = np.isfinite(y)
         if not ok.any():
             return
+        if gaps:   # a wrapped angle: a NaN sample breaks the line where it wraps
+            t_ns, y = break_wraps(t_ns[ok], y[ok])
+            ok = np.ones(len(y), bool)
+        used = self.colors[view]
+        if color is None or tuple(color) in used:   # every series of a plot in its own colour
+            free = [c for c in SERIES_PALETTE if c not in used]
+            color = free[0] if free else SERIES_PALETTE[len(used) % len(SERIES_PALETTE)]
         path = f"{self.prefix}/ts/{sub}"
         kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
         self.rec.log(path, rr.SeriesLines(colors=[color], names=[self.label(name)], widths=[width], **kw),
                      static=True)
         self.rec.send_columns(path, indexes=self.index_cols(t_ns[ok]), columns=rr.Scalars.columns(scalars=y[ok]))
         self.views[view].append(path)
+        self.series[view].append(name)
+        used.append(tuple(color))
+        fin = y[np.isfinite(y)]
+        lo, hi = float(fin.min()), float(fin.max())
+        r = self.ranges.setdefault(view, [lo, hi])
+        r[0], r[1] = min(r[0], lo), max(r[1], hi)
 
     def geo(self, n, e):
         lat, lon, _ = ned_to_geodetic(np.asarray(n, float), np.asarray(e, float), 0.0, datum=self.datum)
@@ -141,6 +165,23 @@ class _Writer:
             self.geo_box.append(np.r_[latlon[ok].min(0), latlon[ok].max(0)])
         return latlon
 
+    def tag(self, e, n, text: str, color) -> None:
+        """Name a layer of the local view: a label on one of its points, each layer's at another
+        place along its line (a legend drawn where the layers are, not piled up in the middle)."""
+        e, n = np.asarray(e, float), np.asarray(n, float)
+        ok = np.nonzero(np.isfinite(e) & np.isfinite(n))[0]
+        if not len(ok):
+            return
+        k = ok[int((0.15 + 0.17 * len(self.tags)) % 0.95 * (len(ok) - 1))]
+        self.tags.append((float(e[k]), float(-n[k]), self.label(text), tuple(color[:3])))
+
+    def draw_tags(self) -> None:
+        if self.tags:
+            xy = np.array([t[:2] for t in self.tags])
+            self.static("local", "local/labels", rr.Points2D(
+                xy, radii=rr.Radius.ui_points(3.0), colors=[t[3] for t in self.tags],
+                labels=[t[2] for t in self.tags], show_labels=True, draw_order=50.0))
+
     def static(self, view: str, sub: str, archetype) -> None:
         path = f"{self.prefix}/{sub}"
         self.rec.log(path, archetype, static=True)
@@ -149,6 +190,7 @@ class _Writer:
     # -- the drawing -------------------------------------------------------------
     def draw(self) -> None:
         self.draw_tracks()
+        self.draw_tags()
         self.draw_controllers()
         self.draw_series()
         self.draw_events()
@@ -158,11 +200,12 @@ class _Writer:
         g = vd.gps(log)
         if g is not None and len(g[0]):
             t, lat, lon, n, e = g
-            c = self.color("gps", "light")
+            c = (*self.color("gps"), 110)   # small and translucent, under the tracks
             self.static("map", "map/gps", rr.GeoPoints(lat_lon=self.note_geo(np.column_stack([lat, lon])),
-                                                        radii=rr.Radius.ui_points(2.0), colors=[c]))
-            self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(2.0),
-                                                          colors=[c]))
+                                                        radii=rr.Radius.ui_points(1.5), colors=[c]))
+            self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(1.5),
+                                                          colors=[c], draw_order=5.0))
+            self.tag(e, n, "GPS fixes", self.color("gps"))
             rej = vd.gps_rejections(log)
             if rej is not None and len(rej[0]):
                 k = np.clip(np.searchsorted(t, rej[0]), 0, len(t) - 1)
@@ -170,14 +213,17 @@ class _Writer:
                 self.static("map", "map/gps_rejected", rr.GeoPoints(
                     lat_lon=np.column_stack([lat[k], lon[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
                 self.static("local", "local/gps_rejected", rr.Points2D(
-                    np.column_stack([e[k], -n[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
+                    np.column_stack([e[k], -n[k]]), radii=rr.Radius.ui_points(5.0), colors=[c],
+                    labels=[self.label("GPS rejected")], show_labels=True, draw_order=30.0))
         path = vd.path_polyline(log)
         if path is not None and self.datum is not None:
             c = self.color("path", "light")
             self.static("map", "map/path", rr.GeoLineStrings(lat_lon=[self.geo(path[:, 0], path[:, 1])],
                                                               radii=rr.Radius.ui_points(2.0), colors=[c]))
             self.static("local", "local/path", rr.LineStrips2D([np.column_stack([path[:, 1], -path[:, 0]])],
-                                                               radii=rr.Radius.ui_points(1.5), colors=[c]))
+                                                               radii=rr.Radius.ui_points(1.5), colors=[c],
+                                                               draw_order=10.0))
+            self.tag(path[:, 1], path[:, 0], "desired path", c)
         for _topic, label, f in vd.state_tracks(log):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             k = _thin(t, OVERLAY_HZ)
@@ -191,7 +237,9 @@ class _Writer:
                 self.static("map", f"map/{label}", rr.GeoLineStrings(lat_lon=[self.geo(n, e)],
                                                                       radii=rr.Radius.ui_points(1.5), colors=[c]))
             self.static("local", f"local/{label}", rr.LineStrips2D([np.column_stack([e, -n])],
-                                                                   radii=rr.Radius.ui_points(1.0), colors=[c]))
+                                                                   radii=rr.Radius.ui_points(1.0), colors=[c],
+                                                                   draw_order=20.0))
+            self.tag(e, n, TRACK_LABELS.get(label, label), c)
         # the boat, over time
         b = vd.boat_state(log)
         if b is not None:
@@ -214,7 +262,8 @@ class _Writer:
             self.rec.send_columns(path, indexes=cols, columns=rr.GeoPoints.columns(positions=self.geo(n[k], e[k])))
             self.views["map"].append(path)
         path = f"{self.prefix}/local/boat"
-        self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(7.0), colors=[c]), static=True)
+        self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(7.0), colors=[c], draw_order=40.0,
+                                                   labels=[self.label("boat")], show_labels=True), static=True)
         self.rec.send_columns(path, indexes=cols,
                               columns=rr.Points2D.columns(positions=np.column_stack([e[k], -n[k]])))
         self.views["local"].append(path)
@@ -222,22 +271,36 @@ class _Writer:
     def draw_controllers(self) -> None:
         ext = _extent(self.log)
         arrow = float(np.clip(0.08 * ext, 0.5, 10.0))
-        for _topic, label, f, sf, _desc in vd.controllers(self.log):
+        ctls = vd.controllers(self.log)
+        shown = next((c[1] for c in ctls if c[1] != "whatif"), ctls[0][1] if ctls else None)
+        for _topic, label, f, sf, desc in ctls:
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             k = _thin(t, OVERLAY_HZ)
             tk = t[k]
             cols = self.index_cols(tk)
+            if label != shown:   # one controller's overlays in sight; the others toggled off in the blueprint
+                self.hidden.append(f"{self.prefix}/local/ctl_{label}")
             for what, role in (("closest", "closest"), ("carrot", "carrot")):
                 cn, ce = f"{what}_n_m", f"{what}_e_m"
                 if cn in f.columns and ce in f.columns:
                     n = np.asarray(f[cn].to_numpy(), float)[k]
                     e = np.asarray(f[ce].to_numpy(), float)[k]
                     path = f"{self.prefix}/local/ctl_{label}/{what}"
-                    self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(5.0),
-                                                               colors=[self.color(role, "light")]), static=True)
+                    self.rec.log(path, rr.Points2D.from_fields(radii=rr.Radius.ui_points(5.0), draw_order=35.0,
+                                                               colors=[self.color(role, "light")],
+                                                               labels=[self.label(f"{what}, {desc}")],
+                                                               show_labels=True), static=True)
                     self.rec.send_columns(path, indexes=cols,
                                           columns=rr.Points2D.columns(positions=np.column_stack([e, -n])))
                     self.views["local"].append(path)
+                    if label == shown and self.datum is not None:
+                        ok = np.isfinite(n) & np.isfinite(e)
+                        path = f"{self.prefix}/map/{what}"
+                        self.rec.log(path, rr.GeoPoints.from_fields(radii=rr.Radius.ui_points(5.0),
+                                                                    colors=[self.color(role, "light")]), static=True)
+                        self.rec.send_columns(path, indexes=self.index_cols(tk[ok]),
+                                              columns=rr.GeoPoints.columns(positions=self.geo(n[ok], e[ok])))
+                        self.views["map"].append(path)
             if sf is None or "psi_rad" not in sf.columns:
                 continue
             n = vd.interp(tk, sf, "n_m")
@@ -281,7 +344,6 @@ class _Writer:
     def draw_series(self) -> None:
         log = self.log
         states = vd.state_tracks(log)
-        unwrapped = {}
         for _topic, label, f in states:
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             var = {"truth": "dark", "whatif": "light"}.get(label, "")
@@ -293,9 +355,8 @@ class _Writer:
             psi = np.asarray(f["psi_rad"].to_numpy(), float)
             ok = np.isfinite(psi)
             if ok.any():
-                unwrapped[id(f)] = (t[ok], psi[ok])
-                self.scalars("psi", f"psi/{label}", t[ok], np.degrees(np.unwrap(psi[ok])), name=f"psi {label}",
-                             color=c)
+                self.scalars("psi", f"psi/{label}", t[ok], heading_deg(psi[ok]), name=f"psi {label}", color=c,
+                             gaps=True)
             if label != "whatif":
                 for comp in ("n", "e"):
                     col = f"current_{comp}_mps"
@@ -314,34 +375,34 @@ class _Writer:
                 t = np.asarray(comp.index.to_numpy(), dtype=np.int64)
                 h = np.asarray(comp["heading_rad"].to_numpy(), float)
                 ok = np.isfinite(h)
-                self.scalars("psi", "psi/compass", t[ok], np.degrees(np.unwrap(h[ok])), name="compass heading",
-                             color=self.color("compass"))
+                self.scalars("psi", "psi/compass", t[ok], heading_deg(h[ok]), name="compass heading",
+                             color=self.color("compass"), gaps=True)
         rec = vd.recorded_tau(log)
         if rec is not None:
             t, tu, tr = rec
             c = self.color("recorded", "dark")
             self.scalars("tau_u", "tau_u/recorded", t, tu, name="tau_u recorded", color=c, step=True)
             self.scalars("tau_r", "tau_r/recorded", t, tr, name="tau_r recorded", color=c, step=True)
-        for _topic, label, f, sf, desc in vd.controllers(log):
+        ctls = vd.controllers(log)
+        for i, (_topic, label, f, _sf, desc) in enumerate(ctls):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
             c = self.color(label, "light")
-            if "u_d_mps" in f.columns:
-                self.scalars("u", f"u/u_d_{label}", t, f["u_d_mps"].to_numpy(), name=f"u_d {label}", color=c)
+            twin = next((lb for _tp, lb, g, _s, _d in ctls[:i] if _same_frame(f, g)), None)
+            if twin is not None:   # a replay of the closed loop decides the same: drawn once, as ``twin``
+                continue
+            if "u_d_mps" in f.columns:   # wide and light: the boat's speed stays visible on top of it
+                self.scalars("u", f"u/u_d_{label}", t, f["u_d_mps"].to_numpy(), name=f"u_d {label}", color=c,
+                             width=3.0)
             if "psi_d_rad" in f.columns:
-                psi_d = np.asarray(f["psi_d_rad"].to_numpy(), float)
-                if sf is not None and id(sf) in unwrapped:  # next to the heading of the boat it steers
-                    ta, pa = unwrapped[id(sf)]
-                    _, d = vd.heading_pair(ta, pa, t, psi_d)
-                else:
-                    d = np.unwrap(psi_d)
-                self.scalars("psi", f"psi/psi_d_{label}", t, np.degrees(d), name=f"psi_d {label}", color=c)
+                self.scalars("psi", f"psi/psi_d_{label}", t, heading_deg(_col(f, "psi_d_rad")), name=f"psi_d {label}",
+                             color=c, width=2.5, gaps=True)
             for q, sub in (("tau_u_n", "tau_u"), ("tau_r_nm", "tau_r")):
                 if q in f.columns:
                     self.scalars(sub, f"{sub}/{label}", t, f[q].to_numpy(), name=f"{sub} {desc}", color=c)
             if "cross_track_m" in f.columns:
                 self.scalars("cross_track", f"cross_track/{label}", t, f["cross_track_m"].to_numpy(),
                              name=f"cross-track {label}", color=self.color(label))
-            if "saturated" in f.columns:
+            if "saturated" in f.columns and np.asarray(f["saturated"].to_numpy(), bool).any():  # not flat zeros
                 self.scalars("saturation", f"saturation/{label}", t,
                              np.asarray(f["saturated"].to_numpy(), bool).astype(float),
                              name=f"saturated {label}", color=self.color(label), step=True)
@@ -367,7 +428,7 @@ class _Writer:
                 self.scalars("nis", f"nis/{_safe(s)}", t[m], nis[m], name=f"NIS {s}", color=c, width=1.0)
 
     def draw_events(self) -> None:
-        ev = vd.events(self.log)
+        ev = vd.events_once(self.log)
         if not ev:
             return
         path = f"{self.prefix}/events"
@@ -380,6 +441,44 @@ class _Writer:
 
 def _col(frame, name) -> np.ndarray:
     return np.asarray(frame[name].to_numpy(), dtype=float)
+
+
+def heading_deg(psi_rad) -> np.ndarray:
+    """Heading in degrees wrapped to [-180, 180) (what the heading plots show by default).
+
+    Parameters
+    ----------
+    psi_rad : array_like
+        Heading, rad (any range).
+
+    Returns
+    -------
+    numpy.ndarray
+        Degrees in [-180, 180).
+    """
+    return (np.degrees(np.asarray(psi_rad, dtype=float)) + 180.0) % 360.0 - 180.0
+
+
+def break_wraps(t_ns: np.ndarray, deg: np.ndarray, limit: float = 180.0) -> tuple[np.ndarray, np.ndarray]:
+    """(t_ns, deg) with a NaN sample put in half-way across every step larger than ``limit``
+    degrees (a wrapped heading), so the line breaks there instead of crossing the plot."""
+    jump = np.nonzero(np.abs(np.diff(deg)) > limit)[0]
+    if not len(jump):
+        return t_ns, deg
+    t_mid = t_ns[jump] + (t_ns[jump + 1] - t_ns[jump]) // 2
+    return np.insert(t_ns, jump + 1, t_mid), np.insert(deg, jump + 1, np.nan)
+
+
+def _same_frame(a, b, cols=("u_d_mps", "psi_d_rad", "tau_u_n", "tau_r_nm", "cross_track_m")) -> bool:
+    """True when two controller channels have the same ticks and the same decisions."""
+    if len(a) != len(b) or not np.array_equal(np.asarray(a.index), np.asarray(b.index)):
+        return False
+    for c in cols:
+        if (c in a.columns) != (c in b.columns):
+            return False
+        if c in a.columns and not np.allclose(_col(a, c), _col(b, c), rtol=0, atol=1e-9, equal_nan=True):
+            return False
+    return True
 
 
 def _frame_of(t_ns, x):
@@ -417,14 +516,41 @@ def _extent(log: FieldLog) -> float:
 # blueprint
 # -----------------------------------------------------------------------------
 
-SERIES_VIEWS = [  # (key, title)
-    ("u", "Surge speed u vs u_d (m/s)"), ("psi", "Heading psi vs psi_d (deg, unwrapped)"),
-    ("cross_track", "Cross-track error (m)"), ("v", "Sway speed v (m/s)"), ("r", "Yaw rate r (deg/s)"),
-    ("tau_u", "Surge force tau_u: replayed vs recorded (N)"), ("tau_r", "Yaw moment tau_r: replayed vs recorded (N m)"),
-    ("nis", "NIS (normalised innovation squared)"), ("current", "Estimated current (m/s)"),
-    ("saturation", "Thrusters saturated (0/1)"), ("fit_u", "Identification: u measured vs model (m/s)"),
-    ("fit_v", "Identification: v measured vs model (m/s)"), ("fit_r", "Identification: r measured vs model (deg/s)"),
+SERIES_VIEWS = [  # (key, title: its unit; the series it holds are appended from what was drawn)
+    ("u", "Surge speed (m/s)"), ("psi", "Heading (deg, wrapped)"), ("cross_track", "Cross-track error (m)"),
+    ("v", "Sway speed (m/s)"), ("r", "Yaw rate (deg/s)"), ("tau_u", "Surge force tau_u (N)"),
+    ("tau_r", "Yaw moment tau_r (N m)"), ("nis", "NIS (normalised innovation squared)"),
+    ("current", "Water current (m/s)"), ("saturation", "Thrusters saturated (0/1)"),
+    ("fit_u", "Identification: u (m/s)"), ("fit_v", "Identification: v (m/s)"),
+    ("fit_r", "Identification: r (deg/s)"),
 ]
+# the smallest y span a plot shows (in its unit), so a nearly constant series is not blown up to noise
+MIN_SPAN = {"psi": 20.0, "u": 0.2, "v": 0.1, "r": 5.0, "cross_track": 0.5, "tau_u": 2.0, "tau_r": 1.0, "nis": 2.0,
+            "current": 0.1, "fit_u": 0.2, "fit_v": 0.1, "fit_r": 5.0}
+FIXED_RANGE = {"psi": (-185.0, 185.0), "saturation": (-0.1, 1.1)}
+LEGEND_ROOM = 0.35   # head room above the data, as a fraction of the span, where the legend sits
+
+
+def series_title(key: str, base: str, names: list[str], max_names: int = 5) -> str:
+    """A plot's title from what it holds: ``Surge speed (m/s): u estimate, u truth, u_d control``."""
+    uniq = list(dict.fromkeys(names))
+    if not uniq:
+        return base
+    if len(uniq) > max_names:
+        return f"{base}: {', '.join(uniq[:max_names])} and {len(uniq) - max_names} more"
+    return f"{base}: {', '.join(uniq)}"
+
+
+def y_range(key: str, lo: float, hi: float) -> tuple[float, float]:
+    """The y range of a plot holding values in [lo, hi]: at least ``MIN_SPAN``, with room for the legend
+    above the data (fixed for a heading that wraps, -180 to 180 degrees, and the 0/1 saturation flag)."""
+    if key in FIXED_RANGE and not (key == "psi" and hi - lo < 300.0):   # a heading that never wraps: fitted
+        a, b = FIXED_RANGE[key]
+        return a, b + LEGEND_ROOM * (b - a)
+    span = max(hi - lo, MIN_SPAN.get(key, 0.0), 1e-9)
+    mid = 0.5 * (lo + hi)
+    a, b = mid - 0.55 * span, mid + 0.55 * span
+    return a, b + LEGEND_ROOM * (b - a)
 
 
 def map_zoom(boxes: np.ndarray, pixels: float = 500.0) -> float:
@@ -455,7 +581,8 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
         spatial.append(rrb.MapView(name="Map", origin="/", contents=views["map"], zoom=zoom))
     if views["local"]:
         title = "Local NED (m), north up" + (", all runs" if len(writers) > 1 else "")
-        spatial.append(rrb.Spatial2DView(name=title, origin="/", contents=views["local"]))
+        hidden = {p: rrb.EntityBehavior(visible=False) for w in writers for p in w.hidden}
+        spatial.append(rrb.Spatial2DView(name=title, origin="/", contents=views["local"], overrides=hidden))
         if len(writers) > 1:
             side = [rrb.Spatial2DView(name=f"{w.name}: local", origin="/", contents=w.views["local"])
                     for w in writers if w.views.get("local")]
@@ -466,8 +593,27 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
     if views["events"]:
         left.append(rrb.TextLogView(name="Events", origin="/", contents=views["events"]))
     # u and psi always in sight; the rest in tabs, the cross-track error first
-    series = {key: rrb.TimeSeriesView(name=title, origin="/", contents=views[key])
-              for key, title in SERIES_VIEWS if views[key]}
+    timeline = "elapsed" if len(writers) > 1 else "time"
+    whole = [rrb.VisibleTimeRange(timeline, start=rrb.TimeRangeBoundary.infinite(),
+                                  end=rrb.TimeRangeBoundary.infinite())]   # all the data, wherever the cursor is
+    spans = [w.log.time_range() for w in writers]
+    if len(writers) > 1:
+        t_lo, t_hi = 0, max(b - a for a, b in spans)
+    else:
+        t_lo, t_hi = spans[0]
+    axis_x = rrb.TimeAxis(view_range=rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(nanos=int(t_lo)),
+                                                  end=rrb.TimeRangeBoundary.absolute(nanos=int(t_hi))))
+    series = {}
+    for key, base in SERIES_VIEWS:
+        if not views[key]:
+            continue
+        names = [n for w in writers for n in w.series.get(key, [])]
+        rs = [w.ranges[key] for w in writers if key in w.ranges]
+        lo, hi = min(r[0] for r in rs), max(r[1] for r in rs)
+        series[key] = rrb.TimeSeriesView(
+            name=series_title(key, base, names), origin="/", contents=views[key], time_ranges=whole, axis_x=axis_x,
+            axis_y=rrb.ScalarAxis(range=y_range(key, lo, hi)),
+            plot_legend=rrb.PlotLegend(rrb.Corner2D.RightTop, visible=True))
     right = [series[k] for k in ("u", "psi") if k in series]
     rest = [v for k, v in series.items() if k not in ("u", "psi")]
     if rest:
@@ -479,9 +625,8 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
         cols.append(rrb.Vertical(*right))
     if not cols:
         cols = [rrb.TextLogView(name="Events", origin="/")]
-    timeline = "elapsed" if len(writers) > 1 else "time"
     return rrb.Blueprint(rrb.Horizontal(*cols, column_shares=[1, 1][:len(cols)]),
-                         rrb.TimePanel(timeline=timeline), collapse_panels=False)
+                         rrb.TimePanel(timeline=timeline, play_state="paused"), collapse_panels=False)
 
 
 # -----------------------------------------------------------------------------
@@ -491,7 +636,21 @@ def build_blueprint(writers: list[_Writer]) -> rrb.Blueprint:
 def _recording(logs: list[FieldLog], names: list[str]) -> rr.RecordingStream:
     key = "|".join(f"{n}:{lg.time_range()}" for n, lg in zip(names, logs))
     rid = uuid.uuid5(uuid.NAMESPACE_URL, "usvlog:" + key)
-    return rr.RecordingStream(APP_ID, recording_id=rid, send_properties=False)
+    return rr.RecordingStream(APP_ID, recording_id=rid, send_properties=False)   # properties: see _name
+
+
+def recording_name(names: list[str]) -> str:
+    """The name the viewer lists the recording under: the runs' names (``paper_circle``, ``a + b``)."""
+    return " + ".join(names)
+
+
+def _name(rec: rr.RecordingStream, logs: list[FieldLog], names: list[str]) -> None:
+    """Name the recording after its runs and start it at the first log's start (not the wall clock:
+    the same logs give the same file)."""
+    rec.send_recording_name(recording_name(names))
+    tr = logs[0].time_range()
+    if tr:
+        rec.send_recording_start_time_nanos(int(tr[0]))
 
 
 def _prepare(logs, names):
@@ -564,6 +723,7 @@ def to_rrd(logs: list[FieldLog] | FieldLog, out_path, *, names: list[str] | None
     with atomic_path(out, force=force) as tmp:
         rec.save(tmp)
         try:
+            _name(rec, logs, names)
             writers = _draw(rec, logs, names)
             # the blueprint depends on what the logs hold, so it goes in last (stored as the default)
             rec.send_blueprint(build_blueprint(writers), make_active=True, make_default=True)
