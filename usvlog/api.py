@@ -871,7 +871,8 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
 def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, junit: PathLike | None = None,
             force: bool = False, jobs: int = 1, progress: Progress = None,
             on_start: Callable[[list[Path]], None] | None = None,
-            on_outcome: Callable[[ScenarioOutcome], None] | None = None) -> list[ScenarioOutcome]:
+            on_outcome: Callable[[ScenarioOutcome], None] | None = None, workers: int | None = None,
+            scheduler: str | None = None) -> list[ScenarioOutcome]:
     """Re-run recorded datasets through estimate/identify/replay and gate on baselines (``usvlog regress``).
 
     Parameters
@@ -895,6 +896,11 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         before the first runs.
     on_outcome : callable, optional
         Called with each scenario's outcome as it finishes.
+    workers : int, optional
+        Run the scenarios as Dask tasks on a local cluster of this many processes (the
+        campaign engine, :class:`usvlog.campaign.engine.Runner`) instead of ``jobs``.
+    scheduler : str, optional
+        Run them on a running Dask scheduler (``tcp://host:8786``) instead.
 
     Returns
     -------
@@ -927,7 +933,14 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     if on_start:
         on_start(found)
     outcomes: list[ScenarioOutcome] = []
-    if jobs == 1 or len(found) == 1:
+    if workers is not None or scheduler:
+        from .campaign.engine import run_tasks  # heavy: dask, only when the scenarios run on it
+
+        outcomes = run_tasks(_regress_one, [str(p) for p in found], workers=workers, scheduler=scheduler,
+                             on_start=lambda info: _say(progress, f"dask: {info.scheduler}; dashboard "
+                                                                  f"{info.dashboard or '(none)'}"),
+                             on_result=(lambda i, o: on_outcome(o)) if on_outcome else None)
+    elif jobs == 1 or len(found) == 1:
         for p in found:
             outcomes.append(_regress_one(str(p)))
             if on_outcome:
