@@ -1069,5 +1069,5 @@ def campaign(sources, out: PathLike, *, vessel=None, vessel_map=None, stages: Se
                         progress=progress, on_plan=on_plan, on_row=on_row)
 
 
-__all__ = ["campaign", "estimate", "export", "fit_log", "gains", "gains_and_vessel", "identify", "import_log", "inspect",
-           "load", "regress", "replay", "report", "save", "simulate", "to_rrd"]
+__all__ = ["campaign", "estimate", "export", "fit_log", "gains", "gains_and_vessel", "identify", "import_log",
+           "inspect", "load", "regress", "replay", "report", "save", "simulate", "to_rrd"]

@@ -17,14 +17,13 @@ import numpy as np
 import pandas as pd
 import pytest
 from rerun.chunk import RrdReader
+from season import ALPHA_DATES, BRAVO_DATES, D11_STEP, M_KG, STEP_BETWEEN, write_season
 
 import usvlog
 from usvlog.campaign.tasks import ESTIMATE_FILE, LOG_FILE, ROW_FILE, VESSEL_FILE
 from usvlog.cli import main
 from usvlog.io.config import load_vessel
 from usvlog.io.mcap import read_log
-
-from season import ALPHA_DATES, BRAVO_DATES, D11_STEP, M_KG, STEP_BETWEEN, write_season
 
 STAGES = ["import", "estimate", "identify"]
 OPTS = dict(fix={"m": M_KG}, current=False, stages=STAGES)   # weighed boats, calm water

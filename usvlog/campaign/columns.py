@@ -16,8 +16,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ..errors import UsvlogError
 from ..choices import PARAM_NAMES
+from ..errors import UsvlogError
 
 # verdict words of an identification
 USABLE, CAVEATS, UNUSABLE = "usable", "caveats", "unusable"
@@ -112,7 +112,8 @@ def import_columns(result) -> dict[str, Any]:
     rep = result.report
     h = rep.health or {}
     return {"format": rep.format, "import_records": int(rep.records), "import_skipped": int(sum(rep.skipped.values())),
-            "health_dead": ";".join(h.get("dead", [])) or None, "health_suspect": ";".join(h.get("suspect", [])) or None,
+            "health_dead": ";".join(h.get("dead", [])) or None,
+            "health_suspect": ";".join(h.get("suspect", [])) or None,
             "time_base": h.get("time_base")}
 
 
@@ -205,8 +206,10 @@ def replay_columns(result) -> dict[str, Any]:
     m = result.metrics.to_dict()
     rep = m.get("replay") or {}
     wi = m.get("whatif") or {}
-    return {"replay_xte_rms_m": _f(rep.get("cross_track_rms_m")), "replay_heading_rms_rad": _f(rep.get("heading_error_rms_rad")),
-            "replay_surge_rms_mps": _f(rep.get("surge_error_rms_mps")), "replay_saturated_s": _f(rep.get("time_saturated_s")),
+    return {"replay_xte_rms_m": _f(rep.get("cross_track_rms_m")),
+            "replay_heading_rms_rad": _f(rep.get("heading_error_rms_rad")),
+            "replay_surge_rms_mps": _f(rep.get("surge_error_rms_mps")),
+            "replay_saturated_s": _f(rep.get("time_saturated_s")),
             "replay_command_rms": _f(m.get("command_rms")), "whatif_xte_rms_m": _f(wi.get("cross_track_rms_m"))}
 
 

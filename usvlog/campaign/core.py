@@ -263,10 +263,11 @@ def _joint(runner: Runner, table: pd.DataFrame, out: Path, settings: RunSettings
                                                                       "fit_track_pct", "reason")}}
                              for run, r in rows if run is not None])
         err = full.get("reason") if full.get("status") == C.FAILED else None
+        why = full.get("verdict_reasons")
         fits[v] = JointFit(vessel=v, runs=tuple(r for r, _ in rows if r is not None),
-                           params={p: full.get(p) for p in PARAM_NAMES}, stderr={p: full.get(f"{p}_se") for p in PARAM_NAMES},
-                           verdict=full.get("verdict") or C.UNUSABLE,
-                           reasons=tuple((full.get("verdict_reasons") or "").split("; ")) if full.get("verdict_reasons") else (),
+                           params={p: full.get(p) for p in PARAM_NAMES},
+                           stderr={p: full.get(f"{p}_se") for p in PARAM_NAMES},
+                           verdict=full.get("verdict") or C.UNUSABLE, reasons=tuple(why.split("; ")) if why else (),
                            loro=loro, vessel_file=None if err else str(out / "joint" / f"{v or 'unnamed'}.toml"),
                            error=err)
     return fits

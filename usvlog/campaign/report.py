@@ -24,6 +24,7 @@ from .tasks import ESTIMATE_FILE, LOG_FILE
 
 PAGE = "campaign.html"
 RRD = "campaign.rrd"
+MAP_HZ = {"/gnss/fix": 1.0, "/estimate/state": 1.0}   # samples per second of each run on the campaign map
 COLOURS = {C.USABLE: "#c8ecc8", C.CAVEATS: "#fbe3a6", C.UNUSABLE: "#f4b6b6", C.FAILED: "#dddddd"}
 
 
@@ -176,7 +177,7 @@ def write_campaign_report(result, *, progress=None) -> dict[str, Path]:
 
 def _write_rrd(result, say) -> Path | None:
     from ..io.mcap import read_log  # heavy: the MCAP reader, only when the map is drawn
-    from ..view.rrd import to_rrd
+    from ..view.rrd import _thin, to_rrd
 
     out = Path(result.out)
     logs, names = [], []
@@ -186,15 +187,20 @@ def _write_rrd(result, say) -> Path | None:
         if not f.exists():
             continue
         try:
-            logs.append(read_log(f, topics=["/gnss/fix", "/estimate/state"]))
+            lg = read_log(f, topics=list(MAP_HZ))
         except Exception as err:  # a run whose log cannot be read back is left off the map, said once
             say(f"warning: {f}: not on the map ({err})")
             continue
-        names.append(str(r["run_id"]))
-    logs_names = [(lg, n) for lg, n in zip(logs, names) if lg.time_range() is not None]
-    if not logs_names:
+        for topic, hz in MAP_HZ.items():   # a season of runs on one map: thinned, or the file grows huge
+            fr = lg.get(topic)
+            if fr is not None and len(fr):
+                lg.set(topic, fr.iloc[_thin(fr.index.to_numpy(dtype=np.int64), hz)])
+        if lg.time_range() is not None:
+            logs.append(lg)
+            names.append(str(r["run_id"]))
+    if not logs:
         return None
-    p = to_rrd([lg for lg, _ in logs_names], out / RRD, names=[n for _, n in logs_names], force=True)
+    p = to_rrd(logs, out / RRD, names=names, force=True)
     say(f"wrote {p}")
     return p
 
