@@ -17,7 +17,7 @@ import math
 from typing import Any
 
 from ..choices import PARAM_NAMES
-from ..errors import UsvlogError
+from ..errors import UnusableResultError, UsvlogError
 
 # verdict words of an identification
 USABLE, CAVEATS, UNUSABLE = "usable", "caveats", "unusable"
@@ -227,12 +227,20 @@ def failure_columns(stage: str, err: BaseException) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``status``, ``failed_stage``, ``reason``.
+        ``status``, ``failed_stage``, ``reason``; a failed identification also has the
+        verdict ``unusable``. An identification that refuses its result
+        (:class:`~usvlog.errors.UnusableResultError`) is not a failed run but an unusable
+        one: status ``ok``, verdict ``unusable``, its message the reason.
     """
     text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
     if not isinstance(err, UsvlogError):
         text = f"internal error ({type(err).__name__}): {text}"
-    return {"status": FAILED, "failed_stage": stage, "reason": f"{stage}: {text}"}
+    if stage == "identify" and isinstance(err, UnusableResultError):
+        return {"status": OK, "verdict": UNUSABLE, "verdict_reasons": text, "reason": f"identify: unusable: {text}"}
+    out = {"status": FAILED, "failed_stage": stage, "reason": f"{stage}: {text}"}
+    if stage == "identify":
+        out["verdict"] = UNUSABLE
+    return out
 
 
 __all__ = ["CAVEATS", "FAILED", "OK", "SCHEMA", "UNUSABLE", "USABLE", "empty_row", "estimate_columns",

@@ -262,7 +262,7 @@ def _joint(runner: Runner, table: pd.DataFrame, out: Path, settings: RunSettings
         loro = pd.DataFrame([{"run_id": run, **{k: r.get(k) for k in ("fit_u_pct", "fit_v_pct", "fit_r_pct",
                                                                       "fit_track_pct", "reason")}}
                              for run, r in rows if run is not None])
-        err = full.get("reason") if full.get("status") == C.FAILED else None
+        err = full.get("reason") if full.get("d11") is None else None   # failed, or refused as unusable
         why = full.get("verdict_reasons")
         fits[v] = JointFit(vessel=v, runs=tuple(r for r, _ in rows if r is not None),
                            params={p: full.get(p) for p in PARAM_NAMES},

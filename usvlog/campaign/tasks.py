@@ -349,8 +349,6 @@ def _stages(spec: RunSpec, settings: RunSettings, stages: Stages, tmp: Path, row
             row.update(C.replay_columns(rep))
     except Exception as err:  # a bad run is a row with its reason, never the end of the campaign
         row.update(C.failure_columns(stage, err))
-        if stage == "identify":
-            row["verdict"] = C.UNUSABLE
 
 
 def failed_row(spec: RunSpec, err: BaseException) -> dict:
