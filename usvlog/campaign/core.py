@@ -132,7 +132,7 @@ class CampaignResult:
 
     def findings(self) -> list[str]:
         """One line per drifted parameter, then per vessel whose parameters are consistent."""
-        out = []
+        out: list[str] = []
         for v, by in self.drift.items():
             hits = [d for d in by.values() if d.drifted]
             out.extend(f"{v}: {d.describe()}" for d in hits)
@@ -241,7 +241,8 @@ def joint_one(item: tuple, settings: RunSettings, stages: Stages) -> dict:
 def _joint(runner: Runner, table: pd.DataFrame, out: Path, settings: RunSettings, stages: Stages,
            vessel_files: dict[str, str | None], on_result) -> dict[str, JointFit]:
     ok = usable(table)
-    items, owner = [], []
+    items: list[tuple] = []
+    owner: list[tuple[str, str | None]] = []
     (out / "joint").mkdir(exist_ok=True)
     for v, g in ok.groupby(ok["vessel"].fillna(""), sort=True):
         ids = list(g["run_id"])

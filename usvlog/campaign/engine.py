@@ -51,7 +51,7 @@ def _dashboard_note(link: str | None) -> str | None:
     if not link:
         return None
     try:
-        import bokeh  # noqa: F401  (optional: the dashboard serves pages only with it)
+        import bokeh  # type: ignore[import-not-found]  # noqa: F401  (optional: the dashboard's pages need it)
     except ImportError:
         return f"{link} (needs bokeh: pip install bokeh)"
     return link
@@ -91,7 +91,8 @@ class Runner:
         if workers is not None and scheduler:
             raise ConfigError("--workers and --scheduler do not go together (the scheduler has its workers)")
         self.workers, self.scheduler, self.sequential, self.on_start = workers, scheduler, sequential, on_start
-        self.cluster = self.client = None
+        self.cluster: Any = None
+        self.client: Any = None
         self.info: ClusterInfo | None = None
         self.submitted = 0
 
