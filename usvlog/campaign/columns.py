@@ -63,8 +63,22 @@ def _f(x) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def _path_length(t_ns, n, e, every_s: float = 1.0) -> float | None:
+    """Length (m) of the polyline through (n, e), one point per ``every_s`` s: GNSS noise at
+    10 Hz would otherwise add more length than a slow boat covers."""
+    import numpy as np  # heavy: only when a run is processed
+
+    t, n, e = (np.asarray(a) for a in (t_ns, n, e))
+    ok = np.isfinite(n) & np.isfinite(e)
+    t, n, e = t[ok], n[ok], e[ok]
+    if len(t) < 2:
+        return None
+    keep = np.r_[0, np.nonzero(np.diff((t - t[0]) // int(every_s * 1e9)))[0] + 1]
+    return float(np.hypot(np.diff(n[keep]), np.diff(e[keep])).sum())
+
+
 def log_columns(log) -> dict[str, Any]:
-    """Start time (ns), duration (s) and track length (m, GNSS fixes) of a canonical log.
+    """Start time (ns), duration (s) and track length (m, GNSS fixes 5 s apart) of a canonical log.
 
     Parameters
     ----------
@@ -77,8 +91,6 @@ def log_columns(log) -> dict[str, Any]:
         ``start_utc``, ``duration_s``, ``distance_m`` and ``input_damage`` (the one-line
         report of a damaged file, else None).
     """
-    import numpy as np  # heavy: only when a run is processed
-
     from ..view.data import gps  # heavy: the view data helpers (numpy)
 
     tr = log.time_range()
@@ -86,10 +98,8 @@ def log_columns(log) -> dict[str, Any]:
                            "duration_s": (tr[1] - tr[0]) / 1e9 if tr else None, "distance_m": None,
                            "input_damage": log.recovery.one_line() if log.recovery is not None else None}
     g = gps(log)
-    if g is not None and len(g[0]) > 1:
-        n, e = np.asarray(g[3], float), np.asarray(g[4], float)
-        ok = np.isfinite(n) & np.isfinite(e)
-        out["distance_m"] = float(np.hypot(np.diff(n[ok]), np.diff(e[ok])).sum())
+    if g is not None:
+        out["distance_m"] = _path_length(g[0], g[3], g[4], every_s=5.0)   # the estimate's track replaces it
     return out
 
 
@@ -129,12 +139,18 @@ def estimate_columns(result) -> dict[str, Any]:
     -------
     dict
         ``estimate_model``, ``estimate_consistent`` (no consistency warning),
-        ``estimate_warnings`` (``;``-separated), ``estimate_dropouts``.
+        ``estimate_warnings`` (``;``-separated), ``estimate_dropouts``, and ``distance_m``
+        along the estimated track (m; replaces the one from the GNSS fixes).
     """
     rep = result.report
     warn = list(rep.consistency())
-    return {"estimate_model": rep.model, "estimate_consistent": not warn,
-            "estimate_warnings": "; ".join(warn) or None, "estimate_dropouts": int(rep.dropouts_bridged)}
+    st = result.state
+    out = {"estimate_model": rep.model, "estimate_consistent": not warn,
+           "estimate_warnings": "; ".join(warn) or None, "estimate_dropouts": int(rep.dropouts_bridged)}
+    d = _path_length(st.index.to_numpy(), st["n_m"].to_numpy(float), st["e_m"].to_numpy(float))
+    if d is not None:
+        out["distance_m"] = d
+    return out
 
 
 def verdict_of(idf) -> tuple[str, list[str]]:
