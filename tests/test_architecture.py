@@ -42,6 +42,7 @@ PACKAGE = "usvlog"
 UNITS: dict[str, tuple[str, ...]] = {
     "cli":      ("usvlog.cli", "usvlog.__main__"),
     "api":      ("usvlog", "usvlog.api"),         # usvlog/__init__.py (+ usvlog/api.py)
+    "campaign": ("usvlog.campaign",),
     "view":     ("usvlog.view",),
     "regress":  ("usvlog.regress",),
     "replay":   ("usvlog.replay",),
@@ -60,6 +61,7 @@ UNITS: dict[str, tuple[str, ...]] = {
 LAYERS: tuple[tuple[str, ...], ...] = (
     ("cli",),
     ("api",),
+    ("campaign",),      # many runs of the pipeline: runs the API's stages (handed in), draws with view
     ("view", "regress"),
     ("replay",),
     ("sim",),
@@ -78,7 +80,7 @@ NARROWED: dict[str, frozenset[str]] = {
 # io is the edge: it reads and writes model/log objects and is used from the top only.
 IO = "io"
 IO_MAY_IMPORT = frozenset({"model", "log", "base"})
-IO_IMPORTED_BY = frozenset({"cli", "api", "view", "regress", "replay", "sim"})
+IO_IMPORTED_BY = frozenset({"cli", "api", "campaign", "view", "regress", "replay", "sim"})
 
 
 def allowed_imports(layers=LAYERS, sideways=SIDEWAYS, narrowed=NARROWED,

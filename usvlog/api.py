@@ -921,7 +921,8 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
 def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, junit: PathLike | None = None,
             force: bool = False, jobs: int = 1, progress: Progress = None,
             on_start: Callable[[list[Path]], None] | None = None,
-            on_outcome: Callable[[ScenarioOutcome], None] | None = None) -> list[ScenarioOutcome]:
+            on_outcome: Callable[[ScenarioOutcome], None] | None = None, workers: int | None = None,
+            scheduler: str | None = None) -> list[ScenarioOutcome]:
     """Re-run recorded datasets through estimate/identify/replay and gate on baselines (``usvlog regress``).
 
     Parameters
@@ -945,6 +946,11 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         before the first runs.
     on_outcome : callable, optional
         Called with each scenario's outcome as it finishes.
+    workers : int, optional
+        Run the scenarios as Dask tasks on a local cluster of this many processes (the
+        campaign engine, :class:`usvlog.campaign.engine.Runner`) instead of ``jobs``.
+    scheduler : str, optional
+        Run them on a running Dask scheduler (``tcp://host:8786``) instead.
 
     Returns
     -------
@@ -977,7 +983,14 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     if on_start:
         on_start(found)
     outcomes: list[ScenarioOutcome] = []
-    if jobs == 1 or len(found) == 1:
+    if workers is not None or scheduler:
+        from .campaign.engine import run_tasks  # heavy: dask, only when the scenarios run on it
+
+        outcomes = run_tasks(_regress_one, [str(p) for p in found], workers=workers, scheduler=scheduler,
+                             on_start=lambda info: _say(progress, f"dask: {info.scheduler}; dashboard "
+                                                                  f"{info.dashboard or '(none)'}"),
+                             on_result=(lambda i, o: on_outcome(o)) if on_outcome else None)
+    elif jobs == 1 or len(found) == 1:
         for p in found:
             outcomes.append(_regress_one(str(p)))
             if on_outcome:
@@ -1035,5 +1048,76 @@ def _check_datasets(paths, *, shipped: bool) -> None:
                        f"({len(missing)} of {len(scns)} scenarios miss theirs){hint}")
 
 
-__all__ = ["estimate", "export", "fit_log", "gains", "gains_and_vessel", "identify", "import_log", "inspect",
-           "load", "regress", "replay", "report", "save", "simulate", "to_rrd"]
+# -----------------------------------------------------------------------------
+# campaign
+# -----------------------------------------------------------------------------
+
+def campaign(sources, out: PathLike, *, vessel=None, vessel_map=None, stages: Sequence[str] | None = None,
+             scheduler: str | None = None, workers: int | None = None, joint: bool = False,
+             estimate_model: str = "kinematic", method: str = "output-error", holdout: float = 0.25,
+             fix: dict[str, float] | None = None, current: bool = True, scenario: str = "paper-circle",
+             sequential: bool = False, report: bool = True, progress: Progress = None,
+             on_plan: Callable[[int, int], None] | None = None, on_row: Callable[[dict], None] | None = None):
+    """Take many runs through the stages on Dask, find parameter drift, write one report (``usvlog campaign``).
+
+    Each run is one Dask task that calls this module's :func:`import_log` (or :func:`load`),
+    :func:`estimate`, :func:`identify` and :func:`replay`; a run is keyed by its content and
+    the settings, so a second campaign into the same ``out`` skips the finished runs.
+
+    Parameters
+    ----------
+    sources : sequence of str or os.PathLike
+        Field logs of any importable format or canonical MCAP logs: files, directories
+        (their files) and globs.
+    out : str or os.PathLike
+        Campaign directory: ``runs.parquet``, ``runs/<run_id>/`` (``log.mcap``,
+        ``estimate.mcap``, ``vessel.toml``, ``row.json``), ``campaign.html``, the drift PNGs,
+        ``campaign.rrd``, ``campaign.json``.
+    vessel : Vessel TOML path, optional
+        The vessel of every run (thruster map, start values).
+    vessel_map : path, optional
+        A TOML of ``[vessel.NAME]`` tables with ``file`` and ``match`` (source patterns).
+    stages : sequence of str, optional
+        From ``import``, ``estimate``, ``identify``, ``replay`` (default all four).
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``); the workers must see
+        the sources and ``out`` at the same paths.
+    workers : int, optional
+        Processes of the local Dask cluster (default: the core count), one thread each.
+    joint : bool
+        Also fit one model per vessel from all its usable runs, validated leave-one-run-out.
+    estimate_model, method, holdout, fix, current, scenario
+        The stages' options: :func:`estimate` ``model``; :func:`identify` ``method``,
+        ``holdout`` (validation fit % on the last fraction of each run), ``fix`` (SI),
+        ``current``; :func:`replay` ``scenario``.
+    sequential : bool
+        Run in this process without Dask.
+    report : bool
+        Write the HTML report, its PNGs and the Rerun recording.
+    progress : callable, optional
+        Receives one-line notes (the cluster and its dashboard address, files written).
+    on_plan : callable, optional
+        Called with (runs to do, runs finished before) before the first task.
+    on_row : callable, optional
+        Called with each run's row (a dict of the table's columns) as it finishes.
+
+    Returns
+    -------
+    usvlog.campaign.core.CampaignResult
+        ``table`` (``runs.parquet``), ``drift`` ({vessel: {parameter: ParameterDrift}}),
+        ``joint``, ``executed`` and ``reused`` run counts, ``files``.
+    """
+    from .campaign.core import run_campaign  # heavy: numpy, pandas; dask only once tasks run
+    from .campaign.tasks import RunSettings, Stages
+
+    settings = RunSettings(stages=tuple(stages) if stages else RunSettings().stages, estimate_model=estimate_model,
+                           method=method, holdout=holdout, fix=dict(fix or {}), current=current, scenario=scenario)
+    fns = Stages(load=load, import_log=import_log, save=save, estimate=estimate, identify=identify, replay=replay)
+    return run_campaign(list(sources) if isinstance(sources, (list, tuple)) else [sources], out, stages=fns,
+                        settings=settings, vessel=vessel, vessel_map=vessel_map, workers=workers,
+                        scheduler=scheduler, joint=joint, sequential=sequential, report=report,
+                        progress=progress, on_plan=on_plan, on_row=on_row)
+
+
+__all__ = ["campaign", "estimate", "export", "fit_log", "gains", "gains_and_vessel", "identify", "import_log",
+           "inspect", "load", "regress", "replay", "report", "save", "simulate", "to_rrd"]

@@ -31,6 +31,7 @@ VERBS = [
     "demo",
     "view",
     "report",
+    "campaign",
 ]
 
 

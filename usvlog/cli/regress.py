@@ -20,6 +20,10 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing --junit file")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
     p.add_argument("--jobs", type=int, default=1, help="scenarios run in this many parallel processes (default 1)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="run the scenarios on a local Dask cluster of N processes (the campaign engine)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the scenarios on a running Dask scheduler (tcp://host:8786)")
     p.set_defaults(func=run)
 
 
@@ -70,7 +74,8 @@ def run(args) -> int:
                 bar["bar"].close()
 
     outcomes = api.regress(args.paths, update=args.update, junit=args.junit, force=args.force, jobs=args.jobs,
-                           progress=stage, on_start=start, on_outcome=done)
+                           progress=stage, on_start=start, on_outcome=done, workers=args.workers,
+                           scheduler=args.scheduler)
     if args.json:
         print_json({"scenarios": [o.to_dict() for o in outcomes],
                     "failed": any(o.failed for o in outcomes)})
