@@ -38,6 +38,7 @@ SCHEMA: dict[str, str] = {
     "health_suspect": "str", "time_base": "str", "input_damage": "str",
     # estimate
     "estimate_model": "str", "estimate_consistent": "bool", "estimate_warnings": "str",
+    "estimate_status": "str", "estimate_mode": "str", "estimate_reinits": "int",
     "estimate_dropouts": "int",
     # identify
     "identify_method": "str", **{k: "float" for p in PARAM_NAMES for k in (p, f"{p}_se")},
@@ -139,14 +140,18 @@ def estimate_columns(result) -> dict[str, Any]:
     -------
     dict
         ``estimate_model``, ``estimate_consistent`` (no consistency warning),
-        ``estimate_warnings`` (``;``-separated), ``estimate_dropouts``, and ``distance_m``
+        ``estimate_warnings`` (``;``-separated), ``estimate_dropouts``, ``estimate_status``
+        (ok / degraded), ``estimate_mode`` (gnss+compass / gps-only), ``estimate_reinits``
+        (re-initialisations after divergence), and ``distance_m``
         along the estimated track (m; replaces the one from the GNSS fixes).
     """
     rep = result.report
     warn = list(rep.consistency())
     st = result.state
     out = {"estimate_model": rep.model, "estimate_consistent": not warn,
-           "estimate_warnings": "; ".join(warn) or None, "estimate_dropouts": int(rep.dropouts_bridged)}
+           "estimate_warnings": "; ".join(warn) or None, "estimate_dropouts": int(rep.dropouts_bridged),
+           "estimate_status": getattr(rep, "status", None), "estimate_mode": getattr(rep, "mode", None),
+           "estimate_reinits": len(getattr(rep, "reinits", ()))}
     d = _path_length(st.index.to_numpy(), st["n_m"].to_numpy(float), st["e_m"].to_numpy(float))
     if d is not None:
         out["distance_m"] = d
@@ -154,7 +159,8 @@ def estimate_columns(result) -> dict[str, Any]:
 
 
 def verdict_of(idf) -> tuple[str, list[str]]:
-    """The identification's verdict word and its reasons.
+    """The identification's verdict word and its reasons (the identifier's ``verdict_`` level
+    and ``reasons_``).
 
     Parameters
     ----------
@@ -168,7 +174,11 @@ def verdict_of(idf) -> tuple[str, list[str]]:
         with care) or ``"unusable"`` (a parameter not determined, a near-singular fit or
         Theorem 3.1's condition 1 failing), and the findings.
     """
-    reasons = [str(x) for x in (idf.verdict_ or [])]
+    reasons = [str(x) for x in (getattr(idf, "reasons_", None) or [])]
+    level = getattr(idf, "verdict_", None)
+    if isinstance(level, str):   # the identifier's own three-level verdict
+        return {"usable": USABLE, "usable with caveats": CAVEATS}.get(level, UNUSABLE), reasons
+    reasons = [str(x) for x in (level or [])]   # an older identifier: verdict lines only
     if any(m in r for r in reasons for m in _UNUSABLE_MARKS):
         return UNUSABLE, reasons
     return (CAVEATS if reasons else USABLE), reasons

@@ -32,6 +32,7 @@ from ..choices import PARAM_NAMES
 from ..errors import ConfigError, OutputExistsError, StorageError
 from ..io.atomic import atomic_dir, atomic_path, deferred_signals
 from ..log.fieldlog import FieldLog, format_time
+from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
 from ..replay import TrackingMetrics, tracking_metrics_of
@@ -111,15 +112,22 @@ def _json(rec: dict | None, key: str):
 def estimate_status(log: FieldLog) -> tuple[str, list[str]] | None:
     """The estimate's verdict for the report's first line: ``("ok" | "degraded" | "failed", reasons)``.
 
-    ``failed``: ``/estimate/state`` holds no finite position; ``degraded``: the estimate's
-    consistency findings (the provenance record's ``warnings``, from
-    :meth:`usvlog.estimate.EstimateReport.consistency`, or a richer ``status`` record when the
-    estimate stored one); None for a log without an estimate.
+    ``failed``: ``/estimate/state`` holds no finite position, or the estimator stored that
+    status; otherwise the status the estimator stored in the log (:mod:`usvlog.log.status`:
+    GNSS only, re-initialisations, inconsistent sensors), or for an older log its consistency
+    findings (the provenance record's ``warnings``, from
+    :meth:`usvlog.estimate.EstimateReport.consistency`); None for a log without an estimate.
     """
     est = vd.nonempty(log, "/estimate/state")
     rep = _json(_latest(log, "usvlog estimate"), "report") or {}
-    if est is None and not rep:
+    stored = stored_estimate_status(log)
+    if est is None and not rep and stored is None:
         return None
+    if stored is not None:
+        rep = {**rep, "status": {"level": stored.status,
+                                 "reasons": ([f"GNSS only ({stored.mode})"] if stored.mode == "gps-only"
+                                             and not any("GNSS" in r for r in stored.reasons) else [])
+                                 + list(stored.reasons)}}
     st = rep.get("status") if isinstance(rep.get("status"), dict) else None
     reasons = [str(w) for w in (st or {}).get("reasons", rep.get("warnings", [])) if isinstance(w, str)]
     if est is not None and "n_m" in est.columns:
@@ -150,11 +158,13 @@ def identification(log: FieldLog) -> dict | None:
 def identification_verdict(res: dict) -> tuple[str, list[str]]:
     """(``usable`` | ``usable with caveats`` | ``unusable``, reasons) of an identification result.
 
-    A result carrying a verdict level (``verdict_level`` or a ``verdict`` dict with ``level``)
-    is taken as it is; otherwise the verdict lines decide: none means usable, lines mean
-    caveats.
+    A result carrying a verdict level (``verdict`` as ``Identifier.to_dict()`` gives it, with
+    ``reasons``; ``verdict_level``; or a ``verdict`` dict with ``level``) is taken as it is;
+    otherwise the verdict lines decide: none means usable, lines mean caveats.
     """
     v = res.get("verdict")
+    if isinstance(v, str):   # Identifier.to_dict(): the level, and its reasons in plain words
+        return v, [str(x) for x in res.get("reasons", [])]
     if isinstance(v, dict):
         return str(v.get("level", "usable with caveats")), [str(x) for x in v.get("reasons", [])]
     lines = [str(x) for x in (v or [])]
