@@ -919,7 +919,7 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
 
 
 def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, junit: PathLike | None = None,
-            force: bool = False, jobs: int = 1, progress: Progress = None,
+            force: bool = False, jobs: int | None = None, progress: Progress = None,
             on_start: Callable[[list[Path]], None] | None = None,
             on_outcome: Callable[[ScenarioOutcome], None] | None = None, workers: int | None = None,
             scheduler: str | None = None) -> list[ScenarioOutcome]:
@@ -937,8 +937,9 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         Also write JUnit XML for a CI system (its place is checked before any scenario runs).
     force : bool
         Replace an existing ``junit`` file.
-    jobs : int
-        Run the scenarios in this many parallel processes.
+    jobs : int, optional
+        Deprecated alias of ``workers`` (it ran a process pool of its own before the campaign
+        engine did the parallel runs).
     progress : callable, optional
         Receives the unified diff of each baseline that ``update`` changes.
     on_start : callable, optional
@@ -948,7 +949,8 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         Called with each scenario's outcome as it finishes.
     workers : int, optional
         Run the scenarios as Dask tasks on a local cluster of this many processes (the
-        campaign engine, :class:`usvlog.campaign.engine.Runner`) instead of ``jobs``.
+        campaign engine, :class:`usvlog.campaign.engine.Runner`); without it and without
+        ``scheduler`` they run one after the other in this process.
     scheduler : str, optional
         Run them on a running Dask scheduler (``tcp://host:8786``) instead.
 
@@ -958,8 +960,7 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
         One per scenario: metrics, the checks against the baseline, seconds, error; an outcome
         ``failed`` when a metric regressed or the run failed.
     """
-    from concurrent.futures import ProcessPoolExecutor  # loads multiprocessing: only regress needs it
-
+    from .campaign.engine import Runner  # the campaign engine runs the scenarios (dask only once tasks run)
     from .io.atomic import check_output, write_text_atomic  # heavy: the regression stages pull the library
     from .regress.baselines import (
         find_regress_scenarios,
@@ -972,8 +973,18 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     from .regress.stages import accept
     from .resources import replay_dir
 
-    if jobs < 1:
-        raise ConfigError(f"--jobs {jobs} must be >= 1")
+    if jobs is not None:   # the deprecated name of workers
+        import warnings  # only for the deprecated option
+
+        warnings.warn("regress(jobs=N) is deprecated: use workers=N (the campaign engine's local Dask cluster)",
+                      DeprecationWarning, stacklevel=2)
+        if workers is not None and workers != jobs:
+            raise ConfigError(f"--jobs {jobs} and --workers {workers} differ (--jobs is the old name of --workers)")
+        workers = jobs
+    parallel = workers is not None or bool(scheduler)
+    runner = Runner(workers=workers, scheduler=scheduler, sequential=not parallel,   # options checked here
+                    on_start=lambda info: _say(progress, f"dask: {info.scheduler}; dashboard "
+                                                         f"{info.dashboard or '(none)'}"))
     if junit:  # the report's place is checked before the scenarios run, not after
         check_output(junit, force, parent=True)
     found = find_regress_scenarios(list(paths) if paths else [replay_dir()])
@@ -982,25 +993,9 @@ def regress(paths: Sequence[PathLike] | None = None, *, update: bool = False, ju
     _check_datasets(found, shipped=not paths)
     if on_start:
         on_start(found)
-    outcomes: list[ScenarioOutcome] = []
-    if workers is not None or scheduler:
-        from .campaign.engine import run_tasks  # heavy: dask, only when the scenarios run on it
-
-        outcomes = run_tasks(_regress_one, [str(p) for p in found], workers=workers, scheduler=scheduler,
-                             on_start=lambda info: _say(progress, f"dask: {info.scheduler}; dashboard "
-                                                                  f"{info.dashboard or '(none)'}"),
-                             on_result=(lambda i, o: on_outcome(o)) if on_outcome else None)
-    elif jobs == 1 or len(found) == 1:
-        for p in found:
-            outcomes.append(_regress_one(str(p)))
-            if on_outcome:
-                on_outcome(outcomes[-1])
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as ex:
-            for o in ex.map(_regress_one, [str(p) for p in found]):
-                outcomes.append(o)
-                if on_outcome:
-                    on_outcome(o)
+    with runner:   # no cluster starts for the sequential path
+        outcomes: list[ScenarioOutcome] = runner.map(_regress_one, [str(p) for p in found],
+                                                     on_result=(lambda i, o: on_outcome(o)) if on_outcome else None)
     if update:
         for p, o in zip(found, outcomes):
             if o.error:
@@ -1055,7 +1050,7 @@ def _check_datasets(paths, *, shipped: bool) -> None:
 def campaign(sources, out: PathLike, *, vessel=None, vessel_map=None, stages: Sequence[str] | None = None,
              scheduler: str | None = None, workers: int | None = None, joint: bool = False,
              estimate_model: str = "kinematic", method: str = "output-error", holdout: float = 0.25,
-             fix: dict[str, float] | None = None, current: bool = True, scenario: str = "paper-circle",
+             fix: dict[str, float] | None = None, current: bool = True, scenario: str | None = None,
              sequential: bool = False, report: bool = True, progress: Progress = None,
              on_plan: Callable[[int, int], None] | None = None, on_row: Callable[[dict], None] | None = None):
     """Take many runs through the stages on Dask, find parameter drift, write one report (``usvlog campaign``).
@@ -1078,7 +1073,8 @@ def campaign(sources, out: PathLike, *, vessel=None, vessel_map=None, stages: Se
     vessel_map : path, optional
         A TOML of ``[vessel.NAME]`` tables with ``file`` and ``match`` (source patterns).
     stages : sequence of str, optional
-        From ``import``, ``estimate``, ``identify``, ``replay`` (default all four).
+        From ``import``, ``estimate``, ``identify``, ``replay`` (default ``import``,
+        ``estimate``, ``identify``; ``replay`` also when ``scenario`` is given).
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``); the workers must see
         the sources and ``out`` at the same paths.
@@ -1089,7 +1085,8 @@ def campaign(sources, out: PathLike, *, vessel=None, vessel_map=None, stages: Se
     estimate_model, method, holdout, fix, current, scenario
         The stages' options: :func:`estimate` ``model``; :func:`identify` ``method``,
         ``holdout`` (validation fit % on the last fraction of each run), ``fix`` (SI),
-        ``current``; :func:`replay` ``scenario``.
+        ``current``; :func:`replay` ``scenario`` (giving one adds the replay stage; a
+        listed ``replay`` without it replays ``paper-circle``).
     sequential : bool
         Run in this process without Dask.
     report : bool

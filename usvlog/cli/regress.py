@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from typing import TYPE_CHECKING
 
 from .common import print_json, stage
@@ -19,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML for a CI system")
     p.add_argument("--force", action="store_true", help="overwrite an existing --junit file")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--jobs", type=int, default=1, help="scenarios run in this many parallel processes (default 1)")
+    p.add_argument("--jobs", type=int, default=None, metavar="N", help="deprecated: the old name of --workers")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="run the scenarios on a local Dask cluster of N processes (the campaign engine)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -73,9 +74,13 @@ def run(args) -> int:
             if bar["done"] == bar["total"]:
                 bar["bar"].close()
 
-    outcomes = api.regress(args.paths, update=args.update, junit=args.junit, force=args.force, jobs=args.jobs,
-                           progress=stage, on_start=start, on_outcome=done, workers=args.workers,
-                           scheduler=args.scheduler)
+    if args.jobs is not None:
+        stage("warning: --jobs is deprecated, use --workers (the scenarios run on a local Dask cluster)")
+    with warnings.catch_warnings():   # said above, once, in the CLI's words
+        warnings.simplefilter("ignore", DeprecationWarning)
+        outcomes = api.regress(args.paths, update=args.update, junit=args.junit, force=args.force, jobs=args.jobs,
+                               progress=stage, on_start=start, on_outcome=done, workers=args.workers,
+                               scheduler=args.scheduler)
     if args.json:
         print_json({"scenarios": [o.to_dict() for o in outcomes],
                     "failed": any(o.failed for o in outcomes)})
