@@ -26,7 +26,8 @@ class ClusterInfo:
     scheduler : str
         The scheduler's address (``tcp://...``; ``local`` for the sequential path).
     dashboard : str or None
-        The dashboard's address (None when there is none).
+        The dashboard's address (None when there is none; for a local cluster without
+        bokeh, a note saying so instead of an address that serves nothing).
     workers : int
         Worker processes at the start.
     local : bool
@@ -47,13 +48,14 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _dashboard_note(link: str | None) -> str | None:
-    if not link:
-        return None
+def _dashboard_note(link: str | None, local: bool) -> str | None:
+    """The dashboard's address, or why a local cluster's has none (never an address that serves nothing)."""
+    if not link or not local:   # a running scheduler serves its own pages (with its own bokeh)
+        return link or None
     try:
-        import bokeh  # type: ignore[import-not-found]  # noqa: F401  (optional: the dashboard's pages need it)
+        import bokeh  # type: ignore[import-not-found]  # noqa: F401  (a dependency: the dashboard's pages)
     except ImportError:
-        return f"{link} (needs bokeh: pip install bokeh)"
+        return "none (its pages need bokeh>=3.1: pip install bokeh)"
     return link
 
 
@@ -128,10 +130,9 @@ class Runner:
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                         silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
-        c = self.client
-        self.info = ClusterInfo(scheduler=str(c.scheduler.address), dashboard=_dashboard_note(c.dashboard_link),
-                                workers=len(c.scheduler_info(n_workers=-1).get("workers", {})),
-                                local=self.cluster is not None)
+        c, local = self.client, self.cluster is not None
+        self.info = ClusterInfo(scheduler=str(c.scheduler.address), dashboard=_dashboard_note(c.dashboard_link, local),
+                                workers=len(c.scheduler_info(n_workers=-1).get("workers", {})), local=local)
         if self.on_start:
             self.on_start(self.info)
 
