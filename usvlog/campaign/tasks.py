@@ -28,7 +28,8 @@ from ..errors import ConfigError, InputError
 from . import columns as C
 
 STAGES = ("import", "estimate", "identify", "replay")
-DEFAULT_STAGES = STAGES
+DEFAULT_STAGES = ("import", "estimate", "identify")   # replay: asked for, or a scenario given
+DEFAULT_SCENARIO = "paper-circle"
 ROW_FILE = "row.json"
 LOG_FILE, ESTIMATE_FILE, VESSEL_FILE = "log.mcap", "estimate.mcap", "vessel.toml"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -60,7 +61,9 @@ class RunSettings:
     Attributes
     ----------
     stages : tuple of str
-        Stages to run, in pipeline order, from :data:`STAGES`.
+        Stages to run, in pipeline order, from :data:`STAGES` (default
+        :data:`DEFAULT_STAGES`: a closed-loop replay means little on an open-loop run, so
+        ``replay`` runs only when listed or when ``scenario`` is given).
     estimate_model : str
         ``kinematic`` or ``dynamic`` (``usvlog estimate --model``).
     method : str
@@ -71,8 +74,10 @@ class RunSettings:
         Known parameters (SI units), e.g. ``{"m": 33.0}``.
     current : bool
         Fit a constant water current per run.
-    scenario : str
-        Closed-loop scenario of the replay stage (a shipped name or a TOML file).
+    scenario : str or None
+        Closed-loop scenario of the replay stage (a shipped name or a TOML file); giving one
+        adds ``replay`` to the stages. None: :data:`DEFAULT_SCENARIO` when ``replay`` is
+        listed, else no replay.
     """
 
     stages: tuple[str, ...] = DEFAULT_STAGES
@@ -81,14 +86,17 @@ class RunSettings:
     holdout: float = 0.25
     fix: dict = field(default_factory=dict)
     current: bool = True
-    scenario: str = "paper-circle"
+    scenario: str | None = None
 
     def __post_init__(self):
         bad = [s for s in self.stages if s not in STAGES]
         if bad or not self.stages:
             raise ConfigError(f"--stages {','.join(self.stages)}: unknown stage {bad[0] if bad else '(none)'} "
                               f"(stages: {','.join(STAGES)})")
-        object.__setattr__(self, "stages", tuple(s for s in STAGES if s in self.stages))
+        asked = set(self.stages) | ({"replay"} if self.scenario is not None else set())
+        object.__setattr__(self, "stages", tuple(s for s in STAGES if s in asked))
+        if "replay" in self.stages and self.scenario is None:
+            object.__setattr__(self, "scenario", DEFAULT_SCENARIO)
         if "import" not in self.stages:
             raise ConfigError("--stages must include import (every run is read through it)")
         if not 0.0 <= self.holdout <= 0.9:
@@ -360,6 +368,6 @@ def failed_row(spec: RunSpec, err: BaseException) -> dict:
     return row
 
 
-__all__ = ["DEFAULT_STAGES", "ESTIMATE_FILE", "LOG_FILE", "ROW_FILE", "RunSettings", "RunSpec", "STAGES", "Stages",
+__all__ = ["DEFAULT_SCENARIO", "DEFAULT_STAGES", "ESTIMATE_FILE", "LOG_FILE", "ROW_FILE", "RunSettings", "RunSpec", "STAGES", "Stages",
            "VESSEL_FILE", "content_sha256", "expand_sources", "failed_row", "finished_row", "make_spec",
            "read_vessel_map", "run_key", "run_one", "vessel_for"]

@@ -23,8 +23,9 @@ def register(sub) -> None:
     g.add_argument("--vessel", default=None, metavar="V.toml", help="vessel TOML of every run")
     g.add_argument("--vessel-map", default=None, metavar="MAP.toml",
                    help="[vessel.NAME] tables with file = \"V.toml\" and match = [\"pattern\", ...]")
-    p.add_argument("--stages", default=",".join(STAGE_NAMES),
-                   help=f"comma-separated stages (default {','.join(STAGE_NAMES)})")
+    p.add_argument("--stages", default=None,
+                   help=f"comma-separated stages from {','.join(STAGE_NAMES)} (default import,estimate,identify; "
+                        "replay also with --scenario)")
     h = p.add_mutually_exclusive_group()
     h.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://host:8786); its workers must see the files at the same paths")
@@ -39,7 +40,9 @@ def register(sub) -> None:
                    help="known parameter in SI units, e.g. m=33 (repeatable)")
     p.add_argument("--no-current", action="store_true", help="do not fit a water current")
     p.add_argument("--model", choices=["kinematic", "dynamic"], default="kinematic", help="estimation model")
-    p.add_argument("--scenario", default="paper-circle", help="closed-loop scenario of the replay stage")
+    p.add_argument("--scenario", default=None,
+                   help="closed-loop scenario of the replay stage (paper-circle, paper-sine or S.toml); giving one "
+                        "adds the replay stage (default with replay in --stages: paper-circle)")
     p.add_argument("--no-report", action="store_true", help="write the table only (no HTML, PNGs, .rrd)")
     p.add_argument("--json", action="store_true", help="print the campaign summary as JSON")
     p.set_defaults(func=run)
@@ -89,7 +92,8 @@ def run(args) -> int:
 
     bar = Bar()
     res = api.campaign(args.sources, args.out, vessel=args.vessel, vessel_map=args.vessel_map,
-                       stages=[s.strip() for s in args.stages.split(",") if s.strip()], scheduler=args.scheduler,
+                       stages=[s.strip() for s in args.stages.split(",") if s.strip()] if args.stages else None,
+                       scheduler=args.scheduler,
                        workers=args.workers, joint=args.joint, estimate_model=args.model, method=args.method,
                        holdout=args.holdout, fix=parse_fix(args.fix), current=not args.no_current,
                        scenario=args.scenario, report=not args.no_report, progress=stage, on_plan=bar.plan,
