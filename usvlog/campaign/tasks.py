@@ -368,6 +368,6 @@ def failed_row(spec: RunSpec, err: BaseException) -> dict:
     return row
 
 
-__all__ = ["DEFAULT_SCENARIO", "DEFAULT_STAGES", "ESTIMATE_FILE", "LOG_FILE", "ROW_FILE", "RunSettings", "RunSpec", "STAGES", "Stages",
-           "VESSEL_FILE", "content_sha256", "expand_sources", "failed_row", "finished_row", "make_spec",
-           "read_vessel_map", "run_key", "run_one", "vessel_for"]
+__all__ = ["DEFAULT_SCENARIO", "DEFAULT_STAGES", "ESTIMATE_FILE", "LOG_FILE", "ROW_FILE", "RunSettings", "RunSpec",
+           "STAGES", "Stages", "VESSEL_FILE", "content_sha256", "expand_sources", "failed_row", "finished_row",
+           "make_spec", "read_vessel_map", "run_key", "run_one", "vessel_for"]
