@@ -17,7 +17,7 @@ from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
 D11_STEP = 0.20
 STEP_BETWEEN = ("2026-05-31", "2026-06-14")
-ALPHA_DATES = ("2026-05-03", "2026-05-17", "2026-05-31", "2026-06-14", "2026-06-28", "2026-07-12")
+ALPHA_DATES = ("2026-05-03", "2026-05-17", "2026-05-31", "2026-06-14", "2026-06-28")   # 3 splits tried
 BRAVO_DATES = ("2026-05-10", "2026-05-24", "2026-06-21", "2026-07-05")
 STRAIGHT_DATE = "2026-06-07"
 M_KG = 33.0   # both boats weighed: the campaign fixes m
