@@ -14,7 +14,8 @@ on the fixes and headings, and sends to the viewer::
     /status/<source>/{rate_hz,bad_lines,dropped}   the recorder's counters
     /status/view/dropped                     messages this view dropped (its queue was full)
 
-Time series are thinned to ``max_hz`` per series (the MCAP keeps everything). Every
+Thrust and heading are thinned to ``max_hz`` before the queue, and so are the filter's
+series (the MCAP keeps everything; the map gets every fix). Every
 ``probe_s`` the thread checks that the viewer is still there (its TCP port accepts, the
 spawned viewer runs); a viewer that went away, or could not be reached, is reported once
 through ``on_error`` and the view stops: the recording goes on untouched.
@@ -148,10 +149,11 @@ class LiveView:
         Vessel for the online filter (its kinematic model does not use the parameters).
     queue_size : int, default 20000
         Messages waiting for the view's thread; more are dropped and counted.
-    batch_s : float, default 0.2
+    batch_s : float, default 0.25
         How often the thread sends, s.
     max_hz : float, default 50.0
-        Most samples per second of each time series sent (the map: every fix).
+        Most thrust and heading messages per second taken from the recorder, and most
+        filter outputs per second sent (the map: every fix).
     probe_s : float, default 1.0
         How often the viewer is checked, s.
     on_error : callable, optional
@@ -162,13 +164,17 @@ class LiveView:
     error : str or None
         Why the view stopped, if it did.
     dropped : int
-        Messages dropped because the queue was full.
+        Messages dropped because the queue was full (not those thinned on purpose).
+    thread_cpu_s : float
+        CPU time of the view's thread so far, s.
+    start_cpu_s : float
+        Of which its start (importing the SDK, loading the filter, connecting), s.
     """
 
     topics = TOPICS
 
     def __init__(self, target: str = "spawn", *, bind: str = DEFAULT_HOST, name: str = "usvlog record",
-                 vessel=None, queue_size: int = 20000, batch_s: float = 0.2, max_hz: float = 50.0,
+                 vessel=None, queue_size: int = 20000, batch_s: float = 0.25, max_hz: float = 50.0,
                  probe_s: float = 1.0, on_error=None):
         self.target = target
         self.bind = bind
@@ -182,6 +188,8 @@ class LiveView:
         self.error: str | None = None
         self.dropped = 0
         self.received = 0
+        self.thread_cpu_s = 0.0   # CPU time of the view's thread so far, s
+        self.start_cpu_s = 0.0    # of which connecting (importing the SDK, loading the filter), s
         self.sent: dict[str, int] = {}
         self._q: queue.Queue = queue.Queue(maxsize=int(queue_size))
         self._stop = threading.Event()
@@ -199,6 +207,8 @@ class LiveView:
         self._fixes: list[tuple[float, float]] = []
         self._track: list[tuple[float, float]] = []
         self._thin: dict[str, _Thin] = {}
+        self._hot_step = int(1e9 / max_hz) if max_hz > 0 else 0
+        self._hot_last = {TOPIC_THRUST: -(1 << 62), TOPIC_HEADING: -(1 << 62)}
         self._next_map = 0.0
 
     # -- the recorder's side (hot path) -------------------------------------------
@@ -216,6 +226,11 @@ class LiveView:
         """
         if self._failed:
             return
+        last = self._hot_last.get(topic)
+        if last is not None:   # thrust and heading: at most max_hz reach the queue
+            if t_ns - last < self._hot_step:
+                return
+            self._hot_last[topic] = t_ns
         try:
             self._q.put_nowait((topic, row, t_ns))
         except queue.Full:
@@ -248,7 +263,8 @@ class LiveView:
             JSON-ready.
         """
         return {"target": self.target, "url": self.url, "received": self.received, "dropped": self.dropped,
-                "sent": dict(self.sent), "error": self.error}
+                "sent": dict(self.sent), "error": self.error, "thread_cpu_s": round(self.thread_cpu_s, 3),
+                "start_cpu_s": round(self.start_cpu_s, 3)}
 
     def _fail(self, message: str) -> None:
         if self._failed:
@@ -329,6 +345,7 @@ class LiveView:
         except Exception as err:  # any failure of the viewer is reported, never raised into the recording
             self._fail(f"live view off: {err}")
             return
+        self.start_cpu_s = time.thread_time()
         next_probe = time.monotonic() + self.probe_s
         while not self._failed:
             stopping = self._stop.wait(self.batch_s)
@@ -340,6 +357,7 @@ class LiveView:
             except Exception as err:  # noqa: BLE001 - the SDK's errors are reported, not raised
                 self._fail(f"live view stopped: {err}")
                 return
+            self.thread_cpu_s = time.thread_time()
             if stopping:
                 return
             if time.monotonic() >= next_probe:
@@ -376,9 +394,8 @@ class LiveView:
             elif topic == TOPIC_HEADING:
                 self._on_heading(s, row, t)
             elif topic == TOPIC_THRUST:
-                if self._keep("/thrust", t):
-                    s.add("/thrust/left", t, row["left"])
-                    s.add("/thrust/right", t, row["right"])
+                s.add("/thrust/left", t, row["left"])
+                s.add("/thrust/right", t, row["right"])
             elif topic == TOPIC_STATUS:
                 src = re.sub(r"[^A-Za-z0-9_]", "_", str(row["source"])) or "source"
                 s.add(f"/status/{src}/rate_hz", t, row["rate_hz"])
@@ -462,8 +479,7 @@ class LiveView:
 
     def _on_heading(self, s: _Series, row: dict, t: int) -> None:
         psi = self._psi = row["heading_rad"]
-        if self._keep("/heading/compass", t):
-            s.add("/heading/compass", t, math.degrees(psi) % 360.0)
+        s.add("/heading/compass", t, math.degrees(psi) % 360.0)
         if self._predict_to(t):
             std = row.get("std_rad")
             std = std if std is not None and std > 0 else self._settings.compass_fallback_rad
