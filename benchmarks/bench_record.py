@@ -7,6 +7,13 @@ what was sent with what the file holds. Socket drops (kernel receive buffer
 overflow, from /proc/net/udp) are reported apart from losses inside the recorder.
 
     python benchmarks/bench_record.py --rate 2000 --duration-s 30
+    python benchmarks/bench_record.py --rate 2000 --duration-s 30 --view      # + live view to a Rerun server
+    python benchmarks/bench_record.py --rate 2000 --duration-s 20 --compare 2 # without/with --view, alternating
+
+With ``--view`` a Rerun gRPC server (the ``rerun`` binary, bound to 127.0.0.1) receives the
+live stream (``usvlog record --view 127.0.0.1:PORT``); the recorder's CPU % counts every
+thread of its process (the view's thread and the Rerun SDK's own threads too), the
+server's CPU is printed apart.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ import argparse
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -29,30 +37,80 @@ sys.path.insert(0, str(ROOT))
 
 from usvlog.io.mcap import read_log  # noqa: E402
 from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target  # noqa: E402
+from usvlog.view.rrd import rerun_executable  # noqa: E402
+
+
+def _free_tcp_port() -> int:
+    with socket.socket() as sk:
+        sk.bind(("127.0.0.1", 0))
+        return sk.getsockname()[1]
+
+
+def start_viewer():
+    """A Rerun gRPC server on 127.0.0.1 (what ``--view ADDRESS`` connects to): (process, port)."""
+    port = _free_tcp_port()
+    proc = subprocess.Popen([*rerun_executable(), "--serve-grpc", "--bind", "127.0.0.1", "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        with socket.socket() as sk:
+            if sk.connect_ex(("127.0.0.1", port)) == 0:
+                return proc, port
+        time.sleep(0.1)
+    proc.kill()
+    raise SystemExit("the rerun server did not start")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rate", type=float, default=2000.0, help="total messages (datagrams) per second")
     ap.add_argument("--duration-s", type=float, default=30.0)
+    ap.add_argument("--view", action="store_true", help="record with --view to a Rerun server on 127.0.0.1")
+    ap.add_argument("--compare", type=int, default=0, metavar="N",
+                    help="N pairs of runs without and with --view, alternating; prints the CPU added by --view")
     a = ap.parse_args()
+    if not a.compare:
+        return 0 if run(a.rate, a.duration_s, a.view) is not None else 1
+    cpu = {False: [], True: []}
+    for _ in range(a.compare):
+        for view in (False, True):
+            r = run(a.rate, a.duration_s, view)
+            if r is None:
+                return 1
+            cpu[view].append(r["cpu_mean"])
+    off, on = sum(cpu[False]) / len(cpu[False]), sum(cpu[True]) / len(cpu[True])
+    print(f"\nrecorder CPU % (mean of runs) without --view {off:.1f} {cpu[False]}, with --view {on:.1f} {cpu[True]}")
+    print(f"--view adds {on - off:+.1f} percentage points of one core = {100 * (on - off) / off:+.1f} % "
+          f"of the recorder's CPU at {a.rate:.0f} msg/s; load average {os.getloadavg()}")
+    return 0
+
+
+def run(rate: float, duration_s: float, view: bool) -> dict | None:
+    """One recording at ``rate`` msg/s for ``duration_s``; prints its table, returns the CPU figures."""
     # 10% GNSS epochs (GGA + RMC = 2 datagrams each), 10% compass, 80% thrust
-    gnss_hz, compass_hz = a.rate * 0.05, a.rate * 0.10
-    thrust_hz = a.rate - 2 * gnss_hz - compass_hz
+    gnss_hz, compass_hz = rate * 0.05, rate * 0.10
+    thrust_hz = rate - 2 * gnss_hz - compass_hz
     tmp = Path(tempfile.mkdtemp(prefix="bench_record_"))
     out = tmp / "bench.mcap"
     p_nmea, p_json = free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{p_nmea}",
            "--compass", f"udp://127.0.0.1:{p_nmea}", "--thrust", f"udp://127.0.0.1:{p_json}", "--json"]
+    viewer = None
+    if view:
+        viewer, port = start_viewer()
+        cmd += ["--view", f"127.0.0.1:{port}"]
     proc = subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     while not out.exists():
         if proc.poll() is not None:
             print(proc.stderr.read())
-            return 1
+            return None
         time.sleep(0.05)
     ps = psutil.Process(proc.pid)
     ps.cpu_percent(None)
+    vs = psutil.Process(viewer.pid) if viewer is not None else None
+    if vs is not None:
+        vs.cpu_percent(None)
     samples = []
     stop = threading.Event()
 
@@ -71,13 +129,18 @@ def main() -> int:
                         thrust=udp_target(("127.0.0.1", p_json)), gnss_hz=gnss_hz, compass_hz=compass_hz,
                         thrust_hz=thrust_hz)
     t0 = time.monotonic()
-    sent = boat.run(a.duration_s)
+    sent = boat.run(duration_s)
     send_s = time.monotonic() - t0
     time.sleep(1.5)
     stop.set()
     proc.send_signal(signal.SIGINT)
     stdout, stderr = proc.communicate(timeout=60)
     summary = json.loads(stdout)
+    viewer_cpu = None
+    if viewer is not None:
+        viewer_cpu = vs.cpu_percent(None)   # mean over the run
+        viewer.kill()
+        viewer.wait()
     log = read_log(out)
     n_sent = {"gnss (GGA+RMC)": 2 * len(sent.fixes), "compass (HDT)": len(sent.headings),
               "thrust (JSON)": len(sent.thrust)}
@@ -87,8 +150,9 @@ def main() -> int:
              "thrust (JSON)": len(log["/thrust/command"])}
     drops = {s["name"]: s["dropped"] for s in summary["status"]["sources"]}
     total_sent = sum(n_sent.values())
-    print(f"recorder: {' '.join(cmd[1:4])} ... ; sender: {total_sent} datagrams in {send_s:.1f} s "
-          f"= {total_sent / send_s:.0f} msg/s (target {a.rate:.0f})")
+    print(f"recorder: {' '.join(cmd[1:4])} ...{' --view' if view else ''}; sender: {total_sent} datagrams in "
+          f"{send_s:.1f} s "
+          f"= {total_sent / send_s:.0f} msg/s (target {rate:.0f})")
     print(f"{'stream':16s} {'sent':>8s} {'recorded':>9s} {'lost':>6s}")
     for k in n_sent:
         print(f"{k:16s} {n_sent[k]:8d} {n_rec[k]:9d} {n_sent[k] - n_rec[k]:6d}")
@@ -98,12 +162,19 @@ def main() -> int:
     print(f"{'t s':>5s} {'CPU %':>6s} {'RSS MiB':>8s} {'file MiB':>9s}")
     for t, cpu, rss, size in samples:
         print(f"{t:5.0f} {cpu:6.1f} {rss:8.1f} {size:9.2f}")
-    if samples:
-        cpu = [s[1] for s in samples[1:-1]] or [s[1] for s in samples]
-        rss = [s[2] for s in samples]
-        print(f"CPU % mean {sum(cpu) / len(cpu):.1f} (min {min(cpu):.1f}, max {max(cpu):.1f}); "
-              f"RSS first {rss[0]:.1f} MiB, last {rss[-1]:.1f} MiB, max {max(rss):.1f} MiB")
-    return 0
+    if "view" in summary:
+        v = summary["view"]
+        print(f"live view: {v['received']} messages received, {v['dropped']} dropped, error {v['error']}; "
+              f"its thread {v['start_cpu_s']:.2f} CPU-s to start, then "
+              f"{100 * (v['thread_cpu_s'] - v['start_cpu_s']) / duration_s:.1f} % CPU; "
+              f"rerun server CPU % mean {viewer_cpu:.1f}")
+    if not samples:
+        return None
+    cpu = [s[1] for s in samples[3:-1]] or [s[1] for s in samples]   # steady state: not the start-up's imports
+    rss = [s[2] for s in samples]
+    print(f"CPU % mean from the 4th s {sum(cpu) / len(cpu):.1f} (min {min(cpu):.1f}, max {max(cpu):.1f}); "
+          f"RSS first {rss[0]:.1f} MiB, last {rss[-1]:.1f} MiB, max {max(rss):.1f} MiB; load average {os.getloadavg()}")
+    return {"cpu_mean": round(sum(cpu) / len(cpu), 1), "view": summary.get("view")}
 
 
 if __name__ == "__main__":

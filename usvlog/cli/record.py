@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
@@ -28,6 +29,12 @@ def register(sub) -> None:
     p.add_argument("--flush-s", type=float, default=1.0, help="flush+fsync interval (default 1 s)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout at the end")
+    p.add_argument("--view", nargs="?", const="spawn", default=None, metavar="spawn|ADDRESS",
+                   help="stream to a Rerun viewer while recording: 'spawn' (default) starts one, or the address of "
+                        "a running one (rerun+http://HOST:PORT/proxy, HOST:PORT); the recording is unaffected if "
+                        "the viewer goes away")
+    p.add_argument("--view-bind", default="127.0.0.1", metavar="HOST",
+                   help="address the spawned viewer listens on (default 127.0.0.1)")
     p.set_defaults(func=run)
 
 
@@ -63,6 +70,13 @@ def run(args) -> int:
         raise
     tty = sys.stderr.isatty()
     state = {"n": 0}
+    live = None
+    if args.view:
+        try:
+            live = _live_view(args, vessel, tty)
+        except BaseException:   # a bad --view address: exit 2 before recording
+            shutdown(sources)
+            raise
 
     def on_status(st):
         state["n"] += 1
@@ -74,14 +88,38 @@ def run(args) -> int:
     try:
         summary = record(args.out, gnss=args.gnss, compass=args.compass, thrust=args.thrust, vessel=vessel,
                          rotate_mb=args.rotate_mb, rotate_min=args.rotate_min, duration_s=args.duration_s,
-                         force=args.force, flush_s=args.flush_s, stop=stop, on_status=on_status, sources=sources)
+                         force=args.force, flush_s=args.flush_s, stop=stop, on_status=on_status, sources=sources,
+                         subscribers=[] if live is None else [(live, live.topics)])
     finally:
+        if live is not None:
+            live.close()
         if tty:
             print(file=sys.stderr)
     stage(summary.status.line())
     stage(f"wrote {', '.join(summary.files)} ({summary.stopped_by})")
     for name, err in summary.source_errors.items():
         stage(f"source {name}: {err}")
+    out = summary.to_dict()
+    if live is not None:
+        v = out["view"] = live.summary()
+        stage(f"live view {v['url']}: {v['received']} messages received, {v['dropped']} dropped"
+              + ("; stopped early (see above)" if v["error"] else ""))
     if args.json:
-        print_json(summary.to_dict())
+        print_json(out)
     return 0
+
+
+def _live_view(args, vessel, tty: bool):
+    """The live view (``--view``), started; a viewer that fails is reported once, the recording goes on."""
+    from pathlib import Path  # only for the recording's name
+
+    # the SDK's own log lines about a lost connection would repeat what the view reports once
+    os.environ.setdefault("RUST_LOG", "warn,re_grpc_client=off,re_sdk=off")
+    # heavy: rerun and the online filter, only with --view
+    from ..view.live import LiveView
+
+    def on_error(msg):
+        stage(("\n" if tty else "") + msg)
+
+    return LiveView(args.view, bind=args.view_bind, name=Path(args.out).name, vessel=vessel,
+                    on_error=on_error).start()

@@ -142,6 +142,8 @@ class Recorder(LineInput):
         self._last_status_ns = self.now_ns()
         self._last_prov_ns = 0
         self._prov_offsets = 0         # sources with a clock offset in the last provenance record
+        self._subscribers: tuple = ()  # (callback, topics or None); replaced whole, read without the lock
+        self.subscriber_errors: list[str] = []
         self._open_part()
         self._flusher = FlushThread(self.flush_s, self._lock, to_os=self._flush_to_os,
                                     after_sync=self._after_sync, fail=self._fail)
@@ -278,6 +280,49 @@ class Recorder(LineInput):
                 self._out.add_message(topic, data, t, seq)
             self._seq[topic] = seq + 1
             self._written += 1
+        if self._subscribers:
+            self._notify(topic, row, t)
+
+    # -- subscribers ---------------------------------------------------------------
+    def subscribe(self, callback, topics=None) -> None:
+        """Call ``callback(topic, row, t_ns)`` after each message written on ``topics``.
+
+        The callback runs on the writing thread, after the message is in the file's open
+        chunk, so it must return at once (hand the row to a bounded queue, never wait on
+        I/O); ``row`` is the dict written (do not change it). An exception from it
+        unsubscribes it and is kept in :attr:`subscriber_errors`: the recording goes on.
+
+        Parameters
+        ----------
+        callback : callable
+            ``callback(topic: str, row: dict, t_ns: int)``; ``t_ns`` is the receive time,
+            ns since the Unix epoch.
+        topics : iterable of str, optional
+            Topics to pass on (default: every topic).
+        """
+        with self._lock:
+            self._subscribers = (*self._subscribers, (callback, None if topics is None else frozenset(topics)))
+
+    def unsubscribe(self, callback) -> None:
+        """Stop calling ``callback`` (no error when it is not subscribed).
+
+        Parameters
+        ----------
+        callback : callable
+            A callback given to :meth:`subscribe`.
+        """
+        with self._lock:
+            self._subscribers = tuple(s for s in self._subscribers if s[0] is not callback)
+
+    def _notify(self, topic: str, row: dict, t: int) -> None:
+        for callback, topics in self._subscribers:
+            if topics is not None and topic not in topics:
+                continue
+            try:
+                callback(topic, row, t)
+            except Exception as err:  # a subscriber's fault never stops the recording
+                self.unsubscribe(callback)
+                self.subscriber_errors.append(f"{getattr(callback, '__name__', type(callback).__name__)}: {err}")
 
     def _source(self, name: str) -> SourceState:
         s = self._sources.get(name)

@@ -48,7 +48,7 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
            vessel=None, rotate_mb: float | None = None, rotate_min: float | None = None,
            duration_s: float | None = None, force: bool = False, flush_s: float = 1.0,
            stop: threading.Event | None = None, on_status=None, status_every_s: float = 1.0,
-           sources: list[Source] | None = None) -> RecordSummary:
+           sources: list[Source] | None = None, subscribers=()) -> RecordSummary:
     """Record live sources into ``out`` until ``stop`` is set, ``duration_s`` passes or storage fails.
 
     Parameters
@@ -78,6 +78,10 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
         possibly started (``usvlog record`` opens them before its heavy imports); their
         backlog goes into the file with its read times and the receive clock starts when
         the first was opened. Closed here whatever happens.
+    subscribers : iterable of (callable, topics), optional
+        Subscribed to the recorder (:meth:`.recorder.Recorder.subscribe`) before the first
+        message: ``callback(topic, row, t_ns)`` for every message on ``topics`` (None: all).
+        They run on the writing threads and must not block (e.g. a live view's queue).
 
     Returns
     -------
@@ -103,6 +107,8 @@ def record(out, *, gnss: str | None = None, compass: str | None = None, thrust: 
     except Exception:
         shutdown(sources)
         raise
+    for callback, topics in subscribers:
+        rec.subscribe(callback, topics)
     t0 = time.monotonic()
     for s in sources:
         s.attach(rec)
