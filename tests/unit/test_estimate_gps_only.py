@@ -119,13 +119,17 @@ def test_compass_the_import_audit_judged_dead_is_not_fused(turns_10hz):
     assert "compass" not in [r.sensor for r in res.report.sensors]
 
 
-def test_gps_only_dynamic_estimates_heading_through_the_model():
+@pytest.mark.parametrize("scenario,seed", [("excitation", 3), ("turns", 5)])
+def test_gps_only_dynamic_estimates_heading_through_the_model(scenario, seed):
     """Dynamic model, the true vessel and thrust, no compass: heading RMS <= 3 deg at 10 Hz
-    (sideslip included: the model's heading, not the course)."""
-    log = simulate("excitation", SimSettings(duration_s=300.0), seed=3)
+    (sideslip included: the model's heading, not the course), on the excitation zig-zag and
+    on a turning run whose boat turns as it sets off (the first 10 m leg's course is
+    157 deg from the start heading: the start is the kinematic smoother's course)."""
+    log = simulate(scenario, SimSettings(duration_s=300.0), seed=seed)
     res = estimate(_no_compass(log), EstimateSettings(model="dynamic"))
     assert res.report.mode == "gps-only"
-    assert any("through the vessel model" in x for x in res.report.mode_notes())
+    assert any("through the vessel model" in x and "where the boat first moves" in x
+               for x in res.report.mode_notes())
     tr = log["/truth/state"].reindex(res.state.index)
     err = math.degrees(_rms(ssa(res.state["psi_rad"].to_numpy() - tr["psi_rad"].to_numpy())))
     assert err <= 3.0, err

@@ -575,6 +575,44 @@ def course_as_heading(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, gyro: bool,
     return X, SD, PB
 
 
+def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb: Problem) -> Problem:
+    """``pb`` with a better start heading for the dynamic model run on GNSS alone.
+
+    Without a compass the dynamic model's heading is observed only through the track, and
+    a start heading far off (the course of the track's first 10 m leg, see
+    :func:`initial_course`, is tens of degrees from the start heading of a boat that turns
+    as it sets off) costs the forward pass a long transient the smoother does not fully
+    undo. The start heading is instead the course over ground where the boat first moves,
+    from the GNSS-only kinematic smoother (:func:`course_as_heading`) on the same
+    measurements. Other problems are returned as they are.
+
+    Parameters
+    ----------
+    log : FieldLog
+        The run ``pb`` was built from.
+    settings : EstimateSettings
+        The settings ``pb`` was built with (latencies applied as they say).
+    vessel : Vessel
+    pb : Problem
+
+    Returns
+    -------
+    Problem
+        ``pb``, or a copy whose ``x0`` heading (rad) is that course.
+    """
+    if pb.mode != "gps-only" or pb.model != DYNAMIC:
+        return pb
+    ks = gps_only_settings(replace(settings, model="kinematic", current=None, sway_damping=False, tune=False,
+                                   estimate_delays=(), gps_only=True, q_uv=None, q_r=None))
+    kp = build_problem(log, ks, vessel)
+    runner = run_fast if ks.fast else run_reference_path
+    raw = runner(kp, process_noise(ks), ks.max_consecutive_rejects, True)
+    X, _, _ = course_as_heading(raw.XS, raw.SDs, raw.PBs, gyro=True)
+    x0 = pb.x0.copy()
+    x0[kernels.X_PSI] = X[0, kernels.X_PSI]
+    return replace(pb, x0=x0)
+
+
 def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarray:
     """Variance added to the kinematic model's yaw acceleration at each step (N,).
 
@@ -892,7 +930,8 @@ class EstimateReport:
             what = ("heading = course over ground while the boat moves (held below "
                     f"{COURSE_MIN_SPEED_MPS:g} m/s); sideslip is not observable without a heading (v = 0)")
         else:
-            what = "heading estimated through the vessel model from the thrust and the track (sideslip included)"
+            what = ("heading estimated through the vessel model from the thrust and the track (sideslip included), "
+                    "starting from the course over ground where the boat first moves")
         return [f"GNSS only: {self.mode_reason}; {what}"]
 
     @property
@@ -1099,8 +1138,9 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     def search_delays(st: EstimateSettings, q: np.ndarray):
         lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
                                                                        s_.max_consecutive_rejects), given=given)
-        return lat, st, build_problem(log, st, vessel)
+        return lat, st, gps_only_start(log, st, vessel, build_problem(log, st, vessel))
 
+    pb = gps_only_start(log, settings, vessel, pb)
     tuned = None
     if settings.tune:
         if settings.estimate_delays:   # first the delays, so that the tuned noise does not absorb them
