@@ -606,11 +606,39 @@ def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb
                                    estimate_delays=(), gps_only=True, q_uv=None, q_r=None))
     kp = build_problem(log, ks, vessel)
     runner = run_fast if ks.fast else run_reference_path
-    raw = runner(kp, process_noise(ks), ks.max_consecutive_rejects, True)
+    q = process_noise(ks)
+    # smoothed over a head of the run reaching START_MARGIN_S beyond the first moving step
+    # (doubled until it does): the whole run would cost as much as the estimate itself
+    span = int(round(START_HEAD_S / ks.output_step_s))
+    while True:
+        k = min(span, len(kp.dts))
+        raw = runner(head_problem(kp, k), q, ks.max_consecutive_rejects, True)
+        vn, ve = raw.XS[:, kernels.X_VN], raw.XS[:, kernels.X_VE]
+        moving = np.flatnonzero(vn * vn + ve * ve > COURSE_MIN_SPEED_MPS ** 2)
+        t_left = (kp.t_ns[k - 1] - kp.t_ns[moving[0]]) * 1e-9 if len(moving) else 0.0
+        if k == len(kp.dts) or t_left >= START_MARGIN_S:
+            break
+        span *= 2
     X, _, _ = course_as_heading(raw.XS, raw.SDs, raw.PBs, gyro=True)
     x0 = pb.x0.copy()
     x0[kernels.X_PSI] = X[0, kernels.X_PSI]
     return replace(pb, x0=x0)
+
+
+START_HEAD_S = 120.0
+"""First length (s) of the run smoothed for a GNSS-only dynamic start heading (:func:`gps_only_start`)."""
+START_MARGIN_S = 30.0
+"""That head reaches at least this far (s) beyond the boat's first moving step."""
+
+
+def head_problem(pb: Problem, k: int) -> Problem:
+    """The first ``k`` steps of a problem and their measurements (a shorter run)."""
+    if k >= len(pb.dts):
+        return pb
+    sel = pb.mstep < k
+    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                   qjump=pb.qjump[:k], m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel],
+                   mz=pb.mz[sel], mR=pb.mR[sel])
 
 
 def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarray:
@@ -763,14 +791,7 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
         ``q_uv``, ``q_r`` (and ``q_current`` with current states) in the units of
         :class:`EstimateSettings`, ``loglik`` at the optimum, ``evaluations``.
     """
-    if len(pb.dts) > max_steps:
-        k = max_steps
-        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
-                      qjump=pb.qjump[:k],
-                      m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
-                      mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
-    else:
-        sub = pb
+    sub = head_problem(pb, max_steps)
     nx = pb.nx
     start = [math.log10(settings.q_uv_value), math.log10(settings.q_r_value)]
     if settings.model == "dynamic" and nx == 8:
