@@ -135,6 +135,28 @@ def test_gps_only_dynamic_estimates_heading_through_the_model(scenario, seed):
     assert err <= 3.0, err
 
 
+def test_gps_only_dynamic_start_heading_is_the_first_moving_course():
+    """The dynamic model's start heading without a compass: the kinematic smoother's course
+    where the boat first moves (both paths alike), near the true heading, where the first
+    10 m leg of a boat turning as it sets off points far away."""
+    from usvlog.estimate.core import gps_only_start, initial_course
+
+    log = _no_compass(simulate("turns", SimSettings(duration_s=300.0), seed=5))
+    s = EstimateSettings(model="dynamic")
+    pb = build_problem(log, s, default_vessel())
+    g = pb.mkind == 0
+    assert pb.x0[2] == initial_course(pb.m_t_ns[g], pb.mz[g, 0], pb.mz[g, 1])
+    fast = gps_only_start(log, s, default_vessel(), pb)
+    ref = gps_only_start(log, EstimateSettings(model="dynamic", fast=False), default_vessel(), pb)
+    assert abs(fast.x0[2] - ref.x0[2]) < 1e-8
+    np.testing.assert_array_equal(np.delete(fast.x0, 2), np.delete(pb.x0, 2))
+    psi0 = log["/truth/state"]["psi_rad"].iloc[0]
+    assert abs(math.degrees(ssa(pb.x0[2] - psi0))) > 120          # the first leg's course
+    assert abs(math.degrees(ssa(fast.x0[2] - psi0))) < 45         # the first moving course
+    with_compass = build_problem(simulate("turns", SimSettings(duration_s=5.0), seed=5), s, default_vessel())
+    assert gps_only_start(log, s, default_vessel(), with_compass) is with_compass
+
+
 # -----------------------------------------------------------------------------
 # divergence guard
 # -----------------------------------------------------------------------------
