@@ -8,7 +8,10 @@ Runs (seeded, as in tests/unit/test_estimate.py): kinematic, without (``sway_dam
 kinematic without sway damping on a run with four 30 m GPS jumps and a 20 s dropout (seed 6),
 as the README's table rows say; GNSS only (no compass channel): speed and course over ground of
 the kinematic model on turning runs (seeds 3, 5, 11) and on the excitation zig-zag (seed 3), at
-10 and 1 Hz, and the dynamic model's heading (true vessel, 10 Hz).
+10 and 1 Hz, and the dynamic model's (true vessel) heading, course and speed at both rates; per
+run and rate the course of the best linear time-invariant smoother of the fixes fitted to the
+truth (``lti_course_oracle``: roughly what a vessel-free linear smoother can reach).
+``--gps-only`` prints the GNSS-only table alone.
 """
 
 from __future__ import annotations
@@ -22,8 +25,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from usvlog.estimate import EstimateSettings, estimate  # noqa: E402
+from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
 from usvlog.model.frames import ssa  # noqa: E402
+from usvlog.model.vessel import default_vessel  # noqa: E402
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
 
 
@@ -67,7 +71,7 @@ def gps_only(d: float) -> None:
             log = simulate(scen, SimSettings(duration_s=d, sensors=SensorSettings(gps_rate_hz=rate)), seed=seed)
             truth = log["/truth/state"]
             del log.channels["/compass/heading"]
-            for model in ("kinematic", "dynamic") if rate == 10.0 else ("kinematic",):
+            for model in ("kinematic", "dynamic"):
                 res = estimate(log, EstimateSettings(model=model))
                 tr = truth.reindex(res.state.index)
                 (sog, cog), (sog_t, cog_t) = over_ground(res.state), over_ground(tr)
@@ -77,12 +81,42 @@ def gps_only(d: float) -> None:
                 rms_cog = math.degrees(float(np.sqrt(np.mean(ssa(cog - cog_t)[m] ** 2))))
                 print(f"  {scen + ' seed ' + str(seed):28s} {model:9s} {rate:4.0f}Hz {rms_sog:8.4f} {rms_cog:8.2f} "
                       f"{e['psi deg']:8.2f}")
+            print(f"  {'':28s} {'LTI fit':9s} {rate:4.0f}Hz {'':8s} {lti_course_oracle(log, truth):8.2f}"
+                  "  (oracle: linear FIR of the fixes fitted to the truth; 2nd half)")
+
+
+def lti_course_oracle(log, truth, half_width_s: float = 12.0) -> float:
+    """Course RMS (deg, true speed > 0.5 m/s) of the best linear time-invariant smoother of the
+    GNSS fixes: one FIR of +-half_width_s on n and e, fitted to the true NED velocity by least
+    squares on the first half of the run, scored on the second: an oracle for what a linear,
+    vessel-free smoother of the fixes can reach in steady state (not a strict bound: another
+    stretch of the run, and at 1 Hz its +-12 s window is short)."""
+    pb = build_problem(log, EstimateSettings(gps_only=True), default_vessel())
+    g = pb.mkind == 0
+    n, e = pb.mz[g, 0], pb.mz[g, 1]
+    tr = truth.reindex(pb.m_t_ns[g])
+    sog_t, cog_t = over_ground(tr)
+    vn, ve = sog_t * np.cos(cog_t), sog_t * np.sin(cog_t)
+    L = int(round(half_width_s / (float(np.median(np.diff(pb.m_t_ns[g]))) * 1e-9)))
+    idx = np.arange(L, len(n) - L)
+    win = idx[:, None] + np.arange(-L, L + 1)
+    An, Ae = n[win] - n[idx, None], e[win] - e[idx, None]
+    h = len(idx) // 2
+    w = np.linalg.lstsq(np.vstack([An[:h], Ae[:h]]), np.concatenate([vn[idx][:h], ve[idx][:h]]), rcond=None)[0]
+    pn, pe, tn, te = An[h:] @ w, Ae[h:] @ w, vn[idx][h:], ve[idx][h:]
+    m = np.hypot(tn, te) > 0.5
+    return math.degrees(float(np.sqrt(np.mean(ssa(np.arctan2(pe, pn) - np.arctan2(te, tn))[m] ** 2))))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration-s", type=float, default=300.0)
-    d = ap.parse_args().duration_s
+    ap.add_argument("--gps-only", action="store_true", help="only the GNSS-only table")
+    args = ap.parse_args()
+    d = args.duration_s
+    if args.gps_only:
+        gps_only(d)
+        return
     log = simulate("excitation", SimSettings(duration_s=d), seed=3)
     table("kinematic model without sway damping, still water (seed 3)",
           estimate(log, EstimateSettings(sway_damping=False)), log["/truth/state"])

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,17 +26,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
-from usvlog.estimate.core import gps_only_settings, process_noise, run_fast, run_reference_path  # noqa: E402
+from usvlog.estimate.core import (  # noqa: E402
+    gps_only_settings,
+    head_problem,
+    process_noise,
+    run_fast,
+    run_reference_path,
+)
 from usvlog.model.vessel import default_vessel  # noqa: E402
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
-
-
-def head(pb, k):
-    """The first k steps of a problem."""
-    sel = pb.mstep < k
-    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k], qjump=pb.qjump[:k],
-                   m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel], mz=pb.mz[sel],
-                   mR=pb.mR[sel])
 
 
 def main() -> None:
@@ -73,7 +70,7 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
     print(f"mode {pb.mode}; build_problem {t_build:.2f} s [{c_build:.2f} s]")
     q = process_noise(s)
     n = len(pb.dts)
-    run_fast(head(pb, 1000), q, s.max_consecutive_rejects, True)   # compile / load the cache
+    run_fast(head_problem(pb, 1000), q, s.max_consecutive_rejects, True)   # compile / load the cache
 
     t, c = time.perf_counter(), time.process_time()
     fast = run_fast(pb, q, s.max_consecutive_rejects, True)
@@ -85,7 +82,7 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
 
     k = n if reference_s is None else min(n, int(reference_s / s.output_step_s))
     t, c = time.perf_counter(), time.process_time()
-    ref = run_reference_path(head(pb, k), q, s.max_consecutive_rejects, True)
+    ref = run_reference_path(head_problem(pb, k), q, s.max_consecutive_rejects, True)
     t_ref, c_ref = (time.perf_counter() - t) * n / k, (time.process_time() - c) * n / k
 
     real = (pb.t_ns[-1] - pb.t_ns[0]) * 1e-9

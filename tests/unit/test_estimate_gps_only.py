@@ -119,16 +119,42 @@ def test_compass_the_import_audit_judged_dead_is_not_fused(turns_10hz):
     assert "compass" not in [r.sensor for r in res.report.sensors]
 
 
-def test_gps_only_dynamic_estimates_heading_through_the_model():
+@pytest.mark.parametrize("scenario,seed", [("excitation", 3), ("turns", 5)])
+def test_gps_only_dynamic_estimates_heading_through_the_model(scenario, seed):
     """Dynamic model, the true vessel and thrust, no compass: heading RMS <= 3 deg at 10 Hz
-    (sideslip included: the model's heading, not the course)."""
-    log = simulate("excitation", SimSettings(duration_s=300.0), seed=3)
+    (sideslip included: the model's heading, not the course), on the excitation zig-zag and
+    on a turning run whose boat turns as it sets off (the first 10 m leg's course is
+    157 deg from the start heading: the start is the kinematic smoother's course)."""
+    log = simulate(scenario, SimSettings(duration_s=300.0), seed=seed)
     res = estimate(_no_compass(log), EstimateSettings(model="dynamic"))
     assert res.report.mode == "gps-only"
-    assert any("through the vessel model" in x for x in res.report.mode_notes())
+    assert any("through the vessel model" in x and "where the boat first moves" in x
+               for x in res.report.mode_notes())
     tr = log["/truth/state"].reindex(res.state.index)
     err = math.degrees(_rms(ssa(res.state["psi_rad"].to_numpy() - tr["psi_rad"].to_numpy())))
     assert err <= 3.0, err
+
+
+def test_gps_only_dynamic_start_heading_is_the_first_moving_course():
+    """The dynamic model's start heading without a compass: the kinematic smoother's course
+    where the boat first moves (both paths alike), near the true heading, where the first
+    10 m leg of a boat turning as it sets off points far away."""
+    from usvlog.estimate.core import gps_only_start, initial_course
+
+    log = _no_compass(simulate("turns", SimSettings(duration_s=300.0), seed=5))
+    s = EstimateSettings(model="dynamic")
+    pb = build_problem(log, s, default_vessel())
+    g = pb.mkind == 0
+    assert pb.x0[2] == initial_course(pb.m_t_ns[g], pb.mz[g, 0], pb.mz[g, 1])
+    fast = gps_only_start(log, s, default_vessel(), pb)
+    ref = gps_only_start(log, EstimateSettings(model="dynamic", fast=False), default_vessel(), pb)
+    assert abs(fast.x0[2] - ref.x0[2]) < 1e-8
+    np.testing.assert_array_equal(np.delete(fast.x0, 2), np.delete(pb.x0, 2))
+    psi0 = log["/truth/state"]["psi_rad"].iloc[0]
+    assert abs(math.degrees(ssa(pb.x0[2] - psi0))) > 120          # the first leg's course
+    assert abs(math.degrees(ssa(fast.x0[2] - psi0))) < 45         # the first moving course
+    with_compass = build_problem(simulate("turns", SimSettings(duration_s=5.0), seed=5), s, default_vessel())
+    assert gps_only_start(log, s, default_vessel(), with_compass) is with_compass
 
 
 # -----------------------------------------------------------------------------

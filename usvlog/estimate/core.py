@@ -575,6 +575,72 @@ def course_as_heading(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, gyro: bool,
     return X, SD, PB
 
 
+def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb: Problem) -> Problem:
+    """``pb`` with a better start heading for the dynamic model run on GNSS alone.
+
+    Without a compass the dynamic model's heading is observed only through the track, and
+    a start heading far off (the course of the track's first 10 m leg, see
+    :func:`initial_course`, is tens of degrees from the start heading of a boat that turns
+    as it sets off) costs the forward pass a long transient the smoother does not fully
+    undo. The start heading is instead the course over ground where the boat first moves,
+    from the GNSS-only kinematic smoother (:func:`course_as_heading`) on the same
+    measurements. Other problems are returned as they are.
+
+    Parameters
+    ----------
+    log : FieldLog
+        The run ``pb`` was built from.
+    settings : EstimateSettings
+        The settings ``pb`` was built with (latencies applied as they say).
+    vessel : Vessel
+    pb : Problem
+
+    Returns
+    -------
+    Problem
+        ``pb``, or a copy whose ``x0`` heading (rad) is that course.
+    """
+    if pb.mode != "gps-only" or pb.model != DYNAMIC:
+        return pb
+    ks = gps_only_settings(replace(settings, model="kinematic", current=None, sway_damping=False, tune=False,
+                                   estimate_delays=(), gps_only=True, q_uv=None, q_r=None))
+    kp = build_problem(log, ks, vessel)
+    runner = run_fast if ks.fast else run_reference_path
+    q = process_noise(ks)
+    # smoothed over a head of the run reaching START_MARGIN_S beyond the first moving step
+    # (doubled until it does): the whole run would cost as much as the estimate itself
+    span = int(round(START_HEAD_S / ks.output_step_s))
+    while True:
+        k = min(span, len(kp.dts))
+        raw = runner(head_problem(kp, k), q, ks.max_consecutive_rejects, True)
+        vn, ve = raw.XS[:, kernels.X_VN], raw.XS[:, kernels.X_VE]
+        moving = np.flatnonzero(vn * vn + ve * ve > COURSE_MIN_SPEED_MPS ** 2)
+        t_left = (kp.t_ns[k - 1] - kp.t_ns[moving[0]]) * 1e-9 if len(moving) else 0.0
+        if k == len(kp.dts) or t_left >= START_MARGIN_S:
+            break
+        span *= 2
+    X, _, _ = course_as_heading(raw.XS, raw.SDs, raw.PBs, gyro=True)
+    x0 = pb.x0.copy()
+    x0[kernels.X_PSI] = X[0, kernels.X_PSI]
+    return replace(pb, x0=x0)
+
+
+START_HEAD_S = 120.0
+"""First length (s) of the run smoothed for a GNSS-only dynamic start heading (:func:`gps_only_start`)."""
+START_MARGIN_S = 30.0
+"""That head reaches at least this far (s) beyond the boat's first moving step."""
+
+
+def head_problem(pb: Problem, k: int) -> Problem:
+    """The first ``k`` steps of a problem and their measurements (a shorter run)."""
+    if k >= len(pb.dts):
+        return pb
+    sel = pb.mstep < k
+    return replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
+                   qjump=pb.qjump[:k], m_t_ns=pb.m_t_ns[sel], mstep=pb.mstep[sel], mkind=pb.mkind[sel],
+                   mz=pb.mz[sel], mR=pb.mR[sel])
+
+
 def yaw_jump_variance(tau_r: np.ndarray, settings: EstimateSettings) -> np.ndarray:
     """Variance added to the kinematic model's yaw acceleration at each step (N,).
 
@@ -725,14 +791,7 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
         ``q_uv``, ``q_r`` (and ``q_current`` with current states) in the units of
         :class:`EstimateSettings`, ``loglik`` at the optimum, ``evaluations``.
     """
-    if len(pb.dts) > max_steps:
-        k = max_steps
-        sub = replace(pb, t_ns=pb.t_ns[:k], is_grid=pb.is_grid[:k], dts=pb.dts[:k], taus=pb.taus[:k],
-                      qjump=pb.qjump[:k],
-                      m_t_ns=pb.m_t_ns[pb.mstep < k], mstep=pb.mstep[pb.mstep < k],
-                      mkind=pb.mkind[pb.mstep < k], mz=pb.mz[pb.mstep < k], mR=pb.mR[pb.mstep < k])
-    else:
-        sub = pb
+    sub = head_problem(pb, max_steps)
     nx = pb.nx
     start = [math.log10(settings.q_uv_value), math.log10(settings.q_r_value)]
     if settings.model == "dynamic" and nx == 8:
@@ -892,7 +951,8 @@ class EstimateReport:
             what = ("heading = course over ground while the boat moves (held below "
                     f"{COURSE_MIN_SPEED_MPS:g} m/s); sideslip is not observable without a heading (v = 0)")
         else:
-            what = "heading estimated through the vessel model from the thrust and the track (sideslip included)"
+            what = ("heading estimated through the vessel model from the thrust and the track (sideslip included), "
+                    "starting from the course over ground where the boat first moves")
         return [f"GNSS only: {self.mode_reason}; {what}"]
 
     @property
@@ -1099,8 +1159,9 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     def search_delays(st: EstimateSettings, q: np.ndarray):
         lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
                                                                        s_.max_consecutive_rejects), given=given)
-        return lat, st, build_problem(log, st, vessel)
+        return lat, st, gps_only_start(log, st, vessel, build_problem(log, st, vessel))
 
+    pb = gps_only_start(log, settings, vessel, pb)
     tuned = None
     if settings.tune:
         if settings.estimate_delays:   # first the delays, so that the tuned noise does not absorb them
