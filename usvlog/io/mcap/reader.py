@@ -1158,6 +1158,17 @@ _RELEASE_BYTES = 8 << 20    # a memory-mapped file drops the pages behind the wa
 _WINDOW_BYTES = 8 << 20      # top-level records walked at a time when streaming (bytes)
 
 
+def _first_definitions(defined: dict, cid: np.ndarray) -> np.ndarray:
+    """``defined.get(c, -1)`` for every channel id in ``cid`` (ids >= 0), by a table lookup."""
+    if not len(cid):
+        return np.zeros(0, dtype=np.int64)
+    table = np.full(int(cid.max()) + 1, -1, dtype=np.int64)
+    for c, o in defined.items():
+        if c < len(table):
+            table[c] = o
+    return table[cid]
+
+
 class ChunkStream:
     """Verified chunks of an MCAP file, one at a time (see :func:`iter_chunks`).
 
@@ -1232,15 +1243,13 @@ class ChunkStream:
         pending = []   # messages on a channel not (yet) defined: resolved at the end
         for records, msgs, at, t0, t1 in _walk(scan, data, self._release, _WINDOW_BYTES, skip):
             cid, seq, t, ps, pe, ordinal = msgs
-            known = np.array([c in scan.defined for c in cid.tolist()], dtype=bool) if len(cid) else cid.astype(bool)
+            first = _first_definitions(scan.defined, cid)   # ordinal of each one's channel record, -1: none yet
+            known = first >= 0
             if not known.all():
                 later = ~known
                 pending.append((np.array(records[:pe[later].max()]) if at >= 0 else records,
                                 at, t0, t1, cid[later], seq[later], t[later], ps[later], pe[later], ordinal[later]))
-            keep = known.copy()
-            if known.any():
-                first = np.array([scan.defined.get(c, -1) for c in cid.tolist()], dtype=np.int64)
-                keep &= ordinal > first
+            keep = known & (ordinal > first)
             if keep.any():
                 yield records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep], ordinal[keep]
         _finish_windowed(scan, data, self._release_all)
@@ -1264,8 +1273,10 @@ class ChunkStream:
         self._done = True
 
     def _chunk(self, records, at, t0, t1, cid, seq, t, ps, pe) -> Chunk:
-        canon = self.channels
-        counted = np.array([c in canon and canon[c].canonical for c in cid.tolist()], dtype=bool)
+        scan = self._scan
+        canon = [c for c, ch in scan.channels.items() if ch.encoding == MESSAGE_ENCODING
+                 and scan.schemas.get(ch.schema_id, ("", "", b""))[1] == SCHEMA_ENCODING]
+        counted = np.isin(cid, canon)
         if counted.any():
             tc = t[counted]
             self._n_msgs += int(counted.sum())
