@@ -659,7 +659,7 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun
     """
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
-    PP = np.empty((N if smoother else 1, nx, nx))
+    PP = np.empty((N if smoother else 1, nx * (nx + 1) // 2))   # posteriors' upper triangles, for the smoother
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
     resets = np.zeros(N, np.int8)
@@ -689,10 +689,10 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     """Innovation log-likelihood of the forward pass (no covariances stored)."""
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X = np.empty((N, nx))
-    one = np.empty((1, nx, nx))
+    one = np.empty((1, nx * (nx + 1) // 2))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR,
                                  pb.prm, pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
-                                 X, one, one[:, 0], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
+                                 X, one, one[:, :nx], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
                                  np.zeros(N, np.int8)))
 
 
