@@ -1177,13 +1177,19 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid
-    XS, SDs, PBs, Xf, SDf, PBf = raw.XS[g], raw.SDs[g], raw.PBs[g], raw.X[g], raw.SDf[g], raw.PBf[g]
-    if pb.mode == "gps-only" and pb.model == KINEMATIC:
-        gyro = bool((pb.mkind == YAW_RATE).any())
-        XS, SDs, PBs = course_as_heading(XS, SDs, PBs, gyro)
-        Xf, SDf, PBf = course_as_heading(Xf, SDf, PBf, gyro)
-    state = _state_frame(XS, SDs, PBs, pb.t_ns[g], pb.model)
-    forward = _state_frame(Xf, SDf, PBf, pb.t_ns[g], pb.model)
+    gyro = bool((pb.mkind == YAW_RATE).any())
+
+    def grid_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
+        # one frame at a time: its grid rows are copied only while it is built (memory)
+        X, SD, PB = X[g], SD[g], PB[g]
+        if pb.mode == "gps-only" and pb.model == KINEMATIC:
+            X, SD, PB = course_as_heading(X, SD, PB, gyro)
+        return _state_frame(X, SD, PB, pb.t_ns[g], pb.model)
+    gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
+    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
+    raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
+    forward = grid_frame(raw.X, raw.SDf, raw.PBf)
+    raw = replace(raw, X=gone, SDf=gone, PBf=gone)
     innov = frame_from_columns(
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
