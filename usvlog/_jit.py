@@ -28,19 +28,22 @@ runs everything as plain Python, as numba documents.
 Functions meant to be called both from Python and from kernels are marked with
 :func:`jitable` (numba's ``register_jitable``): they are compiled into each calling
 kernel, so their callers' cache entries are covered by the same hash.
+
+Nothing here imports numba until a kernel is first called: :func:`njit` returns a lazy
+kernel (the numba dispatcher is made, and its machine code loaded from the cache, on the
+first call) and :func:`jitable` only notes the function, registering it with numba when
+numba is loaded. A verb that never calls a kernel does not pay numba's import (~0.3 s).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import shutil
+import sys
 import tempfile
 import time
-
-from numba import njit as _numba_njit
-from numba.core import config as _numba_config
-from numba.extending import register_jitable as _register_jitable
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 KEEP_DIRS = 8             # hash directories kept (most recently used first)
@@ -96,8 +99,10 @@ def cache_parent() -> str:
         ``$NUMBA_CACHE_DIR/usvlog`` when ``NUMBA_CACHE_DIR`` is set (as numba read it at
         import), else ``<user cache dir>/usvlog/numba``.
     """
-    if _numba_config.CACHE_DIR:
-        return os.path.join(_numba_config.CACHE_DIR, "usvlog")
+    from numba.core import config as numba_config  # heavy: numba, only once a kernel is needed
+
+    if numba_config.CACHE_DIR:
+        return os.path.join(numba_config.CACHE_DIR, "usvlog")
     from numba.misc.appdirs import AppDirs
 
     return os.path.join(AppDirs("usvlog", appauthor=False).user_cache_dir, "numba")
@@ -149,11 +154,77 @@ def cache_dir() -> str:
     return _cache_dir
 
 
+def _compile(fn, kw: dict):
+    """The numba dispatcher of ``fn`` with the cache keyed on the package source."""
+    from numba import njit as numba_njit  # heavy: numba, only when a kernel is first called
+    from numba.core import config as numba_config
+
+    _register_pending()
+    kw = dict(kw)
+    kw.setdefault("cache", True)
+    if not kw["cache"] or numba_config.DISABLE_JIT:
+        return numba_njit(**kw)(fn)
+    path = cache_dir()
+    if not path:
+        kw["cache"] = False
+        return numba_njit(**kw)(fn)
+    # numba's user-provided locator reads config.CACHE_DIR when the dispatcher's cache is
+    # made (inside the decorator): point it at our directory for just that moment
+    saved = numba_config.CACHE_DIR
+    numba_config.CACHE_DIR = path
+    try:
+        return numba_njit(**kw)(fn)
+    finally:
+        numba_config.CACHE_DIR = saved
+
+
+class _LazyKernel:
+    """A kernel whose numba dispatcher is made on its first call (see :func:`njit`).
+
+    Calls, attributes and numba's typing (a kernel calling this one) go to the dispatcher;
+    ``py_func``, the name and the docstring are the Python function's, without numba."""
+
+    def __init__(self, fn, kw: dict):
+        functools.update_wrapper(self, fn)
+        self.py_func = fn
+        self._kw = kw
+        self._dispatcher = None
+
+    @property
+    def dispatcher(self):
+        """The numba dispatcher (made, and numba imported, on first use)."""
+        d = self._dispatcher
+        if d is None:
+            d = self._dispatcher = _compile(self.py_func, self._kw)
+            # later calls through the defining module's name skip this wrapper
+            mod = sys.modules.get(self.py_func.__module__)
+            if mod is not None and getattr(mod, self.py_func.__name__, None) is self:
+                setattr(mod, self.py_func.__name__, d)
+        return d
+
+    @property
+    def _numba_type_(self):
+        # numba's typeof() asks for this when a kernel refers to this one
+        return self.dispatcher._numba_type_
+
+    def __call__(self, *args, **kwargs):
+        return self.dispatcher(*args, **kwargs)
+
+    def __getattr__(self, name):
+        if name.startswith("__") or name in ("_dispatcher", "_kw", "py_func"):
+            raise AttributeError(name)
+        return getattr(self.dispatcher, name)
+
+    def __repr__(self) -> str:
+        return f"<lazy kernel {self.py_func.__module__}.{self.py_func.__qualname__}>"
+
+
 def njit(fn=None, **kw):
     """numba's ``njit`` with the cache keyed on the package source (see the module doc).
 
     Use as ``@njit``, ``@njit(**options)`` or ``njit(fn)``; the options are numba's.
-    ``cache`` defaults to True.
+    ``cache`` defaults to True. numba is imported and the dispatcher made on the first
+    call, not here.
 
     Parameters
     ----------
@@ -164,30 +235,31 @@ def njit(fn=None, **kw):
 
     Returns
     -------
-    numba dispatcher (or ``fn`` itself with ``NUMBA_DISABLE_JIT=1``), or a decorator when
-    ``fn`` is None.
+    A lazy kernel calling the numba dispatcher (or ``fn`` itself with
+    ``NUMBA_DISABLE_JIT=1``), or a decorator when ``fn`` is None.
     """
     if fn is None:
         return lambda f: njit(f, **kw)
-    kw.setdefault("cache", True)
-    if not kw["cache"] or _numba_config.DISABLE_JIT:
-        return _numba_njit(**kw)(fn)
-    path = cache_dir()
-    if not path:
-        kw["cache"] = False
-        return _numba_njit(**kw)(fn)
-    # numba's user-provided locator reads config.CACHE_DIR when the dispatcher's cache is
-    # made (inside the decorator): point it at our directory for just that moment
-    saved = _numba_config.CACHE_DIR
-    _numba_config.CACHE_DIR = path
-    try:
-        return _numba_njit(**kw)(fn)
-    finally:
-        _numba_config.CACHE_DIR = saved
+    return _LazyKernel(fn, kw)
+
+
+_pending: list = []          # jitable functions not registered with numba yet
+_registered = [False]        # numba loaded and the pending functions registered
+
+
+def _register_pending() -> None:
+    from numba.extending import register_jitable  # heavy: numba, only when a kernel is first called
+
+    _registered[0] = True
+    while _pending:
+        register_jitable(_pending.pop(0))
 
 
 def jitable(fn):
     """Mark ``fn`` as callable from kernels too (numba's ``register_jitable``).
+
+    Registered with numba when numba is loaded (at the first kernel call), so defining
+    one does not import numba.
 
     Parameters
     ----------
@@ -199,7 +271,10 @@ def jitable(fn):
     callable
         ``fn`` itself (unchanged in Python); kernels that call it compile it in.
     """
-    return _register_jitable(fn)
+    _pending.append(fn)
+    if _registered[0]:
+        _register_pending()
+    return fn
 
 
 __all__ = ["cache_dir", "cache_parent", "jitable", "njit", "source_hash"]

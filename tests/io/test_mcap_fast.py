@@ -458,3 +458,33 @@ def test_damaged_bytes_read_the_same_both_ways(tmp_path, compression, chunked):
             assert_logs_equal(outcomes[0], outcomes[1])
         else:
             assert outcomes[0] == outcomes[1]
+
+
+def test_topics_skip_the_chunks_that_hold_none_of_them(tmp_path):
+    """read_log(topics=...) loads what the full read loads for those topics, and does not read
+    a chunk the chunk index shows holds none of them: damage there is not met."""
+    data = bytearray(_plain_writer_file(CompressionType.ZSTD))
+    chunks = []   # (offset of the chunk's compressed records, their length, topics of its messages)
+    with io.BytesIO(bytes(data)) as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        topic_of = {c.id: c.topic for c in summary.channels.values()}
+        for ci in summary.chunk_indexes:
+            rec = data[ci.chunk_start_offset:ci.chunk_start_offset + ci.chunk_length]
+            chunks.append((ci.chunk_start_offset + len(rec) - ci.compressed_size, ci.compressed_size,
+                           {topic_of.get(c, "?") for c in ci.message_index_offsets}))
+    a_only = [c for c in chunks if c[2] == {"/a"}]
+    assert a_only and any("/b" in c[2] for c in chunks)
+    p = tmp_path / "plain.mcap"
+    p.write_bytes(bytes(data))
+    full, only_b = read_log(p), read_log(p, topics=["/b"])
+    assert list(only_b.channels) == ["/b"] and only_b.recovery is None
+    pd.testing.assert_frame_equal(only_b["/b"], full["/b"], check_exact=True)
+    at, size, _ = a_only[0]
+    data[at + size // 2] ^= 0xFF          # damage inside a chunk of /a messages only
+    p.write_bytes(bytes(data))
+    full = read_log(p)
+    assert full.recovery is not None and len(full.recovery.lost_chunks) == 1
+    only_b = read_log(p, topics=["/b"])
+    assert not (only_b.recovery and only_b.recovery.lost_chunks)   # the damaged chunk was not read
+    pd.testing.assert_frame_equal(only_b["/b"], full["/b"], check_exact=True)

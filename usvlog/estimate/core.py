@@ -725,7 +725,7 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun
     """
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
-    PP = np.empty((N if smoother else 1, nx, nx))
+    PP = np.empty((N if smoother else 1, nx * (nx + 1) // 2))   # posteriors' upper triangles, for the smoother
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
     resets = np.zeros(N, np.int8)
@@ -755,10 +755,10 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
     """Innovation log-likelihood of the forward pass (no covariances stored)."""
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     X = np.empty((N, nx))
-    one = np.empty((1, nx, nx))
+    one = np.empty((1, nx * (nx + 1) // 2))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR,
                                  pb.prm, pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
-                                 X, one, one[:, 0], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
+                                 X, one, one[:, :nx], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
                                  np.zeros(N, np.int8)))
 
 
@@ -1238,13 +1238,19 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
     g = pb.is_grid
-    XS, SDs, PBs, Xf, SDf, PBf = raw.XS[g], raw.SDs[g], raw.PBs[g], raw.X[g], raw.SDf[g], raw.PBf[g]
-    if pb.mode == "gps-only" and pb.model == KINEMATIC:
-        gyro = bool((pb.mkind == YAW_RATE).any())
-        XS, SDs, PBs = course_as_heading(XS, SDs, PBs, gyro)
-        Xf, SDf, PBf = course_as_heading(Xf, SDf, PBf, gyro)
-    state = _state_frame(XS, SDs, PBs, pb.t_ns[g], pb.model)
-    forward = _state_frame(Xf, SDf, PBf, pb.t_ns[g], pb.model)
+    gyro = bool((pb.mkind == YAW_RATE).any())
+
+    def grid_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
+        # one frame at a time: its grid rows are copied only while it is built (memory)
+        X, SD, PB = X[g], SD[g], PB[g]
+        if pb.mode == "gps-only" and pb.model == KINEMATIC:
+            X, SD, PB = course_as_heading(X, SD, PB, gyro)
+        return _state_frame(X, SD, PB, pb.t_ns[g], pb.model)
+    gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
+    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
+    raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
+    forward = grid_frame(raw.X, raw.SDf, raw.PBf)
+    raw = replace(raw, X=gone, SDf=gone, PBf=gone)
     innov = frame_from_columns(
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),

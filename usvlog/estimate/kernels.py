@@ -308,7 +308,8 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
             pos_var_limit, reinit_nis, X, PP, SD, PB, innov, accepted, resets):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
-    Stores the posterior of every step in X[k], PP[k], its one-sigma in SD[k] and the
+    Stores the posterior of every step in X[k], PP[k] (the upper triangle of P, row by row:
+    nx (nx + 1) / 2 values), its one-sigma in SD[k] and the
     covariance block of states PB_FIRST.. (PB_SIZE) in PB[k] (PP, SD, PB may have length 1:
     not stored), per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
@@ -379,10 +380,12 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
             resets[k] = why
         for a in range(nx):
             X[k, a] = x[a]
-        if store:
+        if store:   # the upper triangle, row by row (P is symmetric: predict and update write both halves)
+            i = 0
             for a in range(nx):
-                for b in range(nx):
-                    PP[k, a, b] = P[a, b]
+                for b in range(a, nx):
+                    PP[k, i] = P[a, b]
+                    i += 1
         if SD.shape[0] == N:
             for a in range(nx):
                 SD[k, a] = math.sqrt(max(P[a, a], 0.0))
@@ -421,6 +424,18 @@ def _chol_solve(L, inv, A, B, X):
 
 
 @njit
+def _unpack(tri, P):
+    """The symmetric matrix P from its upper triangle stored row by row (as :func:`forward` stores it)."""
+    n = P.shape[0]
+    i = 0
+    for a in range(n):
+        for b in range(a, n):
+            P[a, b] = tri[i]
+            P[b, a] = tri[i]
+            i += 1
+
+
+@njit
 def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
     """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
     with the same prediction as the forward pass. Writes the smoothed states in XS,
@@ -438,7 +453,9 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
     Ct = np.zeros((nx, nx))
     L = np.zeros((nx, nx))
     inv = np.zeros(nx)
-    Ps = PP[N - 1].copy()
+    Ps = np.zeros((nx, nx))
+    _unpack(PP[N - 1], Ps)
+    Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
     for a in range(nx):
@@ -448,7 +465,7 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
         for b in range(PB_SIZE):
             PB[N - 1, a, b] = Ps[PB_FIRST + a, PB_FIRST + b]
     for k in range(N - 2, -1, -1):
-        Pk = PP[k]
+        _unpack(PP[k], Pk)
         xk = X[k]
         if resets[k + 1] != 0:   # a restart: a new segment ends at k
             for a in range(nx):

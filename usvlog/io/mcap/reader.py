@@ -8,9 +8,13 @@ loaded. After any damaged record the walk resumes at the next chunk that checks 
 survive; else the bytes are searched for a chunk header whose fields agree and whose
 CRC checks out), so every intact chunk is kept wherever the damage is. A message that
 does not decode costs that message only. What was lost is reported
-(:class:`usvlog.log.fieldlog.RecoveryReport`). ``_scan_fast`` walks
-records and messages into arrays with compiled loops (:mod:`.kernels`);
-:func:`.reference._scan_reference` is the plain reading the tests compare it with.
+(:class:`usvlog.log.fieldlog.RecoveryReport`). Records and messages are walked into
+arrays with compiled loops (:mod:`.kernels`); :func:`read_log` decodes the messages a group
+of chunks at a time as the walk goes (:class:`ChunkStream`), so its memory is the decoded
+frames plus a bounded buffer whatever the file's size, and with ``topics`` it skips the
+chunks the summary's chunk index shows hold none of them. ``_scan_fast`` is the same walk
+into one buffer of every message (``scan_file``); :func:`.reference._scan_reference` is the
+plain reading the tests compare them with.
 """
 
 from __future__ import annotations
@@ -511,7 +515,7 @@ def _fast_chunk(mv, K, off: int, nxt: int):
     return chunk, m, cid, seq, t, ps, pe, parsed
 
 
-def _walk(scan: _Scan, data, release=None, window: int | None = None):
+def _walk(scan: _Scan, data, release=None, window: int | None = None, skip: frozenset = frozenset()):
     """Walk an MCAP file's records, checking every chunk: yields one batch of messages per
     chunk that checks out (and per run of messages outside chunks), in file order.
 
@@ -523,7 +527,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None):
     ``at`` the chunk record's offset (-1 outside chunks) and ``t0``/``t1`` its time range.
     Schemas, channels and metadata go into ``scan`` as they are met; after a damaged
     record the walk goes on at the next chunk that checks out (:func:`_resync`) and the
-    damaged range is recorded (:func:`_note_region`). ``_layout`` must have run;
+    damaged range is recorded (:func:`_note_region`). Chunks at the offsets in ``skip``
+    (see :func:`_chunks_without`) are passed over unread. ``_layout`` must have run;
     ``_finish`` runs after. ``release(offset)``, when given, is called as the walk passes
     an offset it will not read again (a memory map drops its pages there); ``window``
     (bytes), when given, walks the top-level records that many bytes at a time (or one
@@ -574,7 +579,9 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None):
             batch = None
             if why is None:
                 try:
-                    if op == OP_CHUNK:
+                    if op == OP_CHUNK and off in skip:
+                        pass
+                    elif op == OP_CHUNK:
                         chunk, m, cid, seq, t, ps, pe, parsed = _fast_chunk(mv, K, off, nxt)
                         for j, pr in parsed:
                             if pr is not None:
@@ -601,8 +608,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None):
             if why is not None:
                 bad_i = i
                 break
-            if batch is not None:
-                if len(batch[1][0]):
+            if op == OP_CHUNK:
+                if batch is not None and len(batch[1][0]):
                     yield batch
                 if release is not None:
                     release(nxt)
@@ -631,6 +638,25 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None):
         if release is not None:
             release(resume)
         pos, base = resume, base + n + 1
+
+
+def _chunks_wanted(scan: _Scan, topics) -> set[int]:
+    """Ids of the summary's channels on ``topics``."""
+    assert scan.summary is not None
+    return {cid for cid, (topic, _sid, _enc) in scan.summary.channels.items() if topic in topics}
+
+
+def _chunks_without(scan: _Scan, topics) -> frozenset:
+    """Offsets of the chunks that hold no message of ``topics`` by the summary's chunk
+    index (its CRC checked); none without a summary or when ``topics`` is None.
+
+    Such a chunk is not read: it is neither decompressed nor checked, and a channel or
+    schema record in it is taken from the summary's copy."""
+    s = scan.summary
+    if topics is None or s is None or not s.chunks:
+        return frozenset()
+    wanted = _chunks_wanted(scan, topics)
+    return frozenset(off for off, (_size, _t0, _t1, cids) in s.chunks.items() if wanted.isdisjoint(cids))
 
 
 def _scan_fast(data, release=None, release_all=None) -> _Scan:
@@ -775,12 +801,13 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
     return _read_log(path, topics=topics, strict=strict)
 
 
-def _decode_tolerant(decode, n: int) -> tuple[dict, np.ndarray]:
-    """``decode(idx)`` of all n messages, or of those that decode when some do not:
-    (columns, indices of the messages skipped). The bad ones are found by halving."""
+def _decode_bad(decode, n: int) -> tuple[dict | None, np.ndarray, InputError | None]:
+    """``decode(idx)`` of the n messages that decode: (columns, indices of the messages
+    that do not, the error of decoding them all or None). The bad ones are found by
+    halving; columns is None when the whole fails but no message fails alone."""
     idx = np.arange(n)
     try:
-        return decode(idx), idx[:0]
+        return decode(idx), idx[:0], None
     except InputError as err:
         first = err
     bad: list[np.ndarray] = []
@@ -798,10 +825,19 @@ def _decode_tolerant(decode, n: int) -> tuple[dict, np.ndarray]:
     find(idx[:n // 2])
     find(idx[n // 2:])
     bad_idx = np.concatenate(bad) if bad else idx[:0]
-    if len(bad_idx) == n > 1 or not len(bad_idx):  # every message: not damage but a mismatch
+    if not len(bad_idx):
+        return None, bad_idx, first
+    return decode(np.setdiff1d(idx, bad_idx)), bad_idx, first
+
+
+def _decode_tolerant(decode, n: int) -> tuple[dict, np.ndarray]:
+    """``decode(idx)`` of all n messages, or of those that decode when some do not:
+    (columns, indices of the messages skipped). The error is raised when every message
+    fails (a mismatch, not damage) or none fails alone."""
+    cols, bad, first = _decode_bad(decode, n)
+    if first is not None and (cols is None or len(bad) == n > 1):
         raise first
-    good = np.setdiff1d(idx, bad_idx)
-    return decode(good), bad_idx
+    return cols, bad
 
 
 def _plausible(t0, t1, lo, hi) -> bool:
@@ -857,8 +893,173 @@ def _report(scan: _Scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict) -> R
         trailing_bytes=trailing, metadata_lost=tuple(scan.metadata_lost))
 
 
+_DECODE_BYTES = 16 << 20   # decompressed chunk bytes decoded at a time by read_log
+
+
+class _ChannelParts:
+    """One channel's messages decoded part by part as :func:`read_log` walks the file."""
+
+    def __init__(self, topic: str, schema: dict, codec):
+        self.topic, self.schema, self.codec = topic, schema, codec
+        self.t: list = []
+        self.seq: list = []
+        self.ordinal: list = []
+        self.cols: list = []
+        self.n = self.n_bad = 0
+        self.first: InputError | None = None   # the first decoding error met
+        self.mismatch = False                  # a part failed with no message failing alone
+
+    def add(self, buf: np.ndarray, sel: np.ndarray, t, seq, ordinal, ps, pe) -> None:
+        """Decode the messages ``sel`` (payloads ``buf[ps:pe]``), leaving out those that do not decode."""
+        codec, topic = self.codec, self.topic
+        starts, ends = ps[sel], pe[sel]
+
+        def decode(ix):
+            return codec.decode_spans(buf, starts[ix], ends[ix], topic)
+        cols, bad, err = _decode_bad(decode, len(sel))
+        self.first = self.first or err
+        if cols is None:
+            self.mismatch = True
+            return
+        keep = sel if not len(bad) else np.delete(sel, bad)
+        self.n += len(sel)
+        self.n_bad += len(bad)
+        self.t.append(t[keep])
+        self.seq.append(seq[keep])
+        self.ordinal.append(ordinal[keep])
+        self.cols.append(cols)
+
+    def frame(self) -> tuple[pd.DataFrame, int]:
+        """(the channel's frame in sequence order, messages skipped); the rules of
+        :func:`_decode_tolerant` applied to the whole channel."""
+        if self.first is not None and (self.mismatch or self.n_bad == self.n > 1):
+            raise self.first
+        if not self.t:
+            return frame_from_columns(self.codec.empty_columns(), np.zeros(0, dtype=np.int64), self.codec.spec), 0
+
+        def cat(a: list) -> np.ndarray:
+            return a[0] if len(a) == 1 else np.concatenate(a)
+        t, seq, ordinal = cat(self.t), cat(self.seq), cat(self.ordinal)
+        self.t = self.seq = self.ordinal = []
+        order = None
+        if len(seq) > 1 and not np.all(seq[1:] > seq[:-1]):
+            order = np.lexsort((ordinal, seq))   # by sequence, file order among equal ones
+        cols = {}
+        for c in self.codec.spec.columns:
+            a = cat([p[c] for p in self.cols])
+            cols[c] = a if order is None else a[order]
+        self.cols = []
+        return frame_from_columns(cols, t if order is None else t[order], self.codec.spec), self.n_bad
+
+
+def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
+    """:func:`read_log` a group of chunks at a time: memory bounded by the decoded frames."""
+    log = FieldLog(source=str(p))
+    parts: dict[int, _ChannelParts | None] = {}
+    errors: dict[int, InputError] = {}
+    with ChunkStream(p, topics=topics) as stream:
+        scan = stream._scan
+
+        def channel(c: int) -> _ChannelParts | None:
+            if c not in parts:
+                ch = scan.channels[c]
+                part = None
+                sname, senc, sdata = scan.schemas.get(ch.schema_id, ("", "", b""))
+                if (topics is None or ch.topic in topics) and ch.encoding == MESSAGE_ENCODING \
+                        and senc == SCHEMA_ENCODING:
+                    try:
+                        part = _ChannelParts(ch.topic, *_codec_of(p, ch.topic, sname, sdata))
+                    except InputError as err:
+                        errors[c] = err
+                parts[c] = part
+            return parts[c]
+
+        group: list = []
+        held = 0
+
+        def decode_group() -> None:
+            if len(group) == 1:
+                buf, (cid, seq, t, ps, pe, ordinal) = group[0]
+            else:
+                bufs = [g[0] for g in group]
+                shift = np.cumsum([0] + [len(b) for b in bufs[:-1]])
+                buf = np.concatenate(bufs)
+                cid, seq, t, ps, pe, ordinal = (np.concatenate([g[1][k] + (shift[i] if k in (3, 4) else 0)
+                                                                for i, g in enumerate(group)]) for k in range(6))
+            group.clear()
+            ids = np.unique(cid)
+            if len(ids) == 1:
+                sels = [np.arange(len(cid))]
+            else:
+                by = np.argsort(cid, kind="stable")
+                sels = np.split(by, np.searchsorted(cid[by], ids[1:]))
+            for c, sel in zip(ids.tolist(), sels):
+                part = channel(c)
+                if part is not None and not part.mismatch:
+                    part.add(buf, sel, t, seq, ordinal, ps, pe)
+
+        for records, at, _t0, _t1, cid, seq, t, ps, pe, ordinal in stream._batches():
+            if at < 0 and group:   # messages outside chunks: their spans in the file's bytes, alone
+                decode_group()
+                held = 0
+            group.append((records, (cid, seq, t, ps, pe, ordinal)))
+            held += len(records)
+            if at < 0 or held >= _DECODE_BYTES:
+                decode_group()
+                held = 0
+        if group:
+            decode_group()
+        size = len(stream._map)
+    log.meta = dict(scan.metadata)
+    n_msgs = 0
+    t_lo = t_hi = None
+    skipped: dict[str, int] = {}
+    for cid in sorted(scan.channels):
+        if cid in errors:
+            raise errors[cid]
+        if cid not in parts:
+            channel(cid)
+            if cid in errors:
+                raise errors[cid]
+        part = parts[cid]
+        if part is None:
+            continue
+        try:
+            frame, bad = part.frame()
+        except InputError as err:
+            raise InputError(f"{p} {err}") from err
+        if bad:
+            skipped[part.topic] = bad
+        log.channels[part.topic] = frame
+        log.schemas[part.topic] = part.schema
+        n_msgs += len(frame)
+        if len(frame):
+            t = frame.index.to_numpy()
+            t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
+            t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
+    trailing = scan.footer and scan.mcap_end < size
+    if not scan.complete or skipped or trailing or scan.metadata_lost:
+        log.recovery = _report(scan, size, n_msgs, t_lo, t_hi, skipped)
+        if strict:
+            raise InputError(f"{p}: damaged file: {log.recovery.reason}")
+    return log
+
+
+def _codec_of(p: Path, topic: str, sname: str, sdata: bytes):
+    """(schema, codec) of a channel's schema as stored in the file (InputError when unusable)."""
+    try:
+        schema = json.loads(sdata) if sdata else {"title": sname, "properties": {}}
+        if not isinstance(schema, dict):
+            raise TypeError("not an object")
+        return schema, codec_for_schema(schema)
+    except (ValueError, TypeError, AttributeError) as err:
+        raise InputError(f"{p} channel {topic}: schema {sname} is not a usable JSON Schema ({err})") from err
+
+
 def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
     p = Path(path)
+    if scanner is None:
+        return _read_streamed(p, topics, strict)
     scan, size = scan_file(p, scanner=scanner)
     log = FieldLog(source=str(p))
     log.meta = dict(scan.metadata)
@@ -872,13 +1073,7 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         sname, senc, sdata = scan.schemas.get(ch.schema_id, ("", "", b""))
         if ch.encoding != MESSAGE_ENCODING or senc != SCHEMA_ENCODING:
             continue  # not a canonical channel: left alone
-        try:
-            schema = json.loads(sdata) if sdata else {"title": sname, "properties": {}}
-            if not isinstance(schema, dict):
-                raise TypeError("not an object")
-            codec = codec_for_schema(schema)
-        except (ValueError, TypeError, AttributeError) as err:
-            raise InputError(f"{p} channel {ch.topic}: schema {sname} is not a usable JSON Schema ({err})") from err
+        schema, codec = _codec_of(p, ch.topic, sname, sdata)
         if scan.arena is None:
             t = np.asarray(ch.times, dtype=np.int64)
             seq = np.asarray(ch.seqs, dtype=np.int64)
@@ -963,6 +1158,17 @@ _RELEASE_BYTES = 8 << 20    # a memory-mapped file drops the pages behind the wa
 _WINDOW_BYTES = 8 << 20      # top-level records walked at a time when streaming (bytes)
 
 
+def _first_definitions(defined: dict, cid: np.ndarray) -> np.ndarray:
+    """``defined.get(c, -1)`` for every channel id in ``cid`` (ids >= 0), by a table lookup."""
+    if not len(cid):
+        return np.zeros(0, dtype=np.int64)
+    table = np.full(int(cid.max()) + 1, -1, dtype=np.int64)
+    for c, o in defined.items():
+        if c < len(table):
+            table[c] = o
+    return table[cid]
+
+
 class ChunkStream:
     """Verified chunks of an MCAP file, one at a time (see :func:`iter_chunks`).
 
@@ -977,10 +1183,11 @@ class ChunkStream:
         The MCAP file.
     """
 
-    def __init__(self, path):
+    def __init__(self, path, topics=None):
         import mmap  # the standard library's, only for streaming reads
 
         self.path = Path(path)
+        self._topics = None if topics is None else frozenset(topics)
         self._mmap_mod = mmap
         self._fh = None
         self._map = None
@@ -1020,26 +1227,31 @@ class ChunkStream:
 
     # -- the walk ----------------------------------------------------------------------
     def __iter__(self):
+        for records, at, t0, t1, cid, seq, t, ps, pe, _ordinal in self._batches():
+            yield self._chunk(records, at, t0, t1, cid, seq, t, ps, pe)
+
+    def _batches(self):
+        """The walk: ``(records, at, t0, t1, cid, seq, t, ps, pe, ordinal)`` per batch of
+        messages kept (``ordinal`` orders them in the file)."""
         if self._done or self._map is None:
             raise RuntimeError(f"{self.path}: a ChunkStream is read once")
         data, scan = self._map, self._scan
         _layout_windowed(scan, data, self._release_all)
         if data[:8] != MAGIC and not scan.footer:
             raise FormatError(f"{self.path}: not an MCAP file (bad magic bytes)")
+        skip = _chunks_without(scan, self._topics)
         pending = []   # messages on a channel not (yet) defined: resolved at the end
-        for records, msgs, at, t0, t1 in _walk(scan, data, self._release, _WINDOW_BYTES):
+        for records, msgs, at, t0, t1 in _walk(scan, data, self._release, _WINDOW_BYTES, skip):
             cid, seq, t, ps, pe, ordinal = msgs
-            known = np.array([c in scan.defined for c in cid.tolist()], dtype=bool) if len(cid) else cid.astype(bool)
+            first = _first_definitions(scan.defined, cid)   # ordinal of each one's channel record, -1: none yet
+            known = first >= 0
             if not known.all():
                 later = ~known
                 pending.append((np.array(records[:pe[later].max()]) if at >= 0 else records,
                                 at, t0, t1, cid[later], seq[later], t[later], ps[later], pe[later], ordinal[later]))
-            keep = known.copy()
-            if known.any():
-                first = np.array([scan.defined.get(c, -1) for c in cid.tolist()], dtype=np.int64)
-                keep &= ordinal > first
+            keep = known & (ordinal > first)
             if keep.any():
-                yield self._chunk(records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep])
+                yield records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep], ordinal[keep]
         _finish_windowed(scan, data, self._release_all)
         # messages met before their channel's record: kept when it never came (the summary has it)
         for records, at, t0, t1, cid, seq, t, ps, pe, ordinal in pending:
@@ -1054,12 +1266,17 @@ class ChunkStream:
                 else:
                     scan.orphans[c] = scan.orphans.get(c, 0) + int(sel.sum())
             if keep.any():
-                yield self._chunk(records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep])
+                yield records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep], ordinal[keep]
+        if skip:   # the wanted channels a skipped chunk may have defined: the summary's copies
+            for c in _chunks_wanted(scan, self._topics):
+                scan.channels.setdefault(c, _summary_channel(scan, c))
         self._done = True
 
     def _chunk(self, records, at, t0, t1, cid, seq, t, ps, pe) -> Chunk:
-        canon = self.channels
-        counted = np.array([c in canon and canon[c].canonical for c in cid.tolist()], dtype=bool)
+        scan = self._scan
+        canon = [c for c, ch in scan.channels.items() if ch.encoding == MESSAGE_ENCODING
+                 and scan.schemas.get(ch.schema_id, ("", "", b""))[1] == SCHEMA_ENCODING]
+        counted = np.isin(cid, canon)
         if counted.any():
             tc = t[counted]
             self._n_msgs += int(counted.sum())
