@@ -81,8 +81,8 @@ def run(args) -> int:
             print_json({**d, "error": " ".join(str(err).split())})
         else:
             print(format_report(d) if fitted is not None else format_verdict(d))
-        print(f"usvlog identify: error: {err}; nothing written (--force writes it with usable = false)",
-              file=sys.stderr)
+        hint = " (--force writes it with usable = false)" if fitted is not None else ""
+        print(f"usvlog identify: error: {err}; nothing written{hint}", file=sys.stderr)
         return int(err.exit_code)
     d = idf.to_dict()
     d["gnss_delay_s"] = [r.gnss_delay_s for r in idf.runs_]   # taken off the GNSS stamps of each run
