@@ -157,6 +157,6 @@ def format_report(d: dict) -> str:
                              f"u {_pct(f['u'])}, v {_pct(f['v'])}, r {_pct(f['r'])}")
         if mc.get("winner"):
             by = f" by {mc['margin']:.1f} points (mean fit % of track and r)" if mc.get("margin") is not None else ""
-            lines.append(f"better model: {mc['winner']}{by}")
+            lines.append(f"better model on the validation: {mc['winner']}{by}; returned: {mc.get('returned')}")
     lines.append(format_verdict(d))
     return "\n".join(lines)

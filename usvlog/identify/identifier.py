@@ -412,7 +412,9 @@ class Identifier:
         Standard errors of ``extended_`` (empty for the paper's model).
     model_comparison_ : dict or None
         With ``model="both"``: per model the best candidate's name, validation fit % and
-        score, the ``winner`` and its ``margin`` in score points (mean fit % of track and r).
+        score, the ``winner`` (better score) and its ``margin`` in score points (mean fit % of
+        track and r), and the model ``returned`` (the paper's when the extended one is better by
+        less than PREFER_WITHIN points, or equation error's when that validates better).
 
     Raises
     ------
@@ -550,6 +552,8 @@ class Identifier:
                 err.reasons = list(getattr(err, "reasons", [])) + hint    # type: ignore[attr-defined]
                 err.args = (f"{err}; {'; '.join(hint)}",)
             raise
+        if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
+            self.model_comparison_["returned"] = chosen.start.model
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
