@@ -287,24 +287,40 @@ class ExtendedOEResult:
         return ExtendedParams(**{k: float(v) for k, v in zip(EXTENDED_PARAM_NAMES, self.theta)})
 
 
-def _levenberg_marquardt(fun, jac, x0, lo, hi, scale, *, max_iter=40, ftol=1e-6, xtol=1e-6):
-    """Bounded Levenberg-Marquardt on the normal equations (the Jacobian is tall and thin: its
-    Gram matrix costs a few ms, a decomposition of it far more). Steps are in units of
-    ``scale`` and clipped to the bounds. Returns (x, residuals, Jacobian at x)."""
+def _block_solve(A, b, n_glob: int):
+    """Solve A x = b for A whose trailing part is block-diagonal in 6x6 blocks (the segments'
+    initial states), by the Schur complement on the leading ``n_glob`` unknowns."""
+    ns = (len(b) - n_glob) // 6
+    Agg, Ags, bg = A[:n_glob, :n_glob], A[:n_glob, n_glob:], b[:n_glob]
+    B = np.stack([A[n_glob + 6 * k:n_glob + 6 * k + 6, n_glob + 6 * k:n_glob + 6 * k + 6] for k in range(ns)])
+    Binv = np.linalg.inv(B)                                  # (ns, 6, 6), batched
+    Agk = Ags.reshape(n_glob, ns, 6).transpose(1, 0, 2)      # (ns, n_glob, 6)
+    bs = b[n_glob:].reshape(ns, 6)
+    AB = Agk @ Binv                                          # (ns, n_glob, 6)
+    S = Agg - np.einsum("kij,klj->il", AB, Agk)
+    xg = np.linalg.solve(S, bg - np.einsum("kij,kj->i", AB, bs))
+    xs = np.einsum("kij,kj->ki", Binv, bs - np.einsum("kij,i->kj", Agk, xg))
+    return np.concatenate([xg, xs.ravel()])
+
+
+def _levenberg_marquardt(fun, jac, normal, x0, lo, hi, scale, *, n_glob, max_iter=40, ftol=1e-6, xtol=1e-6):
+    """Bounded Levenberg-Marquardt on the normal equations (the Jacobian is tall and thin and
+    block-sparse: ``normal(J, f)`` gives J^T J and J^T f without forming it whole, a
+    decomposition of it would cost more than the simulations). Steps are in units of
+    ``scale`` and clipped to the bounds. Returns (x, residuals, J^T J at x)."""
     x = np.asarray(x0, float).copy()
     f = fun(x)
     cost = float(f @ f)
     lam = 1e-3
-    J = jac(x)
+    H0, g0 = normal(jac(x), f)
     for _ in range(max_iter):
-        Js = J * scale
-        H = Js.T @ Js
-        g = Js.T @ f
+        H = H0 * np.outer(scale, scale)
+        g = g0 * scale
         d = np.full(len(x), max(float(np.max(np.diag(H))), 1e-12))   # Levenberg: isotropic in scaled units
         improved = False
         for _ in range(12):
             try:
-                step = np.linalg.solve(H + lam * np.diag(d), -g)
+                step = _block_solve(H + lam * np.diag(d), -g, n_glob)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
@@ -321,10 +337,10 @@ def _levenberg_marquardt(fun, jac, x0, lo, hi, scale, *, max_iter=40, ftol=1e-6,
         dxn = float(np.max(np.abs((x_new - x) / scale)))
         x, f, cost = x_new, f_new, c_new
         lam = max(lam / 3.0, 1e-9)
-        J = jac(x)
+        H0, g0 = normal(jac(x), f)
         if dc < ftol and dxn < xtol * 1e3 or dxn < xtol:
             break
-    return x, f, J
+    return x, f, H0
 
 
 def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0, *, fix: dict | None = None,
@@ -417,7 +433,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         """Forward differences: one evaluation per global column, one per initial-state
         component for all segments together (each moves only its segment's rows)."""
         f0 = fun_cached(p)
-        J = np.zeros((n_rows, len(p)))
+        J = np.zeros((n_rows, n_glob))
+        J6 = np.zeros((n_rows, 6))
         for j in range(n_glob):
             h = FD_STEP * max(abs(p[j]), scale[j])
             if p[j] + h > hi[j]:
@@ -429,17 +446,34 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
             h = FD_STEP * X0_SCALE[c]
             q = p.copy()
             q[n_glob + c::6] += h
-            d = (fun(q) - f0) / h
-            J[np.arange(n_rows), n_glob + 6 * row_seg + c] = d
-        return J
+            J6[:, c] = (fun(q) - f0) / h
+        return J, J6
 
-    p_opt, r, J = _levenberg_marquardt(fun_cached, jac, x0, lo, hi, scale, max_iter=max_iter)
+    seg_rows = [np.flatnonzero(row_seg == k) for k in range(n_seg)]
+
+    def normal(JJ, f):
+        """J^T J and J^T f from the global columns and the segments' initial-state columns."""
+        Jg, J6 = JJ
+        n = n_glob + 6 * n_seg
+        H, g = np.zeros((n, n)), np.zeros(n)
+        H[:n_glob, :n_glob] = Jg.T @ Jg
+        g[:n_glob] = Jg.T @ f
+        for k, rows in enumerate(seg_rows):
+            a = n_glob + 6 * k
+            Jk = J6[rows]
+            H[a:a + 6, a:a + 6] = Jk.T @ Jk
+            cross = Jg[rows].T @ Jk
+            H[:n_glob, a:a + 6], H[a:a + 6, :n_glob] = cross, cross.T
+            g[a:a + 6] = Jk.T @ f[rows]
+        return H, g
+
+    p_opt, r, H = _levenberg_marquardt(fun_cached, jac, normal, x0, lo, hi, scale, n_glob=n_glob,
+                                       max_iter=max_iter)
     th, cur, dx = unpack(p_opt)
     n_res, n_par = len(r), len(p_opt)
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
-    colnorm = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
-    Js = J / colnorm
-    JtJ = Js.T @ Js
+    colnorm = np.sqrt(np.maximum(np.diag(H), 1e-300))
+    JtJ = H / np.outer(colnorm, colnorm)
     ev = np.linalg.eigvalsh(JtJ)
     cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
     cov = (sigma2 * np.linalg.pinv(JtJ) / np.outer(colnorm, colnorm))[:n_glob, :n_glob]

@@ -54,6 +54,7 @@ U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of po
 REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
 EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
+EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -750,7 +751,7 @@ class Identifier:
             else:
                 fitted = fit_extended_output_error(runs, kin, chosen.theta, fit_current=self.current,
                                                    currents0=chosen.currents, max_current_mps=self.max_current_mps,
-                                                   segment_s=EXT_SEGMENT_S)
+                                                   segment_s=EXT_SEGMENT_S, max_iter=EXT_REFIT_ITER)
                 theta, cur = fitted.theta, fitted.currents
                 if fitted.diverged:
                     return chosen
