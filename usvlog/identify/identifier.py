@@ -851,7 +851,7 @@ class Identifier:
         fitted = cand.fitted
         ext = ExtendedParams(**dict(zip(EXTENDED_PARAM_NAMES, map(float, cand.theta))))
         self.extended_ = ext
-        self.oe_ = None
+        self.oe_: OutputErrorResult | None = None
         ne = len(EXTENDED_PARAM_NAMES)
         ix = {k: i for i, k in enumerate(EXTENDED_PARAM_NAMES)}
         if isinstance(fitted, ExtendedOEResult):
@@ -861,9 +861,10 @@ class Identifier:
             pos = [ix[k] for k in names if k in ix]
             cov_ext[np.ix_(pos, pos)] = cov[:len(pos), :len(pos)]
             d = np.sqrt(np.maximum(np.diag(cov), 0))
-            self.current_ = [tuple(float(x) for x in c) for c in fitted.currents]
-            self.current_stderr_ = [tuple(float(d[names.index(f"current_{ax}_{i}")]) for ax in ("n", "e"))
-                                    if self.current else (0.0, 0.0) for i in range(len(runs))]
+            self.current_: list[tuple[float, ...]] = [tuple(float(x) for x in c) for c in fitted.currents]
+            self.current_stderr_: list[tuple[float, ...]] = [
+                tuple(float(d[names.index(f"current_{ax}_{i}")]) for ax in ("n", "e"))
+                if self.current else (0.0, 0.0) for i in range(len(runs))]
             self.cond_ = fitted.cond
             self.residual_rms_ = dict(fitted.rms)
         else:
@@ -910,8 +911,8 @@ class Identifier:
             se = np.array([fitted.stderr[k] for k in PARAM_NAMES])
             names = [k for k in PARAM_NAMES if k not in self.fix]
             cov = np.diag([fitted.stderr[k] ** 2 for k in names])
-            self.current_: list[tuple[float, ...]] = [(0.0, 0.0)] * len(runs)
-            self.current_stderr_: list[tuple[float, ...]] = [(float("nan"), float("nan"))] * len(runs)
+            self.current_ = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": fitted.rms[0], "sway_n": fitted.rms[1], "yaw_nm": fitted.rms[2]}
         elif isinstance(fitted, OutputErrorResult):
