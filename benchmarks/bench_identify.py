@@ -2,8 +2,11 @@
 
 Output error includes everything it does by default: its candidates fitted on the first 70 %,
 their validation on the last 30 %, and the refit of the chosen one on all the data.
+``--model extended``: the extended model's candidates (output error from the paper's and from
+the extended equation-error fit, and that fit), the errors those of its paper terms;
+``--model both``: the paper's and the extended candidates together.
 
-    python benchmarks/bench_identify.py [--duration-s 3600]
+    python benchmarks/bench_identify.py [--duration-s 3600] [--model paper|extended|both]
 """
 
 from __future__ import annotations
@@ -25,16 +28,18 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--model", choices=("paper", "extended", "both"), default="paper")
     args = ap.parse_args()
     t = time.perf_counter()
     log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0),
                    seed=args.seed)
     print(f"simulated {args.duration_s:.0f} s log in {time.perf_counter() - t:.1f} s")
-    Identifier("output-error").fit([simulate("excitation", SimSettings(duration_s=120.0), seed=1)])  # JIT warm-up
+    Identifier("output-error", model=args.model).fit(  # JIT warm-up
+        [simulate("excitation", SimSettings(duration_s=120.0), seed=1)])
     true = VesselParams().as_array()
     for method in ("equation-error", "output-error"):
         t, c = time.perf_counter(), time.process_time()
-        idf = Identifier(method).fit([log])
+        idf = Identifier(method, model=args.model).fit([log])
         dt, dc = time.perf_counter() - t, time.process_time() - c
         err = 100 * (idf.theta_ / true - 1)
         print(f"{method:15s} {dt:6.2f} s wall, {dc:6.2f} s CPU   errors %: "
@@ -42,6 +47,9 @@ def main() -> None:
         fp = idf.validation_fit_percent_()
         print(f"{'':15s} candidates: {len(idf.candidates_)}, chosen: {idf.chosen_.start.name}; validation "
               f"(last 30 %): u {fp['u']:.1f}, r {fp['r']:.1f}, track {fp['track']:.1f}; verdict: {idf.verdict_}")
+        if idf.model_comparison_:
+            mc = idf.model_comparison_
+            print(f"{'':15s} better model: {mc['winner']} by {mc['margin']} points; returned: {mc.get('returned')}")
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 
 

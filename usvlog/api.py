@@ -567,7 +567,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
 def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "output-error",
              validate=None, holdout: float | None = None, fix: dict[str, float] | None = None, current: bool = True,
              out_log: PathLike | None = None, force: bool = False, progress: Progress = None,
-             max_current_mps: float = 0.5, gnss_delay_s: float | None = None) -> Identifier:
+             max_current_mps: float = 0.5, gnss_delay_s: float | None = None, model: str = "paper") -> Identifier:
     """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
 
     Parameters
@@ -604,6 +604,9 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         GNSS latency in s of every log (a fix stamped t describes the boat at t - delay);
         default: the delay an estimate stored in each log (``usvlog estimate
         --gnss-delay-s``), else 0.
+    model : {"paper", "extended", "both"}
+        Model structure: the paper's (default), the extended one (the TOML then has an
+        ``[extended]`` table), or both compared on the validation (the better one written).
 
     Returns
     -------
@@ -631,7 +634,7 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     if holdout is None and validate is not None:
         holdout = 0.0
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
-                     max_current_mps=max_current_mps)
+                     max_current_mps=max_current_mps, model=model)
     ves = _vessel_file(vessel)
     runs = [_read(x, progress) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
     val_log = _read(validate, progress) if validate is not None else None

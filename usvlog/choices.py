@@ -30,5 +30,9 @@ IMPORT_FORMATS = ("csv", "nmea", "ros1", "ros2", "dataflash", "ulog")
 IDENTIFY_METHODS = ("output-error", "equation-error", "filter-error")
 """Identification methods of :class:`usvlog.identify.Identifier`."""
 
-__all__ = ["EXTENDED_PARAM_NAMES", "IDENTIFY_METHODS", "IMPORT_FORMATS", "MODEL_STRUCTURES", "PARAM_NAMES",
-           "THRUST_UNITS"]
+IDENTIFY_MODELS = ("paper", "extended", "both")
+"""Model structures ``usvlog identify --model`` fits: the paper's, the extended one, or both (compared on
+the validation)."""
+
+__all__ = ["EXTENDED_PARAM_NAMES", "IDENTIFY_METHODS", "IDENTIFY_MODELS", "IMPORT_FORMATS", "MODEL_STRUCTURES",
+           "PARAM_NAMES", "THRUST_UNITS"]

@@ -1,59 +1,105 @@
-"""Equation error of the extended model and its compiled free run, against simulated truth."""
+"""The extended model identified by output error, alone and against the paper's model (``--model``).
+
+The boat is the shipped 2 m, 80 kg catamaran (``vessels/catamaran.toml``: surge and sway inertia
+differ, quadratic yaw and sway damping, thruster lag), simulated with the issue's sensors: GPS
+1.5 m at 10 Hz, compass 2 deg at 20 Hz, no current, the last 40 % held out.
+
+The u and r fit % of the target are judged against the simulation's truth (``/truth/state``):
+the smoothed u the validation compares with by default fits the true u only about 30-37 % on
+this boat (GPS noise differentiated), so any model's "measured u" fit % is low; the held-out
+track fit (positions, whose noise is small beside the track's extent) is checked as well.
+"""
+
+from __future__ import annotations
+
+import json
+import math
 
 import numpy as np
 
-from usvlog.identify.data import run_data
-from usvlog.identify.extended import ext_regressors, fit_extended_equation_error, free_run
+from usvlog.cli import main
+from usvlog.identify import Identifier
 from usvlog.io.config import load_vessel
-from usvlog.model.vessel import ExtendedParams, Thrusters, extended_vessel, nu_dot_ext
+from usvlog.io.mcap import read_log, write_log
+from usvlog.model.stats import fit_percent
+from usvlog.model.vessel import vessel_from_toml
 from usvlog.sim.simulate import SimSettings, simulate
 
 
-def _truth_run():
-    ext = load_vessel("catamaran").extended
-    boat = extended_vessel("cat-no-lag", ext, Thrusters(arm_m=0.395, forward_n=119.7, reverse_n=66.7))
-    log = simulate("excitation", SimSettings(vessel=boat, duration_s=300.0), seed=9)
-    return boat, log
-
-
-def test_regressors_times_parameters_are_the_model():
-    rng = np.random.default_rng(1)
-    p = load_vessel("catamaran").extended
-    nu = rng.normal(0, [1.0, 0.2, 0.3], (200, 3))
-    tu, tr = rng.normal(40, 10, 200), rng.normal(0, 20, 200)
-    nd = nu_dot_ext(nu, tu, tr, p)
-    A = ext_regressors(nu, nd)
-    lhs = A @ p.as_array()
-    assert np.allclose(lhs[0], tu, atol=1e-9) and np.allclose(lhs[1], 0, atol=1e-9)
-    assert np.allclose(lhs[2], tr, atol=1e-9)
-
-
-def test_equation_error_recovers_the_catamaran_from_its_true_states():
-    boat, log = _truth_run()
+def _truth_fit(log, idf, v) -> dict:
+    """Fit % of a held-out free run against the true u, v, r after its initial window."""
     tr = log["/truth/state"]
-    t = (tr.index.to_numpy() - tr.index[0]) / 1e9
-    nu = tr[["u_mps", "v_mps", "r_radps"]].to_numpy()
-    nd = np.gradient(nu, t, axis=0)
-    # the applied force is held over each step: the central difference sees its mean over two steps
-    tu = tr["tau_u_n"].to_numpy()
-    tq = tr["tau_r_nm"].to_numpy()
-    tu = np.convolve(tu, [0.5, 0.5], "same")
-    tq = np.convolve(tq, [0.5, 0.5], "same")
-    k = slice(200, -200)
-    fit = fit_extended_equation_error(nu[k], nd[k], tu[k], tq[k])
-    truth = boat.extended.as_array()
-    rel = np.abs(fit.theta - truth) / np.maximum(np.abs(truth), 1.0)
-    assert rel.max() < 0.03, dict(zip(fit.to_dict(), rel))
-    assert fit.params == ExtendedParams(**{**fit.to_dict()})
+    tt = (tr.index.to_numpy() - idf.runs_[0].t0_ns) / 1e9
+    after = v.t > v.t[0] + v.init_window_s
+    return {k: fit_percent(np.interp(v.t[after], tt, tr[col].to_numpy()), v.simulated[after, i])
+            for k, col, i in (("u", "u_mps", 3), ("v", "v_mps", 4), ("r", "r_radps", 5))}
 
 
-def test_free_run_of_the_true_model_follows_the_simulated_boat():
-    boat, log = _truth_run()
-    run = run_data(log, boat)
-    tr = log["/truth/state"]
-    t = (tr.index.to_numpy() - run.t0_ns) / 1e9
-    nu = tr[["u_mps", "v_mps", "r_radps"]].to_numpy()
-    sel = (t >= 20.0) & (t <= run.t_thrust[-1])
-    sim = free_run(run, boat.extended.as_array(), nu[sel][0], t[sel][0], t[sel])
-    # the logged thrust is rounded to 1 mN: the free run agrees far below the sensors' noise
-    assert np.abs(sim - nu[sel]).max(0).tolist() < [1e-3, 1e-3, 1e-3]
+def test_catamaran_extended_model_meets_the_target_and_both_models_are_compared():
+    """``model="both"``: the extended model's best candidate predicts the held-out 40 % with
+    u >= 90 % and r >= 80 % against the truth and a held-out track fit >= 90 %, finds no
+    current (<= 0.05 m/s); the comparison names the model whose candidate validates better
+    and the one returned (the paper's when the extended one wins by less than a point); an
+    extended result is written as an [extended] vessel
+    that reads back."""
+    cat = load_vessel("catamaran")
+    log = simulate("excitation", SimSettings(duration_s=600.0, vessel=cat, current_mps=0.0), seed=5)
+    idf = Identifier("output-error", holdout=0.4, model="both").fit([log])
+    ext = [c for c in idf.candidates_ if c.start.model == "extended" and not c.failed]
+    best = max(ext, key=lambda c: c.score)
+    truth = _truth_fit(log, idf, best.validations[0])
+    track = best.validations[0].fit_percent["track"]
+    assert truth["u"] >= 90 and truth["r"] >= 80 and track >= 90, (truth, track, best.start.name)
+    assert math.hypot(*best.currents[0]) <= 0.05, best.currents
+    mc = idf.model_comparison_
+    paper = max((c for c in idf.candidates_ if c.start.model == "paper" and not c.failed), key=lambda c: c.score)
+    assert mc["winner"] == ("extended" if best.score > paper.score else "paper")
+    assert mc["margin"] == abs(best.score - paper.score)
+    # returned: the winner, or the simpler paper model when the extended one wins by less than a point
+    assert mc["returned"] == idf.chosen_.start.model
+    assert mc["returned"] == mc["winner"] or (mc["winner"] == "extended" and mc["margin"] < 1.0)
+    d = idf.to_dict()
+    assert d["model_comparison"]["winner"] == mc["winner"]
+    if idf.extended_ is not None:
+        back = vessel_from_toml(idf.to_vessel().to_toml() + idf.toml_record())
+        assert back.extended == idf.extended_ and d["structure"] == "extended"
+        assert back.params == idf.extended_.paper_terms()
+
+
+def test_cli_model_extended_writes_an_extended_vessel(tmp_path, capsys):
+    """``usvlog identify --model extended`` on a logged run: the TOML is an extended vessel whose
+    parameters are the JSON's, the JSON says so, and the text report lists the extended terms."""
+    cat = load_vessel("catamaran")
+    log = simulate("excitation", SimSettings(duration_s=300.0, vessel=cat, current_mps=0.0), seed=3)
+    mcap = tmp_path / "cat.mcap"
+    write_log(log, mcap)
+    out = tmp_path / "id.toml"
+    rc = main(["identify", str(mcap), "--model", "extended", "--out", str(out), "--json"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == (0 if d["usable"] else 1)
+    assert d["model"] == "extended" and d["structure"] == "extended"
+    assert all(c["model"] == "extended" for c in d["candidates"])
+    v = vessel_from_toml(out.read_text())
+    assert v.extended is not None
+    assert v.extended.to_dict() == d["extended"]["params"]
+    assert read_log(mcap).get("/gnss/fix") is not None
+    rc = main(["identify", str(mcap), "--model", "extended", "--out", str(out), "--force"])
+    text = capsys.readouterr().out
+    assert "extended model (the parameters above are its paper terms)" in text and "d33q" in text
+
+
+def test_block_solve_matches_a_dense_solve():
+    """The Schur-complement solve of the extended fit's normal equations (global unknowns, then
+    6x6 blocks per segment) equals a dense solve of the same system."""
+    from usvlog.identify.extended_oe import _block_solve
+
+    rng = np.random.default_rng(0)
+    ng, ns = 5, 4
+    n = ng + 6 * ns
+    H = (lambda J: J.T @ J)(rng.normal(size=(200, n)))
+    for k in range(ns):
+        for j in range(ns):
+            if k != j:
+                H[ng + 6 * k:ng + 6 * k + 6, ng + 6 * j:ng + 6 * j + 6] = 0.0
+    b = rng.normal(size=n)
+    np.testing.assert_allclose(_block_solve(H, b, ng), np.linalg.solve(H, b), rtol=1e-9, atol=1e-12)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import sys
 
-from ..choices import IDENTIFY_METHODS, PARAM_NAMES
+from ..choices import EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS, PARAM_NAMES
 from ..errors import ConfigError, UnusableResultError
 from .common import print_json, stage
 
@@ -18,6 +18,10 @@ def register(sub) -> None:
     p.add_argument("--method", choices=IDENTIFY_METHODS, default="output-error",
                    help="output-error (accurate, default), equation-error (fast, biased), filter-error "
                         "(dynamic EKF likelihood; slower)")
+    p.add_argument("--model", choices=IDENTIFY_MODELS, default="paper",
+                   help="model structure: paper (default), extended (separate surge/sway inertia, linear plus "
+                        "quadratic damping; written as an [extended] vessel), or both (compared on the validation, "
+                        "the better one written)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validate", default=None, metavar="LOG", help="validate on this log (not fitted)")
     g.add_argument("--holdout", type=float, default=None,
@@ -69,7 +73,8 @@ def run(args) -> int:
         idf = api.identify(args.logs, args.out, vessel=args.vessel or None, method=args.method,
                            validate=args.validate or None, holdout=holdout, fix=fix,
                            current=not args.no_current, out_log=args.out_log or None, force=args.force,
-                           progress=stage, max_current_mps=args.max_current_mps, gnss_delay_s=args.gnss_delay_s)
+                           progress=stage, max_current_mps=args.max_current_mps, gnss_delay_s=args.gnss_delay_s,
+                           model=args.model)
     except UnusableResultError as err:
         reasons = getattr(err, "reasons", None)
         if reasons is None:
@@ -128,6 +133,11 @@ def format_report(d: dict) -> str:
         else:
             interval, se_s = "(not computable)".center(26), "n/a"
         lines.append(f"  {k:<5} {_num(v):>12} {se_s:>11}   {interval}   ({_num(d['equation_error']['params'][k], 4)})")
+    if d.get("extended"):
+        lines.append("extended model (the parameters above are its paper terms):")
+        ext = d["extended"]
+        for k in EXTENDED_PARAM_NAMES:
+            lines.append(f"  {k:<5} {_num(ext['params'][k]):>12} {_num(ext['stderr'].get(k), 3):>11}")
     lines.append(f"Iz - m xg^2 = {_num(d['Iz_minus_m_xg2'], 4)} (Theorem 3.1 condition 1 needs > 0)")
     if any(d.get("gnss_delay_s") or ()):
         lines.append("GNSS delay taken off the fix stamps: " + ", ".join(f"{x:.3f} s" for x in d["gnss_delay_s"]))
@@ -138,5 +148,15 @@ def format_report(d: dict) -> str:
     fp = d["fit_percent"]
     lines.append(f"fit % ({d['fit_percent_on']}): u {_pct(fp['u'])}, v {_pct(fp['v'])}, r {_pct(fp['r'])}, "
                  f"track {_pct(fp['track'])}")
+    mc = d.get("model_comparison")
+    if mc:
+        for m in ("paper", "extended"):
+            if m in mc:
+                f = mc[m]["fit_percent"]
+                lines.append(f"{m} model on the validation ({mc[m]['candidate']}): track {_pct(f['track'])}, "
+                             f"u {_pct(f['u'])}, v {_pct(f['v'])}, r {_pct(f['r'])}")
+        if mc.get("winner"):
+            by = f" by {mc['margin']:.1f} points (mean fit % of track and r)" if mc.get("margin") is not None else ""
+            lines.append(f"better model on the validation: {mc['winner']}{by}; returned: {mc.get('returned')}")
     lines.append(format_verdict(d))
     return "\n".join(lines)

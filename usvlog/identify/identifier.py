@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..choices import IDENTIFY_METHODS
+from ..choices import EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..estimate import EstimateSettings, estimate
 from ..estimate.latency import stored_delays, with_settings_delays
@@ -16,9 +16,17 @@ from ..log.fieldlog import FieldLog
 from ..log.summary import health_from_provenance
 from ..model.frames import ssa
 from ..model.stats import fit_percent
-from ..model.vessel import PARAM_NAMES, Vessel, VesselParams, default_vessel
+from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
+from .extended import ExtendedFit, fit_extended_equation_error
+from .extended_oe import (
+    ExtendedOEResult,
+    ext_physical_problem,
+    fit_extended_output_error,
+    fit_initial_state_ext,
+    free_run_full,
+)
 from .filter import FilterErrorResult, fit_filter_error
 from .output import (
     OutputErrorResult,
@@ -45,6 +53,8 @@ FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
 U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of points
 REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
+EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
+EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -133,12 +143,16 @@ class Start:
         Starting m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
     vel_weight : float
         Output error: weight of the smoothed velocities against GPS and compass (0: none).
+    model : {"paper", "extended"}
+        The model structure fitted (``theta`` then has 6 or 10 values, EXTENDED_PARAM_NAMES
+        order for the extended model).
     """
 
     name: str
     kind: str
     theta: np.ndarray
     vel_weight: float = 0.0
+    model: str = "paper"
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -183,8 +197,10 @@ class Candidate:
         return float(np.mean([v.score for v in self.validations]))
 
     def to_dict(self) -> dict:
-        """JSON-ready: name, params, fit_percent, score, failed."""
-        return {"name": self.start.name, "params": dict(zip(PARAM_NAMES, map(float, self.theta))),
+        """JSON-ready: name, model, params, fit_percent, score, failed."""
+        names = EXTENDED_PARAM_NAMES if self.start.model == "extended" else PARAM_NAMES
+        return {"name": self.start.name, "model": self.start.model,
+                "params": dict(zip(names, map(float, self.theta))),
                 "fit_percent": _finite_dict(self.fit_percent),
                 "score": self.score if math.isfinite(self.score) else None, "failed": self.failed}
 
@@ -323,6 +339,14 @@ class Identifier:
         the chosen candidate (kept only if they validate as well).
     max_current_mps : float, default 0.5
         Bound on each component of a fitted current, m/s (> 0).
+    model : {"paper", "extended", "both"}, default "paper"
+        The model structure: the paper's model (3), the extended model
+        (:class:`~usvlog.model.vessel.ExtendedParams`: separate surge and sway inertia, linear
+        plus quadratic damping), or both, each fitted by its candidates and the one that
+        validates better returned (``model_comparison_`` says by how much). The extended
+        model is fitted by output error (multiple shooting from the smoothed states, finite-
+        difference Jacobian) from its equation-error fit and from the paper's fit written in
+        the extended form; its equation-error fit is its floor.
 
     Attributes
     ----------
@@ -382,6 +406,16 @@ class Identifier:
         Vessel given to :meth:`fit` (thruster map and starting values).
     runs_ : list of RunData
         The runs the returned parameters were fitted on.
+    extended_ : ExtendedParams or None
+        The extended model when it was returned (``params_`` are then its paper terms,
+        :meth:`ExtendedParams.paper_terms`, with standard errors by the delta method).
+    extended_stderr_ : dict of str to float
+        Standard errors of ``extended_`` (empty for the paper's model).
+    model_comparison_ : dict or None
+        With ``model="both"``: per model the best candidate's name, validation fit % and
+        score, the ``winner`` (better score) and its ``margin`` in score points (mean fit % of
+        track and r), and the model ``returned`` (the paper's when the extended one is better by
+        less than PREFER_WITHIN points, or equation error's when that validates better).
 
     Raises
     ------
@@ -396,9 +430,14 @@ class Identifier:
     >>> vessel = ident.to_vessel("my-boat")                  # doctest: +SKIP
     """
 
+    extended_: ExtendedParams | None = None     # set by fit (class defaults: the paper's model)
+    extended_stderr_: dict = {}
+    model_comparison_: dict | None = None
+    model = "paper"
+
     def __init__(self, method: str = "output-error", *, fix: dict | None = None, current: bool = True,
                  segment_s: float = 300.0, warm_segment_s: float = 60.0, holdout: float | None = None,
-                 max_current_mps: float = MAX_CURRENT_MPS):
+                 max_current_mps: float = MAX_CURRENT_MPS, model: str = "paper"):
         if method not in METHODS:
             raise ConfigError(f"method {method!r} is not one of {', '.join(METHODS)}")
         fix = dict(fix or {})
@@ -413,6 +452,14 @@ class Identifier:
             raise ConfigError(f"holdout = {holdout} must be in [0, 0.9)")
         if not (max_current_mps > 0 and math.isfinite(max_current_mps)):
             raise ConfigError(f"max_current_mps = {max_current_mps} must be a positive number (m/s)")
+        if model not in IDENTIFY_MODELS:
+            raise ConfigError(f"model {model!r} is not one of {', '.join(IDENTIFY_MODELS)}")
+        if model != "paper" and method == "filter-error":
+            raise ConfigError("the extended model is fitted by output error or equation error, not filter error")
+        if model != "paper" and fix:
+            raise ConfigError("--fix applies to the paper's model only (its parameters are not the extended "
+                              "model's)")
+        self.model = model
         self.method = method
         self.fix = fix
         self.current = current
@@ -484,10 +531,20 @@ class Identifier:
         # -- candidates, fitted on the fit part, judged on the held-out part ---------------
         ee = self._equation_error(runs, kin)
         self.equation_error_ = ee
+        self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
         cands = []
         for st in self.candidate_starts(ee, vessel):
             cands.append(self._fit_candidate(st, runs, kin, fit_logs, vessel, held))
+        if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
+            ok = [c for c in cands if not c.failed and c.start.model == "paper"]
+            if ok:
+                best = max(ok, key=lambda c: c.score)
+                th = ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, best.theta)))))
+                cands.append(self._fit_candidate(Start(name="extended output error from the paper's fit",
+                                                       kind="output-error", model="extended",
+                                                       theta=th.as_array()), runs, kin, fit_logs, vessel, held))
         self.candidates_ = cands
+        self.model_comparison_ = self._compare_models(cands) if self.model == "both" else None
         try:
             chosen = self._pick(cands)
         except UnusableResultError as err:   # say what would help
@@ -496,6 +553,8 @@ class Identifier:
                 err.reasons = list(getattr(err, "reasons", [])) + hint    # type: ignore[attr-defined]
                 err.args = (f"{err}; {'; '.join(hint)}",)
             raise
+        if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
+            self.model_comparison_["returned"] = chosen.start.model
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
@@ -533,9 +592,50 @@ class Identifier:
             Equation error is always among them.
         """
         ee_start = Start(name="equation error", kind="equation-error", theta=self._ee_theta(ee, vessel))
+        th = self._start(ee, vessel)
+        if self.model != "paper":
+            ext = self._extended_starts(th)
+            if self.model == "extended":
+                return ext if self.method == "output-error" else ext[-1:]
+            if self.method == "equation-error":
+                return [ee_start] + ext[-1:]
+            return self.candidate_starts_paper(ee, vessel, th) + ext
         if self.method == "equation-error":
             return [ee_start]
-        th = self._start(ee, vessel)
+        return self.candidate_starts_paper(ee, vessel, th)
+
+    def _extended_starts(self, th_paper) -> list[Start]:
+        """Extended-model candidates: output error from the paper's equation-error start in the
+        extended form (preferred: the extended equation-error fit is biased by the noise of its
+        regressors, m11 a third of the truth on a noisy run) and from the extended
+        equation-error fit, then that fit itself."""
+        ext_ee = getattr(self, "_ext_ee", None)
+        assert ext_ee is not None
+        paper = ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, th_paper))))).as_array()
+        th_ee = ext_ee.theta
+        return [Start(name="extended output error from the paper's equation error", kind="output-error",
+                      model="extended", theta=paper),
+                Start(name="extended output error from extended equation error", kind="output-error",
+                      model="extended", theta=th_ee if not ext_physical_problem(th_ee) else paper),
+                Start(name="extended equation error", kind="equation-error", model="extended", theta=th_ee)]
+
+    def candidate_starts_paper(self, ee: EquationErrorResult, vessel: Vessel, th) -> list[Start]:
+        """The paper model's candidates (output or filter error), equation error last.
+
+        Parameters
+        ----------
+        ee : EquationErrorResult
+            The equation-error fit on the fit part of the runs.
+        vessel : Vessel
+            The vessel (its values are a start of their own, see :meth:`candidate_starts`).
+        th : numpy.ndarray, shape (6,)
+            The output-error start made from ``ee``.
+
+        Returns
+        -------
+        list of Start
+        """
+        ee_start = Start(name="equation error", kind="equation-error", theta=self._ee_theta(ee, vessel))
         if self.method == "filter-error":
             return [Start(name="filter error from equation error", kind="filter-error", theta=th), ee_start]
         out = [Start(name="output error from equation error", kind="output-error", theta=th),
@@ -552,6 +652,8 @@ class Identifier:
 
     def _fit_candidate(self, st: Start, runs, kin, fit_logs, vessel, held) -> Candidate:
         """Fit one candidate and validate it (a failure is a result: ``failed`` says why)."""
+        if st.model == "extended":
+            return self._fit_ext_candidate(st, runs, kin, held)
         free = np.array([k not in self.fix for k in PARAM_NAMES])
         zeros = np.zeros((len(runs), 2))
         fitted: object
@@ -583,6 +685,46 @@ class Identifier:
         return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
                          fitted=fitted, validations=vals, failed=failed)
 
+    def _fit_ext_candidate(self, st: Start, runs, kin, held, currents0=None) -> Candidate:
+        """An extended-model candidate fitted (output error) or taken (equation error) and validated."""
+        fitted: object
+        if st.kind == "equation-error":
+            theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
+        else:
+            fitted = fit_extended_output_error(runs, kin, st.theta, fit_current=self.current, currents0=currents0,
+                                               max_current_mps=self.max_current_mps, segment_s=EXT_SEGMENT_S)
+            theta, cur = fitted.theta, fitted.currents
+        failed = ext_physical_problem(theta)
+        if not failed and isinstance(fitted, ExtendedOEResult) and fitted.diverged:
+            failed = "its simulation diverged"
+        vals = []
+        if not failed:
+            pairs = held if held else list(zip(runs, kin))
+            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(pairs)]
+            if any(v.diverged for v in vals):
+                failed = "its free run diverged"
+        return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
+                         fitted=fitted, validations=vals, failed=failed)
+
+    def _compare_models(self, cands: list[Candidate]) -> dict:
+        """Best candidate of each model on the validation, the winner and its margin (score points)."""
+        out: dict = {}
+        for model in ("paper", "extended"):
+            ok = [c for c in cands if c.start.model == model and not c.failed]
+            if ok:
+                b = max(ok, key=lambda c: c.score)
+                out[model] = {"candidate": b.start.name, "fit_percent": _finite_dict(b.fit_percent),
+                              "score": b.score if math.isfinite(b.score) else None}
+        if "paper" in out and "extended" in out:
+            sp, se = out["paper"]["score"], out["extended"]["score"]
+            sp, se = (-math.inf if sp is None else sp), (-math.inf if se is None else se)
+            out["winner"] = "extended" if se > sp else "paper"
+            out["margin"] = abs(se - sp) if math.isfinite(se - sp) else None
+        else:
+            out["winner"] = "paper" if "paper" in out else ("extended" if "extended" in out else None)
+            out["margin"] = None
+        return out
+
     def _pick(self, cands: list[Candidate]) -> Candidate:
         """The best candidate by validation; a preferred one (earlier) within PREFER_WITHIN
         points of the best is taken, but never one that validates worse than equation error."""
@@ -594,7 +736,7 @@ class Identifier:
             raise err
         best = max(c.score for c in ok)
         ee = [c.score for c in ok if c.start.kind == "equation-error"]
-        floor = max(best - PREFER_WITHIN, ee[0] if ee else -math.inf)
+        floor = max(best - PREFER_WITHIN, max(ee) if ee else -math.inf)
         return next(c for c in ok if c.score >= floor)
 
     def _refit(self, chosen: Candidate, runs, kin, logs, vessel, held) -> Candidate:
@@ -602,7 +744,20 @@ class Identifier:
         validates (now in-sample) at least as well as the candidate did, less PREFER_WITHIN."""
         st = chosen.start
         fitted: object
-        if st.kind == "filter-error":
+        if st.model == "extended":
+            if st.kind == "equation-error":
+                ext_ee = self._ext_equation_error(runs, kin)
+                theta, cur, fitted = ext_ee.theta, np.zeros((len(runs), 2)), ext_ee
+            else:
+                fitted = fit_extended_output_error(runs, kin, chosen.theta, fit_current=self.current,
+                                                   currents0=chosen.currents, max_current_mps=self.max_current_mps,
+                                                   segment_s=EXT_SEGMENT_S, max_iter=EXT_REFIT_ITER)
+                theta, cur = fitted.theta, fitted.currents
+                if fitted.diverged:
+                    return chosen
+            if ext_physical_problem(theta):
+                return chosen
+        elif st.kind == "filter-error":
             fe = fit_filter_error(logs, vessel, chosen.theta, current=self.current,
                                   free_mask=np.array([k not in self.fix for k in PARAM_NAMES]))
             theta, fitted = fe.theta, fe
@@ -620,7 +775,7 @@ class Identifier:
             theta, cur, fitted = oe.theta, np.asarray(oe.currents, dtype=np.float64), oe
             if oe.diverged:
                 return chosen
-        if physical_problem(theta):
+        if st.model == "paper" and physical_problem(theta):
             return chosen
         vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
         again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals)
@@ -639,6 +794,16 @@ class Identifier:
             th_ee = self._ee_theta(ee, vessel)
             ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not physical_problem(th_ee) else None)
             st = chosen.start
+            if st.model == "extended":
+                if st.kind == "equation-error":
+                    theta = self._ext_equation_error(r_, k_).theta
+                else:
+                    theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
+                                                      max_current_mps=self.max_current_mps,
+                                                      segment_s=EXT_SEGMENT_S).theta
+                out.append(self._validate_run(runs[i], kin[i], theta, None) if not ext_physical_problem(theta)
+                           else None)
+                continue
             if st.kind == "equation-error":
                 out.append(ee_out[-1])
                 continue
@@ -676,8 +841,68 @@ class Identifier:
                                   np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
                                   fix=self.fix)
 
+    def _ext_equation_error(self, runs, kin) -> ExtendedFit:
+        parts = [_ee_inputs(r, k) for r, k in zip(runs, kin)]
+        return fit_extended_equation_error(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
+
+    def _set_ext_result(self, cand: Candidate, runs) -> None:
+        """The fitted attributes from an extended-model candidate: ``extended_`` and its paper
+        terms as ``params_`` (standard errors by the delta method)."""
+        fitted = cand.fitted
+        ext = ExtendedParams(**dict(zip(EXTENDED_PARAM_NAMES, map(float, cand.theta))))
+        self.extended_ = ext
+        self.oe_: OutputErrorResult | None = None
+        ne = len(EXTENDED_PARAM_NAMES)
+        ix = {k: i for i, k in enumerate(EXTENDED_PARAM_NAMES)}
+        if isinstance(fitted, ExtendedOEResult):
+            names = list(fitted.names)
+            cov = fitted.cov
+            cov_ext = np.zeros((ne, ne))
+            pos = [ix[k] for k in names if k in ix]
+            cov_ext[np.ix_(pos, pos)] = cov[:len(pos), :len(pos)]
+            d = np.sqrt(np.maximum(np.diag(cov), 0))
+            self.current_: list[tuple[float, ...]] = [tuple(float(x) for x in c) for c in fitted.currents]
+            self.current_stderr_: list[tuple[float, ...]] = [
+                tuple(float(d[names.index(f"current_{ax}_{i}")]) for ax in ("n", "e"))
+                if self.current else (0.0, 0.0) for i in range(len(runs))]
+            self.cond_ = fitted.cond
+            self.residual_rms_ = dict(fitted.rms)
+        else:
+            assert isinstance(fitted, ExtendedFit)
+            names = list(EXTENDED_PARAM_NAMES)
+            cov_ext = np.diag([fitted.stderr[k] ** 2 for k in EXTENDED_PARAM_NAMES])
+            cov = cov_ext
+            self.current_ = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
+            self.cond_ = float("nan")
+            self.residual_rms_ = {"surge_n": fitted.rms[0], "sway_n": fitted.rms[1], "yaw_nm": fitted.rms[2]}
+        self.extended_stderr_ = {k: float(math.sqrt(max(cov_ext[i, i], 0.0)))
+                                 for i, k in enumerate(EXTENDED_PARAM_NAMES)}
+        # paper terms: m = m11, Iz = m66, xg = m26 / m11, d.. = d.. + d..q typical speed
+        G = np.zeros((6, ne))
+        G[0, ix["m11"]] = 1.0
+        G[1, ix["m66"]] = 1.0
+        G[2, ix["d11"]], G[2, ix["d11q"]] = 1.0, ext.map_u_mps
+        G[3, ix["d22"]], G[3, ix["d22q"]] = 1.0, ext.map_v_mps
+        G[4, ix["d33"]], G[4, ix["d33q"]] = 1.0, ext.map_r_radps
+        G[5, ix["m26"]], G[5, ix["m11"]] = 1.0 / ext.m11, -ext.m26 / ext.m11 ** 2
+        se = np.sqrt(np.maximum(np.diag(G @ cov_ext @ G.T), 0.0))
+        self.params_ = ext.paper_terms()
+        self.theta_ = self.params_.as_array()
+        self.stderr_ = {k: float(x) for k, x in zip(PARAM_NAMES, se)}
+        self.ci95_ = {k: (float(v - Z95 * x), float(v + Z95 * x)) for k, v, x in zip(PARAM_NAMES, self.theta_, se)}
+        sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+        self.corr_ = pd.DataFrame(cov / np.outer(sd, sd), index=names, columns=names)
+        self.cov_ = cov
+        self.final_ = cand
+
     def _set_result(self, cand: Candidate, runs) -> None:
         """The fitted attributes from the returned candidate."""
+        self.extended_ = None
+        self.extended_stderr_ = {}
+        if cand.start.model == "extended":
+            self._set_ext_result(cand, runs)
+            return
         fitted = cand.fitted
         theta = cand.theta
         self.oe_ = fitted if isinstance(fitted, OutputErrorResult) else None
@@ -686,8 +911,8 @@ class Identifier:
             se = np.array([fitted.stderr[k] for k in PARAM_NAMES])
             names = [k for k in PARAM_NAMES if k not in self.fix]
             cov = np.diag([fitted.stderr[k] ** 2 for k in names])
-            self.current_: list[tuple[float, ...]] = [(0.0, 0.0)] * len(runs)
-            self.current_stderr_: list[tuple[float, ...]] = [(float("nan"), float("nan"))] * len(runs)
+            self.current_ = [(0.0, 0.0)] * len(runs)
+            self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": fitted.rms[0], "sway_n": fitted.rms[1], "yaw_nm": fitted.rms[2]}
         elif isinstance(fitted, OutputErrorResult):
@@ -844,7 +1069,7 @@ class Identifier:
                 "equation error is biased by measurement noise in its regressors (inertia terms and d22 "
                 "typically tens of percent off)" + ("" if self.method == "equation-error" else
                                                      ": it validated better than the output-error fits here"))
-            if self.equation_error_.theta[3] <= 0.0 and "d22" not in self.fix:
+            if self.final_.start.model == "paper" and self.equation_error_.theta[3] <= 0.0 and "d22" not in self.fix:
                 add(1, f"d22 at its bound 0 in equation error (not determined): the vessel's value "
                        f"{fmt_num(p.d22)} kept")
         if not self.current and self.method == "output-error":
@@ -919,6 +1144,8 @@ class Identifier:
         """
         self._check_fitted()
         v = self.vessel_in_
+        if self.extended_ is not None:   # the extended structure: its TOML has an [extended] table
+            return extended_vessel(name or f"{v.name}-identified", self.extended_, v.thrusters)
         return Vessel(name=name or f"{v.name}-identified", params=self.params_, thrusters=v.thrusters)
 
     def validate(self, log: FieldLog, *, init_window_s: float = 60.0) -> Validation:
@@ -956,9 +1183,13 @@ class Identifier:
         """Free run of ``theta`` (default ``theta_``) through a run: the initial state (and,
         when ``current`` is None and currents are fitted, the current, within its bound)
         fitted on the first ``init_window_s``; ``current`` (north, east, m/s) given: held."""
-        theta = self.theta_ if theta is None else np.asarray(theta, float)
+        if theta is None:
+            theta = self.theta_ if self.extended_ is None else self.extended_.as_array()
+        theta = np.asarray(theta, float)
         t0 = max(run.t_thrust[0], ks.t[0])
         t_init = t0 + min(init_window_s, 0.5 * (run.t_thrust[-1] - t0))
+        if len(theta) == len(EXTENDED_PARAM_NAMES):
+            return self._validate_ext(run, ks, theta, current, t0, t_init)
         if current is None:
             x0, cur = fit_initial_state(run, theta, ks.at(t0), t0, t_init, fit_current=self.current)
             cur = np.clip(cur, -self.max_current_mps, self.max_current_mps)
@@ -968,6 +1199,24 @@ class Identifier:
         with np.errstate(over="ignore", invalid="ignore"):
             sim = simulate_run(run, theta, cur, x0, t0, t)
         meas = ks.at(t, cur)
+        sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
+        after = t > t_init
+        fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
+              "r": fit_percent(meas[after, 5], sim[after, 5]),
+              "track": fit_percent(meas[after, :2], sim[after, :2])}
+        return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
+                          current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0))
+
+    def _validate_ext(self, run: RunData, ks: KinStates, theta, current, t0: float, t_init: float) -> Validation:
+        """:meth:`_validate_run` for the extended model: the initial state fitted on [t0, t_init]
+        with the current held (None: the equation-error model's zero current)."""
+        cur = np.zeros(2) if current is None else np.clip(np.asarray(current, float), -self.max_current_mps,
+                                                          self.max_current_mps)
+        x0 = fit_initial_state_ext(run, theta, ks.at(t0, tuple(cur)), t0, t_init, cur)
+        t = ks.t[ks.t >= t0]
+        with np.errstate(over="ignore", invalid="ignore"):
+            sim = free_run_full(run, theta, cur, x0, t0, t)
+        meas = ks.at(t, tuple(cur))
         sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
         after = t > t_init
         fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
@@ -988,7 +1237,9 @@ class Identifier:
         run, ks = self.runs_[run_index], self._kin[run_index]
         cur = self.current_[run_index]
         t = ks.t
-        if self.oe_ is not None:
+        if self.extended_ is not None:
+            sim = free_run_full(run, self.extended_.as_array(), cur, ks.at(t[0], cur), t[0], t)
+        elif self.oe_ is not None:
             sim = predict_segments(self.runs_, self.segment_s, self.oe_.x0s, self.theta_,
                                    np.asarray(self.current_, float), run_index, t)
         else:
@@ -1064,7 +1315,13 @@ class Identifier:
              "Iz_minus_m_xg2": self.params_.Iz_eff,
              "candidates": [c.to_dict() for c in self.candidates_],
              "chosen": self.chosen_.start.name,
-             "thrust_scale": self.thrust_scale_.to_dict()}
+             "thrust_scale": self.thrust_scale_.to_dict(),
+             "model": self.model,
+             "structure": "paper" if self.extended_ is None else "extended"}
+        if self.extended_ is not None:
+            d["extended"] = {"params": self.extended_.to_dict(), "stderr": dict(self.extended_stderr_)}
+        if self.model_comparison_ is not None:
+            d["model_comparison"] = self.model_comparison_
         if val is not None:
             d["validation"] = val.to_dict()
         return d
@@ -1092,6 +1349,7 @@ class Identifier:
         fp = self.validation_fit_percent_()
         lines = ["", "[identification]", f"usable = {'true' if self.usable_ else 'false'}",
                  f"verdict = {q(self.verdict_)}", f"method = {q(self.method)}",
+                 f"structure = {q('paper' if self.extended_ is None else 'extended')}",
                  f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}"]
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
