@@ -101,8 +101,9 @@ def cache_parent() -> str:
     """
     from numba.core import config as numba_config  # heavy: numba, only once a kernel is needed
 
-    if numba_config.CACHE_DIR:
-        return os.path.join(numba_config.CACHE_DIR, "usvlog")
+    cache_dir = getattr(numba_config, "CACHE_DIR", "")   # set at numba's import from the environment
+    if cache_dir:
+        return os.path.join(cache_dir, "usvlog")
     from numba.misc.appdirs import AppDirs
 
     return os.path.join(AppDirs("usvlog", appauthor=False).user_cache_dir, "numba")
@@ -162,7 +163,7 @@ def _compile(fn, kw: dict):
     _register_pending()
     kw = dict(kw)
     kw.setdefault("cache", True)
-    if not kw["cache"] or numba_config.DISABLE_JIT:
+    if not kw["cache"] or getattr(numba_config, "DISABLE_JIT", False):
         return numba_njit(**kw)(fn)
     path = cache_dir()
     if not path:
@@ -170,12 +171,12 @@ def _compile(fn, kw: dict):
         return numba_njit(**kw)(fn)
     # numba's user-provided locator reads config.CACHE_DIR when the dispatcher's cache is
     # made (inside the decorator): point it at our directory for just that moment
-    saved = numba_config.CACHE_DIR
-    numba_config.CACHE_DIR = path
+    saved = getattr(numba_config, "CACHE_DIR", "")
+    numba_config.CACHE_DIR = path  # type: ignore[attr-defined,unused-ignore]
     try:
         return numba_njit(**kw)(fn)
     finally:
-        numba_config.CACHE_DIR = saved
+        numba_config.CACHE_DIR = saved  # type: ignore[attr-defined,unused-ignore]
 
 
 class _LazyKernel:

@@ -16,6 +16,7 @@ import json
 import math
 
 import numpy as np
+import pytest
 
 from usvlog.cli import main
 from usvlog.identify import Identifier
@@ -35,6 +36,7 @@ def _truth_fit(log, idf, v) -> dict:
             for k, col, i in (("u", "u_mps", 3), ("v", "v_mps", 4), ("r", "r_radps", 5))}
 
 
+@pytest.mark.slow   # a target's proof of ~1 min CPU: run with `pytest -m slow` (fast suite < 5 min)
 def test_catamaran_extended_model_meets_the_target_and_both_models_are_compared():
     """``model="both"``: the extended model's best candidate predicts the held-out 40 % with
     u >= 90 % and r >= 80 % against the truth and a held-out track fit >= 90 %, finds no

@@ -65,6 +65,7 @@ def test_catamaran_without_current_paper_model_predicts_the_held_out_part():
     assert idf.usable_, idf.reasons_
 
 
+@pytest.mark.slow   # a target's proof of ~1 min CPU: run with `pytest -m slow` (fast suite < 5 min)
 def test_catamaran_with_a_current_finds_it():
     log, idf = _catamaran_fit(0.2, seed=6)
     truth = 0.2 * np.array([math.cos(math.radians(CUR_DIR)), math.sin(math.radians(CUR_DIR))])
@@ -145,7 +146,7 @@ def _csv_from_run(path, log, *, dead_compass: bool):
     return path
 
 
-@pytest.mark.parametrize("keep_dead", [False, True])
+@pytest.mark.parametrize("keep_dead", [False, pytest.param(True, marks=pytest.mark.slow)])   # --keep-dead: slow set
 def test_dead_compass_and_counts_thrust_is_unusable_exit_1_no_toml(tmp_path, capsys, keep_dead):
     """Imported through the real CSV importer: the audit flags the dead compass, the thrust
     unit is guessed as counts (force scale unknown). Identify says unusable, exits 1, writes
