@@ -38,9 +38,8 @@ from .simulate import (
     SimSettings,
     draw_sensor_noise,
     field_log_from_run,
+    plant_advance,
     plant_form,
-    plant_step,
-    plant_step_ext,
 )
 
 
@@ -110,18 +109,9 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
             states[k, i] = x[i]
         tau[k, 0] = tu
         tau[k, 1] = tr
-        if ext:
-            if ext_prm[10] > 0.0:
-                applied[k, 0] = force[0]
-                applied[k, 1] = force[1]
-            else:
-                applied[k, 0] = tu
-                applied[k, 1] = tr
-            x, force = plant_step_ext(x, force, tu, tr, ext_prm, dt, current_n, current_e, rk4)
-        else:
-            applied[k, 0] = tu
-            applied[k, 1] = tr
-            x = plant_step(x, tu, tr, plant_prm, dt, current_n, current_e, rk4)
+        x, force, au, ar = plant_advance(x, force, tu, tr, ext, plant_prm, ext_prm, dt, current_n, current_e, rk4)
+        applied[k, 0] = au
+        applied[k, 1] = ar
     return states, tau, ctrl, applied
 
 

@@ -324,6 +324,36 @@ def plant_form(vessel: Vessel) -> tuple[bool, tuple]:
     return True, (*vessel.plant_params().as_array().tolist(), float(vessel.thrusters.lag_s))
 
 
+@jitable
+def plant_advance(x, force, tau_u, tau_r, ext, prm, ext_prm, dt, cn, ce, rk4=True):
+    """One plant step of either form, as every simulation loop takes it.
+
+    ``ext``: the extended form with thruster lag (:func:`plant_step_ext`, parameters
+    ``ext_prm``), else the paper's (:func:`plant_step`, parameters ``prm``). ``x`` the
+    6-tuple state, ``force`` the lagged (tau_u N, tau_r N m) of the extended form (passed
+    through unchanged by the paper's), the command ``tau_u`` N, ``tau_r`` N m over the step
+    of ``dt`` s, current ``cn``, ``ce`` m/s, RK4 or forward Euler.
+
+    Returns
+    -------
+    x : tuple of 6 floats
+        The state after the step.
+    force : tuple of 2 floats
+        The lagged force and moment after the step.
+    applied_u, applied_r : float
+        The force (N) and moment (N m) the plant felt at the start of the step: the lagged
+        one with a lag, else the command.
+    """
+    if ext:
+        if ext_prm[10] > 0.0:
+            au, ar = force[0], force[1]
+        else:
+            au, ar = tau_u, tau_r
+        x, force = plant_step_ext(x, force, tau_u, tau_r, ext_prm, dt, cn, ce, rk4)
+        return x, force, au, ar
+    return plant_step(x, tau_u, tau_r, prm, dt, cn, ce, rk4), force, tau_u, tau_r
+
+
 class PlantStepper:
     """A vessel's plant stepped from Python: :func:`plant_step` or :func:`plant_step_ext`.
 
@@ -353,12 +383,9 @@ class PlantStepper:
 
     def __call__(self, x, tau_u: float, tau_r: float):
         """The state after one step from ``x`` (6-tuple) under the command (tau_u N, tau_r N m)."""
-        if not self.extended:
-            self.applied = (tau_u, tau_r)
-            return plant_step(x, tau_u, tau_r, self.prm, self.dt, self.cn, self.ce, self.rk4)
-        lag = self.prm[10]
-        self.applied = self.force if lag > 0.0 else (tau_u, tau_r)
-        x, self.force = plant_step_ext(x, self.force, tau_u, tau_r, self.prm, self.dt, self.cn, self.ce, self.rk4)
+        x, self.force, au, ar = plant_advance(x, self.force, tau_u, tau_r, self.extended, self.prm, self.prm,
+                                              self.dt, self.cn, self.ce, self.rk4)
+        self.applied = (au, ar)
         return x
 
 
@@ -462,18 +489,9 @@ def _open_loop_kernel(x0, tau_u, tau_r, prm, ext, ext_prm, dt, cn, ce, rk4, zigz
         tr_out[k] = tr
         for i in range(6):
             states[k, i] = x[i]
-        if ext:
-            if ext_prm[10] > 0.0:
-                applied[k, 0] = force[0]
-                applied[k, 1] = force[1]
-            else:
-                applied[k, 0] = tu
-                applied[k, 1] = tr
-            x, force = plant_step_ext(x, force, tu, tr, ext_prm, dt, cn, ce, rk4)
-        else:
-            applied[k, 0] = tu
-            applied[k, 1] = tr
-            x = plant_step(x, tu, tr, prm, dt, cn, ce, rk4)
+        x, force, au, ar = plant_advance(x, force, tu, tr, ext, prm, ext_prm, dt, cn, ce, rk4)
+        applied[k, 0] = au
+        applied[k, 1] = ar
     return states, tu_out, tr_out, applied
 
 
