@@ -78,6 +78,7 @@ def test_straight_line_equation_error_warns_too():
         assert any("yaw barely excited" in v for v in idf.reasons_), idf.reasons_
 
 
+@pytest.mark.slow   # ~25 s CPU: with the slow set, so the fast suite stays < 5 min on 2 cores
 def test_filter_error_accuracy_fast():
     """Dynamic-EKF likelihood on the quieter 4-minute run (its intervals are wider: the filter's
     process noise absorbs part of the model's mismatch)."""
@@ -117,6 +118,7 @@ def test_fixed_mass_is_kept_and_thrust_map_guess_reported(excitation_log):
     assert any("gain identified from the fixed m" in v for v in idf.reasons_)
 
 
+@pytest.mark.slow   # ~25 s CPU: with the slow set, so the fast suite stays < 5 min on 2 cores
 def test_two_runs_fitted_jointly_each_with_its_own_current():
     sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
     a = simulate("excitation", SimSettings(duration_s=180.0, current_mps=0.2, current_dir_deg=CUR_DIR,
