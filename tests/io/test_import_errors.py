@@ -27,7 +27,7 @@ def _source(kind: str, tmp_path):
     if kind == "nmea":
         p = tmp_path / "run.nmea"
         p.write_text("\n".join(nmea_lines(10)) + "\n")
-        return p, ("nmea", "_block_columns")
+        return p, ("nmea", "_values")   # a small file: the Python parser
     if kind == "ros1":
         return write_ros1(tmp_path / "run.bag"), ("rosbag", "_number")
     if kind == "ros2":

@@ -320,7 +320,7 @@ def _empty_heading(body: str) -> bool:
     return head[-3:] in _HEADING and rest.split("*")[0].split(",")[0].strip() == ""
 
 
-def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool = True) -> Iterator[dict]:
+def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool | None = None) -> Iterator[dict]:
     """Batches of role streams (``gnss``, ``heading``, ``velocity``) from an NMEA 0183 log.
 
     See :mod:`usvlog.io.importers.core` for the batch layout and this module's docstring
@@ -347,10 +347,11 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool = True) 
         Unused (one signature for every reader).
     on_mapping : callable, optional
         Called with ``report`` before the sentences are read.
-    fast : bool, default True
-        Parse through the compiled kernels of :mod:`usvlog.io.importers.nmea_fast` (lines
-        they do not read are parsed here); False: the per-line Python loop, the reference
-        (the same samples, skips and counts; batch boundaries may differ).
+    fast : bool or None, default None
+        True: parse through the compiled kernels of :mod:`usvlog.io.importers.nmea_fast`
+        (lines they do not read are parsed here); False: the per-line Python loop, the
+        reference (the same samples, skips and counts; batch boundaries may differ); None:
+        the kernels for files of :data:`FAST_MIN_BYTES` or more, else the Python loop.
 
     Raises
     ------
@@ -403,6 +404,8 @@ def read(path, opts, report, *, fmt="nmea", on_mapping=None, fast: bool = True) 
             _put(buf, kind, t, t, vals)
         pending = []
 
+    if fast is None:
+        fast = p.stat().st_size >= FAST_MIN_BYTES
     if fast and not _lone_cr(p):
         yield from _read_fast(p, report, sc, mode, use_prefix, offset, velocity_from, day0, prefix_hint)
         return
@@ -529,6 +532,11 @@ class _LineSkips:
     def skip(self, reason: str, n: int = 1, where: str | None = None) -> None:
         self.skips.add(self.line, reason, n, where)
 
+
+FAST_MIN_BYTES = 2 << 20
+"""Files smaller than this (about 30k lines, under a second in Python) go through the Python
+parser: compiling the kernels on a fresh install takes ~20 s, which only a large file repays
+(both paths give identical records; tests compare them)."""
 
 _BLOCK_BYTES = 4 << 20   # the fast path reads the file in blocks of whole lines of about this size
 
