@@ -88,7 +88,7 @@ def test_record_view_survives_a_killed_viewer(tmp_path):
         sender = threading.Thread(target=boat.run, args=(120.0, stop))
         sender.start()
         _wait(lambda: saved.stat().st_size > blueprint_only + 20_000, 30, "data at the viewer")
-        time.sleep(1.0)
+        time.sleep(3.0)                          # the map is re-sent once a second: several snapshots
         viewer.send_signal(signal.SIGKILL)       # the viewer dies mid-run
         viewer.wait(10)
         time.sleep(3.0)                          # the boat keeps sending
@@ -137,7 +137,7 @@ def test_record_view_survives_a_killed_viewer(tmp_path):
     assert np.isin(np.round(heading, 3), np.round([h[1] for h in sent.headings], 3)).all()
     fixes = np.array(ents["/map/fixes"]["static"]["GeoPoints:positions"][-1], float)
     sent_ll = np.array([f[2:4] for f in sent.fixes])
-    assert len(fixes) > 10
+    assert len(fixes) >= 10
     assert np.abs(fixes[:, None, :] - sent_ll[None, :, :]).max(-1).min(1).max() < 1e-7  # each one was sent
     # the online EKF track follows the circle the boat drove (radius 50 m)
     track = np.array(ents["/map/track"]["static"]["GeoPoints:positions"][-1], float)
