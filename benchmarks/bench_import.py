@@ -14,12 +14,21 @@ so the sizes do not share memory. Figures per file:
 * ``to mcap``: the same, streamed into an MCAP file (JSON encoding + mcap writer included),
   as ``usvlog import`` does, timed inside the process;
 * ``cli``: ``python -m usvlog import SRC --out OUT`` end to end, start-up (imports, numba
-  cache load) included: wall time from spawning the process to its exit.
+  cache load) included: wall time from spawning the process to its exit;
+* ``cli-tiny``: the same on the first 1,000 lines of the file: the fixed cost of one import
+  (interpreter, imports, numba's load, the MCAP writer's set-up) that a file of any length
+  pays; the line after it gives the rate of the rest (``records beyond the tiny file`` per
+  extra CPU second).
+
+``--stages`` adds, per file, the CPU seconds of each stage of one import in one process
+(interpreter start-up, the imports ``usvlog import`` does, numba's import, the source
+read, the assembly into canonical frames (audit included), the MCAP writing, the source's
+sha256), which is where the end-to-end figure goes.
 
 Records/s is given per wall-clock second and per CPU second of the process (the second
 is the fairer figure on a machine shared with other work).
 
-Run:  python benchmarks/bench_import.py [--rows 360000] [--lines 144000] [--scales 1,10]
+Run:  python benchmarks/bench_import.py [--rows 360000] [--lines 144000] [--scales 1,10] [--stages]
 """
 
 from __future__ import annotations
@@ -120,6 +129,77 @@ CHILD = textwrap.dedent("""
 """).format(root=str(ROOT))
 
 
+STAGES = textwrap.dedent("""
+    import time
+    c = time.process_time
+    marks = [("start-up", c())]
+    import importlib, json, sys
+    sys.path.insert(0, {root!r})
+    from pathlib import Path
+    import usvlog.api  # noqa: F401  (what the import verb imports)
+    from usvlog.io.importers import ImportOptions, ImportReport, detect_format, file_identity, _MODULES
+    from usvlog.io.importers.core import Assembler
+    from usvlog.io.importers.sink import McapSink
+    src = Path(sys.argv[1])
+    fmt = detect_format(src)
+    mod = importlib.import_module("usvlog.io.importers." + _MODULES[fmt])
+    marks.append(("imports", c()))
+    import numba  # noqa: F401  (loaded by the first compiled kernel: the reader's or the MCAP writer's)
+    marks.append(("numba import", c()))
+    rep = ImportReport()
+    asm = Assembler(rep)
+    t = dict(read=0.0, assemble=0.0, write=0.0)
+    with open(sys.argv[2], "wb") as fh:
+        a = c()
+        sink = McapSink(fh)
+        t["write"] += c() - a
+        it = mod.read(src, ImportOptions(), rep, fmt=fmt)
+        while True:
+            a = c()
+            batch = next(it, None)
+            b = c()
+            t["read"] += b - a
+            if batch is None:
+                break
+            frames = asm.process(batch)
+            a = c()
+            t["assemble"] += a - b
+            sink.write(frames)
+            t["write"] += c() - a
+        a = c()
+        frames = asm.finish()
+        b = c()
+        sink.write(frames)
+        sink.finish({{}})
+        t["assemble"] += b - a
+        t["write"] += c() - b
+    a = c()
+    file_identity(src)
+    t["sha256"] = c() - a
+    out = {{k: v - marks[i - 1][1] if i else v for i, (k, v) in enumerate(marks)}}
+    out.update(t)
+    out["records"] = rep.records
+    print(json.dumps(out))
+""").format(root=str(ROOT))
+
+
+def measure_stages(src: Path, out: Path) -> dict:
+    """CPU seconds per stage of one import in a fresh process (see the module docstring)."""
+    r = subprocess.run([sys.executable, "-c", STAGES, str(src), str(out)], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(r.stderr)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def head_lines(src: Path, dst: Path, n: int) -> None:
+    """The first ``n`` lines of ``src`` into ``dst``."""
+    with open(src, "rb") as fi, open(dst, "wb") as fo:
+        for i, line in enumerate(fi):
+            if i >= n:
+                break
+            fo.write(line)
+
+
 def measure(src: Path, mode: str, out: Path) -> dict:
     if mode == "cli":
         return measure_cli(src, out)
@@ -155,6 +235,7 @@ def main() -> None:
     ap.add_argument("--lines", type=int, default=144_000, help="NMEA lines of the 1x file (1 hour at 40 lines/s)")
     ap.add_argument("--scales", default="1", help="file lengths to run, comma-separated multiples of 1x")
     ap.add_argument("--skip-mcap", action="store_true", help="only the parse figures")
+    ap.add_argument("--stages", action="store_true", help="also the CPU seconds per stage of one import")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="usvlog-bench-") as d:
         d = Path(d)
@@ -169,10 +250,31 @@ def main() -> None:
                     (() if args.skip_mcap else ("to mcap", "cli"))
                 for mode in modes:
                     m = measure(src, "mcap" if mode == "to mcap" else mode, d / "out.mcap")
-                    print(f"{src.name:<20} {mb:>6.1f} {m['records']:>9} {mode:>8} {m['seconds']:>7.2f} "
-                          f"{m['records'] / m['seconds']:>10,.0f} {m['cpu_seconds']:>7.2f} "
-                          f"{m['records'] / m['cpu_seconds']:>10,.0f} {m['peak_rss_mb']:>12.0f}", flush=True)
+                    row(src.name, mb, m, mode)
+                if "cli" in modes:
+                    tiny = d / f"{kind}_tiny.{kind}"
+                    head_lines(src, tiny, 1000)
+                    m0 = measure_cli(tiny, d / "out.mcap")
+                    row(tiny.name, tiny.stat().st_size / 1e6, m0, "cli")
+                    extra = m["records"] - m0["records"]
+                    print(f"{'':<20} {'':>6} {extra:>9} {'cli-rest':>8} {m['seconds'] - m0['seconds']:>7.2f} "
+                          f"{extra / max(1e-9, m['seconds'] - m0['seconds']):>10,.0f} "
+                          f"{m['cpu_seconds'] - m0['cpu_seconds']:>7.2f} "
+                          f"{extra / max(1e-9, m['cpu_seconds'] - m0['cpu_seconds']):>10,.0f}", flush=True)
+                    tiny.unlink()
+                if args.stages:
+                    st = measure_stages(src, d / "out.mcap")
+                    parts = {k: v for k, v in st.items() if k != "records"}
+                    print(f"{'':<20} stages (CPU s): " + ", ".join(f"{k} {v:.2f}" for k, v in parts.items())
+                          + f"; sum {sum(parts.values()):.2f}", flush=True)
                 src.unlink()
+
+
+def row(name: str, mb: float, m: dict, mode: str) -> None:
+    """One line of the table."""
+    print(f"{name:<20} {mb:>6.1f} {m['records']:>9} {mode:>8} {m['seconds']:>7.2f} "
+          f"{m['records'] / m['seconds']:>10,.0f} {m['cpu_seconds']:>7.2f} "
+          f"{m['records'] / m['cpu_seconds']:>10,.0f} {m['peak_rss_mb']:>12.0f}", flush=True)
 
 
 if __name__ == "__main__":
