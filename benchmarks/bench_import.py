@@ -8,7 +8,9 @@ Each measurement runs in its own Python process (peak RSS = that process's ru_ma
 so the sizes do not share memory. Figures per file:
 
 * ``parse``: reading + mapping + validating into canonical frames (the importer itself,
-  timed inside the process after its imports);
+  timed inside the process after its imports; for NMEA this includes numba's import and
+  the load of the cached kernels, ~0.7 CPU s, which an import to MCAP pays anyway for the
+  writer's kernels);
 * ``parse-py``: the same through the per-line Python NMEA parser (the reference the
   compiled one is tested against), for comparison;
 * ``to mcap``: the same, streamed into an MCAP file (JSON encoding + mcap writer included),
