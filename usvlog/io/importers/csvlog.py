@@ -22,7 +22,7 @@ import pandas as pd
 
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import guess_thrust_unit, listing
+from .core import guess_thrust_unit, listing, text_column
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {
@@ -418,7 +418,7 @@ class _Chunker:
             if role in pres:
                 m = pres[role] & good_t
                 batch["heading"] = {"t_ns": t[m], "heading_rad": vals[role][m] * scale,
-                                    "reference": np.full(int(m.sum()), "true", dtype=object)}
+                                    "reference": text_column(int(m.sum()), "true")}
                 break
         for role, scale in (("yaw_rate_degps", np.pi / 180.0), ("yaw_rate_radps", 1.0)):
             if role in pres:
@@ -439,7 +439,7 @@ class _Chunker:
                 self.thrust_unit = guess_thrust_unit(left, right)
                 report.guesses["thrust_unit"] = self.thrust_unit
             batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
-                               "unit": np.full(int(both.sum()), self.thrust_unit or "newton", dtype=object)}
+                               "unit": text_column(int(both.sum()), self.thrust_unit or "newton")}
             for role, col in (("thrust_left_dir", "left_dir"), ("thrust_right_dir", "right_dir")):
                 if role in vals:   # direction flags: an empty cell is forward (0)
                     batch["thrust"][col] = np.where(pres[role][both], vals[role][both], 0.0)
