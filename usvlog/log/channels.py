@@ -29,6 +29,21 @@ from ..resources import schemas_dir
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
 
+CDR_SCHEMA_ENCODING = "ros2msg"
+CDR_MESSAGE_ENCODING = "cdr"
+
+BULK_TOPICS = frozenset({
+    "/estimate/state",             # smoother states and standard deviations
+    "/replay/controller",          # replayed controller, every tick
+    "/replay/whatif/controller",
+    "/replay/whatif/state",
+    "/identify/fit",               # measured vs simulated series of a fit
+    "/truth/state",                # a simulation's plant state (derived, never measured)
+})
+"""High-rate derived channels written as little-endian CDR with a ``ros2msg`` schema
+(:class:`usvlog.io.mcap.codec.CdrCodec`) instead of JSON: numbers only, so a message is a
+fixed-size struct. Sensor channels stay JSON + JSON Schema. Both read back the same."""
+
 
 @dataclass(frozen=True)
 class FieldSpec:

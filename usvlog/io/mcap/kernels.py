@@ -589,3 +589,19 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
             ends[m] = n
             m += 1
     return ends[:m]
+
+
+# -----------------------------------------------------------------------------
+# fixed-size (CDR) messages
+# -----------------------------------------------------------------------------
+
+@njit
+def gather_rows(buf, starts, size):
+    """Messages ``buf[starts[i]:starts[i] + size]`` (all ``size`` bytes) -> one (n, size)
+    uint8 array, a row per message, for a numpy structured view."""
+    out = np.empty((len(starts), size), np.uint8)
+    for i in range(len(starts)):
+        s = starts[i]
+        for j in range(size):
+            out[i, j] = buf[s + j]
+    return out
