@@ -319,7 +319,9 @@ def _layout(scan: _Scan, data: bytes) -> None:
 
 
 def _unexpected(scan: _Scan, op: int, off: int, length: int) -> str | None:
-    """With a summary, a chunk or metadata record must be one its indexes list."""
+    """With a summary, a chunk or metadata record must be one its indexes list, and no
+    record may run over the start of a chunk the chunk index lists (damaged bytes read as a
+    record must not swallow an intact chunk)."""
     s = scan.summary
     if s is None:
         return None
@@ -327,7 +329,31 @@ def _unexpected(scan: _Scan, op: int, off: int, length: int) -> str | None:
         return f"chunk record at byte {off} is not in the chunk index"
     if op == OP_METADATA and s.metadata and s.metadata.get(off, (-1,))[0] != length + 9:
         return f"metadata record at byte {off} is not in the metadata index"
+    j = bisect.bisect_right(s.chunk_offsets, off)
+    if j < len(s.chunk_offsets) and s.chunk_offsets[j] < off + 9 + length:
+        return _over_chunk(off, s.chunk_offsets[j])
     return None
+
+
+def _over_chunk(off: int, chunk_at: int) -> str:
+    return f"record at byte {off} runs over the chunk at byte {chunk_at}"
+
+
+def _first_over_chunk(scan: _Scan, ops, offs, lens) -> tuple[int, str | None]:
+    """(index, reason) of the first message record among ``ops`` that runs over the start
+    of a listed chunk (:func:`_unexpected`'s rule, for the records the compiled walk reads
+    as messages), else (len(ops), None)."""
+    s = scan.summary
+    if s is None or not s.chunk_offsets or not len(ops):
+        return len(ops), None
+    co = np.asarray(s.chunk_offsets, dtype=np.int64)
+    j = np.searchsorted(co, offs, side="right")
+    nxt = co[np.minimum(j, len(co) - 1)]
+    over = (ops == OP_MESSAGE) & (j < len(co)) & (nxt < offs + 9 + lens)
+    if not over.any():
+        return len(ops), None
+    i = int(np.argmax(over))
+    return i, _over_chunk(int(offs[i]), int(nxt[i]))
 
 
 def _chunk_shape(data: bytes, p: int, end: int) -> int:
@@ -571,7 +597,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None, skip: froz
         n = len(ops)
         scan.walked = (ops, offs, lens)
         bad_i, why = n, None
-        for i in np.flatnonzero(ops != OP_MESSAGE).tolist():
+        over_i, over_why = _first_over_chunk(scan, ops, offs, lens)
+        for i in np.flatnonzero(ops[:over_i] != OP_MESSAGE).tolist():
             op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
             body, nxt = off + 9, off + 9 + ln
             why = _unexpected(scan, op, off, ln)
@@ -612,6 +639,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None, skip: froz
                     yield batch
                 if release is not None:
                     release(nxt)
+        if why is None and over_i < n:
+            bad_i, why = over_i, over_why
         top = np.flatnonzero(ops[:bad_i] == OP_MESSAGE)
         if len(top):
             cid, seq, t, ps, pe, _ok = K.message_fields(buf, offs[top], lens[top])
