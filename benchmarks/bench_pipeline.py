@@ -113,7 +113,7 @@ def main() -> None:
         sums[h] = wall
         print(f"  {'sum':9s} {wall:7.2f} s wall {cpu:7.2f} s CPU {peak:7.0f} MB largest peak"
               f"  (targets at 1 h: <= 15 s, <= 1500 MB)")
-        print(f"  plain read of e.mcap ({size:.0f} MB) with the mcap library (NonSeekingReader loop + orjson):"
+        print(f"  plain read of e.mcap ({size:.0f} MB) with the mcap library (NonSeekingReader + orjson or struct):"
               f" {pw:.2f} s process wall, {pc:.2f} s CPU, {pp:.0f} MB; sum / plain read = {wall / pw:.1f}x"
               f" (target <= 2x)")
         print(f"  load average after: {os.getloadavg()[0]:.2f}", flush=True)
