@@ -11,8 +11,9 @@ message, plus a few ``x-usvlog-*`` keywords that say how it maps to columns:
 :func:`channel_spec` gives a topic's columns (a :class:`ChannelSpec`) and
 :func:`frame_from_columns` builds a canonical frame from them. Topics with no
 registered schema get a schema generated from the frame's dtypes
-(:func:`auto_schema`). Turning frames into JSON messages and back is the job of
-:mod:`usvlog.io.mcap.codec`, which reads its column layout from here.
+(:func:`auto_schema`). Turning frames into JSON messages (CDR ones for the bulk derived
+channels, :data:`BULK_TOPICS`) and back is the job of :mod:`usvlog.io.mcap.codec`, which
+reads its column layout from here.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Compiled (numba) inner loops for reading and writing canonical logs.
 
 Only byte-level loops live here: walking MCAP records, matching flat JSON messages
-against a template, and assembling message/chunk bytes. The callers
+against a template, gathering fixed-size (CDR) messages, and assembling message/chunk bytes. The callers
 (``usvlog.channels`` and ``usvlog.io.mcapio``) keep a simple pure-Python reference
 path next to each fast path, and the tests check one against the other.
 """
