@@ -853,8 +853,8 @@ def channel_codec(topic: str, message_encoding: str, schema_encoding: str, schem
         The stored schema is not usable.
     """
     if message_encoding == CDR_MESSAGE_ENCODING:
-        msgdef = schema_data.decode("utf-8")
-        return _cdr_channel(topic, schema_name, msgdef)
+        schema, codec = _cdr_channel(topic, schema_name, schema_data.decode("utf-8"))
+        return json.loads(json.dumps(schema)), codec   # the caller's own copy (the registry's is cached)
     schema = json.loads(schema_data) if schema_data else {"title": schema_name, "properties": {}}
     if not isinstance(schema, dict):
         raise TypeError("not an object")
