@@ -8,9 +8,9 @@ For each length: ``simulate excitation``, ``inspect``, ``estimate``, ``identify 
 ``python -m usvlog ...`` in its own process, timed from start to exit; its peak resident
 memory is the child's ``ru_maxrss`` (``os.wait4``). Then one plain read of the estimate's
 file with the mcap library (the fastest library loop: ``NonSeekingReader`` records in file
-order, ``orjson.loads`` per message, no CRC checks), in the same run, for the "sum <= 2x a
-plain read" comparison. The load average is printed: on a shared machine the figures are
-only comparable at the same load.
+order, ``orjson.loads`` per JSON message, ``struct.unpack`` per CDR one, no CRC checks), in
+the same run, for the "sum <= 2x a plain read" comparison. The load average is printed: on a
+shared machine the figures are only comparable at the same load.
 
 Targets (issue 17): 1 hour, the seven verbs' sum <= 15 s and every verb <= 1.5 GB; at
 3 hours every verb <= 1.5 GB and the sum <= 3.2x the 1-hour sum.
@@ -39,13 +39,29 @@ VERBS = [
 ]
 
 PLAIN_READ = """
-import sys, time, orjson
+import struct, sys, time, orjson
 from mcap.reader import NonSeekingReader
+
+def cdr_struct(msgdef):
+    # a flat ros2msg of float64/int64/bool fields: one little-endian CDR struct after the 4-byte header
+    fmt, pos = "<4x", 0
+    for line in msgdef.decode().splitlines():
+        if line.strip() and not line.startswith("#"):
+            code, size = {"float64": ("d", 8), "int64": ("q", 8), "bool": ("?", 1)}[line.split()[0]]
+            pad = -pos % size
+            fmt, pos = fmt + "x" * pad + code, pos + pad + size
+    return struct.Struct(fmt)
+
 t = time.perf_counter()
 n = 0
+structs = {}
 with open(sys.argv[1], "rb") as fh:
-    for _schema, _channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
-        orjson.loads(message.data)
+    for schema, channel, message in NonSeekingReader(fh).iter_messages(log_time_order=False):
+        if channel.message_encoding == "cdr":   # the bulk derived channels: struct.unpack per message
+            st = structs.get(schema.id) or structs.setdefault(schema.id, cdr_struct(schema.data))
+            st.unpack(message.data)
+        else:
+            orjson.loads(message.data)
         n += 1
 print(n, time.perf_counter() - t)
 """
@@ -97,7 +113,7 @@ def main() -> None:
         sums[h] = wall
         print(f"  {'sum':9s} {wall:7.2f} s wall {cpu:7.2f} s CPU {peak:7.0f} MB largest peak"
               f"  (targets at 1 h: <= 15 s, <= 1500 MB)")
-        print(f"  plain read of e.mcap ({size:.0f} MB) with the mcap library (NonSeekingReader loop + orjson):"
+        print(f"  plain read of e.mcap ({size:.0f} MB) with the mcap library (NonSeekingReader + orjson or struct):"
               f" {pw:.2f} s process wall, {pc:.2f} s CPU, {pp:.0f} MB; sum / plain read = {wall / pw:.1f}x"
               f" (target <= 2x)")
         print(f"  load average after: {os.getloadavg()[0]:.2f}", flush=True)

@@ -1,7 +1,14 @@
 """Write speed: usvlog.write_log vs the mcap library Writer (one add_message per message)
-on the 1-hour log (468k messages).
+on the 1-hour log (468k messages); and the bulk derived channels as JSON vs CDR.
 
     python benchmarks/bench_write.py
+    python benchmarks/bench_write.py --derived r.mcap   # only: the derived channels of r.mcap
+
+``--derived FILE`` (default: the 1-hour simulation's ``/truth/state``) takes the channels of
+FILE that are written as CDR (``usvlog.log.channels.BULK_TOPICS``: estimate states, replay,
+fit, simulation truth) and writes them twice with ``write_log``: as JSON with their JSON
+Schema (as before) and as CDR; CPU time (this process and its compression threads) and wall
+time of the encoding + compression, best of 3, file sizes, and ``read_log``'s decoding time.
 
 Both are timed the same way: one warm-up write each, then best of 3. The library Writer
 compresses at zstd level 3, usvlog at level 1 (smaller and faster on these logs), so the
@@ -11,6 +18,7 @@ library's file byte for byte (checked here, and in tests/io).
 
 from __future__ import annotations
 
+import argparse
 import os
 import tempfile
 import time
@@ -28,8 +36,69 @@ def best_of(fn, n=3):
     return best
 
 
+def best_cpu(fn, n=3) -> tuple[float, float]:
+    """(best wall s, best CPU s of this process, its threads included) of ``fn()``."""
+    wall = cpu = float("inf")
+    for _ in range(n):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        wall, cpu = min(wall, time.perf_counter() - t), min(cpu, time.process_time() - c)
+    return wall, cpu
+
+
+def derived(path: Path | None) -> None:
+    """The bulk derived channels written and read as JSON and as CDR."""
+    import usvlog.io.mcap.codec as codec_mod
+    from usvlog.io.mcap import read_log, write_log
+    from usvlog.log.channels import BULK_TOPICS
+    from usvlog.log.fieldlog import FieldLog
+
+    if path is None:   # the cached hour log drops the truth: simulated here
+        from usvlog.sim.simulate import SimSettings, simulate
+
+        src = simulate("excitation", SimSettings(duration_s=3600.0), seed=1)
+    else:
+        src = read_log(path, topics=sorted(BULK_TOPICS))
+    log = FieldLog()
+    for t in src.topics:
+        if t in BULK_TOPICS:
+            log.channels[t] = src.channels[t]
+            log.schemas[t] = src.schemas[t]
+    n = sum(len(f) for f in log.channels.values())
+    print(f"derived channels of {path or '1 h simulation'}: "
+          + ", ".join(f"{t} {len(f)}" for t, f in log.channels.items()))
+    rows = []
+    with tempfile.TemporaryDirectory() as d:
+        for name, bulk in (("JSON + JSON Schema", frozenset()), ("CDR + ros2msg", BULK_TOPICS)):
+            out = Path(d) / "d.mcap"
+            saved, codec_mod.BULK_TOPICS = codec_mod.BULK_TOPICS, bulk
+            try:
+                write_log(log, out, force=True)  # warm-up
+                w_wall, w_cpu = best_cpu(lambda out=out: write_log(log, out, force=True))
+            finally:
+                codec_mod.BULK_TOPICS = saved
+            read_log(out)  # warm-up
+            r_wall, r_cpu = best_cpu(lambda out=out: read_log(out))
+            rows.append((name, w_wall, w_cpu, r_wall, r_cpu, out.stat().st_size / 1e6))
+    print(f"{n} messages; load average {os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs; best of 3")
+    print(f"{'encoding':20s} {'write wall':>10s} {'write CPU':>10s} {'read wall':>10s} {'read CPU':>10s} {'size':>9s}")
+    for name, ww, wc, rw, rc, mb in rows:
+        print(f"{name:20s} {ww:9.2f}s {wc:9.2f}s {rw:9.2f}s {rc:9.2f}s {mb:7.1f}MB")
+    (_, ww0, wc0, rw0, rc0, _), (_, ww1, wc1, rw1, rc1, _) = rows
+    print(f"CDR vs JSON: write {wc0 / wc1:.1f}x less CPU ({ww0 / ww1:.1f}x wall), "
+          f"read {rc0 / rc1:.1f}x less CPU ({rw0 / rw1:.1f}x wall)")
+
+
 def main() -> None:
-    from usvlog.io.mcap import _write_log_reference, read_log, write_log
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--derived", nargs="?", const="", default=None, metavar="FILE",
+                    help="only the derived channels (of FILE; default the 1-hour simulation's truth)")
+    args = ap.parse_args()
+    if args.derived is not None:
+        derived(Path(args.derived) if args.derived else None)
+        return
+    from usvlog.io.mcap import read_log, write_log
+    from usvlog.io.mcap.reference import _write_log_reference
 
     log = read_log(hour_file())
     n = sum(len(f) for f in log.channels.values())

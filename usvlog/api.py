@@ -260,13 +260,11 @@ def _is_canonical_candidate(path: Path) -> bool:
 
 def _inspect_file(path: Path) -> LogSummary:
     """:func:`inspect` of an MCAP file, streamed: the same summary as ``summarize(load(path))``."""
-    import json
 
     import numpy as np
 
     # heavy: numpy, the MCAP reader
-    from .io.mcap.codec import codec_for_schema
-    from .io.mcap.reader import iter_chunks
+    from .io.mcap.reader import codec_of_channel, iter_chunks
     from .log.channels import schema_for_topic
     from .log.fieldlog import META_PROVENANCE
     from .log.summary import LogSummary, TimeStats, skipped_from_provenance
@@ -303,14 +301,7 @@ def _inspect_file(path: Path) -> LogSummary:
         ch = channels[cid]
         if not ch.canonical:
             continue  # not a canonical channel: load leaves it alone too
-        try:
-            schema = json.loads(ch.schema_data) if ch.schema_data else {"title": ch.schema_name, "properties": {}}
-            if not isinstance(schema, dict):
-                raise TypeError("not an object")
-            codec_for_schema(schema)
-        except (ValueError, TypeError, AttributeError) as err:
-            raise InputError(f"{path} channel {ch.topic}: schema {ch.schema_name} is not a usable JSON Schema "
-                             f"({err})") from err
+        schema, _codec = codec_of_channel(path, ch)
         title = schema.get("title", "") or (schema_for_topic(ch.topic) or {}).get("title", "")
         by_topic[ch.topic] = stats.get(cid, TimeStats()).summary(ch.topic, title)
     chans = tuple(by_topic[t] for t in sorted(by_topic))

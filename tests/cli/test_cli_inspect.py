@@ -32,7 +32,7 @@ def small(tmp_path_factory):
     log = simulate("excitation", SimSettings(duration_s=60.0), seed=5)
     d = tmp_path_factory.mktemp("inspect")
     path = d / "clean.mcap"
-    write_log(log, path, chunk_size=96 * 1024)
+    write_log(log, path, chunk_size=64 * 1024)
     return path, path.read_bytes()
 
 

@@ -256,7 +256,8 @@ def test_bad_message_in_a_good_chunk_costs_that_message(tmp_path, excitation_log
     start = index[len(index) // 2].chunk_start_offset
     crc_at, rec_at, rlen = _chunk_fields(data, start)
     records = data[rec_at:rec_at + rlen]
-    at = rec_at + records.index(b'"n_m":') + 6  # the first digit of a /truth/state message's n_m
+    # the first digit of a /gnss/fix message's latitude (a JSON channel: CDR's doubles have no invalid bytes)
+    at = rec_at + records.index(b'"latitude":') + 11
     for fix_crc in (True, False):
         d = bytearray(data)
         d[at] = ord("x")
@@ -270,8 +271,8 @@ def test_bad_message_in_a_good_chunk_costs_that_message(tmp_path, excitation_log
             assert w == 0
         missing = {t: len(excitation_log[t]) - len(got[t]) for t in excitation_log.topics}
         if fix_crc:
-            assert missing == {t: int(t == "/truth/state") for t in excitation_log.topics}
-            assert rec.messages_skipped == 1 and rec.skipped_by_topic == {"/truth/state": 1}
+            assert missing == {t: int(t == "/gnss/fix") for t in excitation_log.topics}
+            assert rec.messages_skipped == 1 and rec.skipped_by_topic == {"/gnss/fix": 1}
             assert rec.lost_chunks == () and rec.bytes_lost == 0
             assert "1 message(s) unreadable" in rec.one_line()
         else:

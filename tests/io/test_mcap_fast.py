@@ -21,7 +21,7 @@ from mcap.writer import CompressionType, Writer
 
 from usvlog.errors import InputError
 from usvlog.io.mcap import read_log, write_log
-from usvlog.io.mcap.codec import Codec, _decode_layout, codec_for_topic
+from usvlog.io.mcap.codec import Codec, _decode_layout, codec_for_topic, writer_codec
 from usvlog.io.mcap.reference import _write_log_reference, read_log_reference
 from usvlog.log.channels import auto_schema
 from usvlog.log.fieldlog import FieldLog
@@ -96,7 +96,7 @@ def our_messages(log: FieldLog) -> list:
     """The messages a read log holds, re-encoded, in the library's record order."""
     out = []
     for topic in log.topics:
-        codec = codec_for_topic(topic) or Codec(log.schemas[topic])
+        codec = writer_codec(topic, log.schemas[topic])
         payloads = codec.encode_reference(log[topic], topic)
         out += [(topic, t, i, p) for i, (t, p) in enumerate(zip(log[topic].index.tolist(), payloads))]
     return out
@@ -116,15 +116,25 @@ def test_writer_gives_the_mcap_writers_bytes(tmp_path, excitation_log, compressi
 
 
 def test_written_file_reads_back_through_the_library_seeking_reader(tmp_path, excitation_log):
+    """JSON channels decoded by the stdlib json module, CDR ones by mcap-ros2-support's decoder."""
+    from mcap_ros2.decoder import DecoderFactory
+
     p = tmp_path / "x.mcap"
     write_log(excitation_log, p, chunk_size=64 * 1024)
+    ros2 = DecoderFactory()
     with open(p, "rb") as fh:
         reader = make_reader(fh)
         summary = reader.get_summary()
         got = {}
-        for _schema, channel, msg in reader.iter_messages():
-            got.setdefault(channel.topic, []).append((msg.log_time, msg.sequence, json.loads(msg.data)))
+        for schema, channel, msg in reader.iter_messages():
+            if channel.message_encoding == "cdr":
+                o = ros2.decoder_for("cdr", schema)(msg.data)
+                value = {k: getattr(o, k) for k in o.__slots__}
+            else:
+                value = json.loads(msg.data)
+            got.setdefault(channel.topic, []).append((msg.log_time, msg.sequence, value))
         metas = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert {t for t in got if excitation_log[t].shape[0]} >= {"/truth/state", "/gnss/fix"}
     assert summary.statistics.message_count == sum(len(f) for f in excitation_log.channels.values())
     assert len(summary.chunk_indexes) > 5
     assert metas == excitation_log.meta

@@ -11,8 +11,9 @@ message, plus a few ``x-usvlog-*`` keywords that say how it maps to columns:
 :func:`channel_spec` gives a topic's columns (a :class:`ChannelSpec`) and
 :func:`frame_from_columns` builds a canonical frame from them. Topics with no
 registered schema get a schema generated from the frame's dtypes
-(:func:`auto_schema`). Turning frames into JSON messages and back is the job of
-:mod:`usvlog.io.mcap.codec`, which reads its column layout from here.
+(:func:`auto_schema`). Turning frames into JSON messages (CDR ones for the bulk derived
+channels, :data:`BULK_TOPICS`) and back is the job of :mod:`usvlog.io.mcap.codec`, which
+reads its column layout from here.
 """
 
 from __future__ import annotations
@@ -28,6 +29,21 @@ from ..resources import schemas_dir
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
+
+CDR_SCHEMA_ENCODING = "ros2msg"
+CDR_MESSAGE_ENCODING = "cdr"
+
+BULK_TOPICS = frozenset({
+    "/estimate/state",             # smoother states and standard deviations
+    "/replay/controller",          # replayed controller, every tick
+    "/replay/whatif/controller",
+    "/replay/whatif/state",
+    "/identify/fit",               # measured vs simulated series of a fit
+    "/truth/state",                # a simulation's plant state (derived, never measured)
+})
+"""High-rate derived channels written as little-endian CDR with a ``ros2msg`` schema
+(:class:`usvlog.io.mcap.codec.CdrCodec`) instead of JSON: numbers only, so a message is a
+fixed-size struct. Sensor channels stay JSON + JSON Schema. Both read back the same."""
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,9 @@
 """Canonical MCAP logs: write a FieldLog, read one back (recovering damaged files).
 
 Layout written: header, metadata records (datum, vessel, provenance: first, so a
-truncated file keeps them), then zstd chunks of JSON messages in log-time order,
-then the usual summary (indexes, statistics). Each message's ``sequence`` is its
+truncated file keeps them), then zstd chunks of JSON messages (little-endian CDR with a
+ros2msg schema for the bulk derived channels, :data:`usvlog.log.channels.BULK_TOPICS`) in
+log-time order, then the usual summary (indexes, statistics). Each message's ``sequence`` is its
 row number in the channel's frame so reading restores the frame's row order.
 :class:`McapWriter` is the one writer: ``write_log`` writes a whole log through it,
 the importer streams batches into it (its metadata then follows the chunks).

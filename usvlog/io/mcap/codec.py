@@ -1,4 +1,4 @@
-"""The JSON message codec of canonical channels: frames -> JSON messages -> columns.
+"""The message codecs of canonical channels: frames -> JSON (or CDR) messages -> columns.
 
 A :class:`Codec` encodes a frame's rows to flat JSON messages and decodes messages
 back to columns, for one schema; the columns and their kinds come from the schema
@@ -8,11 +8,20 @@ Decoding uses the schema stored *in the file*, so a log stays readable after the
 registry changes; encoding uses the registry. Messages that share one layout are
 decoded by compiled scans (:mod:`usvlog.io.mcap.kernels`), with pyarrow for the
 rare numbers those leave undecided; ``orjson.loads`` is the reference path.
+
+The high-rate derived channels (:data:`usvlog.log.channels.BULK_TOPICS`) are written by
+:class:`CdrCodec` instead: little-endian CDR messages with a ``ros2msg`` schema (what
+Foxglove and Rerun's MCAP loaders read). Their fields are all float64 / int64 / bool,
+so every message is one fixed-size struct and a numpy structured array encodes or
+decodes a whole block at once; ``struct`` per message is the reference path.
+:func:`channel_codec` picks the codec of a channel read from a file by its encodings.
 """
 
 from __future__ import annotations
 
 import json
+import re
+import struct
 from functools import lru_cache
 
 import numpy as np
@@ -20,10 +29,21 @@ import orjson
 import pandas as pd
 
 from ...errors import InputError
-from ...log.channels import ChannelSpec, FieldSpec, schema_for_topic, spec_for_schema
+from ...log.channels import (
+    BULK_TOPICS,
+    CDR_MESSAGE_ENCODING,
+    CDR_SCHEMA_ENCODING,
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    ChannelSpec,
+    FieldSpec,
+    schema_for_topic,
+    spec_for_schema,
+)
 from . import kernels as K
 
-__all__ = ["Codec", "codec_for_schema", "codec_for_topic"]
+__all__ = ["CdrCodec", "Codec", "cdr_codec", "channel_codec", "codec_for_schema", "codec_for_topic",
+           "writer_codec"]
 
 _NS = 1_000_000_000
 
@@ -60,12 +80,25 @@ class Codec:
     messages; numbers are written as SI values with NaN as null.
     """
 
+    message_encoding = MESSAGE_ENCODING
+    schema_encoding = SCHEMA_ENCODING
+
     def __init__(self, schema: dict):
         self.schema = schema
         self.spec: ChannelSpec = spec_for_schema(schema)
         self.name: str = self.spec.name
         self.fields: tuple[FieldSpec, ...] = self.spec.fields
         self._template = None   # the message layout decoded last (see _decode_layout)
+
+    @property
+    def schema_name(self) -> str:
+        """The name of the file's Schema record (the JSON Schema's title)."""
+        return self.schema.get("title", "")
+
+    @property
+    def schema_data(self) -> bytes:
+        """The bytes of the file's Schema record (the JSON Schema)."""
+        return json.dumps(self.schema, sort_keys=False).encode()
 
     @property
     def columns(self) -> list[str]:
@@ -582,3 +615,261 @@ def _codec_cached(schema_json: str) -> Codec:
 def codec_for_schema(schema: dict) -> Codec:
     """The codec of ``schema`` (e.g. the one stored in a file); cached by content."""
     return _codec_cached(json.dumps(schema))
+
+
+# -----------------------------------------------------------------------------
+# CDR (ros2msg) messages of the bulk derived channels
+# -----------------------------------------------------------------------------
+
+CDR_LE = b"\x00\x01\x00\x00"
+"""Encapsulation header of a little-endian plain CDR message (ROS 2's)."""
+
+ROS2MSG_PACKAGE = "usvlog/msg/"
+"""Prefix of the ros2msg type names usvlog writes; only such CDR channels are loaded."""
+
+# field kind -> (ros2msg type, numpy dtype in the message, frame dtype, struct code, size)
+_CDR_KINDS = {"float": ("float64", "<f8", np.float64, "d", 8), "array": ("float64", "<f8", np.float64, "d", 8),
+              "int": ("int64", "<i8", np.int64, "q", 8), "bool": ("bool", "u1", np.bool_, "B", 1)}
+_ROS2_FIELD = re.compile(r"^(float64|int64|bool)(?:\[(\d+)\])?\s+([a-z][a-z0-9_]*)\s*(?:#.*)?$")
+
+
+def ros2msg_name(title: str) -> str:
+    """ros2msg type name of a schema title: ``usvlog.ControllerState.v1`` -> ``usvlog/msg/ControllerStateV1``."""
+    parts = [p for p in title.split(".") if p]
+    if parts and parts[0] == "usvlog":
+        parts = parts[1:]
+    name = "".join(re.sub(r"[^A-Za-z0-9]", "", p[:1].upper() + p[1:]) for p in parts)
+    return ROS2MSG_PACKAGE + (name or "Message")
+
+
+class CdrCodec(Codec):
+    """Encodes frames to little-endian CDR messages and decodes them back, for one schema.
+
+    A message is the 4-byte encapsulation header then the schema's properties in
+    order, each aligned to its size counted from after the header (CDR's rule): float64
+    for numbers (NaN and inf kept bit for bit), int64 for integers, bool (one byte),
+    ``float64[N]`` for fixed-length number arrays. Every message has the same size, so
+    :meth:`encode_packed` and :meth:`decode_spans` convert whole columns through a numpy
+    structured dtype; :meth:`encode_row` and :meth:`decode_reference` are the per-message
+    ``struct`` reference.
+
+    Parameters
+    ----------
+    schema : dict
+        A JSON Schema of the channel (see :mod:`usvlog.log.channels`) whose properties are
+        numbers, integers, booleans or number arrays only (:func:`cdr_codec` checks).
+
+    Attributes
+    ----------
+    msgdef : str
+        The ros2msg definition written as the file's schema (one ``type name`` line per
+        property).
+    size : int
+        Bytes of every message, header included.
+    """
+
+    message_encoding = CDR_MESSAGE_ENCODING
+    schema_encoding = CDR_SCHEMA_ENCODING
+
+    def __init__(self, schema: dict):
+        super().__init__(schema)
+        lines, names, formats, offsets, packs = [], [], [], [], []
+        pos = 0   # offset after the encapsulation header
+        for f in self.fields:
+            rtype, mdt, _fdt, code, size = _CDR_KINDS[f.kind]
+            pos = -(-pos // size) * size
+            lines.append(f"{rtype}[{len(f.columns)}] {f.prop}" if f.kind == "array" else f"{rtype} {f.prop}")
+            packs.append((f, pos))
+            for j, c in enumerate(f.columns):
+                names.append(c)
+                formats.append(mdt)
+                offsets.append(4 + pos + j * size)
+            pos += size * len(f.columns)
+        self.size: int = 4 + pos
+        self.msgdef: str = "\n".join(lines) + "\n"
+        self._dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": self.size})
+        fmt, at = "<4s", 0
+        for f, p in packs:
+            code, size = _CDR_KINDS[f.kind][3], _CDR_KINDS[f.kind][4]
+            fmt += "x" * (p - at) + code * len(f.columns)
+            at = p + size * len(f.columns)
+        self._struct = struct.Struct(fmt)
+
+    @property
+    def schema_name(self) -> str:
+        """The ros2msg type name (``usvlog/msg/...``) of the file's Schema record."""
+        return ros2msg_name(self.name)
+
+    @property
+    def schema_data(self) -> bytes:
+        """The bytes of the file's Schema record (the ros2msg definition)."""
+        return self.msgdef.encode()
+
+    # -- encode --------------------------------------------------------------------
+    def encode_packed(self, frame: pd.DataFrame, topic: str = "") -> tuple[np.ndarray, np.ndarray]:
+        """Frame -> (all messages' bytes as uint8, int64 offsets of the n+1 message bounds);
+        the bytes of :meth:`encode_reference`."""
+        self._check_columns(frame, topic)
+        n = len(frame)
+        out = np.zeros((n, self.size), dtype=np.uint8)
+        out[:, :4] = np.frombuffer(CDR_LE, dtype=np.uint8)
+        rec = out.view(self._dtype).reshape(n)
+        for f in self.fields:
+            for c in f.columns:
+                rec[c] = np.asarray(frame[c].to_numpy(), dtype=_CDR_KINDS[f.kind][2])
+        return out.reshape(-1), np.arange(n + 1, dtype=np.int64) * self.size
+
+    def encode_row(self, row, topic: str = "") -> bytes:
+        """One row ``{column: value}`` -> one CDR message (``struct``: the reference of
+        :meth:`encode_packed`)."""
+        vals = []
+        for f in self.fields:
+            for c in f.columns:
+                try:
+                    v = row[c]
+                except KeyError:
+                    raise InputError(f"channel {topic}: row lacks column {c} of schema {self.name}") from None
+                vals.append(float(v) if f.kind in ("float", "array") else int(v) if f.kind == "int" else int(bool(v)))
+        return self._struct.pack(CDR_LE, *vals)
+
+    # -- decode --------------------------------------------------------------------
+    def _check_sizes(self, lens: np.ndarray, topic: str) -> None:
+        bad = np.flatnonzero(lens != self.size)
+        if len(bad):
+            raise InputError(f"channel {topic}: message {int(bad[0])} is {int(lens[bad[0]])} bytes; "
+                             f"a {self.schema_name} CDR message is {self.size}")
+
+    def decode_spans(self, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                     topic: str = "") -> dict[str, np.ndarray]:
+        """Messages buf[starts[i]:ends[i]] (uint8 array) -> {column: array}, a column at a
+        time through the structured dtype (bit for bit: NaN and inf kept)."""
+        n = len(starts)
+        if n == 0:
+            return self.empty_columns()
+        starts = np.asarray(starts, dtype=np.int64)
+        self._check_sizes(np.asarray(ends, dtype=np.int64) - starts, topic)
+        rows = K.gather_rows(np.asarray(buf, dtype=np.uint8), starts, self.size)
+        bad = np.flatnonzero((rows[:, 0] != CDR_LE[0]) | (rows[:, 1] != CDR_LE[1]))
+        if len(bad):
+            raise InputError(f"channel {topic}: message {int(bad[0])} is not little-endian CDR "
+                             f"(encapsulation {rows[bad[0], :2].tobytes().hex()})")
+        rec = rows.view(self._dtype).reshape(n)
+        out = {}
+        for f in self.fields:
+            for c in f.columns:
+                out[c] = rec[c] != 0 if f.kind == "bool" else rec[c].astype(_CDR_KINDS[f.kind][2])
+        return out
+
+    def decode_reference(self, payloads: list[bytes] | list[memoryview], topic: str = "") -> dict[str, np.ndarray]:
+        """CDR messages -> {column: array} through ``struct.unpack``, one message at a time
+        (the reference of :meth:`decode_spans`)."""
+        if not payloads:
+            return self.empty_columns()
+        self._check_sizes(np.array([len(p) for p in payloads]), topic)
+        rows = []
+        for i, p in enumerate(payloads):
+            vals = self._struct.unpack(bytes(p))
+            if vals[0][:2] != CDR_LE[:2]:
+                raise InputError(f"channel {topic}: message {i} is not little-endian CDR")
+            rows.append(vals[1:])
+        out, k = {}, 0
+        for f in self.fields:
+            for c in f.columns:
+                col = [r[k] for r in rows]
+                out[c] = np.array(col, dtype=_CDR_KINDS[f.kind][2]) if f.kind != "bool" else \
+                    np.array([v != 0 for v in col], dtype=bool)
+                k += 1
+        return out
+
+
+def _cdr_schema(sname: str, msgdef: str) -> dict:
+    """The JSON Schema (columns) of a ros2msg definition of float64 / int64 / bool fields
+    (ValueError for anything else: such a channel is not one usvlog wrote)."""
+    props: dict[str, dict] = {}
+    for line in msgdef.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        m = _ROS2_FIELD.match(line)
+        if m is None or m.group(3) in props:
+            raise ValueError(f"unsupported ros2msg line {line!r}")
+        rtype, count, name = m.groups()
+        if count is not None:
+            if rtype != "float64":
+                raise ValueError(f"unsupported ros2msg array {line!r}")
+            props[name] = {"type": "array", "items": {"type": ["number", "null"]},
+                           "minItems": int(count), "maxItems": int(count)}
+        else:
+            props[name] = {"type": {"float64": ["number", "null"], "int64": "integer", "bool": "boolean"}[rtype]}
+    return {"title": sname, "type": "object", "properties": props, "required": list(props)}
+
+
+@lru_cache(maxsize=256)
+def _cdr_cached(schema_json: str) -> CdrCodec | None:
+    schema = json.loads(schema_json)
+    spec = spec_for_schema(schema)
+    if not spec.fields or any(f.kind not in _CDR_KINDS or not re.fullmatch(r"[a-z][a-z0-9_]*", f.prop)
+                              for f in spec.fields):
+        return None
+    return CdrCodec(schema)
+
+
+def cdr_codec(schema: dict) -> CdrCodec | None:
+    """The :class:`CdrCodec` of ``schema``, or None when a property is not a number,
+    integer, boolean or number array (or its name is not a ros2msg field name)."""
+    return _cdr_cached(json.dumps(schema))
+
+
+def writer_codec(topic: str, schema: dict) -> Codec:
+    """The codec a channel is written with: CDR for the bulk derived channels
+    (:data:`usvlog.log.channels.BULK_TOPICS`) whose schema allows it, else JSON."""
+    if topic in BULK_TOPICS:
+        c = cdr_codec(schema)
+        if c is not None:
+            return c
+    return codec_for_topic(topic) or codec_for_schema(schema)
+
+
+def loadable(message_encoding: str, schema_encoding: str, schema_name: str) -> bool:
+    """Whether :func:`usvlog.io.mcap.read_log` loads a channel of these encodings: JSON with a
+    JSON Schema, or CDR with a ros2msg schema usvlog wrote (``usvlog/msg/...``)."""
+    if message_encoding == MESSAGE_ENCODING and schema_encoding == SCHEMA_ENCODING:
+        return True
+    return (message_encoding == CDR_MESSAGE_ENCODING and schema_encoding == CDR_SCHEMA_ENCODING
+            and schema_name.startswith(ROS2MSG_PACKAGE))
+
+
+def channel_codec(topic: str, message_encoding: str, schema_encoding: str, schema_name: str,
+                  schema_data: bytes) -> tuple[dict, Codec]:
+    """(JSON Schema, codec) of a channel as stored in a file (see :func:`loadable`).
+
+    A JSON channel's codec is its stored JSON Schema's. A CDR channel's is its topic's
+    registered schema when that gives the same ros2msg fields (the frame's columns as
+    registered), else one made from the ros2msg definition (a column per field).
+
+    Raises
+    ------
+    ValueError, TypeError
+        The stored schema is not usable.
+    """
+    if message_encoding == CDR_MESSAGE_ENCODING:
+        schema, codec = _cdr_channel(topic, schema_name, schema_data.decode("utf-8"))
+        return json.loads(json.dumps(schema)), codec   # the caller's own copy (the registry's is cached)
+    schema = json.loads(schema_data) if schema_data else {"title": schema_name, "properties": {}}
+    if not isinstance(schema, dict):
+        raise TypeError("not an object")
+    return schema, codec_for_schema(schema)
+
+
+@lru_cache(maxsize=256)
+def _cdr_channel(topic: str, schema_name: str, msgdef: str) -> tuple[dict, CdrCodec]:
+    synth = _cdr_schema(schema_name, msgdef)
+    registered = schema_for_topic(topic)
+    if registered is not None:
+        c = cdr_codec(registered)
+        if c is not None and _cdr_schema(schema_name, c.msgdef) == synth:
+            return registered, c
+    c = cdr_codec(synth)
+    if c is None:
+        raise ValueError(f"ros2msg {schema_name} has no usable field")
+    return synth, c

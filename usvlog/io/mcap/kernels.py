@@ -1,7 +1,7 @@
 """Compiled (numba) inner loops for reading and writing canonical logs.
 
 Only byte-level loops live here: walking MCAP records, matching flat JSON messages
-against a template, and assembling message/chunk bytes. The callers
+against a template, gathering fixed-size (CDR) messages, and assembling message/chunk bytes. The callers
 (``usvlog.channels`` and ``usvlog.io.mcapio``) keep a simple pure-Python reference
 path next to each fast path, and the tests check one against the other.
 """
@@ -589,3 +589,19 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
             ends[m] = n
             m += 1
     return ends[:m]
+
+
+# -----------------------------------------------------------------------------
+# fixed-size (CDR) messages
+# -----------------------------------------------------------------------------
+
+@njit
+def gather_rows(buf, starts, size):
+    """Messages ``buf[starts[i]:starts[i] + size]`` (all ``size`` bytes) -> one (n, size)
+    uint8 array, a row per message, for a numpy structured view."""
+    out = np.empty((len(starts), size), np.uint8)
+    for i in range(len(starts)):
+        s = starts[i]
+        for j in range(size):
+            out[i, j] = buf[s + j]
+    return out

@@ -20,7 +20,6 @@ plain reading the tests compare them with.
 from __future__ import annotations
 
 import bisect
-import json
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -30,11 +29,11 @@ import numpy as np
 import pandas as pd
 
 from ...errors import FormatError, InputError
-from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING, frame_from_columns
+from ...log.channels import frame_from_columns
 from ...log.fieldlog import FieldLog, LostChunk, RecoveryReport
 from ..atomic import reading
 from . import kernels as K
-from .codec import codec_for_schema
+from .codec import channel_codec, loadable
 from .format import (
     _CHUNK,
     _FOOTER,
@@ -320,7 +319,9 @@ def _layout(scan: _Scan, data: bytes) -> None:
 
 
 def _unexpected(scan: _Scan, op: int, off: int, length: int) -> str | None:
-    """With a summary, a chunk or metadata record must be one its indexes list."""
+    """With a summary, a chunk or metadata record must be one its indexes list, and no
+    record may run over the start of a chunk the chunk index lists (damaged bytes read as a
+    record must not swallow an intact chunk)."""
     s = scan.summary
     if s is None:
         return None
@@ -328,7 +329,31 @@ def _unexpected(scan: _Scan, op: int, off: int, length: int) -> str | None:
         return f"chunk record at byte {off} is not in the chunk index"
     if op == OP_METADATA and s.metadata and s.metadata.get(off, (-1,))[0] != length + 9:
         return f"metadata record at byte {off} is not in the metadata index"
+    j = bisect.bisect_right(s.chunk_offsets, off)
+    if j < len(s.chunk_offsets) and s.chunk_offsets[j] < off + 9 + length:
+        return _over_chunk(off, s.chunk_offsets[j])
     return None
+
+
+def _over_chunk(off: int, chunk_at: int) -> str:
+    return f"record at byte {off} runs over the chunk at byte {chunk_at}"
+
+
+def _first_over_chunk(scan: _Scan, ops, offs, lens) -> tuple[int, str | None]:
+    """(index, reason) of the first message record among ``ops`` that runs over the start
+    of a listed chunk (:func:`_unexpected`'s rule, for the records the compiled walk reads
+    as messages), else (len(ops), None)."""
+    s = scan.summary
+    if s is None or not s.chunk_offsets or not len(ops):
+        return len(ops), None
+    co = np.asarray(s.chunk_offsets, dtype=np.int64)
+    j = np.searchsorted(co, offs, side="right")
+    nxt = co[np.minimum(j, len(co) - 1)]
+    over = (ops == OP_MESSAGE) & (j < len(co)) & (nxt < offs + 9 + lens)
+    if not over.any():
+        return len(ops), None
+    i = int(np.argmax(over))
+    return i, _over_chunk(int(offs[i]), int(nxt[i]))
 
 
 def _chunk_shape(data: bytes, p: int, end: int) -> int:
@@ -572,7 +597,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None, skip: froz
         n = len(ops)
         scan.walked = (ops, offs, lens)
         bad_i, why = n, None
-        for i in np.flatnonzero(ops != OP_MESSAGE).tolist():
+        over_i, over_why = _first_over_chunk(scan, ops, offs, lens)
+        for i in np.flatnonzero(ops[:over_i] != OP_MESSAGE).tolist():
             op, off, ln = int(ops[i]), int(offs[i]), int(lens[i])
             body, nxt = off + 9, off + 9 + ln
             why = _unexpected(scan, op, off, ln)
@@ -613,6 +639,8 @@ def _walk(scan: _Scan, data, release=None, window: int | None = None, skip: froz
                     yield batch
                 if release is not None:
                     release(nxt)
+        if why is None and over_i < n:
+            bad_i, why = over_i, over_why
         top = np.flatnonzero(ops[:bad_i] == OP_MESSAGE)
         if len(top):
             cid, seq, t, ps, pe, _ok = K.message_fields(buf, offs[top], lens[top])
@@ -965,10 +993,9 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                 ch = scan.channels[c]
                 part = None
                 sname, senc, sdata = scan.schemas.get(ch.schema_id, ("", "", b""))
-                if (topics is None or ch.topic in topics) and ch.encoding == MESSAGE_ENCODING \
-                        and senc == SCHEMA_ENCODING:
+                if (topics is None or ch.topic in topics) and loadable(ch.encoding, senc, sname):
                     try:
-                        part = _ChannelParts(ch.topic, *_codec_of(p, ch.topic, sname, sdata))
+                        part = _ChannelParts(ch.topic, *_codec_of(p, ch.topic, ch.encoding, senc, sname, sdata))
                     except InputError as err:
                         errors[c] = err
                 parts[c] = part
@@ -1045,15 +1072,32 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
     return log
 
 
-def _codec_of(p: Path, topic: str, sname: str, sdata: bytes):
-    """(schema, codec) of a channel's schema as stored in the file (InputError when unusable)."""
+def _codec_of(p: Path, topic: str, enc: str, senc: str, sname: str, sdata: bytes):
+    """(schema, codec) of a channel's schema as stored in the file (InputError when unusable):
+    :func:`.codec.channel_codec`, whose codecs (and so their message layouts) are cached per schema."""
     try:
-        schema = json.loads(sdata) if sdata else {"title": sname, "properties": {}}
-        if not isinstance(schema, dict):
-            raise TypeError("not an object")
-        return schema, codec_for_schema(schema)
+        return channel_codec(topic, enc, senc, sname, sdata)
     except (ValueError, TypeError, AttributeError) as err:
-        raise InputError(f"{p} channel {topic}: schema {sname} is not a usable JSON Schema ({err})") from err
+        what = "JSON Schema" if enc != "cdr" else "ros2msg schema"
+        raise InputError(f"{p} channel {topic}: schema {sname} is not a usable {what} ({err})") from err
+
+
+def codec_of_channel(path, ch: ChannelInfo):
+    """(JSON Schema, codec) :func:`read_log` decodes a channel with (``ch.canonical`` must hold).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (for the error message).
+    ch : ChannelInfo
+        The channel, e.g. from :attr:`ChunkStream.channels`.
+
+    Raises
+    ------
+    InputError
+        Its stored schema is not usable.
+    """
+    return _codec_of(Path(path), ch.topic, ch.message_encoding, ch.schema_encoding, ch.schema_name, ch.schema_data)
 
 
 def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
@@ -1071,9 +1115,9 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         if topics is not None and ch.topic not in topics:
             continue
         sname, senc, sdata = scan.schemas.get(ch.schema_id, ("", "", b""))
-        if ch.encoding != MESSAGE_ENCODING or senc != SCHEMA_ENCODING:
+        if not loadable(ch.encoding, senc, sname):
             continue  # not a canonical channel: left alone
-        schema, codec = _codec_of(p, ch.topic, sname, sdata)
+        schema, codec = _codec_of(p, ch.topic, ch.encoding, senc, sname, sdata)
         if scan.arena is None:
             t = np.asarray(ch.times, dtype=np.int64)
             seq = np.asarray(ch.seqs, dtype=np.int64)
@@ -1150,8 +1194,9 @@ class ChannelInfo:
 
     @property
     def canonical(self) -> bool:
-        """JSON messages with a JSON Schema: a channel :func:`read_log` loads."""
-        return self.message_encoding == MESSAGE_ENCODING and self.schema_encoding == SCHEMA_ENCODING
+        """JSON messages with a JSON Schema, or CDR ones with a ros2msg schema usvlog wrote:
+        a channel :func:`read_log` loads."""
+        return loadable(self.message_encoding, self.schema_encoding, self.schema_name)
 
 
 _RELEASE_BYTES = 8 << 20    # a memory-mapped file drops the pages behind the walk this often (bytes)
@@ -1274,8 +1319,12 @@ class ChunkStream:
 
     def _chunk(self, records, at, t0, t1, cid, seq, t, ps, pe) -> Chunk:
         scan = self._scan
-        canon = [c for c, ch in scan.channels.items() if ch.encoding == MESSAGE_ENCODING
-                 and scan.schemas.get(ch.schema_id, ("", "", b""))[1] == SCHEMA_ENCODING]
+        name_enc = {sid: (name, enc) for sid, (name, enc, _data) in scan.schemas.items()}
+        canon = []
+        for c, ch in scan.channels.items():
+            sname, senc = name_enc.get(ch.schema_id, ("", ""))
+            if loadable(ch.encoding, senc, sname):
+                canon.append(c)
         counted = np.isin(cid, canon)
         if counted.any():
             tc = t[counted]

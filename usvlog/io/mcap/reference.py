@@ -3,14 +3,12 @@
 
 from __future__ import annotations
 
-import json
 import struct
 
 import numpy as np
 
 from ..._version import __version__
 from ...errors import InputError
-from ...log.channels import MESSAGE_ENCODING, SCHEMA_ENCODING
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
 from .codec import Codec
@@ -42,7 +40,7 @@ from .reader import (
     _summary_channel,
     _unexpected,
 )
-from .writer import _codec_for, _compression
+from .writer import _codec_for, _compression, _schema_record
 
 
 def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, dict, Codec]]]:
@@ -54,14 +52,13 @@ def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, di
     schemas, channels, both, out, ids = [], [], [], [], {}
     for topic in log.topics:
         schema, codec = _codec_for(topic, log.schemas.get(topic), log.channels[topic])
-        sname = schema.get("title", topic)
-        sdata = json.dumps(schema, sort_keys=False).encode()
+        sname, senc, sdata = _schema_record(topic, schema, codec)
         key = (sname, sdata)
         if key not in ids:
             ids[key] = len(schemas) + 1
-            schemas.append(Schema(id=ids[key], name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            schemas.append(Schema(id=ids[key], name=sname, encoding=senc, data=sdata))
             both.append(schemas[-1])
-        channels.append(Channel(id=len(channels) + 1, topic=topic, message_encoding=MESSAGE_ENCODING,
+        channels.append(Channel(id=len(channels) + 1, topic=topic, message_encoding=codec.message_encoding,
                                 schema_id=ids[key], metadata={}))
         both.append(channels[-1])
         out.append((topic, schema, codec))

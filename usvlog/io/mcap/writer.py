@@ -18,7 +18,6 @@ import pandas as pd
 from ..._version import __version__
 from ...errors import InputError
 from ...log.channels import (
-    MESSAGE_ENCODING,
     SCHEMA_ENCODING,
     auto_schema,
     schema_for_topic,
@@ -26,7 +25,7 @@ from ...log.channels import (
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
 from . import kernels as K
-from .codec import Codec, codec_for_schema, codec_for_topic
+from .codec import Codec, writer_codec
 from .format import (
     _REC,
     MAGIC,
@@ -35,13 +34,22 @@ from .format import (
 
 def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
     """(schema, codec) of a channel: the registered schema, else ``schema`` (e.g. the one
-    stored in the file read), else one generated from ``frame``'s dtypes."""
+    stored in the file read), else one generated from ``frame``'s dtypes; the codec is
+    CDR for the bulk derived channels, else JSON (:func:`.codec.writer_codec`)."""
     schema = schema_for_topic(topic) or schema
     if schema is None:
         if frame is None:
             raise InputError(f"channel {topic}: no registered schema (see schemas/)")
         schema = auto_schema(topic, frame)
-    return schema, codec_for_topic(topic) or codec_for_schema(schema)
+    return schema, writer_codec(topic, schema)
+
+
+def _schema_record(topic: str, schema: dict, codec: Codec) -> tuple[str, str, bytes]:
+    """(name, encoding, data) of a channel's Schema record: the JSON Schema (named by its
+    title), or the ros2msg definition of a CDR channel."""
+    if codec.schema_encoding == SCHEMA_ENCODING:
+        return schema.get("title", topic), SCHEMA_ENCODING, json.dumps(schema, sort_keys=False).encode()
+    return codec.schema_name, codec.schema_encoding, codec.schema_data
 
 
 def _compression(compression: str) -> str:
@@ -232,15 +240,14 @@ class McapWriter:
         if known is not None:
             return known[0]
         schema, codec = _codec_for(topic, schema, frame)
-        sname = schema.get("title", topic)
-        sdata = json.dumps(schema, sort_keys=False).encode()
+        sname, senc, sdata = _schema_record(topic, schema, codec)
         sid = self._schema_ids.get((sname, sdata))
         if sid is None:
             sid = self._schema_ids[(sname, sdata)] = len(self._schemas) + 1
-            self._schemas.append(Schema(id=sid, name=sname, encoding=SCHEMA_ENCODING, data=sdata))
+            self._schemas.append(Schema(id=sid, name=sname, encoding=senc, data=sdata))
             self._open += self._record(self._schemas[-1])
         cid = len(self._channels) + 1
-        self._channels.append(Channel(id=cid, topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=sid,
+        self._channels.append(Channel(id=cid, topic=topic, message_encoding=codec.message_encoding, schema_id=sid,
                                       metadata={}))
         self._open += self._record(self._channels[-1])
         self._topics[topic] = (cid, codec)
