@@ -29,7 +29,7 @@ from usvlog.log.fieldlog import FieldLog
 from usvlog.sim.simulate import SimSettings, simulate
 
 SEED = 16
-CHUNK_SIZE = 96 * 1024
+CHUNK_SIZE = 64 * 1024
 
 
 @pytest.fixture(scope="module")
