@@ -11,9 +11,22 @@ overflow, from /proc/net/udp) are reported apart from losses inside the recorder
     python benchmarks/bench_record.py --rate 2000 --duration-s 20 --compare 2 # without/with --view, alternating
 
 With ``--view`` a Rerun gRPC server (the ``rerun`` binary, bound to 127.0.0.1) receives the
-live stream (``usvlog record --view 127.0.0.1:PORT``); the recorder's CPU % counts every
-thread of its process (the view's thread and the Rerun SDK's own threads too), the
-server's CPU is printed apart.
+live stream (``usvlog record --view 127.0.0.1:PORT``); the recorder's CPU counts every
+thread of its process (the view's thread and the Rerun SDK's own threads too) and its
+children, the server's CPU is printed apart. Each run prints:
+
+- the steady-state CPU % of one core: from the 5th second of sending (with ``--view``: and
+  two seconds after the view connected) to the end of sending, from the process's CPU time;
+- the start-up: the process's CPU-s up to that window beyond what the steady rate explains
+  (interpreter, imports, with ``--view`` the SDK, the online filter and the connection);
+- the steady-state CPU % by thread name (``/proc/PID/task``; Python's threads are all
+  ``python``, the SDK's carry their names);
+- with ``--view``: messages that reached the view's thread, dropped (its queue full), rows
+  sent to the viewer, the view thread's own CPU.
+
+``--compare N`` prints the means: CPU added by ``--view`` in points and in % of the
+recorder's CPU without it (the target: <= 10 % at 2,000 msg/s), and the start-up CPU-s.
+On a shared machine one run's figure moves by a few points: compare several.
 """
 
 from __future__ import annotations
@@ -123,7 +136,7 @@ def run(rate: float, duration_s: float, view: bool, verbose: bool = True) -> dic
     p_nmea, p_json = free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{p_nmea}",
            "--compass", f"udp://127.0.0.1:{p_nmea}", "--thrust", f"udp://127.0.0.1:{p_json}", "--json"]
-    viewer = None
+    viewer, port = None, -1
     if view:
         viewer, port = start_viewer()
         cmd += ["--view", f"127.0.0.1:{port}"]
@@ -141,18 +154,30 @@ def run(rate: float, duration_s: float, view: bool, verbose: bool = True) -> dic
         vs.cpu_percent(None)
     samples = []
     threads: list[dict[str, float]] = []   # per-thread CPU-s at the start and the end of the steady window
+    window = [STEADY_FROM_S - 1, int(duration_s) - 1]   # samples opening and closing the steady state
     stop = threading.Event()
     go = threading.Event()
+
+    def connected() -> bool:   # the view's start (SDK import, filter, connection) is over
+        try:   # a socket closing while its fd is read (the view's probe) fails the call: try again
+            return any(c.status == psutil.CONN_ESTABLISHED and c.raddr and c.raddr.port == port
+                       for c in ps.net_connections("tcp"))
+        except (psutil.Error, OSError):
+            return False
 
     def sample():
         go.wait()
         t0 = time.monotonic()
+        started = not view
         while not stop.wait(1.0):
             try:
                 c = ps.cpu_times()
                 samples.append((time.monotonic() - t0, ps.cpu_percent(None), ps.memory_info().rss / 2**20,
                                 out.stat().st_size / 2**20, c.user + c.system + c.children_user + c.children_system))
-                if len(samples) in (STEADY_FROM_S, int(duration_s)):
+                if not started and connected():
+                    started = True
+                    window[0] = max(window[0], len(samples) + 1)   # and one more second
+                if started and len(samples) - 1 in window:
                     threads.append(thread_cpu(proc.pid))
             except (psutil.Error, OSError):
                 return
@@ -198,11 +223,12 @@ def run(rate: float, duration_s: float, view: bool, verbose: bool = True) -> dic
         print(f"{'t s':>5s} {'CPU %':>6s} {'RSS MiB':>8s} {'file MiB':>9s}")
         for t, c, r, size, _ in samples:
             print(f"{t:5.0f} {c:6.1f} {r:8.1f} {size:9.2f}")
-    if len(samples) < STEADY_FROM_S + 3 or len(threads) < 2:
-        print("too short a run for a steady-state figure (give --duration-s of 10 or more)")
+    k0, k1 = window
+    if len(threads) < 2 or k1 - k0 < 5:
+        print(f"no steady-state figure: samples {len(samples)}, window {window}, view connected "
+              f"{len(threads) > 0} (give a longer --duration-s)")
         return None
-    # steady state: from the STEADY_FROM_S-th second to the end of sending (the start-up's imports are over)
-    k0, k1 = STEADY_FROM_S - 1, int(duration_s) - 1
+    # steady state: from the STEADY_FROM_S-th second, and two after the view connected, to the end of sending
     (ta, *_, ca), (tb, *_, cb) = samples[k0], samples[k1]
     cpu = 100 * (cb - ca) / (tb - ta)
     start_cpu_s = ca - cpu / 100 * ta     # CPU-s of the process up to the window beyond the steady rate
