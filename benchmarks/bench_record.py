@@ -11,9 +11,22 @@ overflow, from /proc/net/udp) are reported apart from losses inside the recorder
     python benchmarks/bench_record.py --rate 2000 --duration-s 20 --compare 2 # without/with --view, alternating
 
 With ``--view`` a Rerun gRPC server (the ``rerun`` binary, bound to 127.0.0.1) receives the
-live stream (``usvlog record --view 127.0.0.1:PORT``); the recorder's CPU % counts every
-thread of its process (the view's thread and the Rerun SDK's own threads too), the
-server's CPU is printed apart.
+live stream (``usvlog record --view 127.0.0.1:PORT``); the recorder's CPU counts every
+thread of its process (the view's thread and the Rerun SDK's own threads too) and its
+children, the server's CPU is printed apart. Each run prints:
+
+- the steady-state CPU % of one core: from the 5th second of sending (with ``--view``: and
+  two seconds after the view connected) to the end of sending, from the process's CPU time;
+- the start-up: the process's CPU-s up to that window beyond what the steady rate explains
+  (interpreter, imports, with ``--view`` the SDK, the online filter and the connection);
+- the steady-state CPU % by thread name (``/proc/PID/task``; Python's threads are all
+  ``python``, the SDK's carry their names);
+- with ``--view``: messages that reached the view's thread, dropped (its queue full), rows
+  sent to the viewer, the view thread's own CPU.
+
+``--compare N`` prints the means: CPU added by ``--view`` in points and in % of the
+recorder's CPU without it (the target: <= 10 % at 2,000 msg/s), and the start-up CPU-s.
+On a shared machine one run's figure moves by a few points: compare several.
 """
 
 from __future__ import annotations
@@ -39,6 +52,8 @@ from usvlog.io.mcap import read_log  # noqa: E402
 from usvlog.io.record.loopback import LoopbackBoat, free_udp_port, udp_target  # noqa: E402
 from usvlog.view.rrd import rerun_executable  # noqa: E402
 
+STEADY_FROM_S = 5   # the steady-state window starts at this second of sending
+
 
 def _free_tcp_port() -> int:
     with socket.socket() as sk:
@@ -61,6 +76,20 @@ def start_viewer():
     raise SystemExit("the rerun server did not start")
 
 
+def thread_cpu(pid: int) -> dict[str, float]:
+    """CPU-s so far of each thread of ``pid``, summed by thread name (``/proc/PID/task``; Linux only)."""
+    out: dict[str, float] = {}
+    tick = os.sysconf("SC_CLK_TCK")
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            name = (task / "comm").read_text().strip()
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue   # the thread ended
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick   # utime + stime
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rate", type=float, default=2000.0, help="total messages (datagrams) per second")
@@ -71,21 +100,37 @@ def main() -> int:
     a = ap.parse_args()
     if not a.compare:
         return 0 if run(a.rate, a.duration_s, a.view) is not None else 1
-    cpu = {False: [], True: []}
+    res: dict[bool, list[dict]] = {False: [], True: []}
     for _ in range(a.compare):
         for view in (False, True):
-            r = run(a.rate, a.duration_s, view)
+            r = run(a.rate, a.duration_s, view, verbose=False)
             if r is None:
                 return 1
-            cpu[view].append(r["cpu_mean"])
-    off, on = sum(cpu[False]) / len(cpu[False]), sum(cpu[True]) / len(cpu[True])
-    print(f"\nrecorder CPU % (mean of runs) without --view {off:.1f} {cpu[False]}, with --view {on:.1f} {cpu[True]}")
-    print(f"--view adds {on - off:+.1f} percentage points of one core = {100 * (on - off) / off:+.1f} % "
-          f"of the recorder's CPU at {a.rate:.0f} msg/s; load average {os.getloadavg()}")
+            res[view].append(r)
+            print()
+
+    def mean(view, key):
+        return sum(r[key] for r in res[view]) / len(res[view])
+
+    off, on = mean(False, "cpu"), mean(True, "cpu")
+    print(f"recorder CPU % of one core, steady state (mean of {a.compare} runs each): without --view {off:.1f} "
+          f"{[r['cpu'] for r in res[False]]}, with --view {on:.1f} {[r['cpu'] for r in res[True]]}")
+    print(f"--view adds {on - off:+.1f} percentage points = {100 * (on - off) / off:+.1f} % of the recorder's "
+          f"CPU at {a.rate:.0f} msg/s (target <= +10 %)")
+    own = mean(True, "view_thread") + mean(True, "sdk")
+    print(f"of which measured per thread: the view's thread {mean(True, 'view_thread'):.2f} % + the SDK's threads "
+          f"{mean(True, 'sdk'):.2f} % = {own:.2f} points = {100 * own / off:.1f} % of the recorder's CPU (the rest: "
+          f"the hand-off on the recorder's threads, and the machine's noise)")
+    s_off, s_on = mean(False, "start_cpu_s"), mean(True, "start_cpu_s")
+    print(f"start-up CPU-s: without --view {s_off:.2f}, with --view {s_on:.2f} ({s_on - s_off:+.2f} CPU-s, once)")
+    views = [r["view"] for r in res[True]]
+    print(f"live view: messages reaching its thread {[v['received'] for v in views]}, dropped "
+          f"{[v['dropped'] for v in views]}, errors {[v['error'] for v in views]}")
+    print(f"load average {os.getloadavg()}")
     return 0
 
 
-def run(rate: float, duration_s: float, view: bool) -> dict | None:
+def run(rate: float, duration_s: float, view: bool, verbose: bool = True) -> dict | None:
     """One recording at ``rate`` msg/s for ``duration_s``; prints its table, returns the CPU figures."""
     # 10% GNSS epochs (GGA + RMC = 2 datagrams each), 10% compass, 80% thrust
     gnss_hz, compass_hz = rate * 0.05, rate * 0.10
@@ -95,7 +140,7 @@ def run(rate: float, duration_s: float, view: bool) -> dict | None:
     p_nmea, p_json = free_udp_port(), free_udp_port()
     cmd = [sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{p_nmea}",
            "--compass", f"udp://127.0.0.1:{p_nmea}", "--thrust", f"udp://127.0.0.1:{p_json}", "--json"]
-    viewer = None
+    viewer, port = None, -1
     if view:
         viewer, port = start_viewer()
         cmd += ["--view", f"127.0.0.1:{port}"]
@@ -112,14 +157,32 @@ def run(rate: float, duration_s: float, view: bool) -> dict | None:
     if vs is not None:
         vs.cpu_percent(None)
     samples = []
+    threads: list[dict[str, float]] = []   # per-thread CPU-s at the start and the end of the steady window
+    window = [STEADY_FROM_S - 1, int(duration_s) - 1]   # samples opening and closing the steady state
     stop = threading.Event()
+    go = threading.Event()
+
+    def connected() -> bool:   # the view's start (SDK import, filter, connection) is over
+        try:   # a socket closing while its fd is read (the view's probe) fails the call: try again
+            return any(c.status == psutil.CONN_ESTABLISHED and c.raddr and c.raddr.port == port
+                       for c in ps.net_connections("tcp"))
+        except (psutil.Error, OSError):
+            return False
 
     def sample():
+        go.wait()
         t0 = time.monotonic()
+        started = not view
         while not stop.wait(1.0):
             try:
+                c = ps.cpu_times()
                 samples.append((time.monotonic() - t0, ps.cpu_percent(None), ps.memory_info().rss / 2**20,
-                                out.stat().st_size / 2**20))
+                                out.stat().st_size / 2**20, c.user + c.system + c.children_user + c.children_system))
+                if not started and connected():
+                    started = True
+                    window[0] = max(window[0], len(samples) + 1)   # and one more second
+                if started and len(samples) - 1 in window:
+                    threads.append(thread_cpu(proc.pid))
             except (psutil.Error, OSError):
                 return
 
@@ -128,6 +191,7 @@ def run(rate: float, duration_s: float, view: bool) -> dict | None:
     boat = LoopbackBoat(gnss=udp_target(("127.0.0.1", p_nmea)), compass=udp_target(("127.0.0.1", p_nmea)),
                         thrust=udp_target(("127.0.0.1", p_json)), gnss_hz=gnss_hz, compass_hz=compass_hz,
                         thrust_hz=thrust_hz)
+    go.set()
     t0 = time.monotonic()
     sent = boat.run(duration_s)
     send_s = time.monotonic() - t0
@@ -159,23 +223,38 @@ def run(rate: float, duration_s: float, view: bool) -> dict | None:
     print(f"socket drops (kernel, /proc/net/udp): {drops}")
     print(f"/gnss/fix {len(log['/gnss/fix'])} (one per GGA+RMC epoch), /compass/heading {len(log['/compass/heading'])}")
     print(f"file: {out.stat().st_size / 2**20:.2f} MiB, complete={log.recovery is None}")
-    print(f"{'t s':>5s} {'CPU %':>6s} {'RSS MiB':>8s} {'file MiB':>9s}")
-    for t, cpu, rss, size in samples:
-        print(f"{t:5.0f} {cpu:6.1f} {rss:8.1f} {size:9.2f}")
-    if "view" in summary:
-        v = summary["view"]
-        print(f"live view: {v['received']} messages received, {v['dropped']} dropped, error {v['error']}; "
-              f"its thread {v['start_cpu_s']:.2f} CPU-s to start, then "
+    if verbose:
+        print(f"{'t s':>5s} {'CPU %':>6s} {'RSS MiB':>8s} {'file MiB':>9s}")
+        for t, c, r, size, _ in samples:
+            print(f"{t:5.0f} {c:6.1f} {r:8.1f} {size:9.2f}")
+    k0, k1 = window
+    if len(threads) < 2 or k1 - k0 < 5:
+        print(f"no steady-state figure: samples {len(samples)}, window {window}, view connected "
+              f"{len(threads) > 0} (give a longer --duration-s)")
+        return None
+    # steady state: from the STEADY_FROM_S-th second, and two after the view connected, to the end of sending
+    (ta, *_, ca), (tb, *_, cb) = samples[k0], samples[k1]
+    cpu = 100 * (cb - ca) / (tb - ta)
+    start_cpu_s = ca - cpu / 100 * ta     # CPU-s of the process up to the window beyond the steady rate
+    per = [s[1] for s in samples[k0 + 1:k1 + 1]]
+    rss = [s[2] for s in samples]
+    print(f"recorder CPU {cpu:.1f} % of one core in the steady state (s {ta:.0f}-{tb:.0f}; 1-s samples min "
+          f"{min(per):.1f}, max {max(per):.1f}); start-up {start_cpu_s:.2f} CPU-s beyond that rate; "
+          f"RSS first {rss[0]:.1f} MiB, last {rss[-1]:.1f} MiB, max {max(rss):.1f} MiB; load average "
+          f"{os.getloadavg()}")
+    by_thread = {k: 100 * (v - threads[0].get(k, 0.0)) / (tb - ta) for k, v in threads[1].items()}
+    print("  by thread (CPU %, steady state): " + ", ".join(
+        f"{k} {v:.1f}" for k, v in sorted(by_thread.items(), key=lambda kv: -kv[1]) if v >= 0.05))
+    v = summary.get("view")
+    if v is not None:
+        print(f"live view: {v['received']} messages reached its thread, {v['dropped']} dropped (queue full), "
+              f"rows sent to the viewer {sum(v['sent'].values())} over {len(v['sent'])} entities, error "
+              f"{v['error']}; its thread {v['start_cpu_s']:.2f} CPU-s to start, then "
               f"{100 * (v['thread_cpu_s'] - v['start_cpu_s']) / duration_s:.1f} % CPU; "
               f"rerun server CPU % mean {viewer_cpu:.1f}")
-    if not samples:
-        return None
-    cpu = [s[1] for s in samples[3:-1]] or [s[1] for s in samples]   # steady state: not the start-up's imports
-    rss = [s[2] for s in samples]
-    print(f"CPU % mean from the 4th s {sum(cpu) / len(cpu):.1f} (min {min(cpu):.1f}, max {max(cpu):.1f}); "
-          f"RSS first {rss[0]:.1f} MiB, last {rss[-1]:.1f} MiB, max {max(rss):.1f} MiB; load average {os.getloadavg()}")
-    return {"cpu_mean": round(sum(cpu) / len(cpu), 1), "view": summary.get("view")}
-
+    own = {"sdk": sum(x for k, x in by_thread.items() if k != "python"),   # the SDK's threads are named
+           "view_thread": 100 * (v["thread_cpu_s"] - v["start_cpu_s"]) / duration_s if v else 0.0}
+    return {"cpu": round(cpu, 2), "start_cpu_s": round(start_cpu_s, 3), "view": v, **own}
 
 if __name__ == "__main__":
     raise SystemExit(main())

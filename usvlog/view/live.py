@@ -1,49 +1,54 @@
 """Live view of a recording: what the recorder writes, streamed to a Rerun viewer as it comes.
 
 :class:`LiveView` is a subscriber of :class:`usvlog.io.record.Recorder` (``Recorder.subscribe``).
-On the recorder's hot path it only puts ``(topic, row, t_ns)`` into a bounded queue and
-counts what does not fit (never waits). Its own thread drains the queue every ``batch_s``,
-runs the online EKF (:class:`usvlog.estimate.OnlineEKF`, kinematic model, no thrust needed)
-on the fixes and headings, and sends to the viewer::
+On the recorder's hot path it keeps at most ``max_hz`` messages per second of each topic
+(the recorder's status: all) and appends those as ``(topic, row, t_ns)`` to a bounded queue,
+counting what does not fit (never waits, takes no lock). Its own thread drains the queue
+every ``batch_s``, runs the online EKF (:class:`usvlog.estimate.OnlineEKF`, kinematic model,
+no thrust needed) on the fixes and headings, and sends each series as one column per batch::
 
     /map/fixes, /map/track, /map/boat        raw fixes, online EKF track, where the boat is now
-                                             (static: redrawn every second, thinned to MAP_POINTS)
+                                             (static: redrawn every batch, thinned to MAP_POINTS)
     /heading/compass, /heading/ekf           deg, clockwise from north, [0, 360)
     /speed/ekf                               speed over ground, m/s
     /thrust/left, /thrust/right              the commands as sent, in their unit
     /status/<source>/{rate_hz,bad_lines,dropped}   the recorder's counters
     /status/view/dropped                     messages this view dropped (its queue was full)
 
-Thrust and heading are thinned to ``max_hz`` before the queue, and so are the filter's
-series (the MCAP keeps everything; the map gets every fix). Every
+A display needs no more than ``max_hz`` (default 20 Hz) per series: the MCAP keeps
+everything, the view draws what the eye can follow, and the SDK encodes a few columns a
+second (what the view costs the recorder: ``benchmarks/bench_record.py``). Every
 ``probe_s`` the thread checks that the viewer is still there (its TCP port accepts, the
 spawned viewer runs); a viewer that went away, or could not be reached, is reported once
 through ``on_error`` and the view stops: the recording goes on untouched.
 
-``rerun`` is imported by the view's thread (this module imports it only there).
+``rerun`` and the online filter are imported by the view's thread (this module imports them
+only there), so the recording starts without waiting for them.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import math
 import os
-import queue
 import re
 import socket
 import subprocess
 import threading
 import time
+from typing import TYPE_CHECKING
 from urllib.parse import urlsplit
 
 import numpy as np
 
 from ..errors import ConfigError
-from ..estimate import EstimateSettings, OnlineEKF
-from ..estimate.core import state_size
 from ..io.record.topics import TOPIC_FIX, TOPIC_HEADING, TOPIC_STATUS, TOPIC_THRUST
 from ..model.frames import Datum, geodetic_to_ned, ned_to_geodetic
 from ..model.vessel import default_vessel
+
+if TYPE_CHECKING:
+    from ..estimate import OnlineEKF
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 9876          # the native viewer's gRPC port
@@ -149,11 +154,11 @@ class LiveView:
         Vessel for the online filter (its kinematic model does not use the parameters).
     queue_size : int, default 20000
         Messages waiting for the view's thread; more are dropped and counted.
-    batch_s : float, default 0.25
+    batch_s : float, default 1.0
         How often the thread sends, s.
-    max_hz : float, default 50.0
-        Most thrust and heading messages per second taken from the recorder, and most
-        filter outputs per second sent (the map: every fix).
+    max_hz : float, default 20.0
+        Most messages per second of each topic taken from the recorder (fixes, headings,
+        thrust; not the recorder's status), and most filter outputs per second sent.
     probe_s : float, default 1.0
         How often the viewer is checked, s.
     on_error : callable, optional
@@ -174,7 +179,7 @@ class LiveView:
     topics = TOPICS
 
     def __init__(self, target: str = "spawn", *, bind: str = DEFAULT_HOST, name: str = "usvlog record",
-                 vessel=None, queue_size: int = 20000, batch_s: float = 0.25, max_hz: float = 50.0,
+                 vessel=None, queue_size: int = 20000, batch_s: float = 1.0, max_hz: float = 20.0,
                  probe_s: float = 1.0, on_error=None):
         self.target = target
         self.bind = bind
@@ -191,13 +196,14 @@ class LiveView:
         self.thread_cpu_s = 0.0   # CPU time of the view's thread so far, s
         self.start_cpu_s = 0.0    # of which connecting (importing the SDK, loading the filter), s
         self.sent: dict[str, int] = {}
-        self._q: queue.Queue = queue.Queue(maxsize=int(queue_size))
+        self._q: collections.deque = collections.deque()   # append/popleft are atomic: no lock
+        self._q_max = int(queue_size)
         self._stop = threading.Event()
         self._failed = False
         self._thread = threading.Thread(target=self._run, name="usvlog-live-view", daemon=True)
         self._proc: subprocess.Popen | None = None
         self._rec = None
-        self._settings = EstimateSettings(model="kinematic", sway_damping=False, smoother=False)
+        self._settings = None       # EstimateSettings of the online filter (set by the thread)
         self._vessel = vessel or default_vessel()
         self._ekf: OnlineEKF | None = None
         self._datum: Datum | None = None
@@ -206,10 +212,10 @@ class LiveView:
         self._psi: float | None = None                          # the last compass heading, rad
         self._fixes: list[tuple[float, float]] = []
         self._track: list[tuple[float, float]] = []
+        self._track_ned: list[tuple[float, float]] = []        # filtered positions not yet in _track, m
         self._thin: dict[str, _Thin] = {}
         self._hot_step = int(1e9 / max_hz) if max_hz > 0 else 0
-        self._hot_last = {TOPIC_THRUST: -(1 << 62), TOPIC_HEADING: -(1 << 62)}
-        self._next_map = 0.0
+        self._hot_last = {TOPIC_FIX: -(1 << 62), TOPIC_THRUST: -(1 << 62), TOPIC_HEADING: -(1 << 62)}
 
     # -- the recorder's side (hot path) -------------------------------------------
     def __call__(self, topic: str, row: dict, t_ns: int) -> None:
@@ -227,14 +233,14 @@ class LiveView:
         if self._failed:
             return
         last = self._hot_last.get(topic)
-        if last is not None:   # thrust and heading: at most max_hz reach the queue
+        if last is not None:   # fixes, headings, thrust: at most max_hz reach the queue
             if t_ns - last < self._hot_step:
                 return
             self._hot_last[topic] = t_ns
-        try:
-            self._q.put_nowait((topic, row, t_ns))
-        except queue.Full:
+        if len(self._q) >= self._q_max:
             self.dropped += 1
+        else:
+            self._q.append((topic, row, t_ns))
 
     # -- life ----------------------------------------------------------------------
     def start(self) -> LiveView:
@@ -274,11 +280,7 @@ class LiveView:
         if self.on_error is not None:
             with contextlib.suppress(Exception):
                 self.on_error(message)
-        while True:  # free the queue
-            try:
-                self._q.get_nowait()
-            except queue.Empty:
-                break
+        self._q.clear()
         with contextlib.suppress(Exception):
             if self._rec is not None:   # drop what the SDK still holds for the lost viewer (may take seconds)
                 self._rec.disconnect()
@@ -293,6 +295,9 @@ class LiveView:
 
     def _open(self) -> None:
         import rerun as rr  # heavy: the SDK, only when a live view runs
+
+        # heavy: the online filter (scipy, numba), on this thread: the recording does not wait for it
+        from ..estimate import EstimateSettings, OnlineEKF
 
         if self.target == "spawn":
             from .rrd import display_missing, rerun_executable  # the same viewer binary as `usvlog view`
@@ -313,11 +318,15 @@ class LiveView:
         elif not _accepts(self.host, self.port):
             raise ConfigError(f"no Rerun viewer at {self.url} (start one with `rerun --bind 127.0.0.1 "
                               f"--port {self.port}` or `rerun --serve-grpc ...`)")
+        self._settings = EstimateSettings(model="kinematic", sway_damping=False, smoother=False)
         warm = OnlineEKF(self._vessel, self._settings)   # load the compiled filter before the first fix
         warm.predict(0.01)
         warm.update_gnss(0.0, 0.0, 1.0)
+        # the SDK's batcher would wake every 0.2 s (its own thread, ~0.5 % CPU): each batch is flushed
+        # here instead (_run), its tick only catches what a flush missed
         rec = rr.RecordingStream("usvlog", recording_id=f"live-{os.getpid()}-{time.time_ns()}",
-                                 send_properties=False)
+                                 send_properties=False,
+                                 batcher_config=rr.ChunkBatcherConfig(flush_tick=max(10.0, 4 * self.batch_s)))
         rec.connect_grpc(self.url, default_blueprint=self._blueprint())
         rec.send_recording_name(self.name)
         self._rec = rec
@@ -350,10 +359,8 @@ class LiveView:
         while not self._failed:
             stopping = self._stop.wait(self.batch_s)
             try:
-                self._send(self._drain())
-                if stopping:
-                    self._send_map(force=True)
-                    self._rec.flush(timeout_sec=2.0)
+                if self._send(self._drain()) or stopping:
+                    self._rec.flush(timeout_sec=2.0 if stopping else 0.0)   # 0: start it, do not wait
             except Exception as err:  # noqa: BLE001 - the SDK's errors are reported, not raised
                 self._fail(f"live view stopped: {err}")
                 return
@@ -368,12 +375,8 @@ class LiveView:
                     return
 
     def _drain(self) -> list:
-        out = []
-        while True:
-            try:
-                out.append(self._q.get_nowait())
-            except queue.Empty:
-                return out
+        q = self._q
+        return [q.popleft() for _ in range(len(q))]   # only this thread takes from the queue
 
     # -- what is sent ----------------------------------------------------------------
     def _keep(self, path: str, t_ns: int) -> bool:
@@ -382,15 +385,17 @@ class LiveView:
             th = self._thin[path] = _Thin(self.max_hz)
         return th.keep(t_ns)
 
-    def _send(self, batch: list) -> None:
+    def _send(self, batch: list) -> bool:
+        """Run the filter over a batch and send it; False when it was empty."""
         if not batch:
-            return
+            return False
         self.received += len(batch)
         batch.sort(key=lambda m: m[2])
+        ne = iter(self._fixes_ned(batch))
         s = _Series()
         for topic, row, t in batch:
             if topic == TOPIC_FIX:
-                self._on_fix(s, row, t)
+                self._on_fix(s, row, t, next(ne))
             elif topic == TOPIC_HEADING:
                 self._on_heading(s, row, t)
             elif topic == TOPIC_THRUST:
@@ -405,6 +410,23 @@ class LiveView:
                 s.add("/status/view/dropped", t, self.dropped)
         self._send_series(s)
         self._send_map()
+        return True
+
+    def _fixes_ned(self, batch: list) -> list:
+        """North, east (m) of each fix of the batch about the first fix of the run, or None."""
+        ll = [(m[1]["lat_deg"], m[1]["lon_deg"]) for m in batch if m[0] == TOPIC_FIX]
+        if not ll:
+            return []
+        lat, lon = np.array(ll, float).T
+        ok = np.isfinite(lat) & np.isfinite(lon)
+        if self._datum is None and ok.any():
+            k = int(np.argmax(ok))
+            self._datum = Datum(lat_deg=float(lat[k]), lon_deg=float(lon[k]), alt_m=0.0)
+        if self._datum is None:
+            return [None] * len(ll)
+        n, e, _ = geodetic_to_ned(np.where(ok, lat, self._datum.lat_deg), np.where(ok, lon, self._datum.lon_deg),
+                                  0.0, datum=self._datum)
+        return [(float(a), float(b)) if good else None for a, b, good in zip(n, e, ok)]
 
     def _send_series(self, s: _Series) -> None:
         import rerun as rr  # heavy: with the SDK (imported already by _open)
@@ -414,13 +436,16 @@ class LiveView:
                                    columns=rr.Scalars.columns(scalars=np.asarray(v, float)))
             self.sent[path] = self.sent.get(path, 0) + len(t)
 
-    def _send_map(self, force: bool = False) -> None:
+    def _send_map(self) -> None:
         import rerun as rr  # heavy: with the SDK (imported already by _open)
 
-        now = time.monotonic()
-        if not force and now < self._next_map or not self._fixes:
+        if self._track_ned:   # the new filtered positions, converted at once
+            lat, lon, _ = ned_to_geodetic(*np.array(self._track_ned, float).T, 0.0, datum=self._datum)
+            ok = np.isfinite(lat) & np.isfinite(lon)
+            self._track.extend(zip(lat[ok].tolist(), lon[ok].tolist()))
+            self._track_ned.clear()
+        if not self._fixes:
             return
-        self._next_map = now + 1.0
         rec = self._rec
         for path, pts, color, radius in (("/map/fixes", self._fixes, (150, 150, 150), 2.0),
                                          ("/map/track", self._track, (31, 119, 180), 3.0)):
@@ -448,19 +473,15 @@ class LiveView:
             self._t_last = t
         return True
 
-    def _on_fix(self, s: _Series, row: dict, t: int) -> None:
-        lat, lon = row["lat_deg"], row["lon_deg"]
-        if not (math.isfinite(lat) and math.isfinite(lon)):
+    def _on_fix(self, s: _Series, row: dict, t: int, ne: tuple[float, float] | None) -> None:
+        if ne is None:   # not a finite position
             return
-        self._fixes.append((lat, lon))
-        if self._datum is None:
-            self._datum = Datum(lat_deg=lat, lon_deg=lon, alt_m=0.0)
-        n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=self._datum)
+        self._fixes.append((row["lat_deg"], row["lon_deg"]))
+        n, e = ne
         st = self._settings
         var = st.gps_fallback_m ** 2
         if row.get("cov_type", 0) and row.get("cov_nn_m2", 0) > 0 and row.get("cov_ee_m2", 0) > 0:
             var = 0.5 * (row["cov_nn_m2"] + row["cov_ee_m2"])
-        n, e = float(n), float(e)
         if self._predict_to(t):
             self._ekf.update_gnss(n, e, var)
             self._emit(s, t, track=True)
@@ -469,6 +490,10 @@ class LiveView:
         first, self._first = self._first, (t, n, e)
         if first is None or not 0 < (t - first[0]) / 1e9 <= _MAX_DT_S:
             return
+        # the filter's module: imported by _open already
+        from ..estimate import OnlineEKF
+        from ..estimate.core import state_size
+
         dt = (t - first[0]) / 1e9
         x0 = np.zeros(state_size(st))
         x0[0], x0[1], x0[3], x0[4] = n, e, (n - first[1]) / dt, (e - first[2]) / dt
@@ -488,10 +513,8 @@ class LiveView:
 
     def _emit(self, s: _Series, t: int, track: bool) -> None:
         x = self._ekf.x
-        if track:   # the map's track: the filtered position at each fix
-            lat, lon, _ = ned_to_geodetic(x[0], x[1], 0.0, datum=self._datum)
-            if np.isfinite(lat) and np.isfinite(lon):
-                self._track.append((float(lat), float(lon)))
+        if track:   # the map's track: the filtered position at each fix (converted by _send_map)
+            self._track_ned.append((float(x[0]), float(x[1])))
         if self._keep("/ekf", t):
             s.add("/heading/ekf", t, math.degrees(x[2]) % 360.0)
             s.add("/speed/ekf", t, math.hypot(x[3], x[4]))
