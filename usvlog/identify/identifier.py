@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -37,6 +37,7 @@ from .output import (
     velocity_samples,
 )
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
+from .surge import SurgeFit, fit_surge
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
 
 METHODS = IDENTIFY_METHODS
@@ -47,6 +48,8 @@ DEFAULT_HOLDOUT = 0.3       # one log: the last 30 % validates
 MAX_CURRENT_MPS = 0.5       # default bound on each current component (m/s)
 VEL_WEIGHT = 1.0            # weight of the smoothed velocities against GPS + compass (robust start)
 PREFER_WITHIN = 1.0         # fit % points: a preferred candidate this close to the best is taken
+# the surge equation's own m (fit_surge) this factor away from the full fit's: a candidate holding it
+SURGE_MASS_RATIO = 1.5
 VERDICTS = ("usable", "usable with caveats", "unusable")
 # verdict thresholds: validation fit % of u and r; relative standard error of m, Iz, d11, d33
 FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
@@ -146,6 +149,9 @@ class Start:
     model : {"paper", "extended"}
         The model structure fitted (``theta`` then has 6 or 10 values, EXTENDED_PARAM_NAMES
         order for the extended model).
+    surge_mass : bool
+        Output error with m held at the surge equation's own fit (:func:`~usvlog.identify.surge.fit_surge`,
+        made again on the data each fit uses) instead of fitted with the coupled sway and yaw.
     """
 
     name: str
@@ -153,6 +159,7 @@ class Start:
     theta: np.ndarray
     vel_weight: float = 0.0
     model: str = "paper"
+    surge_mass: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -173,6 +180,9 @@ class Candidate:
         Free runs it was judged on (held-out parts, or the fitted runs without validation).
     failed : str
         Why it failed (diverged, impossible values), empty when it did not.
+    held_stderr : dict of str to float
+        Standard errors of parameters held in the fit but estimated elsewhere (``m`` of a
+        ``surge_mass`` start: the surge fit's).
     """
 
     start: Start
@@ -181,6 +191,7 @@ class Candidate:
     fitted: object
     validations: list
     failed: str = ""
+    held_stderr: dict = field(default_factory=dict)
 
     @property
     def fit_percent(self) -> dict:
@@ -311,9 +322,13 @@ class Identifier:
     it), output error from it fitted to GPS and compass, and output error fitted to GPS,
     compass and the smoothed velocities u, v, r together (a wrong current then cannot buy a
     better position fit with absurd dynamics), from the equation-error values and from the
-    given vessel's. A candidate whose simulation diverges, or whose values are not a boat's,
-    has failed. Validation: one run, the last ``holdout`` of it (default 30 %) is held out;
-    several runs, each is left out in turn.
+    given vessel's; and, when the surge equation fitted alone to the GPS track
+    (:func:`~usvlog.identify.surge.fit_surge`) puts m more than SURGE_MASS_RATIO away from the
+    full fit's, output error with m held at that surge mass (the full fit's m then carries a
+    sway or yaw mismatch through the couplings; m's standard error is the surge fit's). A
+    candidate whose simulation diverges, or whose values are not a boat's, has failed.
+    Validation: one run, the last ``holdout`` of it (default 30 %) is held out; several runs,
+    each is left out in turn.
 
     Follows the scikit-learn contract: :meth:`fit` returns the identifier, and what it
     fitted is in attributes ending in ``_``.
@@ -535,6 +550,11 @@ class Identifier:
         cands = []
         for st in self.candidate_starts(ee, vessel):
             cands.append(self._fit_candidate(st, runs, kin, fit_logs, vessel, held))
+        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
+        if sc is not None:   # after the paper model's output-error candidates (preferred in a tie)
+            at = next((i for i, c in enumerate(cands) if c.start.model == "paper" and c.start.kind != "output-error"),
+                      len(cands))
+            cands.insert(at, sc)
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
             ok = [c for c in cands if not c.failed and c.start.model == "paper"]
             if ok:
@@ -650,11 +670,42 @@ class Identifier:
                              theta=prior, vel_weight=VEL_WEIGHT))
         return out + [ee_start]
 
-    def _fit_candidate(self, st: Start, runs, kin, fit_logs, vessel, held) -> Candidate:
+    def _free(self, st: Start) -> np.ndarray:
+        """Which of the paper model's parameters a candidate's output or filter error fits."""
+        return np.array([k not in self.fix and not (k == "m" and st.surge_mass) for k in PARAM_NAMES])
+
+    def _surge(self, runs, kin, theta) -> SurgeFit:
+        """m and d11 of the surge equation alone (output error to the GPS track), from ``theta``."""
+        return fit_surge(runs, kin, float(theta[0]), float(theta[2]), float(theta[5]), fit_current=self.current,
+                         max_current_mps=self.max_current_mps)
+
+    def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held) -> Candidate | None:
+        """Output error with m held at the surge equation's own fit, when that m is more than
+        SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
+        extended model alone, equation or filter error, a fixed m).
+
+        The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
+        whose sway and yaw are of another form the full fit can move m far from the surge's to
+        absorb that mismatch (the track barely sees the surge time constant), and its surge
+        speed is then wrong. The validation judges the two."""
+        if self.model == "extended" or self.method != "output-error" or "m" in self.fix:
+            return None
+        full = [c for c in cands if c.start.model == "paper" and c.start.kind == "output-error"
+                and c.start.vel_weight == 0]
+        th = self._start(self.equation_error_, vessel)
+        sf = self._surge(runs, kin, th)
+        if full and not full[0].failed and 1 / SURGE_MASS_RATIO < sf.m / full[0].theta[0] < SURGE_MASS_RATIO:
+            return None
+        th[0] = sf.m
+        st = Start(name="output error with the surge equation's mass", kind="output-error", theta=th,
+                   surge_mass=True)
+        return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, held_stderr={"m": sf.stderr["m"]})
+
+    def _fit_candidate(self, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None) -> Candidate:
         """Fit one candidate and validate it (a failure is a result: ``failed`` says why)."""
         if st.model == "extended":
             return self._fit_ext_candidate(st, runs, kin, held)
-        free = np.array([k not in self.fix for k in PARAM_NAMES])
+        free = self._free(st)
         zeros = np.zeros((len(runs), 2))
         fitted: object
         if st.kind == "equation-error":
@@ -683,7 +734,7 @@ class Identifier:
             if any(v.diverged for v in vals):
                 failed = "its free run diverged"
         return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
-                         fitted=fitted, validations=vals, failed=failed)
+                         fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
 
     def _fit_ext_candidate(self, st: Start, runs, kin, held, currents0=None) -> Candidate:
         """An extended-model candidate fitted (output error) or taken (equation error) and validated."""
@@ -744,6 +795,7 @@ class Identifier:
         validates (now in-sample) at least as well as the candidate did, less PREFER_WITHIN."""
         st = chosen.start
         fitted: object
+        held_se = chosen.held_stderr
         if st.model == "extended":
             if st.kind == "equation-error":
                 ext_ee = self._ext_equation_error(runs, kin)
@@ -767,8 +819,12 @@ class Identifier:
             theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
         else:
             vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
-            oe = fit_output_error(runs, chosen.theta, lambda i, t: kin[i].at(t),
-                                  free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
+            th0 = chosen.theta.copy()
+            if st.surge_mass:   # the surge equation's m from all the data too
+                sf = self._surge(runs, kin, th0)
+                th0[0], held_se = sf.m, {"m": sf.stderr["m"]}
+            oe = fit_output_error(runs, th0, lambda i, t: kin[i].at(t),
+                                  free_mask=self._free(st),
                                   fit_current=self.current, currents0=chosen.currents,
                                   segment_s=self.segment_s, warm_segment_s=0.0, velocities=vel,
                                   vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
@@ -778,7 +834,8 @@ class Identifier:
         if st.model == "paper" and physical_problem(theta):
             return chosen
         vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
-        again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals)
+        again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals,
+                          held_stderr=held_se)
         if again.score < chosen.score - PREFER_WITHIN:
             return chosen
         return again
@@ -814,8 +871,11 @@ class Identifier:
                 theta = fe.theta
             else:
                 vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in k_] if st.vel_weight > 0 else None
-                oe = fit_output_error(r_, chosen.theta, lambda q, t, k_=k_: k_[q].at(t),
-                                      free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
+                th0 = chosen.theta.copy()
+                if st.surge_mass:
+                    th0[0] = self._surge(r_, k_, th0).m
+                oe = fit_output_error(r_, th0, lambda q, t, k_=k_: k_[q].at(t),
+                                      free_mask=self._free(st),
                                       fit_current=self.current, segment_s=self.segment_s, warm_segment_s=0.0,
                                       velocities=vel, vel_weight=st.vel_weight,
                                       max_current_mps=self.max_current_mps)
@@ -921,6 +981,8 @@ class Identifier:
             for i, k in enumerate(names):
                 if k in PARAM_NAMES:
                     se[PARAM_NAMES.index(k)] = d[i]
+            for k, x in cand.held_stderr.items():   # held in this fit, estimated by another (not in cov_)
+                se[PARAM_NAMES.index(k)] = x
             self.current_ = [tuple(float(x) for x in c) for c in fitted.currents]
             self.current_stderr_ = [tuple(float(d[names.index(f"current_{ax}_{i}")]) for ax in ("n", "e"))
                                     if self.current else (0.0, 0.0) for i in range(len(runs))]
