@@ -53,14 +53,20 @@ def _never_worse_than_equation_error(idf):
 @pytest.mark.slow   # a target's proof of ~45 s CPU: run with `pytest -m slow` (fast suite < 5 min)
 def test_catamaran_without_current_paper_model_predicts_the_held_out_part():
     """The issue's case: no current, the last 40 % held out. The paper's model predicts the held-out
-    yaw rate (r >= 70 % against the measured, more against the truth), the surge speed, and
-    invents no current (<= 0.05 m/s)."""
+    surge speed (u >= 85 % against the truth) and yaw rate (r >= 70 % against the measured, more
+    against the truth), and invents no current (<= 0.05 m/s). The u target is judged against the
+    simulation's truth: the smoothed u fits this boat's true u only ~30 % (GPS noise differentiated,
+    fast surge changes smoothed away), so no model's "measured u" fit % can show it.
+
+    The full fit's m (~31 kg) carries the sway and yaw mismatch (true m11 85, m22 162): its surge
+    speed fits the truth only ~73 %. The candidate with m from the surge equation alone validates
+    better on the held-out track and is returned."""
     log, idf = _catamaran_fit(0.0, seed=5)
     fp = idf.validation_fit_percent_()
     assert idf.validation_mode_ == "holdout"
     assert fp["r"] >= 70 and fp["u"] > 0, (fp, [c.to_dict() for c in idf.candidates_])
     truth = _truth_fit(log, idf)
-    assert truth["u"] >= 70 and truth["r"] >= 85, truth
+    assert truth["u"] >= 85 and truth["r"] >= 85, (truth, idf.chosen_.start.name)
     assert math.hypot(*idf.current_[0]) <= 0.05, idf.current_
     _never_worse_than_equation_error(idf)
     assert idf.usable_, idf.reasons_

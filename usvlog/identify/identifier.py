@@ -127,6 +127,11 @@ class Validation:
                 "diverged": self.diverged}
 
 
+def _mean_score(vals: list) -> float:
+    """Mean :attr:`Validation.score` of a list (a None, a fit that was not a boat, counts -inf)."""
+    return float(np.mean([v.score if v is not None else -math.inf for v in vals])) if vals else -math.inf
+
+
 def _finite_dict(d: dict) -> dict:
     """Values as floats, None where not finite (JSON has no NaN)."""
     return {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in d.items()}
@@ -417,6 +422,11 @@ class Identifier:
         All of them (one per held-out run or left-out log).
     validation_mode_ : str
         ``"holdout"``, ``"leave-one-out"`` or ``"none"``.
+    loo_switch_ : dict or None
+        Leave-one-out only: set when the left-out logs validated equation error (of the same
+        model) better than the candidate picked, which is then returned instead (never worse
+        than equation error): ``from`` (the candidate's name), ``score`` and
+        ``equation_error_score`` (mean :attr:`Validation.score` over the left-out logs).
     vessel_in_ : Vessel
         Vessel given to :meth:`fit` (thruster map and starting values).
     runs_ : list of RunData
@@ -551,10 +561,8 @@ class Identifier:
         for st in self.candidate_starts(ee, vessel):
             cands.append(self._fit_candidate(st, runs, kin, fit_logs, vessel, held))
         sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
-        if sc is not None:   # after the paper model's output-error candidates (preferred in a tie)
-            at = next((i for i, c in enumerate(cands) if c.start.model == "paper" and c.start.kind != "output-error"),
-                      len(cands))
-            cands.insert(at, sc)
+        if sc is not None:   # preferred in a tie: its m also agrees with the surge's own evidence
+            cands.insert(0, sc)
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
             ok = [c for c in cands if not c.failed and c.start.model == "paper"]
             if ok:
@@ -583,8 +591,21 @@ class Identifier:
                 runs, kin = all_runs, all_kin
         else:
             final = chosen
+        self.loo_switch_ = None
         if self.validation_mode_ == "leave-one-out":
-            self.validations_ = self._leave_one_out(chosen, cands, all_runs, all_kin, logs, vessel)
+            mine, floor = self._leave_one_out(chosen, cands, all_runs, all_kin, logs, vessel)
+            s_mine, s_floor = _mean_score(mine), _mean_score(floor)
+            ee_c = [c for c in cands if c.start.kind == "equation-error" and c.start.model == chosen.start.model
+                    and not c.failed]
+            if chosen.start.kind != "equation-error" and s_floor > s_mine and ee_c:
+                # never worse than equation error: the rule of the single-log case, on the left-out logs
+                self.loo_switch_ = {"from": chosen.start.name, "score": s_mine, "equation_error_score": s_floor}
+                chosen = final = ee_c[0]
+                mine = floor
+                if self.model_comparison_ is not None:
+                    self.model_comparison_["returned"] = chosen.start.model
+            self._loo_prefers_ee = s_floor > s_mine and chosen.start.kind != "equation-error"
+            self.validations_ = [v for v in mine if v is not None]
         self.chosen_ = chosen
         self.runs_ = runs
         self._kin = kin
@@ -682,7 +703,10 @@ class Identifier:
     def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held) -> Candidate | None:
         """Output error with m held at the surge equation's own fit, when that m is more than
         SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
-        extended model alone, equation or filter error, a fixed m).
+        extended model alone, equation or filter error, a fixed m). It is the most preferred
+        candidate: when it and the full fit validate alike (within PREFER_WITHIN), the data's
+        surge evidence decides for its m (the held-out track and r barely see the surge time
+        constant; the smoothed u lags and cannot judge it).
 
         The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
         whose sway and yaw are of another form the full fit can move m far from the surge's to
@@ -840,24 +864,30 @@ class Identifier:
             return chosen
         return again
 
-    def _leave_one_out(self, chosen: Candidate, cands, runs, kin, logs, vessel) -> list[Validation]:
-        """Each log left out in turn: the chosen candidate's fit on the others, validated on it
-        (equation error instead, if that validates better: never worse than equation error)."""
+    def _leave_one_out(self, chosen: Candidate, cands, runs, kin, logs, vessel) -> tuple[list, list]:
+        """Each log left out in turn: the chosen candidate's fit on the others, validated on it,
+        and the same for equation error of the chosen's model (the floor). Returns both lists
+        of Validation, None where the fit was not a boat."""
         out, ee_out = [], []
         for i in range(len(runs)):
             rest = [j for j in range(len(runs)) if j != i]
             r_, k_ = [runs[j] for j in rest], [kin[j] for j in rest]
-            ee = self._equation_error(r_, k_)
-            th_ee = self._ee_theta(ee, vessel)
-            ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not physical_problem(th_ee) else None)
             st = chosen.start
             if st.model == "extended":
+                th_ee = self._ext_equation_error(r_, k_).theta
+                ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not ext_physical_problem(th_ee)
+                              else None)
+            else:
+                th_ee = self._ee_theta(self._equation_error(r_, k_), vessel)
+                ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not physical_problem(th_ee)
+                              else None)
+            if st.model == "extended":
                 if st.kind == "equation-error":
-                    theta = self._ext_equation_error(r_, k_).theta
-                else:
-                    theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
-                                                      max_current_mps=self.max_current_mps,
-                                                      segment_s=EXT_SEGMENT_S).theta
+                    out.append(ee_out[-1])
+                    continue
+                theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
+                                                  max_current_mps=self.max_current_mps,
+                                                  segment_s=EXT_SEGMENT_S).theta
                 out.append(self._validate_run(runs[i], kin[i], theta, None) if not ext_physical_problem(theta)
                            else None)
                 continue
@@ -881,11 +911,7 @@ class Identifier:
                                       max_current_mps=self.max_current_mps)
                 theta = oe.theta
             out.append(self._validate_run(runs[i], kin[i], theta, None) if not physical_problem(theta) else None)
-        mine = [v.score if v is not None else -math.inf for v in out]
-        theirs = [v.score if v is not None else -math.inf for v in ee_out]
-        if np.mean(theirs) > np.mean(mine) and chosen.start.kind != "equation-error":
-            self._loo_prefers_ee = True
-        return [v for v in out if v is not None]
+        return out, ee_out
 
     def _ee_theta(self, ee: EquationErrorResult, vessel: Vessel) -> np.ndarray:
         """Equation error's values as a candidate: d22 at its bound 0 (not determined by it)
@@ -1051,7 +1077,12 @@ class Identifier:
                 add(2, f"{txt}: the model predicts worse than a constant; it does not describe this boat")
             elif fr < FIT_CAVEAT or fu < FIT_UNUSABLE:
                 add(1, f"{txt}: the model explains only part of the motion")
-            if getattr(self, "_loo_prefers_ee", False):
+            sw = getattr(self, "loo_switch_", None)
+            if sw:
+                add(0, f"left out in turn, the logs validate equation error better (score "
+                       f"{fmt_pct(sw['equation_error_score'])}) than {sw['from']} ({fmt_pct(sw['score'])}): "
+                       f"equation error returned")
+            elif getattr(self, "_loo_prefers_ee", False):
                 add(1, "left out in turn, the logs validate equation error better than the fit returned")
         else:
             add(1, "not validated (--no-validate): nothing checks the model on data it was not fitted on")
