@@ -127,6 +127,27 @@ class Validation:
                 "diverged": self.diverged}
 
 
+MODEL_RULE = (f"the extended model is returned only when its best candidate validates better than the paper "
+              f"model's by at least {PREFER_WITHIN:g} point (score: mean fit % of the held-out track and r); "
+              f"never a fit that validates worse than equation error")
+
+
+def _returned(mc: dict, chosen) -> dict:
+    """``returned`` (the chosen candidate's model), ``why`` in plain words and the ``rule`` of
+    ``--model both`` for a model comparison ``mc`` (:meth:`Identifier._compare_models`)."""
+    model, winner, margin = chosen.start.model, mc.get("winner"), mc.get("margin")
+    if chosen.start.kind == "equation-error":
+        why = "equation error validates better than the output-error fits"
+    elif model == winner:
+        why = "it validates better" if margin is None else f"it validates better by {margin:.1f} points"
+    elif winner == "extended" and margin is not None and margin < PREFER_WITHIN:
+        why = (f"the simpler paper model: the extended one validates better by only {margin:.1f} points "
+               f"(less than {PREFER_WITHIN:g})")
+    else:
+        why = "preferred candidate within the tie margin"
+    return {"returned": model, "why": why, "rule": MODEL_RULE}
+
+
 def _mean_score(vals: list) -> float:
     """Mean :attr:`Validation.score` of a list (a None, a fit that was not a boat, counts -inf)."""
     return float(np.mean([v.score if v is not None else -math.inf for v in vals])) if vals else -math.inf
@@ -439,8 +460,9 @@ class Identifier:
     model_comparison_ : dict or None
         With ``model="both"``: per model the best candidate's name, validation fit % and
         score, the ``winner`` (better score) and its ``margin`` in score points (mean fit % of
-        track and r), and the model ``returned`` (the paper's when the extended one is better by
-        less than PREFER_WITHIN points, or equation error's when that validates better).
+        track and r), the model ``returned`` (the paper's when the extended one is better by
+        less than PREFER_WITHIN points, or equation error's when that validates better), ``why``
+        in plain words and the ``rule`` (MODEL_RULE).
 
     Raises
     ------
@@ -582,7 +604,7 @@ class Identifier:
                 err.args = (f"{err}; {'; '.join(hint)}",)
             raise
         if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
-            self.model_comparison_["returned"] = chosen.start.model
+            self.model_comparison_.update(_returned(self.model_comparison_, chosen))
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
@@ -603,7 +625,8 @@ class Identifier:
                 chosen = final = ee_c[0]
                 mine = floor
                 if self.model_comparison_ is not None:
-                    self.model_comparison_["returned"] = chosen.start.model
+                    self.model_comparison_.update(_returned(self.model_comparison_, chosen))
+                    self.model_comparison_["why"] = "equation error validates better on the left-out logs"
             self._loo_prefers_ee = s_floor > s_mine and chosen.start.kind != "equation-error"
             self.validations_ = [v for v in mine if v is not None]
         self.chosen_ = chosen
