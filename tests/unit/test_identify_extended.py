@@ -88,6 +88,11 @@ def test_cli_model_extended_writes_an_extended_vessel(tmp_path, capsys):
     v = vessel_from_toml(out.read_text())
     assert v.extended is not None
     assert v.extended.to_dict() == d["extended"]["params"]
+    # the verdict judges the extended model's own terms, not only their paper-term combinations
+    for k in ("m22", "m26", "d11", "d22", "d33"):
+        val, se = d["extended"]["params"][k], d["extended"]["stderr"][k]
+        named = [r for r in d["reasons"] if r.startswith(f"extended term {k} ")]
+        assert bool(named) == (not math.isfinite(se) or se <= 1e-9 * abs(val) or se > 0.1 * abs(val)), (k, named)
     assert read_log(mcap).get("/gnss/fix") is not None
     rc = main(["identify", str(mcap), "--model", "extended", "--out", str(out), "--force"])
     text = capsys.readouterr().out

@@ -298,6 +298,11 @@ def fmt_pct(x: float) -> str:
     return "< -999" if x < -999 else f"{x:.1f}"
 
 
+def _rel_pct(rel: float) -> str:
+    """A relative standard error for people: whole percent, ``> 999 %`` beyond (it means nothing more)."""
+    return "> 999 %" if not math.isfinite(rel) or rel > 9.99 else f"{100 * rel:.0f} %"
+
+
 def _why_dead(health: dict, topic: str) -> str:
     why = ((health.get("channels") or {}).get(topic) or {}).get("why") or ""
     return why or "no reason recorded"
@@ -1078,6 +1083,26 @@ class Identifier:
         return th
 
     # ------------------------------------------------------------------------------
+    def _ext_term_findings(self, add) -> None:
+        """The extended model's own terms judged by their standard errors (the paper-term checks
+        see only their combinations): m22 poorly determined is a caveat (sway barely excited);
+        the split of linear and quadratic damping, and m26, are notes (their combination at the
+        typical speed, the paper term, is what the checks above judge)."""
+        ext = self.extended_
+        assert ext is not None
+        vals = ext.to_dict()
+        for k in EXTENDED_PARAM_NAMES:
+            v, se = vals[k], self.extended_stderr_.get(k, math.nan)
+            if k in ("m11", "m66") or (k.endswith("q") and v <= 0):   # m, Iz: judged above; q at its bound 0
+                continue
+            if not (math.isfinite(se) and se > 1e-9 * max(abs(v), 1e-300)):
+                add(1 if k == "m22" else 0, f"extended term {k} = {fmt_num(v)}: standard error not computable")
+                continue
+            rel = se / abs(v) if v else math.inf
+            if rel > REL_SE_CAVEAT:
+                add(1 if k == "m22" else 0, f"extended term {k} poorly determined: {fmt_num(v)} +- {fmt_num(se, 2)}"
+                                            f" ({_rel_pct(rel)})")
+
     def _verdict(self, vessel, runs, kin) -> tuple[list[str], str]:
         """(reasons, verdict): each finding with its level, the worst level the verdict."""
         found: list[tuple[int, str]] = []   # (0 note, 1 caveat, 2 unusable, text)
@@ -1125,7 +1150,7 @@ class Identifier:
             if rel[k] > REL_SE_CAVEAT and not (k == "xg" and abs(p.xg) < 0.05):
                 level = 2 if rel[k] > REL_SE_UNUSABLE and k in ("m", "Iz", "d11", "d33") else 1
                 add(level, f"{k} poorly determined: {fmt_num(getattr(p, k))} +- {fmt_num(self.stderr_[k], 2)} "
-                           f"({100 * rel[k]:.0f} %)")
+                           f"({_rel_pct(rel[k])})")
         names = list(self.corr_.index)
         C = self.corr_.to_numpy()
         for i in range(len(names)):
@@ -1136,6 +1161,8 @@ class Identifier:
                            f"uncertain: excite the run differently or --fix one of them")
         if math.isfinite(self.cond_) and self.cond_ > COND_CAVEAT:
             add(1, f"condition number {fmt_num(self.cond_, 2)}: parameters nearly unidentifiable together")
+        if self.extended_ is not None:
+            self._ext_term_findings(add)
         iz_eff = p.Iz_eff
         if iz_eff <= 0:
             add(1, f"Theorem 3.1 condition 1 fails: Iz - m xg^2 = {fmt_num(iz_eff)} <= 0")
