@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from usvlog.cli import main
+from usvlog.cli.identify import format_report
 from usvlog.identify import Identifier
 from usvlog.io.config import load_vessel
 from usvlog.io.mcap import read_log, write_log
@@ -60,6 +61,9 @@ def test_catamaran_extended_model_meets_the_target_and_both_models_are_compared(
     # returned: the winner, or the simpler paper model when the extended one wins by less than a point
     assert mc["returned"] == idf.chosen_.start.model
     assert mc["returned"] == mc["winner"] or (mc["winner"] == "extended" and mc["margin"] < 1.0)
+    assert "at least 1 point" in mc["rule"] and f"{mc['margin']:.1f} points" in mc["why"], mc
+    text = format_report(idf.to_dict())
+    assert f"returned: {mc['returned']} ({mc['why']})" in text and f"rule: {mc['rule']}" in text
     d = idf.to_dict()
     assert d["model_comparison"]["winner"] == mc["winner"]
     if idf.extended_ is not None:
@@ -84,6 +88,11 @@ def test_cli_model_extended_writes_an_extended_vessel(tmp_path, capsys):
     v = vessel_from_toml(out.read_text())
     assert v.extended is not None
     assert v.extended.to_dict() == d["extended"]["params"]
+    # the verdict judges the extended model's own terms, not only their paper-term combinations
+    for k in ("m22", "m26", "d11", "d22", "d33"):
+        val, se = d["extended"]["params"][k], d["extended"]["stderr"][k]
+        named = [r for r in d["reasons"] if r.startswith(f"extended term {k} ")]
+        assert bool(named) == (not math.isfinite(se) or se <= 1e-9 * abs(val) or se > 0.1 * abs(val)), (k, named)
     assert read_log(mcap).get("/gnss/fix") is not None
     rc = main(["identify", str(mcap), "--model", "extended", "--out", str(out), "--force"])
     text = capsys.readouterr().out
@@ -105,3 +114,20 @@ def test_block_solve_matches_a_dense_solve():
                 H[ng + 6 * k:ng + 6 * k + 6, ng + 6 * j:ng + 6 * j + 6] = 0.0
     b = rng.normal(size=n)
     np.testing.assert_allclose(_block_solve(H, b, ng), np.linalg.solve(H, b), rtol=1e-9, atol=1e-12)
+
+
+def test_model_comparison_says_which_model_is_returned_and_why():
+    """The rule of ``--model both`` in plain words: the extended model by less than a point is
+    not returned (the simpler paper model is), by more it is; equation error says so."""
+    from usvlog.identify.identifier import PREFER_WITHIN, Candidate, Start, _returned
+
+    def cand(model, kind="output-error"):
+        return Candidate(start=Start(name="x", kind=kind, theta=np.zeros(6), model=model), theta=np.zeros(6),
+                         currents=np.zeros((1, 2)), fitted=None, validations=[])
+
+    close = _returned({"winner": "extended", "margin": 0.4 * PREFER_WITHIN}, cand("paper"))
+    assert close["returned"] == "paper" and "simpler paper model" in close["why"] and "0.4" in close["why"]
+    far = _returned({"winner": "extended", "margin": 3.0}, cand("extended"))
+    assert far["returned"] == "extended" and far["why"] == "it validates better by 3.0 points"
+    assert "equation error" in _returned({"winner": "paper", "margin": 2.0}, cand("paper", "equation-error"))["why"]
+    assert close["rule"] == far["rule"] and f"{PREFER_WITHIN:g} point" in far["rule"]

@@ -53,14 +53,20 @@ def _never_worse_than_equation_error(idf):
 @pytest.mark.slow   # a target's proof of ~45 s CPU: run with `pytest -m slow` (fast suite < 5 min)
 def test_catamaran_without_current_paper_model_predicts_the_held_out_part():
     """The issue's case: no current, the last 40 % held out. The paper's model predicts the held-out
-    yaw rate (r >= 70 % against the measured, more against the truth), the surge speed, and
-    invents no current (<= 0.05 m/s)."""
+    surge speed (u >= 85 % against the truth) and yaw rate (r >= 70 % against the measured, more
+    against the truth), and invents no current (<= 0.05 m/s). The u target is judged against the
+    simulation's truth: the smoothed u fits this boat's true u only ~30 % (GPS noise differentiated,
+    fast surge changes smoothed away), so no model's "measured u" fit % can show it.
+
+    The full fit's m (~31 kg) carries the sway and yaw mismatch (true m11 85, m22 162): its surge
+    speed fits the truth only ~73 %. The candidate with m from the surge equation alone validates
+    better on the held-out track and is returned."""
     log, idf = _catamaran_fit(0.0, seed=5)
     fp = idf.validation_fit_percent_()
     assert idf.validation_mode_ == "holdout"
     assert fp["r"] >= 70 and fp["u"] > 0, (fp, [c.to_dict() for c in idf.candidates_])
     truth = _truth_fit(log, idf)
-    assert truth["u"] >= 70 and truth["r"] >= 85, truth
+    assert truth["u"] >= 85 and truth["r"] >= 85, (truth, idf.chosen_.start.name)
     assert math.hypot(*idf.current_[0]) <= 0.05, idf.current_
     _never_worse_than_equation_error(idf)
     assert idf.usable_, idf.reasons_
@@ -85,15 +91,31 @@ def test_demo_run_is_usable_without_advice():
     assert np.all(np.abs(idf.theta_[:5] / true[:5] - 1) < 0.05)
 
 
-def test_two_logs_are_validated_by_leaving_each_out():
+def test_two_logs_left_out_in_turn_never_validate_worse_than_equation_error():
+    """Two logs, each left out in turn. A 0.3 m/s current, opposite in the two runs, that the fit is
+    told not to model (``current=False``): output error bends the parameters to explain the drift
+    of one run's track and predicts the other badly; equation error (velocities over ground, no
+    track to drift) validates better on the left-out logs, so it is returned (as with one log:
+    never worse than equation error), and the reasons say so. The floor is checked against an
+    equation-error identifier run on its own."""
     sens = SensorSettings(gps_noise_m=0.5, compass_noise_deg=1.0)
-    a = simulate("excitation", SimSettings(duration_s=180.0, current_mps=0.1, sensors=sens), seed=31)
-    b = simulate("turns", SimSettings(duration_s=180.0, current_mps=0.1, sensors=sens), seed=32)
-    idf = Identifier("equation-error").fit([a, b])
+    a = simulate("excitation", SimSettings(duration_s=90.0, current_mps=0.3, current_dir_deg=0.0, sensors=sens),
+                 seed=31)
+    b = simulate("turns", SimSettings(duration_s=90.0, current_mps=0.3, current_dir_deg=180.0, sensors=sens),
+                 seed=32)
+    idf = Identifier("output-error", current=False).fit([a, b])
+    ee = Identifier("equation-error", current=False).fit([a, b])
     assert idf.validation_mode_ == "leave-one-out" and len(idf.validations_) == 2
+    floor = np.mean([v.score for v in ee.validations_])
+    assert np.mean([v.score for v in idf.validations_]) >= floor - 1e-9
+    sw = idf.loo_switch_
+    assert sw is not None and sw["equation_error_score"] > sw["score"], sw
+    assert idf.chosen_.start.kind == "equation-error"
+    np.testing.assert_allclose(idf.theta_, ee.theta_)
+    assert any("equation error returned" in r for r in idf.reasons_), idf.reasons_
     d = idf.to_dict()
     assert d["fit_percent_on"] == "validation" and set(d["fit_percent"]) == {"u", "v", "r", "track"}
-    assert d["verdict"] in VERDICTS and isinstance(d["reasons"], list)
+    assert d["verdict"] in VERDICTS and isinstance(d["reasons"], list) and d["chosen"] == "equation error"
 
 
 def test_physically_impossible_values_are_named():
