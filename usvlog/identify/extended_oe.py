@@ -464,8 +464,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         """Forward differences: one evaluation per global column, one per initial-state
         component for all segments together (each moves only its segment's rows)."""
         f0 = fun_cached(p)
-        J = np.zeros((n_rows, n_glob))
-        J6 = np.zeros((n_rows, 6))
+        J = np.zeros((n_rows, n_glob), order="F")      # written column by column
+        J6 = np.zeros((n_rows, 6), order="F")
         for j in range(n_glob):
             h = FD_STEP * max(abs(p[j]), scale[j])
             if p[j] + h > hi[j]:
