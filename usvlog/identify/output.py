@@ -342,7 +342,8 @@ class _VP:
         self.x0s = x0s.copy()
         self.currents0 = np.asarray(currents0, float)
         self._key = None
-        self._ckey = None
+        self._ckey: bytes | None = None
+        self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of _J, _r
         self.nfev = 0
         self.diverged = False
 
