@@ -23,7 +23,7 @@ from scipy.optimize import least_squares
 
 from .._jit import njit
 from ..choices import EXTENDED_PARAM_NAMES
-from ..model.frames import ssa
+from ..model.frames import ssa, wrap_angle
 from ..model.vessel import ExtendedParams, nu_dot_ext_terms
 from .data import RunData
 from .extended import MAX_DT, NE
@@ -123,6 +123,27 @@ def simulate_full(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, theta, cn, ce, meas_t, 
                 out[j, 4] = (1 - w) * y4 + w * x4
                 out[j, 5] = (1 - w) * y5 + w * x5
                 j += 1
+
+
+@njit
+def residual_rows(x, is_gps, y_n, y_e, y_psi, w_gps, w_psi, out):
+    """Whitened residuals (simulated - measured) of states ``x`` (n, 6) at time-sorted
+    measurements (``is_gps``: a GNSS fix, else a compass heading) into ``out``: the fixes'
+    north rows, their east rows, then the headings (wrapped); BAD_RESIDUAL where not finite."""
+    ng = len(y_n)
+    ig, ic = 0, 0
+    for j in range(len(is_gps)):
+        if is_gps[j]:
+            a = (x[j, 0] - y_n[ig]) * w_gps[ig]
+            b = (x[j, 1] - y_e[ig]) * w_gps[ig]
+            out[ig] = a if math.isfinite(a) else BAD_RESIDUAL
+            out[ng + ig] = b if math.isfinite(b) else BAD_RESIDUAL
+            ig += 1
+        else:
+            d = x[j, 2] - y_psi[ic]
+            c = wrap_angle(d) * w_psi[ic] if math.isfinite(d) else BAD_RESIDUAL
+            out[2 * ng + ic] = c if math.isfinite(c) else BAD_RESIDUAL
+            ic += 1
 
 
 def free_run_full(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
@@ -225,24 +246,34 @@ class _RunProblem:
         self.n_seg = len(self.seg_i0)
         seg = np.searchsorted(self.ptr, np.arange(len(self.t)), side="right") - 1
         self.row_seg = np.concatenate([seg[self.is_gps], seg[self.is_gps], seg[~self.is_gps]])
+        self._out = np.empty((len(self.t), 6))
+        self._x0_key: bytes | None = None
+        self._x0 = np.empty((self.n_seg, 6))
+
+    def start_states(self, cur) -> np.ndarray:
+        """The segments' smoothed initial states for a current (cached: the finite differences
+        of the parameters reuse them)."""
+        key = np.asarray(cur, float).tobytes()
+        if key != self._x0_key:
+            self._x0_key, self._x0 = key, self.ks.at(self.tg[self.seg_i0], tuple(cur))
+        return self._x0
 
     def simulate(self, theta, cur, dx=None) -> np.ndarray:
-        x0s = self.ks.at(self.tg[self.seg_i0], tuple(cur))
+        x0s = self.start_states(cur)
         if dx is not None:
             x0s = x0s + dx
         x0s = np.ascontiguousarray(x0s)
-        out = np.full((len(self.t), 6), np.nan)
+        out = self._out
+        out.fill(np.nan)
         simulate_full(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, x0s,
                       np.asarray(theta, float), float(cur[0]), float(cur[1]), self.t, self.ptr, MAX_DT, out)
         return out
 
     def residuals(self, theta, cur, dx=None) -> np.ndarray:
-        with np.errstate(invalid="ignore", over="ignore"):
-            x = self.simulate(theta, cur, dx)
-            xg, xc = x[self.is_gps], x[~self.is_gps]
-            r = np.concatenate([(xg[:, 0] - self.y_n) * self.w_gps, (xg[:, 1] - self.y_e) * self.w_gps,
-                                ssa(xc[:, 2] - self.y_psi) * self.w_psi])
-        return np.where(np.isfinite(r), r, BAD_RESIDUAL)
+        x = self.simulate(theta, cur, dx)
+        r = np.empty(self.n_res)
+        residual_rows(x, self.is_gps, self.y_n, self.y_e, self.y_psi, self.w_gps, self.w_psi, r)
+        return r
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -433,8 +464,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         """Forward differences: one evaluation per global column, one per initial-state
         component for all segments together (each moves only its segment's rows)."""
         f0 = fun_cached(p)
-        J = np.zeros((n_rows, n_glob))
-        J6 = np.zeros((n_rows, 6))
+        J = np.zeros((n_rows, n_glob), order="F")      # written column by column
+        J6 = np.zeros((n_rows, 6), order="F")
         for j in range(n_glob):
             h = FD_STEP * max(abs(p[j]), scale[j])
             if p[j] + h > hi[j]:
@@ -449,7 +480,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
             J6[:, c] = (fun(q) - f0) / h
         return J, J6
 
-    seg_rows = [np.flatnonzero(row_seg == k) for k in range(n_seg)]
+    by_seg = np.argsort(row_seg, kind="stable")        # rows grouped by segment
+    seg_start = np.searchsorted(row_seg[by_seg], np.arange(n_seg + 1))
 
     def normal(JJ, f):
         """J^T J and J^T f from the global columns and the segments' initial-state columns."""
@@ -458,13 +490,15 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         H, g = np.zeros((n, n)), np.zeros(n)
         H[:n_glob, :n_glob] = Jg.T @ Jg
         g[:n_glob] = Jg.T @ f
-        for k, rows in enumerate(seg_rows):
+        Jg_s, J6_s, f_s = Jg[by_seg], J6[by_seg], f[by_seg]
+        for k in range(n_seg):
+            i, j = seg_start[k], seg_start[k + 1]
             a = n_glob + 6 * k
-            Jk = J6[rows]
+            Jk = J6_s[i:j]
             H[a:a + 6, a:a + 6] = Jk.T @ Jk
-            cross = Jg[rows].T @ Jk
+            cross = Jg_s[i:j].T @ Jk
             H[:n_glob, a:a + 6], H[a:a + 6, :n_glob] = cross, cross.T
-            g[a:a + 6] = Jk.T @ f[rows]
+            g[a:a + 6] = Jk.T @ f_s[i:j]
         return H, g
 
     p_opt, r, H = _levenberg_marquardt(fun_cached, jac, normal, x0, lo, hi, scale, n_glob=n_glob,
@@ -543,4 +577,4 @@ def fit_initial_state_ext(run: RunData, theta, x0_guess, t0: float, t1: float, c
 
 
 __all__ = ["BAD_RESIDUAL", "ExtendedOEResult", "ext_physical_problem", "fit_extended_output_error",
-           "fit_initial_state_ext", "free_run_full", "simulate_full", "coarse_thrust"]
+           "fit_initial_state_ext", "free_run_full", "simulate_full", "coarse_thrust", "residual_rows"]

@@ -12,14 +12,16 @@ standard errors come from it scaled by the residual variance).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import qr as scipy_qr
 from scipy.optimize import least_squares
 
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
+from .extended_oe import coarse_thrust
 from .shoot import NS, SENS_CUR_E, SENS_CUR_N, shoot
 
 MAX_DT = 0.05
@@ -67,16 +69,40 @@ class OutputErrorResult:
     diverged: bool = False     # the simulation left the finite range at the solution
 
 
+def coarse_run(run: RunData) -> RunData:
+    """The run with its thrust averaged over steps of about MAX_DT s (:func:`coarse_thrust`:
+    the same impulse over each step; measurements unchanged).
+
+    Parameters
+    ----------
+    run : RunData
+
+    Returns
+    -------
+    RunData
+        ``run`` itself when its thrust steps are MAX_DT or longer already.
+    """
+    t, tu, tr = coarse_thrust(run.t_thrust, run.tau_u, run.tau_r, MAX_DT)
+    if len(t) == len(run.t_thrust):
+        return run
+    return replace(run, t_thrust=t, tau_u=tu, tau_r=tr)
+
+
 class Problem:
     """Runs cut into segments, measurements ordered by segment, residual rows indexed.
 
     ``velocities``: per run None or (t (s), vn, ve (m/s, over ground), r (rad/s)) smoothed
     velocities, fitted alongside the raw GPS and compass (residual rows of sensor groups 2:
     ground velocity, 3: yaw rate) with one-sigma ``vel_sigma`` (m/s, rad/s).
+
+    The model is integrated on the runs' thrust averaged over steps of about MAX_DT
+    (:func:`coarse_thrust`: the same impulse, one RK4 step per MAX_DT instead of one per
+    thrust record); ``runs`` keeps those coarse runs (segment indices refer to their grids).
     """
 
     def __init__(self, runs: list[RunData], segment_s: float, velocities=None,
                  vel_sigma: tuple[float, float] = VEL_SIGMA):
+        runs = [coarse_run(r) for r in runs]
         tg, tu, tr = [], [], []
         seg_i0: list[int] = []
         seg_i1: list[int] = []
@@ -216,14 +242,13 @@ class Problem:
 
     def jac_rows(self, out_S, out_x):
         """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
-        S = out_S[self.r_meas]
-        J = S[np.arange(len(S)), np.minimum(self.r_state, 2), :].copy()
+        J = out_S[self.r_meas, np.minimum(self.r_state, 2)]    # (n_res, NS), no (n_res, 6, NS) copy
         vel = self.r_state >= R_VN
         if vel.any():
             x = out_x[self.r_meas[vel]]
             psi, u, v = x[:, 2], x[:, 3], x[:, 4]
             c, s = np.cos(psi), np.sin(psi)
-            Sv = S[vel]
+            Sv = out_S[self.r_meas[vel]]
             st = self.r_state[vel]
             dvn = (-s * u - c * v)[:, None] * Sv[:, 2] + c[:, None] * Sv[:, 3] - s[:, None] * Sv[:, 4]
             dve = (c * u - s * v)[:, None] * Sv[:, 2] + s[:, None] * Sv[:, 3] + c[:, None] * Sv[:, 4]
@@ -235,6 +260,15 @@ class Problem:
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
         return np.add.reduceat(a, self.r_start[:-1], axis=0)
+
+    def seg_gram(self, a, b):
+        """Per segment a_k^T b_k over its residual rows: ``a`` (n_res, p), ``b`` (n_res, q) ->
+        (n_seg, p, q) (:meth:`seg_sum` of the rows' outer products, without forming them)."""
+        out = np.empty((self.n_seg, a.shape[1], b.shape[1]))
+        for k in range(self.n_seg):
+            i, j = self.r_start[k], self.r_start[k + 1]
+            out[k] = a[i:j].T @ b[i:j]
+        return out
 
     def initial_states(self, states_fn):
         """x0 per segment from a function t (per run, s) -> states (n, 6)."""
@@ -282,12 +316,12 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
         J = prob.jac_rows(out_S, out_x)
         J = np.where(np.isfinite(J), J, 0.0)
         Jx = J[:, :6]
-        JtJ = prob.seg_sum(Jx[:, :, None] * Jx[:, None, :])
+        JtJ = prob.seg_gram(Jx, Jx)
         JtJ += (1e-9 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)
         if it == max_iter or (seg_cost_prev is not None and
                               np.sum(seg_cost_prev) - np.sum(seg_cost) <= tol * np.sum(seg_cost)):
             return r, J, x0s, JtJ
-        Jtr = prob.seg_sum(Jx * r[:, None])
+        Jtr = prob.seg_gram(Jx, r[:, None])[:, :, 0]
         step = -np.linalg.solve(JtJ, Jtr[:, :, None])[:, :, 0]
         # Gauss-Newton's predicted decrease of r.r is -Jtr.step: stop when it is negligible
         if -np.sum(Jtr * step) <= 1e-2 * tol * np.sum(seg_cost):
@@ -308,6 +342,8 @@ class _VP:
         self.x0s = x0s.copy()
         self.currents0 = np.asarray(currents0, float)
         self._key = None
+        self._ckey: bytes | None = None
+        self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of _J, _r
         self.nfev = 0
         self.diverged = False
 
@@ -355,7 +391,7 @@ class _VP:
         G = np.concatenate(cols, 1)
         # project out the segment initial states
         Jx = J[:, :6]
-        JtG = prob.seg_sum(Jx[:, :, None] * G[:, None, :])
+        JtG = prob.seg_gram(Jx, G)
         coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P)
         Gp = G.copy()
         for k in range(prob.n_seg):
@@ -371,6 +407,61 @@ class _VP:
     def jac(self, p):
         self._eval(p)
         return self._J
+
+    def _compress(self, p):
+        self._eval(p)
+        if self._ckey != self._key:
+            self._ckey = self._key
+            self._c = compress_lsq(self._J, self.fun(p))
+
+    def fun_small(self, p):
+        """:meth:`fun` compressed to P + 1 rows (:func:`compress_lsq`): the same cost, gradient
+        and Gauss-Newton matrix for :func:`scipy.optimize.least_squares` at a fraction of its
+        work per iteration (its decompositions of the full Jacobian cost more than the rest)."""
+        self._compress(p)
+        return self._c[1]
+
+    def jac_small(self, p):
+        """:meth:`jac` compressed alike (:meth:`fun_small`)."""
+        self._compress(p)
+        return self._c[0]
+
+
+def compress_lsq(J, r):
+    """A least-squares problem of few columns compressed to ``P + 1`` rows with the same
+    ``J^T J``, ``J^T r`` and ``r^T r`` (the triangular factor of [J r]: Q^T of the problem).
+
+    Parameters
+    ----------
+    J : numpy.ndarray, shape (N, P)
+        Jacobian (finite).
+    r : numpy.ndarray, shape (N,)
+        Residuals (finite).
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray)
+        ``Jc`` (P + 1, P) and ``rc`` (P + 1,); ``Jc^T Jc = J^T J``, ``Jc^T rc = J^T r``,
+        ``rc^T rc = r^T r``. From the Cholesky factor of the column-scaled Gram matrix when
+        it is well conditioned, else from a QR decomposition.
+    """
+    A = np.column_stack([J, r])
+    gram = A.T @ A
+    d = np.sqrt(np.diag(gram))
+    d[d == 0] = 1.0
+    gs = gram / np.outer(d, d)
+    ev = np.linalg.eigvalsh(gs)
+    R = None
+    if ev[0] > 1e-10 * ev[-1]:
+        try:
+            R = np.linalg.cholesky(gs).T * d      # A = Q R, R upper triangular
+        except np.linalg.LinAlgError:
+            R = None
+    if R is None:
+        R = scipy_qr(A, mode="r")[0][:A.shape[1]]
+        if R.shape[0] < A.shape[1]:
+            R = np.vstack([R, np.zeros((A.shape[1] - R.shape[0], A.shape[1]))])
+    return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
 
 
 def _bounds(free_mask, n_cur, max_current=np.inf):
@@ -489,7 +580,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             hi = hi.copy()
             lo[:nf], hi[:nf] = np.maximum(th_lo[free], lo[:nf]), th_hi[free]
             p0 = np.clip(p0, lo + 1e-9, hi - 1e-9)
-        sol = least_squares(vp.fun, p0, jac=vp.jac, bounds=(lo, hi), x_scale="jac", method="trf",
+        sol = least_squares(vp.fun_small, p0, jac=vp.jac_small, bounds=(lo, hi), x_scale="jac", method="trf",
                             ftol=1e-8 if last else 1e-6, xtol=1e-8 if last else 1e-6,
                             gtol=1e-8 if last else 1e-6, max_nfev=max_nfev, verbose=verbose)
         nfev += vp.nfev
@@ -522,7 +613,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         vp = _VP(prob, theta, free, fit_current, vp.x0s, cur)
         p0 = vp.pack(theta, cur)
         lo, hi = _bounds(free, len(p0) - int(free.sum()), max_current_mps)
-        sol = least_squares(vp.fun, np.clip(p0, lo + 1e-9, hi), jac=vp.jac, bounds=(lo, hi), x_scale="jac",
+        sol = least_squares(vp.fun_small, np.clip(p0, lo + 1e-9, hi), jac=vp.jac_small, bounds=(lo, hi), x_scale="jac",
                             method="trf", ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=max_nfev, verbose=verbose)
         nfev += vp.nfev
         theta, cur = vp.unpack(sol.x)
@@ -562,8 +653,6 @@ def _robust_scale(prob: Problem, r) -> tuple[float, ...]:
 
 def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[list[RunData], int, int]:
     """Runs without the measurements behind the flagged residual rows."""
-    from dataclasses import replace as _replace
-
     m = np.unique(prob.r_meas[bad_rows])
     run_of = prob.seg_run[prob.meas_seg[m]]
     kind, t = prob.kind[m], prob.meas_t[m]
@@ -573,7 +662,7 @@ def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[li
         tc = t[(run_of == i) & (kind == 1)]
         g = ~np.isin(run.t_gps, tg)
         c = ~np.isin(run.t_compass, tc)
-        out.append(_replace(run, t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g],
+        out.append(replace(run, t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g],
                             sigma_gps=run.sigma_gps[g], t_compass=run.t_compass[c],
                             psi_compass=run.psi_compass[c], sigma_compass=run.sigma_compass[c]))
     return out, int((kind == 0).sum()), int((kind == 1).sum())
@@ -630,8 +719,8 @@ def predict_segments(runs: list[RunData], segment_s: float, x0s, theta, currents
     state) at ``times`` of one run."""
     prob = Problem(runs, segment_s)
     segs = np.flatnonzero(prob.seg_run == run_index)
-    off = sum(len(r.t_thrust) for r in runs[:run_index])
-    run = runs[run_index]
+    off = sum(len(r.t_thrust) for r in prob.runs[:run_index])
+    run = prob.runs[run_index]      # the grid the segments were fitted on
     times = np.asarray(times, float)
     out = np.full((len(times), 6), np.nan)
     for k in segs:
