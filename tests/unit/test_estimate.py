@@ -495,3 +495,15 @@ def test_kinematic_model_needs_no_thruster_map():
     assert np.abs(got[cols].to_numpy() - ref[cols].to_numpy()).max() < 1e-9
     with pytest.raises(InputError, match="thruster map"):
         estimate(log, EstimateSettings(model="dynamic"))
+
+
+def test_chi2_quantile_closed_form_equals_scipy():
+    """The NIS gate's closed-form chi-square quantiles (1 and 2 degrees of freedom) are scipy's."""
+    from scipy.stats import chi2
+
+    from usvlog.estimate.core import chi2_quantile
+
+    for p in (0.5, 0.9, 0.99, 0.9999, 0.999999, 1 - 1e-12):
+        for dof in (1, 2):
+            assert chi2_quantile(p, dof) == pytest.approx(float(chi2.ppf(p, dof)), rel=1e-13)
+    assert chi2_quantile(1.0, 1) == chi2_quantile(1.0, 2) == math.inf

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from statistics import NormalDist
 from typing import Literal, overload
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import minimize
-from scipy.stats import chi2
 
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
@@ -32,7 +31,6 @@ from .kernels import (
     YAW_RATE,
 )
 from .latency import META_LATENCY, DelayEstimate, find_delays, latency_record
-from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -339,8 +337,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     x0 = np.zeros(nx)
     x0[0], x0[1], x0[2] = n[0], e[0], psi0
     P0 = initial_covariance(s)
-    gate = chi2.ppf(s.gate_probability, list(SENSOR_DIM)) if s.gate_probability < 1 \
-        else np.full(len(SENSOR_DIM), np.inf)
+    gate = [chi2_quantile(s.gate_probability, m) for m in SENSOR_DIM]
 
     # GNSS gaps bridged by prediction: longer than 5 typical intervals and 1 s
     dtg = np.diff(tg)
@@ -354,6 +351,34 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
                    model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
                    gates=np.asarray(gate, float), dropouts=drop, skipped=skipped,
                    mode="gps-only" if mode_reason else "gnss+compass", mode_reason=mode_reason)
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """Quantile of the chi-square distribution with 1 or 2 degrees of freedom (the NIS
+    gate of a scalar or 2-D measurement), in closed form: for 2, the exponential's
+    -2 ln(1 - p); for 1, the square of the normal quantile of (1 - p) / 2 (as scipy's
+    ``chi2.ppf`` to a few units in the last place, without importing scipy.stats).
+
+    Parameters
+    ----------
+    p : float
+        Probability in [0, 1]; 1 gives inf (no gate).
+    dof : int
+        1 or 2.
+
+    Returns
+    -------
+    float
+    """
+    if p >= 1.0:
+        return math.inf
+    if p <= 0.0:
+        return 0.0
+    if dof == 2:
+        return -2.0 * math.log1p(-p)
+    if dof == 1:
+        return NormalDist().inv_cdf(0.5 * (1.0 - p)) ** 2
+    raise ValueError(f"chi2_quantile: {dof} degrees of freedom (1 or 2)")
 
 
 HEADING_STILL_DEG = 2.0
@@ -794,6 +819,8 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
                        covariance_block: bool = True, columns: int | None = None) -> RawRun:
     """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
+    from .reference import run_reference  # heavy: filterpy and scipy.stats, only for the reference path
+
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
                         pb.model == DYNAMIC, q, pb.gates, max_rej, smoother,   # (kinematic: by nx)
@@ -842,6 +869,8 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
         z = np.clip(z, -12, 2)
         q = process_noise(settings, *(10.0 ** z))
         return -forward_loglik(sub, q, settings.max_consecutive_rejects)
+
+    from scipy.optimize import minimize  # heavy: scipy.optimize, only when tuning
 
     res = minimize(cost, np.array(start), method="Nelder-Mead",
                    options={"xatol": 0.05, "fatol": 0.5, "maxfev": 120})
