@@ -1089,7 +1089,9 @@ def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray
     n_out = 8 if (model == DYNAMIC and X.shape[1] == 8) else 6
     names = channel_spec(STATE_TOPIC).columns
     row = {c: k for k, c in enumerate(names)}
-    block = np.full((len(names), len(X)), np.nan)   # rows: the frame's columns
+    block = np.empty((len(names), len(X)))   # rows: the frame's columns
+    for c in STATE_COLUMNS[n_out:]:
+        block[row[c]] = block[row[c + "_std"]] = np.nan
     if model == KINEMATIC:  # NED velocity -> over-ground body velocity
         X, SD = X[:, :6].copy(), SD[:, :6].copy()
         X[:, 3], X[:, 4], SD[:, 3], SD[:, 4] = kernels.body_velocity(X[:, 2], X[:, 3], X[:, 4], PB)
