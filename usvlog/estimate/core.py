@@ -837,7 +837,8 @@ def _unusable(X: np.ndarray, SD: np.ndarray) -> np.ndarray:
     """(N,) bool: a state or one-sigma not finite, or a position one-sigma beyond
     :data:`POSITION_STD_LIMIT_M` (as ``kernels._bad_step``)."""
     with np.errstate(invalid="ignore"):
-        return ~(np.isfinite(X).all(axis=1) & np.isfinite(SD).all(axis=1)) | (SD[:, :2] > POSITION_STD_LIMIT_M).any(axis=1)
+        finite = np.isfinite(X).all(axis=1) & np.isfinite(SD).all(axis=1)
+        return ~finite | (SD[:, :2] > POSITION_STD_LIMIT_M).any(axis=1)
 
 
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
@@ -1087,7 +1088,8 @@ def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray
     """The /estimate/state frame (STATE_COLUMNS and their ``_std``) of states X, one-sigma SD
     (and, kinematic, the covariance block PB), built as one block of columns (one copy)."""
     n_out = 8 if (model == DYNAMIC and X.shape[1] == 8) else 6
-    names = channel_spec(STATE_TOPIC).columns
+    spec = channel_spec(STATE_TOPIC)
+    names = spec.columns if spec is not None else [*STATE_COLUMNS, *(c + "_std" for c in STATE_COLUMNS)]
     row = {c: k for k, c in enumerate(names)}
     block = np.empty((len(names), len(X)))   # rows: the frame's columns
     for c in STATE_COLUMNS[n_out:]:

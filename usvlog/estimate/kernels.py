@@ -304,9 +304,11 @@ def reinitialise(x, P, x0, P0, n, e, psi):
 
 
 # Forward-pass state carried between blocks (a checkpoint): x, P and these.
-FS_FIX_N, FS_FIX_E, FS_PSI_LAST, FS_LOGLIK = range(4)    # fst: latest fix, latest accepted heading, sum of loglik terms
+# fst: the latest fix, the latest accepted heading, the sum of the log-likelihood terms
+FS_FIX_N, FS_FIX_E, FS_PSI_LAST, FS_LOGLIK = range(4)
 NFS = 4
-IS_J = 0                                                 # ist: next measurement; then the rejections in a row per sensor
+# ist: the next measurement, then the rejections in a row of each sensor
+IS_J = 0
 N_IST = 1 + len(SENSORS)
 SMOOTH_BLOCK = 2048
 """Steps between the forward pass's checkpoints: the smoother re-runs the forward pass one
@@ -489,7 +491,7 @@ def _chol_solve(L, inv, A, B, X):
 
 @njit
 def _unpack(tri, P):
-    """The symmetric matrix P from its upper triangle stored row by row (as :func:`forward` stores it)."""
+    """The symmetric matrix P from its upper triangle stored row by row (as :func:`_forward_steps` stores it)."""
     n = P.shape[0]
     i = 0
     for a in range(n):
