@@ -495,3 +495,35 @@ def test_kinematic_model_needs_no_thruster_map():
     assert np.abs(got[cols].to_numpy() - ref[cols].to_numpy()).max() < 1e-9
     with pytest.raises(InputError, match="thruster map"):
         estimate(log, EstimateSettings(model="dynamic"))
+
+
+def test_chi2_quantile_closed_form_equals_scipy():
+    """The NIS gate's closed-form chi-square quantiles (1 and 2 degrees of freedom) are scipy's."""
+    from scipy.stats import chi2
+
+    from usvlog.estimate.core import chi2_quantile
+
+    for p in (0.5, 0.9, 0.99, 0.9999, 0.999999, 1 - 1e-12):
+        for dof in (1, 2):
+            assert chi2_quantile(p, dof) == pytest.approx(float(chi2.ppf(p, dof)), rel=1e-13)
+    assert chi2_quantile(1.0, 1) == chi2_quantile(1.0, 2) == math.inf
+
+
+def test_output_rows_are_the_all_step_run_bit_for_bit():
+    """The memory-bounded run (some rows, the first states, the smoother re-making the forward
+    posteriors block by block from checkpoints) gives exactly those rows of the all-step run,
+    across several blocks and at the same first unusable step."""
+    log = simulate("excitation", SimSettings(duration_s=50.0), seed=4)
+    s = EstimateSettings(sway_damping=False)
+    pb = build_problem(log, s, default_vessel())
+    assert len(pb.dts) > 2 * kernels.SMOOTH_BLOCK
+    q = process_noise(s)
+    every = run_fast(pb, q, s.max_consecutive_rejects, True)
+    rows = np.zeros(len(pb.dts), bool)
+    rows[::7] = rows[-1] = True
+    some = run_fast(pb, q, s.max_consecutive_rejects, True, rows=rows, columns=5, covariance_block=False)
+    for a, b in ((some.X, every.X), (some.XS, every.XS), (some.SDf, every.SDf), (some.SDs, every.SDs)):
+        np.testing.assert_array_equal(a, b[rows, :5])
+    assert some.PBs.shape == (0, 3, 3) and some.first_bad == every.first_bad == -1
+    np.testing.assert_array_equal(some.innov, every.innov)
+    assert some.loglik == every.loglik

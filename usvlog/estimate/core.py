@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from statistics import NormalDist
 from typing import Literal, overload
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import minimize
-from scipy.stats import chi2
 
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
@@ -32,7 +31,6 @@ from .kernels import (
     YAW_RATE,
 )
 from .latency import META_LATENCY, DelayEstimate, find_delays, latency_record
-from .reference import run_reference
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps")
@@ -339,8 +337,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     x0 = np.zeros(nx)
     x0[0], x0[1], x0[2] = n[0], e[0], psi0
     P0 = initial_covariance(s)
-    gate = chi2.ppf(s.gate_probability, list(SENSOR_DIM)) if s.gate_probability < 1 \
-        else np.full(len(SENSOR_DIM), np.inf)
+    gate = [chi2_quantile(s.gate_probability, m) for m in SENSOR_DIM]
 
     # GNSS gaps bridged by prediction: longer than 5 typical intervals and 1 s
     dtg = np.diff(tg)
@@ -354,6 +351,34 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
                    model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
                    gates=np.asarray(gate, float), dropouts=drop, skipped=skipped,
                    mode="gps-only" if mode_reason else "gnss+compass", mode_reason=mode_reason)
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """Quantile of the chi-square distribution with 1 or 2 degrees of freedom (the NIS
+    gate of a scalar or 2-D measurement), in closed form: for 2, the exponential's
+    -2 ln(1 - p); for 1, the square of the normal quantile of (1 - p) / 2 (as scipy's
+    ``chi2.ppf`` to a few units in the last place, without importing scipy.stats).
+
+    Parameters
+    ----------
+    p : float
+        Probability in [0, 1]; 1 gives inf (no gate).
+    dof : int
+        1 or 2.
+
+    Returns
+    -------
+    float
+    """
+    if p >= 1.0:
+        return math.inf
+    if p <= 0.0:
+        return 0.0
+    if dof == 2:
+        return -2.0 * math.log1p(-p)
+    if dof == 1:
+        return NormalDist().inv_cdf(0.5 * (1.0 - p)) ** 2
+    raise ValueError(f"chi2_quantile: {dof} degrees of freedom (1 or 2)")
 
 
 HEADING_STILL_DEG = 2.0
@@ -528,7 +553,7 @@ def course_as_heading(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, gyro: bool,
     Parameters
     ----------
     X, SD : numpy.ndarray
-        States (N, 9) of the kinematic model and their one-sigma.
+        States of the kinematic model (N, 8 or more: its first eight states) and their one-sigma.
     PB : numpy.ndarray
         Covariance of (psi, v_n, v_e), (N, 3, 3).
     gyro : bool
@@ -684,14 +709,18 @@ def process_noise(settings: EstimateSettings, q_uv=None, q_r=None, q_c=None) -> 
 
 @dataclass(frozen=True)
 class RawRun:
-    """Raw arrays of one filter (and smoother) run, on every step of a :class:`Problem`.
+    """Raw arrays of one filter (and smoother) run, on the steps of a :class:`Problem` asked for
+    (every step, or the rows given to :func:`run_fast`: R of them).
 
-    ``X``/``XS`` forward and smoothed states (N, nx), ``SDf``/``SDs`` their one-sigma,
-    ``PBf``/``PBs`` their covariance block of states 2..4 (N, 3, 3); ``innov`` (M, 4)
-    [res_0, res_1, nis, log-likelihood term] per measurement, ``accepted`` (M,)
-    0 rejected / 1 accepted / 2 accepted after too many rejections; ``loglik`` their sum;
-    ``resets`` (N,) the divergence guard's re-initialisations (``kernels.REINIT_*``, 0 none).
-    Without the smoother the smoothed arrays are the forward ones.
+    ``X``/``XS`` forward and smoothed states (R, nx), ``SDf``/``SDs`` their one-sigma,
+    ``PBf``/``PBs`` their covariance block of states 2..4 (R, 3, 3; (0, 3, 3) when not
+    asked for); ``innov`` (M, 4) [res_0, res_1, nis, log-likelihood term] per measurement,
+    ``accepted`` (M,) 0 rejected / 1 accepted / 2 accepted after too many rejections;
+    ``loglik`` their sum; ``resets`` (N,) the divergence guard's re-initialisations
+    (``kernels.REINIT_*``, 0 none); ``first_bad`` the first step (of all N) whose forward or
+    smoothed state or one-sigma is not finite or whose position one-sigma exceeds
+    :data:`POSITION_STD_LIMIT_M`, -1 for none. Without the smoother the smoothed arrays are
+    the forward ones.
     """
 
     X: np.ndarray          # forward posteriors (N, nx)
@@ -704,10 +733,16 @@ class RawRun:
     accepted: np.ndarray   # (M,) 0/1/2
     loglik: float
     resets: np.ndarray     # (N,) why the state was re-initialised at a step (kernels.REINIT_*), 0 for none
+    first_bad: int = -1    # first step with an unusable state (see _check_finite), -1 for none
 
 
-def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
+             covariance_block: bool = True, columns: int | None = None) -> RawRun:
     """Forward EKF (and RTS smoother) with the numba-compiled kernels.
+
+    Memory is that of the rows asked for, not of the steps: the smoother makes the forward
+    posteriors again a block at a time from checkpoints of the forward pass (the same
+    numbers; see ``kernels.smooth``).
 
     Parameters
     ----------
@@ -718,26 +753,44 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun
         Rejections in a row after which a sensor's next measurement is forced in.
     smoother : bool
         Run the smoother after the forward pass.
+    rows : numpy.ndarray, optional
+        (N,) bool: the steps whose states are returned (e.g. ``pb.is_grid``); default all.
+    covariance_block : bool
+        Return the covariance block of states 2..4 (``PBf``, ``PBs``).
+    columns : int, optional
+        Return the first ``columns`` states (and their one-sigma) only; default all.
 
     Returns
     -------
     RawRun
     """
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X, SDf, PBf = np.empty((N, nx)), np.empty((N, nx)), np.empty((N, 3, 3))
-    PP = np.empty((N if smoother else 1, nx * (nx + 1) // 2))   # posteriors' upper triangles, for the smoother
+    nc = nx if columns is None else columns
+    if rows is None:
+        row = np.arange(N, dtype=np.int64)
+    else:
+        row = np.cumsum(rows, dtype=np.int64) - 1
+        row[~np.asarray(rows, bool)] = -1
+    R = int(row.max()) + 1 if N else 0
+    npb = R if covariance_block else 0
+    X, SDf, PBf = np.empty((R, nc)), np.empty((R, nc)), np.empty((npb, 3, 3))
+    C = -(-N // kernels.SMOOTH_BLOCK) if smoother else 0   # checkpoints, for the smoother
+    CX, CP = np.empty((C, nx)), np.empty((C, nx, nx))
+    CI, CF = np.empty((C, kernels.N_IST), np.int64), np.empty((C, kernels.NFS))
     innov = np.zeros((M, 4))
     acc = np.zeros(M, np.int8)
     resets = np.zeros(N, np.int8)
-    ll = kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm,
-                         pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
-                         X, PP, SDf, PBf, innov, acc, resets)
+    bad_f, bad_s = np.full(1, -1, np.int64), np.full(1, -1, np.int64)
+    args = (pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm, pb.model, q, pb.gates,
+            max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb))
+    ll = kernels.forward(*args, row, X, SDf, PBf, innov, acc, resets, CX, CP, CI, CF, bad_f)
     if smoother:
-        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty((N, 3, 3))
-        kernels.smooth(X, PP, pb.dts, pb.taus, pb.qjump, pb.prm, pb.model, q, resets, XS, SDs, PBs)
+        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty_like(PBf)
+        kernels.smooth(*args, innov, acc, resets, CX, CP, CI, CF, row, XS, SDs, PBs, bad_s)
     else:
         XS, SDs, PBs = X, SDf, PBf
-    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets)
+    bad = [int(b[0]) for b in (bad_f, bad_s) if b[0] >= 0]
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, min(bad) if bad else -1)
 
 
 REINIT_GATE_FACTOR = 100.0
@@ -752,24 +805,40 @@ def reinit_nis(pb: Problem) -> float:
 
 
 def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
-    """Innovation log-likelihood of the forward pass (no covariances stored)."""
-    N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
-    X = np.empty((N, nx))
-    one = np.empty((1, nx * (nx + 1) // 2))
+    """Innovation log-likelihood of the forward pass (no states stored)."""
+    nx, M = pb.nx, len(pb.mstep)
+    none = np.empty((0, nx))
     return float(kernels.forward(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR,
                                  pb.prm, pb.model, q, pb.gates, max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb),
-                                 X, one, one[:, :nx], np.empty((1, 3, 3)), np.zeros((M, 4)), np.zeros(M, np.int8),
-                                 np.zeros(N, np.int8)))
+                                 np.empty(0, np.int64), none, none, np.empty((0, 3, 3)), np.zeros((M, 4)),
+                                 np.zeros(M, np.int8), np.zeros(len(pb.dts), np.int8), none, np.empty((0, nx, nx)),
+                                 np.empty((0, kernels.N_IST), np.int64), np.empty((0, kernels.NFS)),
+                                 np.empty(1, np.int64)))
 
 
-def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool) -> RawRun:
+def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
+                       covariance_block: bool = True, columns: int | None = None) -> RawRun:
     """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
+    from .reference import run_reference  # heavy: filterpy and scipy.stats, only for the reference path
+
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
     out = run_reference(pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, params,
                         pb.model == DYNAMIC, q, pb.gates, max_rej, smoother,   # (kinematic: by nx)
                         POSITION_STD_LIMIT_M ** 2, reinit_nis(pb))
     X, SDf, PBf, XS, SDs, PBs, innov, acc, ll, resets = out
-    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets)
+    bad = np.flatnonzero(_unusable(X, SDf) | _unusable(XS, SDs))
+    keep = slice(None) if rows is None else np.asarray(rows, bool)
+    X, SDf, XS, SDs = (a[keep, :columns] for a in (X, SDf, XS, SDs))
+    PBf, PBs = (PBf[keep], PBs[keep]) if covariance_block else (PBf[:0], PBs[:0])
+    return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, int(bad[0]) if len(bad) else -1)
+
+
+def _unusable(X: np.ndarray, SD: np.ndarray) -> np.ndarray:
+    """(N,) bool: a state or one-sigma not finite, or a position one-sigma beyond
+    :data:`POSITION_STD_LIMIT_M` (as ``kernels._bad_step``)."""
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(X).all(axis=1) & np.isfinite(SD).all(axis=1)
+        return ~finite | (SD[:, :2] > POSITION_STD_LIMIT_M).any(axis=1)
 
 
 def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int = 60_000) -> dict:
@@ -801,6 +870,8 @@ def tune_process_noise(pb: Problem, settings: EstimateSettings, max_steps: int =
         z = np.clip(z, -12, 2)
         q = process_noise(settings, *(10.0 ** z))
         return -forward_loglik(sub, q, settings.max_consecutive_rejects)
+
+    from scipy.optimize import minimize  # heavy: scipy.optimize, only when tuning
 
     res = minimize(cost, np.array(start), method="Nelder-Mead",
                    options={"xatol": 0.05, "fatol": 0.5, "maxfev": 120})
@@ -1014,16 +1085,22 @@ class EstimateReport:
 
 def _state_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray, t_ns: np.ndarray,
                  model: int) -> pd.DataFrame:
+    """The /estimate/state frame (STATE_COLUMNS and their ``_std``) of states X, one-sigma SD
+    (and, kinematic, the covariance block PB), built as one block of columns (one copy)."""
     n_out = 8 if (model == DYNAMIC and X.shape[1] == 8) else 6
+    spec = channel_spec(STATE_TOPIC)
+    names = spec.columns if spec is not None else [*STATE_COLUMNS, *(c + "_std" for c in STATE_COLUMNS)]
+    row = {c: k for k, c in enumerate(names)}
+    block = np.empty((len(names), len(X)))   # rows: the frame's columns
+    for c in STATE_COLUMNS[n_out:]:
+        block[row[c]] = block[row[c + "_std"]] = np.nan
     if model == KINEMATIC:  # NED velocity -> over-ground body velocity
         X, SD = X[:, :6].copy(), SD[:, :6].copy()
         X[:, 3], X[:, 4], SD[:, 3], SD[:, 4] = kernels.body_velocity(X[:, 2], X[:, 3], X[:, 4], PB)
-    cols = {}
-    for i, c in enumerate(STATE_COLUMNS):
-        cols[c] = X[:, i].copy() if i < n_out else np.full(len(X), np.nan)
-    for i, c in enumerate(STATE_COLUMNS):
-        cols[c + "_std"] = SD[:, i].copy() if i < n_out else np.full(len(X), np.nan)
-    return frame_from_columns(cols, t_ns, channel_spec(STATE_TOPIC))
+    for i, c in enumerate(STATE_COLUMNS[:n_out]):
+        block[row[c]] = X[:, i]
+        block[row[c + "_std"]] = SD[:, i]
+    return pd.DataFrame(block.T, index=pd.Index(np.asarray(t_ns, np.int64), name="t_ns"), columns=names, copy=False)
 
 
 @dataclass(frozen=True)
@@ -1108,14 +1185,9 @@ def _check_finite(raw: RawRun, pb: Problem, settings: EstimateSettings, src: str
         Naming the model, the first bad time (s from the start) and the largest
         innovation NIS before it.
     """
-    nx = pb.nx
-    bad = ~(np.isfinite(raw.X[:, :nx]).all(axis=1) & np.isfinite(raw.XS[:, :nx]).all(axis=1)
-            & np.isfinite(raw.SDf[:, :nx]).all(axis=1) & np.isfinite(raw.SDs[:, :nx]).all(axis=1))
-    with np.errstate(invalid="ignore"):
-        bad |= (raw.SDf[:, :2] > POSITION_STD_LIMIT_M).any(axis=1) | (raw.SDs[:, :2] > POSITION_STD_LIMIT_M).any(axis=1)
-    if not bad.any():
+    if raw.first_bad < 0:
         return
-    i = int(np.flatnonzero(bad)[0])
+    i = raw.first_bad
     t_s = (int(pb.t_ns[i]) - int(pb.t_ns[0])) * 1e-9
     before = pb.m_t_ns <= pb.t_ns[i]
     nis = raw.innov[before, 2] if before.any() else np.zeros(0)
@@ -1173,7 +1245,12 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     if settings.estimate_delays:   # (again) with the noise in effect
         latency, settings, pb = search_delays(settings, q)
     runner = run_fast if settings.fast else run_reference_path
-    return settings, runner(pb, q, settings.max_consecutive_rejects, settings.smoother), tuned, latency, pb
+    # only what the output needs (memory): the grid's rows, the frame's states (the kinematic
+    # model's accelerations too, for course_as_heading) and the covariance block of the NED model
+    kinematic = pb.model == KINEMATIC
+    raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother, rows=pb.is_grid,
+                 covariance_block=kinematic, columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6)
+    return settings, raw, tuned, latency, pb
 
 
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
@@ -1241,16 +1318,15 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     gyro = bool((pb.mkind == YAW_RATE).any())
 
     def grid_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
-        # one frame at a time: its grid rows are copied only while it is built (memory)
-        X, SD, PB = X[g], SD[g], PB[g]
+        # (the raw arrays hold the grid's rows only)
         if pb.mode == "gps-only" and pb.model == KINEMATIC:
             X, SD, PB = course_as_heading(X, SD, PB, gyro)
         return _state_frame(X, SD, PB, pb.t_ns[g], pb.model)
     gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
-    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
-    raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
     forward = grid_frame(raw.X, raw.SDf, raw.PBf)
     raw = replace(raw, X=gone, SDf=gone, PBf=gone)
+    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
+    raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
     innov = frame_from_columns(
         {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),

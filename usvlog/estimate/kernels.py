@@ -303,17 +303,132 @@ def reinitialise(x, P, x0, P0, n, e, psi):
     x[X_N], x[X_E], x[X_PSI] = n, e, wrap_angle(psi)
 
 
+# Forward-pass state carried between blocks (a checkpoint): x, P and these.
+# fst: the latest fix, the latest accepted heading, the sum of the log-likelihood terms
+FS_FIX_N, FS_FIX_E, FS_PSI_LAST, FS_LOGLIK = range(4)
+NFS = 4
+# ist: the next measurement, then the rejections in a row of each sensor
+IS_J = 0
+N_IST = 1 + len(SENSORS)
+SMOOTH_BLOCK = 2048
+"""Steps between the forward pass's checkpoints: the smoother re-runs the forward pass one
+block at a time from them (memory bounded by a block, not by the run)."""
+
+
+@njit
+def _bad_step(x, P, sd_limit):
+    """The state or a one-sigma not finite, or a position one-sigma beyond ``sd_limit`` (m)."""
+    for a in range(x.shape[0]):
+        s = math.sqrt(max(P[a, a], 0.0))
+        if not (math.isfinite(x[a]) and math.isfinite(s)):
+            return True
+        if a < 2 and s > sd_limit:
+            return True
+    return False
+
+
+@njit
+def _store_row(r, x, P, X, SD, PB):
+    """The first X.shape[1] states of ``x``, their one-sigma and the covariance block
+    PB_FIRST.. into row ``r`` of X, SD (and PB unless it has no rows)."""
+    for a in range(X.shape[1]):
+        X[r, a] = x[a]
+        SD[r, a] = math.sqrt(max(P[a, a], 0.0))
+    if PB.shape[0]:
+        for a in range(PB_SIZE):
+            for b in range(PB_SIZE):
+                PB[r, a, b] = P[PB_FIRST + a, PB_FIRST + b]
+
+
+@njit
+def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
+                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, bad):
+    """Steps k0 .. k1 - 1 of the forward pass from the state x, P, ist, fst (updated in place).
+
+    Writes each step's posterior into row ``row[k]`` of X, SD, PB (none when ``row`` is
+    empty or ``row[k] < 0``) and, when BX has rows, the state and the upper triangle of P
+    (row by row) into BX[k - k0], BP[k - k0]; ``bad[0]`` gets the first step whose
+    state is unusable (:func:`_bad_step`), if none did yet."""
+    nx = x.shape[0]
+    M = mstep.shape[0]
+    xo = np.zeros(nx)
+    Po = np.zeros((nx, nx))
+    Phi = np.zeros((nx, nx))
+    f = np.zeros(nx)
+    F = np.zeros((nx, nx))
+    tmp = np.zeros((nx, nx))
+    P2 = np.zeros((nx, nx))
+    K = np.zeros((nx, 2))
+    res = np.zeros(NRES)
+    sd_limit = math.sqrt(pos_var_limit)
+    j = ist[IS_J]
+    for k in range(k0, k1):
+        resets[k] = 0
+        if k > 0 and dts[k] > 0.0:
+            predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
+            for a in range(nx):
+                x[a] = xo[a]
+                for b in range(nx):
+                    P[a, b] = Po[a, b]
+        while j < M and mstep[j] == k:
+            kind = mkind[j]
+            force = ist[1 + kind] >= max_rej
+            ok = update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
+                        gates[kind], force, res, K, P2)
+            for a in range(NRES):
+                innov[j, a] = res[a]
+            fst[FS_LOGLIK] += res[RES_LOGLIK]
+            if kind == GNSS:
+                fst[FS_FIX_N], fst[FS_FIX_E] = mz[j, Z_0], mz[j, Z_1]
+                if force and reinit_nis > 0.0 and not res[RES_NIS] <= reinit_nis:
+                    keep = fst[FS_PSI_LAST] if math.isfinite(fst[FS_PSI_LAST]) else x0[X_PSI]
+                    reinitialise(x, P, x0, P0, fst[FS_FIX_N], fst[FS_FIX_E], keep)
+                    resets[k] = REINIT_RESIDUALS
+                    update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
+                           gates[kind], True, res, K, P2)
+            elif kind == COMPASS and ok:
+                fst[FS_PSI_LAST] = mz[j, Z_0]
+            if ok:
+                accepted[j] = 2 if force else 1
+                ist[1 + kind] = 0
+            else:
+                accepted[j] = 0
+                ist[1 + kind] += 1
+            j += 1
+        why = health(x, P, pos_var_limit)
+        if why:
+            psi = fst[FS_PSI_LAST] if math.isfinite(fst[FS_PSI_LAST]) else x0[X_PSI]
+            reinitialise(x, P, x0, P0, fst[FS_FIX_N], fst[FS_FIX_E], psi)
+            resets[k] = why
+        if bad[0] < 0 and _bad_step(x, P, sd_limit):
+            bad[0] = k
+        if row.shape[0] and row[k] >= 0:
+            _store_row(row[k], x, P, X, SD, PB)
+        if BX.shape[0]:   # P is symmetric (predict and update write both halves): its upper triangle
+            i = 0
+            for a in range(nx):
+                BX[k - k0, a] = x[a]
+                for b in range(a, nx):
+                    BP[k - k0, i] = P[a, b]
+                    i += 1
+    ist[IS_J] = j
+
+
 @njit
 def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej,
-            pos_var_limit, reinit_nis, X, PP, SD, PB, innov, accepted, resets):
+            pos_var_limit, reinit_nis, row, X, SD, PB, innov, accepted, resets, CX, CP, CI, CF, bad):
     """Forward EKF pass over N steps; measurements j are applied at step mstep[j].
 
-    Stores the posterior of every step in X[k], PP[k] (the upper triangle of P, row by row:
-    nx (nx + 1) / 2 values), its one-sigma in SD[k] and the
-    covariance block of states PB_FIRST.. (PB_SIZE) in PB[k] (PP, SD, PB may have length 1:
-    not stored), per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
-    (0 rejected, 1 accepted, 2 accepted after too many rejections). Returns the sum of
-    the log-likelihood terms.
+    Stores the posterior of step k in row ``row[k]`` of X (its first X.shape[1] states), their
+    one-sigma in SD and the
+    covariance block of states PB_FIRST.. (PB_SIZE) in PB (steps with ``row[k] < 0``, or
+    all when ``row`` is empty, are not stored; PB may have no rows: not stored),
+    per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
+    (0 rejected, 1 accepted, 2 accepted after too many rejections). When CX has rows, the
+    filter's state entering every SMOOTH_BLOCK-th step is kept there and in CP, CI, CF
+    (checkpoints, for :func:`smooth`). ``bad[0]``: the first step whose state or
+    one-sigma is not finite or whose position one-sigma exceeds sqrt(pos_var_limit), -1
+    for none. Returns the sum of the log-likelihood terms.
 
     Divergence guard: a GNSS fix forced in (after ``max_rej`` rejections in a row) with
     a NIS above ``reinit_nis`` (0: off), or a step ending with a state that is not finite
@@ -324,75 +439,26 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     """
     nx = x0.shape[0]
     N = dts.shape[0]
-    M = mstep.shape[0]
     x = x0.copy()
     P = P0.copy()
-    xo = np.zeros(nx)
-    Po = np.zeros((nx, nx))
-    Phi = np.zeros((nx, nx))
-    f = np.zeros(nx)
-    F = np.zeros((nx, nx))
-    tmp = np.zeros((nx, nx))
-    P2 = np.zeros((nx, nx))
-    K = np.zeros((nx, 2))
-    res = np.zeros(NRES)
-    store = PP.shape[0] == N
-    rej = np.zeros(len(SENSORS), np.int64)
-    ll = 0.0
-    j = 0
-    fix_n, fix_e, psi_last = x0[X_N], x0[X_E], x0[X_PSI]   # latest measurements, for a restart
-    for k in range(N):
-        resets[k] = 0
-        if k > 0 and dts[k] > 0.0:
-            predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
+    ist = np.zeros(N_IST, np.int64)
+    fst = np.zeros(NFS)
+    fst[FS_FIX_N], fst[FS_FIX_E], fst[FS_PSI_LAST] = x0[X_N], x0[X_E], x0[X_PSI]
+    bad[0] = -1
+    none = np.zeros((0, nx))
+    none_tri = np.zeros((0, 1))
+    for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK):
+        if CX.shape[0]:
             for a in range(nx):
-                x[a] = xo[a]
+                CX[c, a] = x[a]
                 for b in range(nx):
-                    P[a, b] = Po[a, b]
-        while j < M and mstep[j] == k:
-            kind = mkind[j]
-            force = rej[kind] >= max_rej
-            ok = update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
-                        gates[kind], force, res, K, P2)
-            for a in range(NRES):
-                innov[j, a] = res[a]
-            ll += res[RES_LOGLIK]
-            if kind == GNSS:
-                fix_n, fix_e = mz[j, Z_0], mz[j, Z_1]
-                if force and reinit_nis > 0.0 and not res[RES_NIS] <= reinit_nis:
-                    keep = psi_last if math.isfinite(psi_last) else x0[X_PSI]
-                    reinitialise(x, P, x0, P0, fix_n, fix_e, keep)
-                    resets[k] = REINIT_RESIDUALS
-                    update(x, P, kind, mz[j, Z_0], mz[j, Z_1], mR[j, R_00], mR[j, R_01], mR[j, R_11],
-                           gates[kind], True, res, K, P2)
-            elif kind == COMPASS and ok:
-                psi_last = mz[j, Z_0]
-            if ok:
-                accepted[j] = 2 if force else 1
-                rej[kind] = 0
-            else:
-                accepted[j] = 0
-                rej[kind] += 1
-            j += 1
-        why = health(x, P, pos_var_limit)
-        if why:
-            reinitialise(x, P, x0, P0, fix_n, fix_e, psi_last if math.isfinite(psi_last) else x0[X_PSI])
-            resets[k] = why
-        for a in range(nx):
-            X[k, a] = x[a]
-        if store:   # the upper triangle, row by row (P is symmetric: predict and update write both halves)
-            i = 0
-            for a in range(nx):
-                for b in range(a, nx):
-                    PP[k, i] = P[a, b]
-                    i += 1
-        if SD.shape[0] == N:
-            for a in range(nx):
-                SD[k, a] = math.sqrt(max(P[a, a], 0.0))
-            for a in range(PB_SIZE):
-                for b in range(PB_SIZE):
-                    PB[k, a, b] = P[PB_FIRST + a, PB_FIRST + b]
-    return ll
+                    CP[c, a, b] = P[a, b]
+            CI[c, :] = ist
+            CF[c, :] = fst
+        _forward_steps(c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK), x, P, ist, fst, x0, P0, dts, taus, qjump,
+                       mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit, reinit_nis, innov,
+                       accepted, resets, row, X, SD, PB, none, none_tri, bad)
+    return fst[FS_LOGLIK]
 
 
 @njit
@@ -425,7 +491,7 @@ def _chol_solve(L, inv, A, B, X):
 
 @njit
 def _unpack(tri, P):
-    """The symmetric matrix P from its upper triangle stored row by row (as :func:`forward` stores it)."""
+    """The symmetric matrix P from its upper triangle stored row by row (as :func:`_forward_steps` stores it)."""
     n = P.shape[0]
     i = 0
     for a in range(n):
@@ -436,13 +502,32 @@ def _unpack(tri, P):
 
 
 @njit
-def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
-    """Extended RTS smoother over the stored posteriors; priors and Phi are recomputed
-    with the same prediction as the forward pass. Writes the smoothed states in XS,
-    their one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB.
-    A step the forward pass re-initialised (``resets[k] != 0``) starts a new segment: the
-    steps before it are smoothed from their own forward posterior, not across the restart."""
-    N, nx = X.shape
+def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
+           reinit_nis, innov, accepted, resets, CX, CP, CI, CF, row, XS, SD, PB, bad):
+    """Extended RTS smoother over the forward posteriors, block by block from the end.
+
+    The forward posteriors of a block of SMOOTH_BLOCK steps are made again from its
+    checkpoint (CX, CP, CI, CF of :func:`forward`, the same arguments: the very same
+    numbers) and smoothed backwards; priors and Phi are recomputed with the same prediction
+    as the forward pass. Writes the smoothed state of step k in row ``row[k]`` of XS (its
+    first XS.shape[1] states; skipped when ``row[k] < 0``), their one-sigma in SD and the
+    covariance block of states
+    PB_FIRST.. (PB_SIZE) in PB (PB may have no rows: not stored); ``bad[0]``: the first step
+    whose smoothed state is unusable (as in :func:`forward`), -1 for none. A step the
+    forward pass re-initialised (``resets[k] != 0``) starts a new segment: the steps before
+    it are smoothed from their own forward posterior, not across the restart."""
+    N = dts.shape[0]
+    nx = x0.shape[0]
+    BX = np.zeros((SMOOTH_BLOCK, nx))
+    BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
+    x = np.zeros(nx)
+    P = np.zeros((nx, nx))
+    ist = np.zeros(N_IST, np.int64)
+    fst = np.zeros(NFS)
+    seen = np.zeros(1, np.int64)
+    no_row = np.zeros(0, np.int64)
+    none = np.zeros((0, nx))
+    none_pb = np.zeros((0, PB_SIZE, PB_SIZE))
     xp = np.zeros(nx)
     Pp = np.zeros((nx, nx))
     Phi = np.zeros((nx, nx))
@@ -454,69 +539,79 @@ def smooth(X, PP, dts, taus, qjump, prm, model, q, resets, XS, SD, PB):
     L = np.zeros((nx, nx))
     inv = np.zeros(nx)
     Ps = np.zeros((nx, nx))
-    _unpack(PP[N - 1], Ps)
     Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
+    xs = np.zeros(nx)
+    sd_limit = math.sqrt(pos_var_limit)
+    bad[0] = -1
+    for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK - 1, -1, -1):
+        k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
+        for a in range(nx):
+            x[a] = CX[c, a]
+            for b in range(nx):
+                P[a, b] = CP[c, a, b]
+        ist[:] = CI[c]
+        fst[:] = CF[c]
+        _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
+                       gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, no_row, none, none,
+                       none_pb, BX, BP, seen)
+        for k in range(k1 - 1, k0 - 1, -1):
+            _unpack(BP[k - k0], Pk)
+            xk = BX[k - k0]
+            if k == N - 1 or resets[k + 1] != 0:   # the end, or a restart: a segment ends at k
+                for a in range(nx):
+                    xs[a] = xk[a]
+                    for b in range(nx):
+                        Ps[a, b] = Pk[a, b]
+            else:
+                _smooth_step(xk, Pk, xs, Ps, dts[k + 1], taus[k + 1, TAU_U], taus[k + 1, TAU_R], qjump[k + 1], prm,
+                             model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d)
+            if row[k] >= 0:
+                _store_row(row[k], xs, Ps, XS, SD, PB)
+            if _bad_step(xs, Ps, sd_limit):
+                bad[0] = k   # (going backwards: the last one found is the first)
+
+
+@njit
+def _smooth_step(xk, Pk, xs, Ps, dt, tau_u, tau_r, qj, prm, model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d):
+    """One RTS step: from the forward posterior xk, Pk of step k and the smoothed xs, Ps of
+    step k + 1 (``dt`` etc. those of step k + 1), the smoothed state of step k into xs, Ps."""
+    nx = xk.shape[0]
+    if dt > 0.0:
+        predict(xk, Pk, tau_u, tau_r, dt, prm, model, q, qj, xp, Pp, Phi, f, F, tmp)
+    else:
+        for a in range(nx):
+            xp[a] = xk[a]
+            for b in range(nx):
+                Pp[a, b] = Pk[a, b]
+                Phi[a, b] = 1.0 if a == b else 0.0
+    # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
+    sparse_matmul(Phi, Pk, B)
+    _chol_solve(L, inv, Pp, B, Ct)
     for a in range(nx):
-        XS[N - 1, a] = X[N - 1, a]
-        SD[N - 1, a] = math.sqrt(max(Ps[a, a], 0.0))
-    for a in range(PB_SIZE):
-        for b in range(PB_SIZE):
-            PB[N - 1, a, b] = Ps[PB_FIRST + a, PB_FIRST + b]
-    for k in range(N - 2, -1, -1):
-        _unpack(PP[k], Pk)
-        xk = X[k]
-        if resets[k + 1] != 0:   # a restart: a new segment ends at k
-            for a in range(nx):
-                XS[k, a] = xk[a]
-                SD[k, a] = math.sqrt(max(Pk[a, a], 0.0))
-                for b in range(nx):
-                    Ps[a, b] = Pk[a, b]
-            for a in range(PB_SIZE):
-                for b in range(PB_SIZE):
-                    PB[k, a, b] = Pk[PB_FIRST + a, PB_FIRST + b]
-            continue
-        if dts[k + 1] > 0.0:
-            predict(xk, Pk, taus[k + 1, TAU_U], taus[k + 1, TAU_R], dts[k + 1], prm, model, q, qjump[k + 1],
-                    xp, Pp, Phi, f, F, tmp)
-        else:
-            for a in range(nx):
-                xp[a] = xk[a]
-                for b in range(nx):
-                    Pp[a, b] = Pk[a, b]
-                    Phi[a, b] = 1.0 if a == b else 0.0
-        # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-        sparse_matmul(Phi, Pk, B)
-        _chol_solve(L, inv, Pp, B, Ct)
-        for a in range(nx):
-            d[a] = XS[k + 1, a] - xp[a]
-        d[X_PSI] = wrap_angle(d[X_PSI])
-        for a in range(nx):
+        d[a] = xs[a] - xp[a]
+    d[X_PSI] = wrap_angle(d[X_PSI])
+    for a in range(nx):
+        acc = 0.0
+        for c in range(nx):
+            acc += Ct[c, a] * d[c]
+        xs[a] = xk[a] + acc
+    xs[X_PSI] = wrap_angle(xs[X_PSI])
+    # Ps_k = Pk + C (Ps - Pp) C^T
+    for a in range(nx):
+        for b in range(nx):
+            Pn[a, b] = Ps[a, b] - Pp[a, b]
+    for a in range(nx):
+        for b in range(nx):
             acc = 0.0
             for c in range(nx):
-                acc += Ct[c, a] * d[c]
-            XS[k, a] = xk[a] + acc
-        XS[k, X_PSI] = wrap_angle(XS[k, X_PSI])
-        # Ps_k = Pk + C (Ps - Pp) C^T
-        for a in range(nx):
-            for b in range(nx):
-                Pn[a, b] = Ps[a, b] - Pp[a, b]
-        for a in range(nx):
-            for b in range(nx):
-                acc = 0.0
-                for c in range(nx):
-                    acc += Ct[c, a] * Pn[c, b]
-                tmp[a, b] = acc
-        for a in range(nx):
-            for b in range(a, nx):
-                acc = 0.0
-                for c in range(nx):
-                    acc += tmp[a, c] * Ct[c, b]
-                Ps[a, b] = Pk[a, b] + acc
-                Ps[b, a] = Ps[a, b]
-        for a in range(nx):
-            SD[k, a] = math.sqrt(max(Ps[a, a], 0.0))
-        for a in range(PB_SIZE):
-            for b in range(PB_SIZE):
-                PB[k, a, b] = Ps[PB_FIRST + a, PB_FIRST + b]
+                acc += Ct[c, a] * Pn[c, b]
+            tmp[a, b] = acc
+    for a in range(nx):
+        for b in range(a, nx):
+            acc = 0.0
+            for c in range(nx):
+                acc += tmp[a, c] * Ct[c, b]
+            Ps[a, b] = Pk[a, b] + acc
+            Ps[b, a] = Ps[a, b]
