@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..model.vessel import Vessel
 from . import kernels
-from .core import initial_covariance, process_noise, state_size
+from .core import chi2_quantile, initial_covariance, process_noise, state_size
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 
@@ -69,10 +69,7 @@ class OnlineEKF:
         if self._x.shape != (self.nx,):
             raise ConfigError(f"OnlineEKF: x0 must have {self.nx} entries")
         self._P = initial_covariance(s) if P0 is None else np.array(P0, float).copy()
-        from scipy.stats import chi2
-
-        self._gates = np.array([chi2.ppf(s.gate_probability, d) if s.gate_probability < 1 else math.inf
-                                for d in kernels.SENSOR_DIM])
+        self._gates = np.array([chi2_quantile(s.gate_probability, d) for d in kernels.SENSOR_DIM])
         self._rej = [0] * len(kernels.SENSORS)
         self._w = kernels.Work(self.nx)
         self.last_nis = math.nan
