@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -116,6 +117,70 @@ def test_track_turn_of_a_square():
     tt.add(lat[:30], lon[:30])
     tt.add(lat[30:], lon[30:])
     assert tt.turn_deg == pytest.approx(180.0, abs=1e-6)
+
+
+class _QuadraticTrackTurn(TrackTurn):
+    """The former TrackTurn.add, kept as the reference: every leg re-scans the rest of the batch."""
+
+    def add(self, lat, lon):
+        from usvlog.io.importers.audit import _M_PER_DEG, TRACK_LEG_M
+
+        lat, lon = np.asarray(lat, float), np.asarray(lon, float)
+        if not len(lat):
+            return
+        if self._anchor is None:
+            self._anchor = (float(lat[0]), float(lon[0]))
+            self._coslat = math.cos(math.radians(float(lat[0])))
+        i, n = 0, len(lat)
+        while i < n:
+            a_lat, a_lon = self._anchor
+            dn = (lat[i:] - a_lat) * _M_PER_DEG
+            de = (lon[i:] - a_lon) * _M_PER_DEG * self._coslat
+            far = np.flatnonzero(dn * dn + de * de >= TRACK_LEG_M ** 2)
+            if not len(far):
+                return
+            j = int(far[0])
+            course = math.atan2(float(de[j]), float(dn[j]))
+            if self._course is not None:
+                self.turn_rad += abs((course - self._course + math.pi) % (2 * math.pi) - math.pi)
+            self._course = course
+            self.legs += 1
+            self._anchor = (float(lat[i + j]), float(lon[i + j]))
+            i += j + 1
+
+
+def _same_turn(lat, lon, cuts):
+    new, ref = TrackTurn(), _QuadraticTrackTurn()
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        new.add(lat[a:b], lon[a:b])
+        ref.add(lat[a:b], lon[a:b])
+    assert (new.legs, new.turn_rad, new._anchor, new._course) == (ref.legs, ref.turn_rad, ref._anchor, ref._course)
+    return new
+
+
+def test_track_turn_is_the_quadratic_scan_bit_for_bit():
+    """A long track (drifting still, crawling, running straight and turning, NaN fixes) fed in batches
+    of every size, and the real logs' fixes: the same legs, anchor, course and total turn to the bit."""
+    from usvlog.io.importers import import_file
+
+    rng = np.random.default_rng(7)
+    n = 20_000
+    speed = np.repeat(rng.choice([0.0, 0.3, 2.0, 8.0], size=n // 500), 500)   # m per fix
+    course = np.cumsum(rng.normal(0.0, 0.05, n)) + np.repeat(rng.uniform(-3, 3, n // 2000), 2000)
+    north = np.cumsum(speed * np.cos(course)) + rng.normal(0.0, 0.8, n)
+    east = np.cumsum(speed * np.sin(course)) + rng.normal(0.0, 0.8, n)
+    lat, lon = 59.0 + north / 111_320.0, 10.0 + east / 111_320.0 / math.cos(math.radians(59.0))
+    lat[rng.integers(0, n, 50)] = np.nan
+    cuts = np.unique(np.concatenate(([0, n], rng.integers(0, n, 40), [1, 2, 3])))
+    tt = _same_turn(lat, lon, cuts)
+    assert tt.legs > 500
+    real = Path(__file__).resolve().parents[1] / "data" / "real"
+    for name in ("ardusub_nmea_log.txt", "px4_sample_log_small.ulg"):
+        fix = import_file(real / name).log["/gnss/fix"]
+        la, lo = fix["lat_deg"].to_numpy(float), fix["lon_deg"].to_numpy(float)
+        assert len(la) >= 30, name
+        for cuts in ([0, len(la)], list(range(0, len(la), 7)) + [len(la)]):
+            _same_turn(la, lo, cuts)
 
 
 def test_heading_dead_only_when_the_track_turns():

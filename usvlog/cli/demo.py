@@ -138,7 +138,7 @@ def run(args) -> int:
     write_log(simulate("excitation", settings, seed=args.seed), raw, force=True)
     own.claim("excitation.mcap")
     step("inspect")
-    log = read_log(raw)
+    log = raw_log = read_log(raw)   # read once: identification fits this same run below
     print(format_summary(summarize(log)))
     _import_stage(log, out, step)
     own.claim("merged.csv", "imported.mcap")
@@ -153,11 +153,11 @@ def run(args) -> int:
     export_log(log, out / "csv", fmt="csv", force=True)
     own.claim("csv")
     step("identify: output error on the simulated run (true vs identified)")
-    identified = identify_stage(read_log(raw), out, fit_on=log)
+    identified = identify_stage(raw_log, out, fit_on=log)
     own.claim("identified.toml")
-    circle_replay = _control_stages(out, step)
+    replayed = _control_stages(out, step)
     own.claim("paper-circle.mcap", "paper-circle-replay.mcap")
-    _view_stages(out, step, excitation=identified, circle=circle_replay)
+    _view_stages(out, step, excitation=identified, replayed=replayed)
     own.claim("demo.rrd", "estimate.rrd", "report")
     stage(f"done: results in {out}/")
     return 0
@@ -217,10 +217,10 @@ def identify_stage(log, out: Path, fit_on=None):
     return fit_log(idf, log if fit_on is None else fit_on)
 
 
-def _control_stages(out: Path, step) -> Path:
-    """Section IV closed loop, gain check, replay with a baseline what-if."""
+def _control_stages(out: Path, step):
+    """Section IV closed loop, gain check, replay with a baseline what-if; returns the replayed log."""
     from ..control.gains import check_gains  # heavy: imported only when the verb runs
-    from ..io.mcap import read_log, write_log
+    from ..io.mcap import write_log
     from ..replay import replay_log
     from ..sim.closed_loop import simulate_scenario
     from ..sim.scenario import load_scenario
@@ -230,28 +230,28 @@ def _control_stages(out: Path, step) -> Path:
     step(f"simulate paper-circle: the paper's Section IV closed loop, {scen.sim.duration_s:.0f} s -> {circ}")
     log = simulate_scenario(scen)
     write_log(log, circ, force=True)
+    log.source = str(circ)   # the file it now is, as read_log would name it
     step("gains: Theorem 3.1 for the paper's gains")
     chk = check_gains(scen.sim.vessel.params, scen.gains)
     print(chk.verdict)
     print("eigenvalues of A_e: " + ", ".join(f"{z.real:.4f}{z.imag:+.4f}j" for z in chk.eigenvalues))
     rep = out / "paper-circle-replay.mcap"
     step(f"replay paper-circle open loop, what-if with the PI/PID baseline -> {rep}")
-    res = replay_log(read_log(circ), scen, whatif_controller="baseline")
+    res = replay_log(log, scen, whatif_controller="baseline")   # the run just written, not read back
     write_log(res.log, rep, force=True)
+    res.log.source = str(rep)
     print(format_metrics(res.metrics))
-    return rep
+    return res.log
 
 
-def _view_stages(out: Path, step, *, excitation, circle: Path) -> None:
+def _view_stages(out: Path, step, *, excitation, replayed) -> None:
     """Rerun recordings of both runs and the report with the paper's figures."""
-    from ..io.mcap import read_log  # heavy: imported only when the verb runs
-    from ..view.report import write_report
+    from ..view.report import write_report  # heavy: imported only when the verb runs
     from ..view.rrd import to_rrd
 
     rrd = out / "demo.rrd"
     step(f"view: paper-circle replay (track, guidance, what-if, errors) -> {rrd} "
           f"(open it with: rerun {rrd})")
-    replayed = read_log(circle)
     to_rrd(replayed, rrd, names=["paper_circle"], force=True)
     est_rrd = out / "estimate.rrd"
     step(f"view: excitation run with its estimate and identification fit -> {est_rrd}")

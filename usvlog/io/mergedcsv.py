@@ -11,6 +11,7 @@ import pandas as pd
 
 from ..log.fieldlog import FieldLog
 from .atomic import atomic_path
+from .export import write_csv
 
 COLUMNS = {  # topic -> {canonical column: CSV header}
     "/gnss/fix": {"lat_deg": "lat_deg", "lon_deg": "lon_deg"},
@@ -53,5 +54,5 @@ def write_merged_csv(log: FieldLog, path, *, force: bool = False) -> pd.DataFram
     merged = pd.concat(parts, axis=1, sort=True) if parts else pd.DataFrame(index=pd.Index([], name="t_ns"))
     merged.index = pd.Index(np.asarray(merged.index, dtype=np.int64), name="t_ns")
     with atomic_path(path, force=force) as tmp:
-        merged.to_csv(tmp, float_format="%.17g", na_rep="")
+        write_csv(merged, tmp)   # shortest text that reads back as the same double, empty where no sample
     return merged

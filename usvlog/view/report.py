@@ -443,8 +443,7 @@ def _fig_measured(plt, log, path, *, axes: _Axes):
 
 def _current_arrow(fig, ax, cx, cy, sp):
     """The paper's "approximate current direction" arrow, below the axes' top-left corner."""
-    fig.canvas.draw()  # final axes size, so the arrow's direction is true on screen
-    bb = ax.get_window_extent()
+    bb = ax.get_window_extent()   # final: equal aspect adjusts the data limits, never the axes box
     L = 35.0  # pixels
     x0, y0 = 1.02 + L / bb.width, 0.12
     tip = (x0 + L * cx / sp / bb.width, y0 + L * cy / sp / bb.height)

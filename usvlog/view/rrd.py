@@ -314,7 +314,8 @@ class _Writer:
                 path = f"{self.prefix}/local/ctl_{label}/guidance"
                 self.rec.log(path, rr.LineStrips2D.from_fields(radii=rr.Radius.ui_points(0.75),
                                                                colors=[self.color("carrot", "light")]), static=True)
-                self.rec.send_columns(path, indexes=cols, columns=rr.LineStrips2D.columns(strips=list(strips)))
+                # the (ticks, 3, 2) array itself: rerun converts it whole, a list strip by strip
+                self.rec.send_columns(path, indexes=cols, columns=rr.LineStrips2D.columns(strips=strips))
                 self.views["local"].append(path)
             psi = vd.interp(tk, sf, "psi_rad", angle=True)
             dirs = [psi]

@@ -93,6 +93,7 @@ MIN_SAMPLES = 10
 _DT_BIN_NS = 100_000            # interval histogram bin (0.1 ms)
 _OFF_BIN_NS = 1_000_000         # stamp offset histogram bin (1 ms)
 _M_PER_DEG = 111_320.0          # metres per degree of latitude (spherical, enough here)
+_LEG_WINDOW = 64                # fixes first searched for the end of a track leg (doubled until found)
 
 RAW_PREFIX = "/raw"
 DEAD_CAPABLE = ("gnss", "heading", "yaw_rate")
@@ -363,14 +364,23 @@ class TrackTurn:
             self._coslat = math.cos(math.radians(float(lat[0])))
         coslat = self._coslat
         i, n = 0, len(lat)
+        w = _LEG_WINDOW
         while i < n:
             a_lat, a_lon = self._anchor
-            dn = (lat[i:] - a_lat) * _M_PER_DEG
-            de = (lon[i:] - a_lon) * _M_PER_DEG * coslat
-            far = np.flatnonzero(dn * dn + de * de >= TRACK_LEG_M ** 2)
+            # the first fix at least TRACK_LEG_M from the anchor, searched in windows that double
+            # until it is found: each fix is looked at O(1) times, not once per leg after it
+            while True:
+                hi = min(n, i + w)
+                dn = (lat[i:hi] - a_lat) * _M_PER_DEG
+                de = (lon[i:hi] - a_lon) * _M_PER_DEG * coslat
+                far = np.flatnonzero(dn * dn + de * de >= TRACK_LEG_M ** 2)
+                if len(far) or hi == n:
+                    break
+                w *= 2
             if not len(far):
                 return
             j = int(far[0])
+            w = max(_LEG_WINDOW, 2 * (j + 1))   # the next leg is likely as long as this one
             course = math.atan2(float(de[j]), float(dn[j]))
             if self._course is not None:
                 self.turn_rad += abs((course - self._course + math.pi) % (2 * math.pi) - math.pi)
