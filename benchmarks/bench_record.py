@@ -27,6 +27,9 @@ children, the server's CPU is printed apart. Each run prints:
 ``--compare N`` prints the means: CPU added by ``--view`` in points and in % of the
 recorder's CPU without it (the target: <= 10 % at 2,000 msg/s), and the start-up CPU-s.
 On a shared machine one run's figure moves by a few points: compare several.
+``--together N`` runs the two recorders at the same time, each receiving every datagram the
+stand-in boat sends, so the machine's load and its swings weigh on both alike; it prints each
+run's difference and their mean.
 """
 
 from __future__ import annotations
@@ -97,7 +100,12 @@ def main() -> int:
     ap.add_argument("--view", action="store_true", help="record with --view to a Rerun server on 127.0.0.1")
     ap.add_argument("--compare", type=int, default=0, metavar="N",
                     help="N pairs of runs without and with --view, alternating; prints the CPU added by --view")
+    ap.add_argument("--together", type=int, default=0, metavar="N",
+                    help="N runs of two recorders at once, one with --view, fed the same datagrams at the same "
+                         "time (the machine's load weighs on both alike); prints the CPU added by --view")
     a = ap.parse_args()
+    if a.together:
+        return together(a.rate, a.duration_s, a.together)
     if not a.compare:
         return 0 if run(a.rate, a.duration_s, a.view) is not None else 1
     res: dict[bool, list[dict]] = {False: [], True: []}
@@ -127,6 +135,108 @@ def main() -> int:
     print(f"live view: messages reaching its thread {[v['received'] for v in views]}, dropped "
           f"{[v['dropped'] for v in views]}, errors {[v['error'] for v in views]}")
     print(f"load average {os.getloadavg()}")
+    return 0
+
+
+def _together_once(k: int, hz: tuple[float, float, float], duration_s: float) -> tuple[float, float] | None:
+    """One run of the two recorders fed at once: (CPU % without, with --view) in the steady state."""
+    gnss_hz, compass_hz, thrust_hz = hz
+    tmp = Path(tempfile.mkdtemp(prefix="bench_record_"))
+    viewer, port = start_viewer()
+    procs, outs, ports = [], [], []
+    for view in (False, True):
+        out = tmp / f"{'view' if view else 'plain'}.mcap"
+        p_nmea, p_json = free_udp_port(), free_udp_port()
+        cmd = [sys.executable, "-m", "usvlog", "record", "--out", str(out), "--gnss", f"udp://127.0.0.1:{p_nmea}",
+               "--compass", f"udp://127.0.0.1:{p_nmea}", "--thrust", f"udp://127.0.0.1:{p_json}", "--json"]
+        if view:
+            cmd += ["--view", f"127.0.0.1:{port}"]
+        procs.append(subprocess.Popen(cmd, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        outs.append(out)
+        ports.append((p_nmea, p_json))
+    while not all(o.exists() for o in outs):
+        if any(p.poll() is not None for p in procs):
+            print(*(p.stderr.read() for p in procs if p.poll() is not None))
+            return None
+        time.sleep(0.05)
+    ps = [psutil.Process(p.pid) for p in procs]
+
+    def cpu_s(q):
+        c = q.cpu_times()
+        return c.user + c.system + c.children_user + c.children_system
+
+    def connected() -> bool:
+        try:
+            return any(c.status == psutil.CONN_ESTABLISHED and c.raddr and c.raddr.port == port
+                       for c in ps[1].net_connections("tcp"))
+        except (psutil.Error, OSError):
+            return False
+
+    marks: list[tuple[float, float, float]] = []   # (t, CPU-s plain, CPU-s view), from 2 s after connecting
+    stop = threading.Event()
+
+    def sample():
+        t0 = time.monotonic()
+        since = None
+        while not stop.wait(0.5):
+            now = time.monotonic() - t0
+            if since is None and connected():
+                since = now
+            if since is not None and now >= max(STEADY_FROM_S, since + 2.0):
+                marks.append((now, cpu_s(ps[0]), cpu_s(ps[1])))
+
+    def both(*sends):
+        return lambda data: [f(data) for f in sends]
+
+    sends = [(udp_target(("127.0.0.1", a)), udp_target(("127.0.0.1", b))) for a, b in ports]
+    boat = LoopbackBoat(gnss=both(sends[0][0], sends[1][0]), compass=both(sends[0][0], sends[1][0]),
+                        thrust=both(sends[0][1], sends[1][1]), gnss_hz=gnss_hz, compass_hz=compass_hz,
+                        thrust_hz=thrust_hz)
+    th = threading.Thread(target=sample, daemon=True)
+    th.start()
+    sent = boat.run(duration_s)
+    stop.set()
+    th.join()
+    time.sleep(1.0)
+    summaries = []
+    for p in procs:
+        p.send_signal(signal.SIGINT)
+        stdout, _ = p.communicate(timeout=60)
+        summaries.append(json.loads(stdout))
+    viewer.kill()
+    viewer.wait()
+    n_sent = 2 * len(sent.fixes) + len(sent.headings) + len(sent.thrust)
+    n_rec = [len(read_log(o)["/raw/nmea"]) + len(read_log(o)["/thrust/command"]) for o in outs]
+    if len(marks) < 2 or marks[-1][0] - marks[0][0] < 5:
+        print(f"run {k + 1}: no steady window ({len(marks)} samples); give a longer --duration-s")
+        return None
+    (ta, a0, b0), (tb, a1, b1) = marks[0], marks[-1]
+    off, on = 100 * (a1 - a0) / (tb - ta), 100 * (b1 - b0) / (tb - ta)
+    v = summaries[1]["view"]
+    print(f"run {k + 1}: same {n_sent} datagrams to both ({n_rec[0]} and {n_rec[1]} recorded); steady state "
+          f"s {ta:.0f}-{tb:.0f}: recorder CPU {off:.1f} % without --view, {on:.1f} % with it ({on - off:+.1f} "
+          f"points); view: {v['received']} messages, {v['dropped']} dropped, error {v['error']}; load "
+          f"{os.getloadavg()[0]:.2f}")
+    return off, on
+
+
+def together(rate: float, duration_s: float, n: int) -> int:
+    """``n`` runs of a plain recorder and a ``--view`` one receiving the same stream at once."""
+    gnss_hz, compass_hz = rate * 0.05, rate * 0.10
+    thrust_hz = rate - 2 * gnss_hz - compass_hz
+    diffs, offs = [], []
+    for k in range(n):
+        r = _together_once(k, (gnss_hz, compass_hz, thrust_hz), duration_s)
+        if r is None:
+            return 1
+        off, on = r
+        diffs.append(on - off)
+        offs.append(off)
+    d, o = sum(diffs) / n, sum(offs) / n
+    print(f"--view adds {d:+.2f} percentage points (runs {[round(x, 2) for x in diffs]}) on {o:.1f} % = "
+          f"{100 * d / o:+.1f} % of the recorder's CPU at {rate:.0f} msg/s (target <= +10 %), both recorders "
+          f"fed at once")
     return 0
 
 
