@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 
 from usvlog.choices import EXTENDED_PARAM_NAMES
+from usvlog.cli import main
 from usvlog.errors import ConfigError
 from usvlog.identify import Identifier
 from usvlog.identify.thrust_scale import scale_results
 from usvlog.io.config import load_vessel
+from usvlog.io.mcap import write_log
 from usvlog.model.vessel import vessel_from_toml
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
@@ -61,7 +63,7 @@ def test_scaling_an_extended_fit_carries_the_gain_in_every_term():
     assert g_se == pytest.approx(TRUE.m11 / q[0] ** 2 * np.sqrt(cov[0, 0]))
 
 
-def test_extended_model_in_command_units_says_so_and_a_fixed_mass_scales_it():
+def test_extended_model_in_command_units_says_so_and_a_fixed_mass_scales_it(tmp_path, capsys):
     """Equation error (cheap): the per-unit extended model, its TOML (command-unit thrusters, the
     [extended] table, the case recorded) and the verdict's message; ``--fix m`` (the surge inertia
     m11) scales the very same per-unit fit and gives the gains."""
@@ -79,17 +81,21 @@ def test_extended_model_in_command_units_says_so_and_a_fixed_mass_scales_it():
     assert 'thrust_scale = "command units"' in record
     assert per_unit.to_dict()["thrust_scale"]["structure"] == "extended"
 
-    weighed = Identifier("equation-error", model="extended", fix={"m": TRUE.m11}).fit([log], GUESS)
-    tw = weighed.thrust_scale_
-    assert tw.case == "gain identified" and tw.fixed_by == "m" and tw.ratio == pytest.approx(ts.ratio)
-    assert tw.forward_n == pytest.approx(TRUE.m11 / per_unit.extended_.m11)
-    assert tw.reverse_n == pytest.approx(tw.forward_n * ts.ratio)
-    assert np.allclose(weighed.extended_.as_array(), tw.forward_n * per_unit.extended_.as_array())
-    assert weighed.params_ == weighed.extended_.paper_terms() and weighed.stderr_["m"] == 0.0
-    assert not any(r.startswith("standard errors of") for r in weighed.reasons_), weighed.reasons_
-    saved = vessel_from_toml(weighed.to_vessel().to_toml())
-    assert saved.thrusters.scale == "known" and saved.thrusters.forward_n == pytest.approx(tw.forward_n)
-    assert 'thrust_scale = "gain identified"' in weighed.toml_record()
+    # the same through the command line with the surge inertia fixed: the very per-unit fit, scaled
+    mcap, guess, out = tmp_path / "cat.mcap", tmp_path / "guess.toml", tmp_path / "id.toml"
+    write_log(log, mcap)
+    guess.write_text(GUESS.to_toml())
+    rc = main(["identify", str(mcap), "--vessel", str(guess), "--method", "equation-error", "--model", "extended",
+               "--fix", f"m={TRUE.m11}", "--out", str(out), "--force"])
+    text = capsys.readouterr().out
+    weighed = vessel_from_toml(out.read_text())
+    g = weighed.thrusters.forward_n
+    assert rc in (0, 1) and weighed.thrusters.scale == "known" and 'thrust_scale = "gain identified"' in out.read_text()
+    assert g == pytest.approx(TRUE.m11 / per_unit.extended_.m11)
+    assert weighed.thrusters.reverse_n == pytest.approx(g * ts.ratio)
+    assert np.allclose(weighed.extended.as_array(), g * per_unit.extended_.as_array())
+    assert f"thrust gain from the fixed m: {g:.4g} N forward" in text
+    assert "(fixed)" in text and "standard errors of" not in text     # m (= m11) held, not degenerate
 
 
 @pytest.mark.slow   # a target's proof of ~30 s CPU: run with `pytest -m slow` (fast suite < 5 min)

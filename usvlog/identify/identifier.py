@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..choices import EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
+from ..choices import EXT_SCALE_FIX, EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..estimate import EstimateSettings, estimate
 from ..estimate.latency import stored_delays, with_settings_delays
@@ -56,7 +56,6 @@ FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
 U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of points
 REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
-EXT_SCALE_FIX = ("m", "Iz", "m11", "m22", "m66")   # values that may set the extended model's thrust scale
 EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
