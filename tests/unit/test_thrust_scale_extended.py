@@ -15,12 +15,16 @@ import pytest
 
 from usvlog.choices import EXTENDED_PARAM_NAMES
 from usvlog.cli import main
+from usvlog.control.gains import Gains
+from usvlog.control.law import Controller
 from usvlog.errors import ConfigError
 from usvlog.identify import Identifier
 from usvlog.identify.thrust_scale import scale_results
 from usvlog.io.config import load_vessel
 from usvlog.io.mcap import write_log
-from usvlog.model.vessel import vessel_from_toml
+from usvlog.model.vessel import ExtendedParams, extended_vessel, vessel_from_toml
+from usvlog.sim.closed_loop import closed_loop
+from usvlog.sim.scenario import load_scenario
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
 
 CAT = load_vessel("catamaran")
@@ -118,3 +122,31 @@ def test_extended_output_error_finds_the_gains_and_the_per_unit_ratios():
     for k in ("m26", "d11q", "d22q"):
         assert any(r.startswith(f"extended term {k} poorly determined") for r in idf.reasons_), (k, idf.reasons_)
     assert any("gain identified from the fixed m11" in r for r in idf.reasons_)
+
+
+def test_whatif_in_command_units_is_the_physical_run_with_gains_per_unit_too():
+    """The what-if of a replay (controller on the vessel's paper terms, plant the extended model
+    with its thruster lag) with the catamaran per unit of command (every term / forward gain,
+    thrusters 1 forward and the gain ratio reverse, scale "command") and the controller gains
+    per unit of command too is the run with the physical catamaran and the gains in newtons: the
+    law and the plant are linear in the model and the gains, the force limits and the lag scale
+    with them. (Gains in newtons with a command-unit vessel are a different, stiffer controller.)"""
+    scen = load_scenario("paper-circle")
+    per_unit = extended_vessel("per-unit", ExtendedParams(**{k: v / G_F for k, v in zip(EXTENDED_PARAM_NAMES,
+                                                                                          TRUE.as_array())}),
+                               replace(CAT.thrusters, map="linear", forward_n=1.0, reverse_n=G_R / G_F,
+                                       scale="command"))
+    phys = replace(CAT, thrusters=replace(CAT.thrusters, map="linear"))
+    gains_per_unit = Gains(**{k: v / G_F for k, v in scen.gains.to_dict().items()})
+    runs = []
+    for ves, gains in ((phys, scen.gains), (per_unit, gains_per_unit), (per_unit, scen.gains)):
+        path = scen.path(scen.sim.datum)
+        ctl = Controller(path, ves, gains, scen.guidance, full=True)
+        runs.append(closed_loop(path, ves, ctl, duration_s=30.0, dt_s=scen.sim.dt_s, integrator="rk4",
+                                current_ne=(0.05, 0.0), eta0=scen.sim.eta0, nu0=scen.sim.nu0,
+                                schedule=scen.schedule, rate_hz=scen.guidance.rate_hz))
+    a, b, c = runs
+    assert np.ptp(a.states[:, 5]) > 0.1                      # it turns (the yaw terms are in play)
+    assert np.allclose(b.states, a.states, rtol=0, atol=1e-9)
+    assert np.allclose(b.tau * G_F, a.tau, rtol=1e-9, atol=1e-9)
+    assert np.abs(c.states[:, :2] - a.states[:, :2]).max() > 0.1
