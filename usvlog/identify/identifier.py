@@ -1498,8 +1498,9 @@ class Identifier:
 
     def toml_record(self) -> str:
         """The ``[identification]`` table written after the vessel TOML: verdict, usable,
-        reasons, method, the candidate chosen and the validation fit % (what a reader of the
-        file needs to know before trusting it).
+        reasons, method, the candidate chosen, the thrust-scale case (``known``, ``command
+        units``, ``gain identified``) and the validation fit % (what a reader of the file needs
+        to know before trusting it).
 
         Returns
         -------
