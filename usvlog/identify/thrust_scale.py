@@ -370,7 +370,7 @@ def profile_ratio_ext(logs: list[FieldLog], vessel: Vessel, rho0: float, *, fit_
     """
     from .extended_oe import ext_physical_problem, fit_extended_output_error  # local: only this search
 
-    data = [_first_part(*d, EXT_PROFILE_SPAN_S) for d in _pm_runs(logs, vessel)]
+    data = [_first_part(r1, pos, neg, ks, EXT_PROFILE_SPAN_S) for r1, pos, neg, ks in _pm_runs(logs, vessel)]
     kin = [d[3] for d in data]
     base = vessel.params.as_array()
     base[[PARAM_NAMES.index(k) for k in PARAM_NAMES if k not in SCALE_FREE]] /= vessel.thrusters.forward_n
