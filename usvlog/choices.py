@@ -34,5 +34,9 @@ IDENTIFY_MODELS = ("paper", "extended", "both")
 """Model structures ``usvlog identify --model`` fits: the paper's, the extended one, or both (compared on
 the validation)."""
 
+EXT_SCALE_FIX = ("m", "Iz", "m11", "m22", "m66")
+"""Values ``--fix`` takes with ``--model extended`` (``both``: m and Iz only), one of them, to set an
+unknown thrust scale: m stands for the surge inertia m11, Iz for the yaw inertia m66."""
+
 __all__ = ["EXTENDED_PARAM_NAMES", "IDENTIFY_METHODS", "IDENTIFY_MODELS", "IMPORT_FORMATS", "MODEL_STRUCTURES",
-           "PARAM_NAMES", "THRUST_UNITS"]
+           "PARAM_NAMES", "THRUST_UNITS", "EXT_SCALE_FIX"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import sys
 
-from ..choices import EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS, PARAM_NAMES
+from ..choices import EXT_SCALE_FIX, EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS, PARAM_NAMES
 from ..errors import ConfigError, UnusableResultError
 from .common import print_json, stage
 
@@ -30,7 +30,10 @@ def register(sub) -> None:
                         "several logs: each left out in turn)")
     g.add_argument("--no-validate", action="store_true", help="no validation (the verdict says so)")
     p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
-                   help=f"known parameter ({', '.join(PARAM_NAMES)}), e.g. --fix m=33.0 (repeatable)")
+                   help=f"known parameter ({', '.join(PARAM_NAMES)}), e.g. --fix m=33.0 (repeatable); with "
+                        "--model extended or both one inertia that sets an unknown thrust scale: m (the surge "
+                        "inertia m11: a weighed mass leaves out the surge added mass) or Iz (m66), or for the "
+                        "extended model m11, m22, m66")
     p.add_argument("--no-current", action="store_true", help="do not fit a water current")
     p.add_argument("--gnss-delay-s", type=float, default=None, metavar="VALUE",
                    help="GNSS latency in s (a fix stamped t describes the boat at t - delay); default: the one "
@@ -52,15 +55,17 @@ def parse_fix(items: list[str]) -> dict[str, float]:
     for it in items:
         name, sep, value = it.partition("=")
         name = name.strip()
-        if not sep or name not in PARAM_NAMES:
-            raise ConfigError(f"--fix {it!r}: expected NAME=VALUE with NAME one of {', '.join(PARAM_NAMES)}")
+        if not sep or name not in PARAM_NAMES + EXT_SCALE_FIX:
+            raise ConfigError(f"--fix {it!r}: expected NAME=VALUE with NAME one of "
+                              f"{', '.join(dict.fromkeys(PARAM_NAMES + EXT_SCALE_FIX))}")
         try:
             out[name] = float(value)
         except ValueError:
             raise ConfigError(f"--fix {it!r}: {value!r} is not a number") from None
         v = out[name]
-        if not math.isfinite(v) or (name in ("m", "Iz") and v <= 0) or (name.startswith("d") and v < 0):
-            bound = "> 0" if name in ("m", "Iz") else ">= 0" if name.startswith("d") else "finite"
+        positive = name in ("m", "Iz") + EXT_SCALE_FIX
+        if not math.isfinite(v) or (positive and v <= 0) or (name.startswith("d") and v < 0):
+            bound = "> 0" if positive else ">= 0" if name.startswith("d") else "finite"
             raise ConfigError(f"--fix {it!r}: {name} must be {bound}")
     return out
 
@@ -125,7 +130,7 @@ def format_report(d: dict) -> str:
     for k in PARAM_NAMES:
         lo, hi = d["ci95"][k]
         v, se = d["params"][k], d["stderr"][k]
-        fixed = k in d["fixed"]
+        fixed = k in d["fixed"] or {"m": "m11", "Iz": "m66"}.get(k) in d["fixed"]
         meaningful = se is not None and math.isfinite(se) and se > 1e-9 * max(abs(v), 1e-300)
         if fixed:
             interval, se_s = "(fixed)".center(26), "0"
@@ -139,6 +144,13 @@ def format_report(d: dict) -> str:
         ext = d["extended"]
         for k in EXTENDED_PARAM_NAMES:
             lines.append(f"  {k:<5} {_num(ext['params'][k]):>12} {_num(ext['stderr'].get(k), 3):>11}")
+    ts = d.get("thrust_scale") or {}
+    if ts.get("case") == "command units":
+        lines.append("thrust scale unknown: the values above are per unit of full forward command (only their "
+                     "ratios are physical; xg in m)")
+    elif ts.get("case") == "gain identified":
+        lines.append(f"thrust gain from the fixed {ts['fixed_by']}: {_num(ts['forward_n'], 4)} N forward, "
+                     f"{_num(ts['reverse_n'], 4)} N reverse at full command")
     lines.append(f"Iz - m xg^2 = {_num(d['Iz_minus_m_xg2'], 4)} (Theorem 3.1 condition 1 needs > 0)")
     if any(d.get("gnss_delay_s") or ()):
         lines.append("GNSS delay taken off the fix stamps: " + ", ".join(f"{x:.3f} s" for x in d["gnss_delay_s"]))

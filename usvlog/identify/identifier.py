@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..choices import EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
+from ..choices import EXT_SCALE_FIX, EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..estimate import EstimateSettings, estimate
 from ..estimate.latency import stored_delays, with_settings_delays
@@ -38,7 +38,7 @@ from .output import (
 )
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
-from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
+from .thrust_scale import EXT_PROFILE_SEGMENT_S, ThrustScale, fit_in_command_units, thrust_scale_known
 
 METHODS = IDENTIFY_METHODS
 Z95 = 1.959963984540054
@@ -370,7 +370,14 @@ class Identifier:
         Identification method (see above).
     fix : dict of str to float, optional
         Known parameters by paper symbol, SI units (e.g. ``{"m": 31.5}`` kg); they are
-        held at these values and get standard error 0.
+        held at these values and get standard error 0. With ``model`` extended or both only
+        one value, and only to set an unknown thrust scale (the fit is in command units and
+        this value scales it, :mod:`usvlog.identify.thrust_scale`): ``m`` or ``Iz`` (both
+        models), or for the extended model ``m11``, ``m22``, ``m66``. ``m`` is the surge
+        inertia in either model (the paper's m, the extended m11 = m - X_udot) and ``Iz``
+        the yaw inertia (m66): a weighed mass leaves out the surge added mass, so the
+        gain comes out low by that fraction (about 6 % on the shipped catamaran); fix
+        ``m11`` with an added-mass estimate to do better.
     current : bool, default True
         Fit a constant water current (north, east) per run. Equation error never fits it.
     segment_s : float, default 300.0
@@ -494,7 +501,7 @@ class Identifier:
             raise ConfigError(f"method {method!r} is not one of {', '.join(METHODS)}")
         fix = dict(fix or {})
         for k, v in fix.items():
-            if k not in PARAM_NAMES:
+            if k not in PARAM_NAMES and (model == "paper" or k not in EXT_SCALE_FIX):
                 raise ConfigError(f"cannot fix {k!r}: not one of {', '.join(PARAM_NAMES)}")
             if not (isinstance(v, (int, float)) and math.isfinite(v)):
                 raise ConfigError(f"fixed value {k} = {v!r} is not a finite number")
@@ -508,9 +515,10 @@ class Identifier:
             raise ConfigError(f"model {model!r} is not one of {', '.join(IDENTIFY_MODELS)}")
         if model != "paper" and method == "filter-error":
             raise ConfigError("the extended model is fitted by output error or equation error, not filter error")
-        if model != "paper" and fix:
-            raise ConfigError("--fix applies to the paper's model only (its parameters are not the extended "
-                              "model's)")
+        scale_keys = EXT_SCALE_FIX if model == "extended" else ("m", "Iz")
+        if model != "paper" and fix and (len(fix) > 1 or next(iter(fix)) not in scale_keys):
+            raise ConfigError(f"with --model {model} --fix only sets an unknown thrust scale: one of "
+                              f"{', '.join(scale_keys)} (m is the surge inertia m11, Iz the yaw inertia m66)")
         self.model = model
         self.method = method
         self.fix = fix
@@ -562,6 +570,9 @@ class Identifier:
         if not getattr(self, "_command_units", False):
             if not all(thrust_scale_known(lg, vessel) for lg in logs):
                 return fit_in_command_units(self, logs, vessel)
+            if self.model != "paper" and self.fix:
+                raise ConfigError(f"--fix with --model {self.model} only sets an unknown thrust scale, and these "
+                                  "logs' thrust is in newtons (or through a known thruster map)")
             self.thrust_scale_ = ThrustScale()
         all_runs = [run_data(lg, vessel) for lg in logs]
         all_kin = [kinematic_states(lg, r, vessel) for lg, r in zip(logs, all_runs)]
@@ -664,6 +675,10 @@ class Identifier:
         th = self._start(ee, vessel)
         if self.model != "paper":
             ext = self._extended_starts(th)
+            if getattr(self, "_command_units", False) and vessel.extended is not None and self.method == "output-error":
+                # the thrust-scale search's extended fit at the ratio it found (a start from its optimum)
+                ext.insert(0, Start(name="extended output error from the thrust-ratio search", kind="output-error",
+                                    model="extended", theta=vessel.extended.as_array()))
             if self.model == "extended":
                 return ext if self.method == "output-error" else ext[-1:]
             if self.method == "equation-error":
@@ -794,8 +809,10 @@ class Identifier:
         if st.kind == "equation-error":
             theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
         else:
+            # in command units the ratio search's short segments (its optimum stalls with long ones)
+            seg = EXT_PROFILE_SEGMENT_S if getattr(self, "_command_units", False) else EXT_SEGMENT_S
             fitted = fit_extended_output_error(runs, kin, st.theta, fit_current=self.current, currents0=currents0,
-                                               max_current_mps=self.max_current_mps, segment_s=EXT_SEGMENT_S)
+                                               max_current_mps=self.max_current_mps, segment_s=seg)
             theta, cur = fitted.theta, fitted.currents
         failed = ext_physical_problem(theta)
         if not failed and isinstance(fitted, ExtendedOEResult) and fitted.diverged:
@@ -1083,6 +1100,15 @@ class Identifier:
         return th
 
     # ------------------------------------------------------------------------------
+    def _held_names(self) -> set:
+        """Names held at a fixed value: the fixed ones, and for the extended model the paper terms
+        they are (m11 is m, m66 is Iz; ``--fix m`` holds m11)."""
+        held = set(self.fix)
+        for paper, ext in (("m", "m11"), ("Iz", "m66")):
+            if paper in held or ext in held:
+                held |= {paper, ext}
+        return held
+
     def _ext_term_findings(self, add) -> None:
         """The extended model's own terms judged by their standard errors (the paper-term checks
         see only their combinations): m22 poorly determined is a caveat (sway barely excited);
@@ -1093,8 +1119,8 @@ class Identifier:
         vals = ext.to_dict()
         for k in EXTENDED_PARAM_NAMES:
             v, se = vals[k], self.extended_stderr_.get(k, math.nan)
-            if k in ("m11", "m66") or (k.endswith("q") and v <= 0):   # m, Iz: judged above; q at its bound 0
-                continue
+            if k in ("m11", "m66") or (k.endswith("q") and v <= 0) or k in self.fix:   # m, Iz: judged above;
+                continue                                                         # q at its bound 0; fixed
             if not (math.isfinite(se) and se > 1e-9 * max(abs(v), 1e-300)):
                 add(1 if k == "m22" else 0, f"extended term {k} = {fmt_num(v)}: standard error not computable")
                 continue
@@ -1135,7 +1161,8 @@ class Identifier:
         else:
             add(1, "not validated (--no-validate): nothing checks the model on data it was not fitted on")
         # -- the parameters -----------------------------------------------------------
-        se_bad = [k for k in PARAM_NAMES if k not in self.fix and k != "xg" and
+        held = self._held_names()
+        se_bad = [k for k in PARAM_NAMES if k not in held and k != "xg" and
                   not (math.isfinite(self.stderr_[k]) and self.stderr_[k] > 1e-9 * abs(getattr(p, k)))]
         if se_bad and self.method != "filter-error":
             add(2, f"standard errors of {', '.join(se_bad)} could not be computed (degenerate fit): "
@@ -1145,7 +1172,7 @@ class Identifier:
         for w in ex:
             add(1, w)
         for k in PARAM_NAMES:
-            if k in self.fix or k in se_bad:
+            if k in held or k in se_bad:
                 continue
             if rel[k] > REL_SE_CAVEAT and not (k == "xg" and abs(p.xg) < 0.05):
                 level = 2 if rel[k] > REL_SE_UNUSABLE and k in ("m", "Iz", "d11", "d33") else 1
@@ -1471,8 +1498,9 @@ class Identifier:
 
     def toml_record(self) -> str:
         """The ``[identification]`` table written after the vessel TOML: verdict, usable,
-        reasons, method, the candidate chosen and the validation fit % (what a reader of the
-        file needs to know before trusting it).
+        reasons, method, the candidate chosen, the thrust-scale case (``known``, ``command
+        units``, ``gain identified``) and the validation fit % (what a reader of the file needs
+        to know before trusting it).
 
         Returns
         -------
@@ -1493,7 +1521,8 @@ class Identifier:
         lines = ["", "[identification]", f"usable = {'true' if self.usable_ else 'false'}",
                  f"verdict = {q(self.verdict_)}", f"method = {q(self.method)}",
                  f"structure = {q('paper' if self.extended_ is None else 'extended')}",
-                 f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}"]
+                 f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}",
+                 f"thrust_scale = {q(self.thrust_scale_.case)}"]
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"

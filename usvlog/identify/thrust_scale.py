@@ -30,18 +30,28 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..choices import EXTENDED_PARAM_NAMES
 from ..errors import ConfigError
 from ..log.fieldlog import FieldLog
 from ..log.summary import health_from_provenance
-from ..model.vessel import PARAM_NAMES, Vessel, VesselParams
+from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
 from .data import run_data
 from .equation import regressors
+from .extended import ext_regressors
 from .smooth import derivative, kinematic_states, smooth_like, thrust_on_grid
 
 SCALE_FREE = ("xg",)
 """Parameters the thrust gain does not scale (lengths)."""
 
+EXT_ALIAS = {"m": "m11", "Iz": "m66"}
+"""Paper symbols fixed with the extended model: the extended terms they stand for (as in
+:meth:`usvlog.model.vessel.ExtendedParams.paper_terms`)."""
+
+EXT_PROFILE_SEGMENT_S = 30.0   # shooting segments of the extended ratio search (longer ones stall more)
+EXT_PROFILE_SPAN_S = 240.0     # the extended ratio search fits the first this many seconds of each run
+
 Z95 = 1.959963984540054
+EXT_RATIO_STEP = 1.3   # step of the extended model's coarse grid of reverse/forward ratios (factor)
 EE_ACC_S = 6.0  # smoothing window (s) of the ratio's equation-error fit, as the identifier's
 
 
@@ -67,6 +77,8 @@ class ThrustScale:
         Standard error of ``forward_n`` in N (reverse: times ``ratio``).
     shape : {"linear", "quadratic"}
         Map shape s(c) the commands went through.
+    structure : {"paper", "extended"}
+        The model the per-unit values are of (what the message names).
     """
 
     case: str = "known"
@@ -77,6 +89,7 @@ class ThrustScale:
     reverse_n: float = float("nan")
     forward_stderr_n: float = float("nan")
     shape: str = "linear"
+    structure: str = "paper"
 
     @property
     def known(self) -> bool:
@@ -84,20 +97,24 @@ class ThrustScale:
         return self.case == "known"
 
     def to_dict(self) -> dict:
-        """JSON-ready: case, ratio, ratio_from, fixed_by, forward_n, reverse_n, forward_stderr_n, shape
-        (NaN written as None)."""
+        """JSON-ready: case, ratio, ratio_from, fixed_by, forward_n, reverse_n, forward_stderr_n, shape,
+        structure (NaN written as None)."""
         def num(x):
             return None if x is None or not math.isfinite(x) else float(x)
         return {"case": self.case, "ratio": num(self.ratio), "ratio_from": self.ratio_from or None,
                 "fixed_by": self.fixed_by, "forward_n": num(self.forward_n), "reverse_n": num(self.reverse_n),
-                "forward_stderr_n": num(self.forward_stderr_n), "shape": self.shape}
+                "forward_stderr_n": num(self.forward_stderr_n), "shape": self.shape,
+                "structure": self.structure}
 
     def message(self) -> str:
         """One plain line for the verdict ("" when known)."""
         if self.case == "command units":
-            return (f"thrust scale unknown: identified in command units (m, Iz and the damping per unit of full "
+            what, fix = (("m, Iz and the damping", "a weighed m") if self.structure == "paper" else
+                         ("the extended model's inertias m11, m22, m26, m66 and its damping",
+                          "m11, a weighed mass plus the surge added mass"))
+            return (f"thrust scale unknown: identified in command units ({what} per unit of full "
                     f"forward command; only their ratios are physical; reverse/forward gain {self.ratio:.3g} "
-                    f"from {self.ratio_from}); --fix one physical value (e.g. a weighed m) to get the gain")
+                    f"from {self.ratio_from}); --fix one physical value (e.g. {fix}) to get the gain")
         if self.case == "gain identified":
             return (f"thrust scale unknown: gain identified from the fixed {self.fixed_by}: "
                     f"{self.forward_n:.4g} N forward, {self.reverse_n:.4g} N reverse at full command "
@@ -168,12 +185,15 @@ def without_logged_forces(log: FieldLog) -> FieldLog:
     return out
 
 
-def reverse_ratio(logs: list[FieldLog], vessel: Vessel) -> tuple[float, str]:
+def reverse_ratio(logs: list[FieldLog], vessel: Vessel, model: str = "paper") -> tuple[float, str]:
     """Reverse-to-forward thrust gain ratio by equation error in command units.
 
     Surge and yaw of eq. (3) divided by the forward gain are linear in (m, m xg, Iz, d11,
     d33) per unit and in the ratio rho: A theta - rho s- = s+. Solved by least squares,
-    each equation weighted by its residual scatter (two passes).
+    each equation weighted by its residual scatter (two passes). For the extended model the
+    same with its surge and yaw regressors (m11, m22, m26, m66, d11, d11q, d33, d33q per
+    unit; :func:`usvlog.identify.extended.ext_regressors`): on a boat with quadratic damping
+    the paper's linear terms would absorb part of the reverse thrust and bias the ratio.
 
     Parameters
     ----------
@@ -181,6 +201,8 @@ def reverse_ratio(logs: list[FieldLog], vessel: Vessel) -> tuple[float, str]:
         Runs with ``/thrust/command`` (commands), ``/gnss/fix`` and ``/compass/heading``.
     vessel : Vessel
         Arm and map shape.
+    model : {"paper", "extended"}, default "paper"
+        The model whose regressors carry the per-unit terms.
 
     Returns
     -------
@@ -201,8 +223,11 @@ def reverse_ratio(logs: list[FieldLog], vessel: Vessel) -> tuple[float, str]:
         s1, s2 = thrust_on_grid(r1, t), thrust_on_grid(r2, t)
         neg = [smooth_like(t, b - a, EE_ACC_S) for a, b in zip(s1, s2)]        # s-: (tau_u, tau_r)
         pos = [smooth_like(t, 2 * a - b, EE_ACC_S) for a, b in zip(s1, s2)]    # s+
-        A = regressors(smooth_like(t, nu, EE_ACC_S), derivative(t, nu, EE_ACC_S))
-        rows_A.append(A[[0, 2]][:, :, [0, 1, 2, 3, 5]])
+        nu_s, nu_d = smooth_like(t, nu, EE_ACC_S), derivative(t, nu, EE_ACC_S)
+        if model == "paper":
+            rows_A.append(regressors(nu_s, nu_d)[[0, 2]][:, :, [0, 1, 2, 3, 5]])
+        else:   # the sway damping d22, d22q has no surge or yaw column
+            rows_A.append(ext_regressors(nu_s, nu_d)[[0, 2]][:, :, [0, 1, 2, 3, 4, 5, 8, 9]])
         rows_p.append(np.stack(pos))
         rows_n.append(np.stack(neg))
     A = np.concatenate(rows_A, 1)
@@ -281,45 +306,157 @@ def profile_ratio(logs: list[FieldLog], vessel: Vessel, rho0: float, *, free_mas
     theta : numpy.ndarray, shape (6,)
         The per-unit parameters of the best fit (PARAM_NAMES order).
     """
-    from .equation import fit_equation_error  # local: only this search needs a start from it
-    from .output import fit_output_error
+    from .output import fit_output_error  # local: the output-error fit is only needed by this search
 
     data = _pm_runs(logs, vessel)
     kin = [d[3] for d in data]
-    runs0 = [with_ratio(d[0], d[1], d[2], rho0) for d in data]
-    # start: equation error of the per-unit model at rho0, else the vessel's values
-    nus, nuds, tus, trs = [], [], [], []
-    for run, ks in zip(runs0, kin):
-        nu = ks.nu((0.0, 0.0))
-        tu, tr = thrust_on_grid(run, ks.t)
-        nus.append(smooth_like(ks.t, nu, EE_ACC_S))
-        nuds.append(derivative(ks.t, nu, EE_ACC_S))
-        tus.append(smooth_like(ks.t, tu, EE_ACC_S))
-        trs.append(smooth_like(ks.t, tr, EE_ACC_S))
     free = np.asarray(free_mask, bool)
     base = np.asarray(fix_theta if fix_theta is not None else vessel.params.as_array(), float)
-    ee = fit_equation_error(np.concatenate(nus), np.concatenate(nuds), np.concatenate(tus), np.concatenate(trs),
-                            fix={k: float(base[i]) for i, k in enumerate(PARAM_NAMES) if not free[i]})
-    theta = np.where(free, ee.theta, base) if ee.valid else base.copy()
-    cur = np.zeros((len(logs), 2))
-    seen: dict[float, float] = {}
-    best: dict[str, Any] = {"cost": np.inf, "theta": theta, "cur": cur}
+    theta = _ee_start(data, rho0, free, base)
+    best: dict[str, Any] = {"cost": np.inf, "theta": theta, "cur": np.zeros((len(logs), 2))}
 
-    def cost(rho: float) -> float:
+    def cost(rho: float, first: bool) -> float:
         runs = [with_ratio(d[0], d[1], d[2], rho) for d in data]
-        first = not seen
         oe = fit_output_error(runs, best["theta"], lambda i, t: kin[i].at(t), free_mask=free,
                               fit_current=fit_current, currents0=best["cur"], segment_s=segment_s,
                               warm_segment_s=0.0, reweight=False, max_nfev=60 if first else 20)
         c = float(oe.sigma2) if np.all(np.isfinite(oe.theta)) else np.inf
-        seen[rho] = c
         if c < best["cost"]:
             best.update(cost=c, theta=oe.theta, cur=oe.currents)
         return c
 
+    rho = _parabola_search(cost, rho0, rel_tol, max_eval)
+    return rho, np.asarray(best["theta"], float)
+
+
+def profile_ratio_ext(logs: list[FieldLog], vessel: Vessel, rho0: float, *, fit_current: bool,
+                      max_current_mps: float, segment_s: float) -> tuple[float, np.ndarray]:
+    """:func:`profile_ratio` for the extended model: each cost an extended output-error fit.
+
+    Its own search, not the paper model's: on a boat of the extended form (different surge and
+    sway inertia, quadratic damping) the paper model buys part of the missing terms with a wrong
+    ratio (0.37 for a true 0.56 on the shipped catamaran), while the extended fit's cost is least
+    near the true ratio. Its fits stall from a poor start (a stalled fit only raises the
+    cost), so every fit starts afresh from the paper model's equation error per unit of command
+    at its own ratio, in the extended form, with short shooting segments, and the search is
+    grids, not a line search a stalled fit would mislead: ``rho0`` times EXT_RATIO_STEP^k
+    (k = -3..3: equation error's ratio is biased by the smoother on a boat with second time
+    constants), then steps of EXT_RATIO_STEP^(1/4) (k = -3..3) and EXT_RATIO_STEP^(1/16)
+    (k = -2..2) about the best so far; the best fit seen is returned (17 fits, a resolution
+    of 1.7 % in the ratio). The fits use the first EXT_PROFILE_SPAN_S of each run: on a
+    ten-minute run with quiet sensors the fits over all of it stalled at every ratio (the
+    search found 0.27 for a true 0.56), and the cost stays that of a few minutes of data.
+
+    Parameters
+    ----------
+    logs : list of FieldLog
+    vessel : Vessel
+        Arm and map shape; its paper terms per unit of its forward force are the fallback start.
+    rho0 : float
+        Starting ratio, > 0.
+    fit_current : bool
+        Fit a current per run.
+    max_current_mps : float
+        Bound on each current component, m/s.
+    segment_s : float
+        Multiple-shooting segment length, s.
+    Returns
+    -------
+    rho : float
+        The ratio, > 0.
+    theta : numpy.ndarray, shape (10,)
+        The per-unit extended parameters of the best fit (EXTENDED_PARAM_NAMES order), on the
+        first EXT_PROFILE_SPAN_S of the runs.
+    """
+    from .extended_oe import ext_physical_problem, fit_extended_output_error  # local: only this search
+
+    data = [_first_part(r1, pos, neg, ks, EXT_PROFILE_SPAN_S) for r1, pos, neg, ks in _pm_runs(logs, vessel)]
+    kin = [d[3] for d in data]
+    base = vessel.params.as_array()
+    base[[PARAM_NAMES.index(k) for k in PARAM_NAMES if k not in SCALE_FREE]] /= vessel.thrusters.forward_n
+
+    def start(rho: float) -> np.ndarray:
+        return _ext_start(_ee_start(data, rho, np.ones(len(PARAM_NAMES), bool), base), base)
+
+    counts = [(2 * len(d[0].t_gps), len(d[0].t_compass)) for d in data]
+    best: dict[str, Any] = {"cost": np.inf}
+
+    def cost(rho: float) -> float:
+        runs = [with_ratio(d[0], d[1], d[2], rho) for d in data]
+        oe = fit_extended_output_error(runs, kin, start(rho), fit_current=fit_current,
+                                       max_current_mps=max_current_mps, segment_s=segment_s, max_iter=60)
+        # the whitened sum of squares (the residuals' RMS per sensor times their counts)
+        c = sum(n_g * oe.rms["gps"] ** 2 + n_c * oe.rms["compass"] ** 2 for n_g, n_c in counts)
+        c = c if math.isfinite(c) and not oe.diverged and not ext_physical_problem(oe.theta) else math.inf
+        if c < best["cost"]:
+            best.update(cost=c, theta=oe.theta, rho=rho)
+        return c
+
+    # a coarse grid, then two finer ones about the best ratio so far: a fit that stalls only
+    # raises its cost, so the least cost seen is near the true ratio unless every fit near it stalls
+    for stage, (step, span) in enumerate(((EXT_RATIO_STEP, 3), (EXT_RATIO_STEP ** 0.25, 3),
+                                          (EXT_RATIO_STEP ** 0.0625, 2))):
+        centre = best.get("rho", rho0)
+        for k in range(-span, span + 1):
+            if k or not stage:   # the centre's fit is known after the first grid
+                cost(centre * step ** k)
+        if "rho" not in best:   # every fit failed
+            return float(rho0), start(rho0)
+    return float(best["rho"]), np.asarray(best["theta"], float)
+
+
+def _first_part(r1, pos, neg, ks, span_s: float):
+    """The first ``span_s`` seconds of a run's (RunData, s+, s-, KinStates)."""
+    t_hi = r1.t_thrust[0] + span_s
+    k = r1.t_thrust <= t_hi
+    return (r1.window(-np.inf, t_hi), tuple(a[k] for a in pos), tuple(a[k] for a in neg), ks.window(-np.inf, t_hi))
+
+
+def _ext_start(th, base) -> np.ndarray:
+    """An extended-model start from the paper model's per-unit equation-error values ``th``
+    (PARAM_NAMES order), each where plausible: within a factor 3 of the vessel's per-unit
+    ``base`` scaled to the fitted m (the gain is unknown: the vessel's ratios to m are the
+    prior), else that; written in the extended form (:meth:`ExtendedParams.from_paper`)."""
+    m = PARAM_NAMES.index("m")
+    prior = base * np.where([k in SCALE_FREE for k in PARAM_NAMES], 1.0, th[m] / base[m] if th[m] > 0 else 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ok = np.isfinite(th) & (th > 0) & (th / prior > 1 / 3) & (th / prior < 3)
+    ok[PARAM_NAMES.index("xg")] = bool(np.isfinite(th[-1]) and abs(th[-1]) < 1.0)
+    th = np.where(ok, th, prior)
+    if th[1] - th[0] * th[-1] ** 2 <= 0.05 * th[1]:   # Iz - m xg^2 > 0 kept (as the identifier's start)
+        th[-1] = 0.0
+    try:
+        return ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, th))))).as_array()
+    except ConfigError:   # not a boat: the vessel's values per unit
+        return ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, base))))).as_array()
+
+
+def _ee_start(data, rho: float, free, base) -> np.ndarray:
+    """The paper model's equation-error fit per unit of command at ratio ``rho`` (the values
+    not ``free`` held at ``base``); ``base`` where it fails."""
+    from .equation import fit_equation_error  # local: only the ratio searches need a start from it
+
+    nus, nuds, tus, trs = [], [], [], []
+    for r1, pos, neg, ks in data:
+        nu = ks.nu((0.0, 0.0))
+        tu, tr = thrust_on_grid(with_ratio(r1, pos, neg, rho), ks.t)
+        nus.append(smooth_like(ks.t, nu, EE_ACC_S))
+        nuds.append(derivative(ks.t, nu, EE_ACC_S))
+        tus.append(smooth_like(ks.t, tu, EE_ACC_S))
+        trs.append(smooth_like(ks.t, tr, EE_ACC_S))
+    ee = fit_equation_error(np.concatenate(nus), np.concatenate(nuds), np.concatenate(tus), np.concatenate(trs),
+                            fix={k: float(base[i]) for i, k in enumerate(PARAM_NAMES) if not free[i]})
+    return np.where(free, ee.theta, base) if ee.valid else base.copy()
+
+
+def _parabola_search(cost, rho0: float, rel_tol: float, max_eval: int) -> float:
+    """The ratio of least ``cost(rho, first)``: ``rho0`` and +-10 %, then the vertex of a
+    parabola through the three best points (kept within half and 1.5 times their span) until
+    it moves by less than ``rel_tol`` or ``max_eval`` costs were taken."""
+    seen: dict[float, float] = {}
     for rho in (rho0, 0.9 * rho0, 1.1 * rho0):
-        cost(rho)
-    rho = rho0
+        seen[rho] = cost(rho, not seen)
+    rho = min(seen, key=lambda k: seen[k])
     while len(seen) < max_eval:
         pts = sorted(seen.items(), key=lambda kv: kv[1])[:3]
         x = np.array([p[0] for p in pts])
@@ -331,9 +468,9 @@ def profile_ratio(logs: list[FieldLog], vessel: Vessel, rho0: float, *, free_mas
         if abs(new - x[0]) <= rel_tol * x[0] or any(abs(new - k) <= 1e-4 * k for k in seen):
             rho = new if a > 0 else float(x[0])
             break
-        cost(new)
+        seen[new] = cost(new, False)
         rho = min(seen, key=lambda k: seen[k])
-    return float(rho), np.asarray(best["theta"], float)
+    return float(rho)
 
 
 def scale_fix(fix: dict) -> tuple[dict, str | None]:
@@ -359,7 +496,7 @@ def scale_fix(fix: dict) -> tuple[dict, str | None]:
     return per_unit, None
 
 
-def scale_results(theta, cov, names, fix: dict, scale_by: str):
+def scale_results(theta, cov, names, fix: dict, scale_by: str, param_names=PARAM_NAMES, scale_free=SCALE_FREE):
     """Physical parameters, their covariance and the forward gain from a command-unit fit.
 
     With p_f fixed, g = p_f / q_f and p_k = g q_k for every parameter k the gain scales
@@ -367,8 +504,8 @@ def scale_results(theta, cov, names, fix: dict, scale_by: str):
 
     Parameters
     ----------
-    theta : array_like, shape (6,)
-        Per-unit m, Iz, d11, d22, d33 and xg (PARAM_NAMES order).
+    theta : array_like, shape (6,) or (10,)
+        Per-unit m, Iz, d11, d22, d33 and xg (``param_names`` order).
     cov : numpy.ndarray
         Covariance of the fitted quantities ``names`` (per-unit parameters, currents).
     names : sequence of str
@@ -377,6 +514,10 @@ def scale_results(theta, cov, names, fix: dict, scale_by: str):
         The user's fixed values (physical).
     scale_by : str
         The fixed parameter that sets the scale.
+    param_names : sequence of str, default PARAM_NAMES
+        Names of ``theta`` (EXTENDED_PARAM_NAMES for the extended model).
+    scale_free : sequence of str, default SCALE_FREE
+        Those the gain does not scale (none of the extended model's).
 
     Returns
     -------
@@ -392,26 +533,26 @@ def scale_results(theta, cov, names, fix: dict, scale_by: str):
     """
     theta = np.asarray(theta, float)
     names = list(names)
-    q_f = theta[PARAM_NAMES.index(scale_by)]
+    q_f = theta[param_names.index(scale_by)]
     g = fix[scale_by] / q_f
     n = len(names)
     Jm = np.zeros((n, n))   # d(physical free quantities)/d(per-unit fitted ones)
     i_f = names.index(scale_by) if scale_by in names else None
     for i, k in enumerate(names):
-        if k in PARAM_NAMES and k not in SCALE_FREE:
+        if k in param_names and k not in scale_free:
             Jm[i, i] = g
             if i_f is not None:
-                Jm[i, i_f] = -g * theta[PARAM_NAMES.index(k)] / q_f
+                Jm[i, i_f] = -g * theta[param_names.index(k)] / q_f
         else:
             Jm[i, i] = 1.0
     cov_p = Jm @ cov @ Jm.T
     gain_se = float(g / q_f * math.sqrt(max(cov[i_f, i_f], 0.0))) if i_f is not None else 0.0
     keep = [i for i, k in enumerate(names) if k != scale_by]
     out = theta.copy()
-    for i, k in enumerate(PARAM_NAMES):
-        if k not in SCALE_FREE:
+    for i, k in enumerate(param_names):
+        if k not in scale_free:
             out[i] = g * theta[i]
-    out[PARAM_NAMES.index(scale_by)] = fix[scale_by]
+    out[param_names.index(scale_by)] = fix[scale_by]
     return out, cov_p[np.ix_(keep, keep)], tuple(names[i] for i in keep), float(g), gain_se
 
 
@@ -421,9 +562,12 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     """:meth:`usvlog.identify.Identifier.fit` for runs whose thrust has no known force scale.
 
     The reverse-to-forward ratio first (equation error, then refined by output error for
-    that method), then the identifier's own fit in command units; with one physical value
-    fixed, everything scaled to physical units and the gains found. Sets the fitted
-    attributes of ``ident`` (``thrust_scale_`` says which case it is) and returns it.
+    that method: of the paper's model, or with ``model`` extended or both of the extended
+    one, :func:`profile_ratio_ext`), then the identifier's own fit in command units; with one
+    physical value fixed, everything scaled to physical units and the gains found (the
+    extended model: every term times the gain, ``m`` standing for m11 and ``Iz`` for m66).
+    Sets the fitted attributes of ``ident`` (``thrust_scale_`` says which case it is and of
+    which model) and returns it.
 
     Parameters
     ----------
@@ -446,11 +590,14 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     import copy
 
     fix_all = dict(ident.fix)
-    per_unit_fix, scale_by = scale_fix(fix_all)
-    carrying = [k for k in fix_all if k not in SCALE_FREE]
-    if len(carrying) > 1:
-        raise ConfigError(f"with an unknown thrust scale fix one of m, Iz, d11, d22, d33 (it sets the thrust gain), "
-                          f"not {len(carrying)} ({', '.join(carrying)})")
+    if ident.model == "paper":
+        per_unit_fix, scale_by = scale_fix(fix_all)
+        carrying = [k for k in fix_all if k not in SCALE_FREE]
+        if len(carrying) > 1:
+            raise ConfigError(f"with an unknown thrust scale fix one of m, Iz, d11, d22, d33 (it sets the thrust "
+                              f"gain), not {len(carrying)} ({', '.join(carrying)})")
+    else:   # the Identifier allows one scale-setting value (m, Iz, m11, m22, m66) and nothing else
+        per_unit_fix, scale_by = {}, next(iter(fix_all), None)
     shape = vessel.thrusters.map if vessel.thrusters.map in ("linear", "quadratic") else "linear"
     rho, how = reverse_ratio(logs, vessel)
     # the prior in command units: the vessel's values per newton of its (guessed) full forward force
@@ -458,7 +605,18 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     base[[PARAM_NAMES.index(k) for k in PARAM_NAMES if k not in SCALE_FREE]] /= vessel.thrusters.forward_n
     for k, v in per_unit_fix.items():
         base[PARAM_NAMES.index(k)] = v
-    if how == "equation error" and ident.method == "output-error":
+    ext_prior = None
+    if how == "equation error" and ident.method == "output-error" and ident.model != "paper":
+        # the extended model's own ratio search (with "both" too: it nests the paper's model)
+        rho, th_ext = profile_ratio_ext(logs, vessel, rho, fit_current=ident.current,
+                                        max_current_mps=ident.max_current_mps, segment_s=EXT_PROFILE_SEGMENT_S)
+        how = "output error of the extended model"
+        try:
+            ext_prior = ExtendedParams(**dict(zip(EXTENDED_PARAM_NAMES, map(float, th_ext))))
+            base = ext_prior.paper_terms().as_array()
+        except ConfigError:   # the search found no boat: the inner fit starts from equation error
+            ext_prior = None
+    elif how == "equation error" and ident.method == "output-error":
         free = np.array([k not in per_unit_fix for k in PARAM_NAMES])
         rho, base = profile_ratio(logs, vessel, rho, free_mask=free, fit_current=ident.current,
                                   segment_s=min(ident.segment_s, 120.0), fix_theta=base)
@@ -466,15 +624,44 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     inner = copy.copy(ident)
     inner.fix = per_unit_fix
     inner._command_units = True
-    inner.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape)
+    inner.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape,
+                                      structure="paper" if ident.model == "paper" else "extended")
     prior = VesselParams(**dict(zip(PARAM_NAMES, map(float, base))))
-    vcmd = command_unit_vessel(replace(vessel, params=prior, extended=None), rho)
+    vcmd = command_unit_vessel(replace(vessel, params=prior, extended=ext_prior), rho)
     inner.fit([without_logged_forces(lg) for lg in logs], vcmd)
+    structure = "paper" if inner.extended_ is None else "extended"
+    inner.thrust_scale_ = replace(inner.thrust_scale_, structure=structure)
+    if structure != "paper":   # the verdict's message names the model returned
+        inner.reasons_, inner.verdict_ = inner._verdict(inner.vessel_in_, inner.runs_, inner._kin)
+        inner.usable_ = inner.verdict_ != "unusable"
     ident.__dict__.update(inner.__dict__)
     ident.fix = dict(fix_all)
     ident._command_units = False
     if scale_by is None:
         return ident
+    if structure == "extended":
+        g, g_se = _scale_extended(ident, inner, fix_all[scale_by], EXT_ALIAS.get(scale_by, scale_by))
+    else:
+        g, g_se = _scale_paper(ident, inner, fix_all, scale_by)
+    ident.runs_ = [replace(r, tau_u=g * r.tau_u, tau_r=g * r.tau_r) for r in inner.runs_]
+    ee = inner.equation_error_
+    k_scale = np.array([1.0 if k in SCALE_FREE else g for k in PARAM_NAMES])
+    ident.equation_error_ = replace(ee, theta=ee.theta * k_scale,
+                                    stderr={k: v * (1.0 if k in SCALE_FREE else g) for k, v in ee.stderr.items()})
+    t = vessel.thrusters
+    ident.vessel_in_ = replace(vessel, thrusters=replace(t, map=shape, forward_n=g, reverse_n=g * rho, known=True,
+                                                         scale="known"))
+    ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
+                                      forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape,
+                                      structure=structure)
+    ident.reasons_, ident.verdict_ = ident._verdict(ident.vessel_in_, ident.runs_, ident._kin)
+    ident.usable_ = ident.verdict_ != "unusable"
+    return ident
+
+
+def _scale_paper(ident, inner, fix_all: dict, scale_by: str) -> tuple[float, float]:
+    """Sets ``ident``'s paper-model results in physical units from ``inner``'s per-unit ones;
+    returns the forward gain and its standard error (N)."""
     names = list(inner.corr_.index)
     theta, cov, names2, g, g_se = scale_results(inner.theta_, inner.cov_, names, fix_all, scale_by)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -489,20 +676,34 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     ident.cov_ = cov
     sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
     ident.corr_ = pd.DataFrame(cov / np.outer(sd, sd), index=list(names2), columns=list(names2))
-    ident.runs_ = [replace(r, tau_u=g * r.tau_u, tau_r=g * r.tau_r) for r in inner.runs_]
-    ee = inner.equation_error_
-    k_scale = np.array([1.0 if k in SCALE_FREE else g for k in PARAM_NAMES])
-    ident.equation_error_ = replace(ee, theta=ee.theta * k_scale,
-                                    stderr={k: v * (1.0 if k in SCALE_FREE else g) for k, v in ee.stderr.items()})
-    t = vessel.thrusters
-    ident.vessel_in_ = replace(vessel, thrusters=replace(t, map=shape, forward_n=g, reverse_n=g * rho, known=True,
-                                                         scale="known"))
-    ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
-                                      forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape)
-    ident.reasons_, ident.verdict_ = ident._verdict(ident.vessel_in_, ident.runs_, ident._kin)
-    ident.usable_ = ident.verdict_ != "unusable"
-    return ident
+    return g, g_se
 
 
-__all__ = ["ThrustScale", "command_unit_vessel", "fit_in_command_units", "profile_ratio", "reverse_ratio",
-           "scale_fix", "scale_results", "thrust_scale_known", "with_ratio", "without_logged_forces"]
+def _scale_extended(ident, inner, value: float, key: str) -> tuple[float, float]:
+    """Sets ``ident``'s extended-model results in physical units from ``inner``'s per-unit ones
+    (every extended term carries the gain: none is a pure length), ``key`` held at ``value``;
+    returns the forward gain and its standard error (N)."""
+    from .extended_oe import ExtendedOEResult  # local: only the extended scaling reads it
+
+    cand = inner.final_
+    fitted = cand.fitted
+    if isinstance(fitted, ExtendedOEResult):
+        names, cov = list(fitted.names), fitted.cov
+    else:   # equation error: independent standard errors
+        names = list(EXTENDED_PARAM_NAMES)
+        cov = np.diag([fitted.stderr[k] ** 2 for k in names])
+    theta, cov_p, names_p, g, g_se = scale_results(cand.theta, cov, names, {key: value}, key,
+                                                   EXTENDED_PARAM_NAMES, ())
+    se = np.sqrt(np.maximum(np.diag(cov_p), 0.0))
+    stderr = {k: 0.0 for k in EXTENDED_PARAM_NAMES}
+    stderr.update({k: float(x) for k, x in zip(names_p, se) if k in stderr})
+    if isinstance(fitted, ExtendedOEResult):
+        fitted = replace(fitted, theta=theta, cov=cov_p, names=list(names_p), stderr=stderr)
+    else:
+        fitted = replace(fitted, theta=theta, stderr=stderr)
+    ident._set_ext_result(replace(cand, theta=theta, fitted=fitted), inner.runs_)
+    return g, g_se
+
+
+__all__ = ["ThrustScale", "command_unit_vessel", "fit_in_command_units", "profile_ratio", "profile_ratio_ext",
+           "reverse_ratio", "scale_fix", "scale_results", "thrust_scale_known", "with_ratio", "without_logged_forces"]
