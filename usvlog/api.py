@@ -53,8 +53,9 @@ def _say(progress: Progress, msg: str) -> None:
         progress(msg)
 
 
-def _read(log, progress: Progress = None):
-    """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded.
+def _read(log, progress: Progress = None, topics=None):
+    """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded
+    (only the channels ``topics`` when given).
 
     A damaged file loads with what could be recovered; then its one-line damage report
     ("input damaged: ...") goes to ``progress`` and into the log's provenance, so every
@@ -63,7 +64,7 @@ def _read(log, progress: Progress = None):
     if _is_path(log):
         from .io.mcap import read_log  # heavy: imported only when a log is read
 
-        log = read_log(log)
+        log = read_log(log, topics=topics)
         if log.recovery is not None:
             note = log.recovery.one_line()
             _say(progress, f"{log.source}: {note}")
@@ -614,6 +615,7 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         ``reasons`` the reasons.
     """
     from .identify import Identifier  # heavy: numpy, scipy, numba kernels
+    from .identify.data import INPUT_TOPICS  # heavy: with the Identifier
     from .io.atomic import check_output, write_text_atomic
 
     if out is not None:
@@ -627,8 +629,11 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
                      max_current_mps=max_current_mps, model=model)
     ves = _vessel_file(vessel)
-    runs = [_read(x, progress) for x in (logs if isinstance(logs, (list, tuple)) else [logs])]
-    val_log = _read(validate, progress) if validate is not None else None
+    # the channels the fit reads; every channel only for the first log when a copy of it is written
+    topics = list(INPUT_TOPICS)
+    runs = [_read(x, progress, None if out_log is not None and i == 0 else topics)
+            for i, x in enumerate(logs if isinstance(logs, (list, tuple)) else [logs])]
+    val_log = _read(validate, progress, topics) if validate is not None else None
     if gnss_delay_s is not None:
         from .estimate.latency import with_delays  # heavy: numpy
 

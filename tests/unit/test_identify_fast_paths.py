@@ -1,5 +1,6 @@
 """The output-error fit's shortcuts against the long way: the compressed least-squares problem
-(linear algebra identities) and the coarse thrust grid (the full-rate simulation)."""
+(linear algebra identities), the coarse thrust grid (the full-rate simulation), and the
+smoother and surge lag computed without scipy.signal (scipy.signal itself)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import numpy as np
 
 from usvlog.identify.data import run_data
 from usvlog.identify.output import Problem, compress_lsq, simulate_run
+from usvlog.identify.smooth import savgol_filter
+from usvlog.identify.surge import _lag
 from usvlog.model.vessel import VesselParams
 from usvlog.sim.simulate import SimSettings, simulate
 
@@ -41,3 +44,23 @@ def test_coarse_thrust_grid_follows_the_full_rate_simulation():
     assert np.abs(coarse[:, :2] - fine[:, :2]).max() < 5e-3
     assert np.abs(coarse[:, 2] - fine[:, 2]).max() < 2e-4
     assert np.abs(fine[:, :2]).max() > 20.0             # the boat did move
+
+
+def test_savgol_and_lag_are_scipy_signals_bit_for_bit():
+    from scipy.signal import lfilter
+    from scipy.signal import savgol_filter as scipy_savgol
+
+    rng = np.random.default_rng(5)
+    x1 = np.cumsum(rng.normal(size=1001))
+    x2 = np.cumsum(rng.normal(size=(801, 3)), axis=0)
+    for window, order, deriv, delta in ((21, 3, 0, 1.0), (21, 3, 1, 0.1), (160, 3, 1, 0.1), (7, 2, 2, 0.5),
+                                        (5, 3, 4, 1.0)):
+        assert np.array_equal(savgol_filter(x1, window, order, deriv=deriv, delta=delta),
+                              scipy_savgol(x1, window, order, deriv=deriv, delta=delta, mode="interp"))
+        for axis in (0, 1):
+            xa = x2 if axis == 0 else x2.T.copy()
+            assert np.array_equal(savgol_filter(xa, window, order, deriv=deriv, delta=delta, axis=axis),
+                                  scipy_savgol(xa, window, order, deriv=deriv, delta=delta, axis=axis, mode="interp"))
+    f = rng.normal(size=5000)
+    for a in (0.0, 0.3, 0.999):
+        assert np.array_equal(_lag(f, a), lfilter([0.0, 1.0], [1.0, -a], f))

@@ -15,12 +15,20 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import ConfigError, InputError
+from ..estimate.core import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
 from ..estimate.latency import stored_delays
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
+
+INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
+"""The channels an identification reads: the thrust, and the sensors the kinematic smoother
+(:func:`usvlog.estimate.estimate`) fuses. A verb that writes no copy of the log loads only
+these (:func:`usvlog.io.mcap.read_log` ``topics=``): the derived channels of an estimate
+(``/estimate/state``, ``/estimate/innovations``) or a simulation (``/truth/state``) are
+never looked at and were most of the file's decoding."""
 DEFAULT_COMPASS_SIGMA_RAD = math.radians(2.0)
 
 

@@ -8,10 +8,12 @@ over-ground motion: positions, heading, ground velocity in NED and yaw rate.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.linalg import lstsq
+from scipy.ndimage import convolve1d
 
 from ..estimate import EstimateSettings, estimate
 from ..model.frames import ssa
@@ -81,6 +83,89 @@ class KinStates:
                          ve=self.ve[k], r=self.r[k], source=self.source)
 
 
+def _savgol_coeffs(window: int, polyorder: int, deriv: int, delta: float) -> np.ndarray:
+    """Convolution coefficients of the centred local polynomial fit (scipy's ``savgol_coeffs``)."""
+    if deriv > polyorder:
+        return np.zeros(window)
+    half, rem = divmod(window, 2)
+    pos = half if rem else half - 0.5
+    x = np.arange(-pos, window - pos, dtype=np.float64)[::-1]
+    A = x ** np.arange(polyorder + 1, dtype=np.float64).reshape(-1, 1)
+    y = np.zeros(polyorder + 1)
+    y[deriv] = float(math.factorial(deriv)) / (delta ** deriv)
+    return lstsq(A, y, cond=np.finfo(np.float64).eps * max(A.shape))[0]
+
+
+def _polyfit(x: np.ndarray, y: np.ndarray, deg: int) -> np.ndarray:
+    """Least-squares polynomial coefficients, highest power first, one column per column of y."""
+    lhs = x[:, None] ** np.arange(deg + 1, dtype=x.dtype)[::-1][None, :]
+    scale = np.sqrt(np.sum(lhs * lhs, axis=0))
+    lhs /= scale
+    c = lstsq(lhs, y, cond=x.shape[0] * np.finfo(x.dtype).eps)[0]
+    return (c.T / scale).T
+
+
+def _fit_edge(x, lo: int, hi: int, i_lo: int, i_hi: int, axis: int, polyorder: int, deriv: int,
+              delta: float, y: np.ndarray) -> None:
+    """Samples ``i_lo:i_hi`` of ``y`` from one polynomial fitted to samples ``lo:hi`` of ``x``."""
+    edge = np.swapaxes(x, axis, 0)[lo:hi]
+    p = _polyfit(np.arange(0, hi - lo, dtype=x.dtype), edge.reshape(edge.shape[0], -1), polyorder)
+    if deriv > 0:
+        n = p.shape[0]
+        if n <= deriv:
+            p = np.zeros_like(p[:1])
+        else:
+            p = p[:-deriv].copy()
+            for k in range(deriv):
+                p *= np.arange(n - k - 1, deriv - k - 1, -1, dtype=p.dtype).reshape((n - deriv,) + (1,) * (p.ndim - 1))
+    i = np.arange(i_lo - lo, i_hi - lo, dtype=p.dtype).reshape(-1, 1)
+    v = np.zeros_like(i)
+    for j in range(p.shape[0]):   # Horner, as numpy's polyval
+        v = v * i + p[j]
+    shp = list(np.swapaxes(y, axis, 0).shape)
+    np.swapaxes(y, axis, 0)[i_lo:i_hi] = (v / (delta ** deriv)).reshape(i_hi - i_lo, *shp[1:])
+
+
+def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0,
+                  axis: int = -1) -> np.ndarray:
+    """Savitzky-Golay filter with polynomial edges: ``scipy.signal.savgol_filter(...,
+    mode="interp")`` computed the same way, operation for operation (the same values, bit
+    for bit), without importing ``scipy.signal`` (about 0.5 s of start-up, with the
+    ``scipy.stats`` it loads) for the one function identification uses.
+
+    Parameters
+    ----------
+    x : array_like
+        The samples (on a uniform grid).
+    window_length : int
+        Samples in each local fit (at most ``x``'s length along ``axis``).
+    polyorder : int
+        Degree of the local polynomial.
+    deriv : int
+        Derivative order (0: the smoothed values).
+    delta : float
+        Sample spacing (the derivative's time unit, e.g. s).
+    axis : int
+        The axis along which to filter.
+
+    Returns
+    -------
+    numpy.ndarray
+        The filtered samples (float64, or float32 for float32 input), the shape of ``x``.
+    """
+    x = np.asarray(x)
+    if x.dtype != np.float64 and x.dtype != np.float32:
+        x = x.astype(np.float64)
+    n = x.shape[axis]
+    if window_length > n:
+        raise ValueError("If mode is 'interp', window_length must be less than or equal to the size of x.")
+    y = convolve1d(x, _savgol_coeffs(window_length, polyorder, deriv, delta), axis=axis, mode="constant")
+    half = window_length // 2
+    _fit_edge(x, 0, window_length, 0, half, axis, polyorder, deriv, delta, y)
+    _fit_edge(x, n - window_length, n, n - half, n, axis, polyorder, deriv, delta, y)
+    return y
+
+
 def _odd(n):
     n = max(int(n), 5)
     return n if n % 2 else n + 1
@@ -96,7 +181,7 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
     psi = np.interp(t, run.t_compass, np.unwrap(run.psi_compass))
     wp, wh = _odd(pos_window_s / GRID_DT), _odd(psi_window_s / GRID_DT)
     wp, wh = min(wp, _odd(len(t) - 2)), min(wh, _odd(len(t) - 2))
-    kw = dict(polyorder=3, mode="interp")
+    kw = dict(polyorder=3)
     return KinStates(t=t, n=savgol_filter(n, wp, **kw), e=savgol_filter(e, wp, **kw),
                      psi=savgol_filter(psi, wh, **kw),
                      vn=savgol_filter(n, wp, deriv=1, delta=GRID_DT, **kw),
@@ -129,14 +214,14 @@ def derivative(t, y, window_s=2.0):
     """Smoothed time derivative on a uniform grid (Savitzky-Golay, cubic)."""
     dt = float(np.median(np.diff(t)))
     w = min(_odd(window_s / dt), _odd(len(t) - 2))
-    return savgol_filter(y, w, polyorder=3, deriv=1, delta=dt, axis=0, mode="interp")
+    return savgol_filter(y, w, polyorder=3, deriv=1, delta=dt, axis=0)
 
 
 def smooth_like(t, y, window_s=2.0):
     """The same local cubic smoothing without the derivative (to treat thrust like the states)."""
     dt = float(np.median(np.diff(t)))
     w = min(_odd(window_s / dt), _odd(len(t) - 2))
-    return savgol_filter(y, w, polyorder=3, axis=0, mode="interp")
+    return savgol_filter(y, w, polyorder=3, axis=0)
 
 
 def thrust_on_grid(run: RunData, t):
@@ -155,5 +240,5 @@ def thrust_on_grid(run: RunData, t):
     return out[0], out[1]
 
 
-__all__ = ["KinStates", "kinematic_states", "savgol_states", "derivative", "smooth_like",
+__all__ = ["KinStates", "kinematic_states", "savgol_states", "savgol_filter", "derivative", "smooth_like",
            "thrust_on_grid", "ssa"]

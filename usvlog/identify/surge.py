@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import lfilter
 
+from .._jit import njit
 from .data import RunData
 from .smooth import KinStates, thrust_on_grid
 
@@ -54,12 +54,24 @@ class SurgeFit:
     rms_m: float
 
 
+@njit
+def _lag(f, a):
+    """y[0] = 0, y[k+1] = a y[k] + f[k]: the first-order recursion ``scipy.signal.lfilter([0, 1],
+    [1, -a], f)`` computes (the same values), without importing ``scipy.signal``."""
+    y = np.empty_like(f)
+    acc = 0.0
+    for k in range(len(f)):
+        y[k] = acc
+        acc = f[k] + a * acc
+    return y
+
+
 def _surge_sim(p_m: float, p_d: float, tau, w, u0: float, dt: float) -> np.ndarray:
     """u on the grid: exact discretisation of m u_dot + d11 u = tau + m w, inputs held per step."""
     b = p_d / p_m
     a = np.exp(-b * dt)
     f = (1 - a) * (tau / p_d + w / b)
-    y = lfilter([0.0, 1.0], [1.0, -a], f)
+    y = _lag(np.ascontiguousarray(f, dtype=np.float64), float(a))
     return y + u0 * a ** np.arange(len(f))
 
 

@@ -140,7 +140,7 @@ def thrust_scale_known(log: FieldLog, vessel: Vessel) -> bool:
         is no map (``identity``) and no logged forces; True otherwise.
     """
     fr = log["/thrust/command"]
-    units = set(fr["unit"].astype(str)) if "unit" in fr else {"newton"}
+    units = set(fr["unit"].astype(str).unique()) if "unit" in fr else {"newton"}
     if units <= {"newton"}:
         return True
     if (health_from_provenance(log.provenance) or {}).get("thrust", {}).get("force_scale") == "unknown":
