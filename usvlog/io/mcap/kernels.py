@@ -315,9 +315,15 @@ def _eisel_lemire(man, q, neg, pow10):
     return sign | (_U(ret_exp2) << _U(52)) | (mant & _U(0x000FFFFFFFFFFFFF)), True
 
 
+_CLINGER_MAX_MAN = np.uint64(1 << 53)   # integers up to this are exact doubles
+_CLINGER_MAX_EXP = 22                   # 10**22 is the largest exact power of ten
+_EXACT_POW10 = np.array([10.0 ** k for k in range(_CLINGER_MAX_EXP + 1)])
+
+
 @njit
 def _decimal_bits(buf, p, q, pow10):
-    """A JSON number's text buf[p:q] (already checked) -> (double bits, decided)."""
+    """A JSON number's text buf[p:q] (already checked) -> (double bits, decided, the
+    double itself, whether it is given as the double rather than as its bits)."""
     neg = buf[p] == CH_MINUS
     if neg:
         p += 1
@@ -335,7 +341,7 @@ def _decimal_bits(buf, p, q, pow10):
                     exp10 -= 1
             else:
                 if nd == MAX_EXACT_DIGITS:
-                    return _U(0), False
+                    return _U(0), False, 0.0, False
                 man = man * _U(10) + _U(c - CH_0)
                 nd += 1
                 if seen_point:
@@ -355,7 +361,13 @@ def _decimal_bits(buf, p, q, pow10):
                 e = e * 10 + np.int64(buf[p] - CH_0)
             p += 1
         exp10 += -e if eneg else e
-    return _eisel_lemire(man, exp10, neg, pow10)
+    if man <= _CLINGER_MAX_MAN and -_CLINGER_MAX_EXP <= exp10 <= _CLINGER_MAX_EXP and man != _U(0):
+        # Clinger's fast path: man and 10**|exp10| are exact doubles, so one IEEE
+        # multiplication or division rounds correctly
+        v = np.float64(man) * _EXACT_POW10[exp10] if exp10 >= 0 else np.float64(man) / _EXACT_POW10[-exp10]
+        return _U(0), True, -v if neg else v, True
+    bits, ok = _eisel_lemire(man, exp10, neg, pow10)
+    return bits, ok, 0.0, False
 
 
 _TRUE = np.frombuffer(b"true", np.uint8).copy()
@@ -389,6 +401,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
     sve = np.zeros((n, ns), np.int64)
     same = np.zeros((n, ns), np.bool_)
     fbits = np.zeros((n, nf), np.uint64)
+    fvals = fbits.view(np.float64)
     fund = np.zeros((n, nf), np.bool_)
     cap = 0
     if want_text:
@@ -478,9 +491,12 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
                             fp += 1
                     foff[i * nf + f + 1] = fp
                 elif kind == K_FLOAT or kind == K_INT_BIG or (kind == K_INT and ival != 0):
-                    bits, ok = _decimal_bits(buf, v0, p, pow10)
-                    fbits[i, f] = bits
-                    fund[i, f] = not ok
+                    bits, ok, v, as_double = _decimal_bits(buf, v0, p, pow10)
+                    if as_double:
+                        fvals[i, f] = v
+                    else:
+                        fbits[i, f] = bits
+                        fund[i, f] = not ok
             f = icol[k]
             if f >= 0:
                 iv[i, f] = ival
