@@ -165,38 +165,67 @@ CH_CONTROL_END = 0x20                                     # bytes below are not 
 MAX_EXACT_DIGITS = 19                                     # decimal digits that always fit a uint64
 
 @njit
-def _digits(buf, q, end):
-    while q < end and CH_0 <= buf[q] <= CH_9:
-        q += 1
-    return q
-
-
-@njit
-def _scan_number(buf, p, end):
-    """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
+def _number(buf, p, end):
+    """One pass over the JSON number at p: (its end, or -1 if malformed; whether it is an
+    integer; whether it is negative; the decimal mantissa of its significant digits; the
+    decimal exponent; whether the mantissa holds them all (at most 19, leading zeros not
+    counted)). The number's value is mantissa * 10**exponent."""
     q = p
+    neg = False
     if q < end and buf[q] == CH_MINUS:
+        neg = True
         q += 1
     if q >= end or not CH_0 <= buf[q] <= CH_9:
-        return -1, False
-    q = q + 1 if buf[q] == CH_0 else _digits(buf, q, end)  # no leading zeros
+        return -1, False, neg, _U(0), 0, False
+    man = _U(0)
+    nd = 0          # significant digits taken
+    exact = True
+    exp10 = 0
+    if buf[q] == CH_0:  # no leading zeros
+        q += 1
+    else:
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            if nd == MAX_EXACT_DIGITS:
+                exact = False
+            else:
+                man = man * _U(10) + _U(buf[q] - CH_0)
+                nd += 1
+            q += 1
     is_int = True
     if q < end and buf[q] == CH_DOT:
         is_int = False
-        d0 = q + 1
-        q = _digits(buf, d0, end)
+        q += 1
+        d0 = q
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            c = buf[q]
+            if nd == 0 and c == CH_0:
+                exp10 -= 1
+            elif nd == MAX_EXACT_DIGITS:
+                exact = False
+            else:
+                man = man * _U(10) + _U(c - CH_0)
+                nd += 1
+                exp10 -= 1
+            q += 1
         if q == d0:
-            return -1, False
+            return -1, False, neg, _U(0), 0, False
     if q < end and (buf[q] == CH_E or buf[q] == CH_E_UPPER):
         is_int = False
         q += 1
+        eneg = False
         if q < end and (buf[q] == CH_PLUS or buf[q] == CH_MINUS):
+            eneg = buf[q] == CH_MINUS
             q += 1
         d0 = q
-        q = _digits(buf, d0, end)
+        e = 0
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            if e < 100000:
+                e = e * 10 + np.int64(buf[q] - CH_0)
+            q += 1
         if q == d0:
-            return -1, False
-    return q, is_int
+            return -1, False, neg, _U(0), 0, False
+        exp10 += -e if eneg else e
+    return q, is_int, neg, man, exp10, exact
 
 
 @njit
@@ -321,46 +350,9 @@ _EXACT_POW10 = np.array([10.0 ** k for k in range(_CLINGER_MAX_EXP + 1)])
 
 
 @njit
-def _decimal_bits(buf, p, q, pow10):
-    """A JSON number's text buf[p:q] (already checked) -> (double bits, decided, the
-    double itself, whether it is given as the double rather than as its bits)."""
-    neg = buf[p] == CH_MINUS
-    if neg:
-        p += 1
-    man = _U(0)
-    nd = 0          # significant digits taken
-    exp10 = 0
-    seen_point = False
-    while p < q:
-        c = buf[p]
-        if c == CH_DOT:
-            seen_point = True
-        elif CH_0 <= c <= CH_9:
-            if nd == 0 and c == CH_0:
-                if seen_point:
-                    exp10 -= 1
-            else:
-                if nd == MAX_EXACT_DIGITS:
-                    return _U(0), False, 0.0, False
-                man = man * _U(10) + _U(c - CH_0)
-                nd += 1
-                if seen_point:
-                    exp10 -= 1
-        else:
-            break  # e or E
-        p += 1
-    if p < q:
-        p += 1
-        eneg = False
-        if buf[p] == CH_PLUS or buf[p] == CH_MINUS:
-            eneg = buf[p] == CH_MINUS
-            p += 1
-        e = 0
-        while p < q:
-            if e < 100000:
-                e = e * 10 + np.int64(buf[p] - CH_0)
-            p += 1
-        exp10 += -e if eneg else e
+def _to_double(man, exp10, neg, pow10):
+    """The double nearest (-1)**neg * man * 10**exp10 -> (its bits, decided, the double
+    itself, whether it is given as the double rather than as its bits)."""
     if man <= _CLINGER_MAX_MAN and -_CLINGER_MAX_EXP <= exp10 <= _CLINGER_MAX_EXP and man != _U(0):
         # Clinger's fast path: man and 10**|exp10| are exact doubles, so one IEEE
         # multiplication or division rounds correctly
@@ -429,6 +421,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
             c = buf[p]
             v0 = p
             ival = np.int64(0)
+            man, exp10, neg, exact = _U(0), 0, False, False   # a number's decimal digits (_number)
             if c == CH_QUOTE:
                 q = p + 1
                 kind = K_STR
@@ -461,20 +454,14 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
                 p += len(w_null)
                 kind = K_NULL
             else:
-                q, is_int = _scan_number(buf, p, end)
+                q, is_int, neg, man, exp10, exact = _number(buf, p, end)
                 if q < 0:
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 if is_int:
-                    neg = buf[p] == CH_MINUS
-                    d0 = p + 1 if neg else p
                     kind = K_INT_BIG
-                    if q - d0 <= MAX_EXACT_DIGITS:
-                        u = np.uint64(0)
-                        for j in range(d0, q):
-                            u = u * np.uint64(10) + np.uint64(buf[j] - CH_0)
-                        if u <= np.uint64(9223372036854775807):
-                            ival = -np.int64(u) if neg else np.int64(u)
-                            kind = K_INT
+                    if exact and man <= np.uint64(9223372036854775807):
+                        ival = -np.int64(man) if neg else np.int64(man)
+                        kind = K_INT
                 else:
                     kind = K_FLOAT
                 p = q
@@ -491,7 +478,10 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
                             fp += 1
                     foff[i * nf + f + 1] = fp
                 elif kind == K_FLOAT or kind == K_INT_BIG or (kind == K_INT and ival != 0):
-                    bits, ok, v, as_double = _decimal_bits(buf, v0, p, pow10)
+                    if exact:
+                        bits, ok, v, as_double = _to_double(man, exp10, neg, pow10)
+                    else:
+                        bits, ok, v, as_double = _U(0), False, 0.0, False
                     if as_double:
                         fvals[i, f] = v
                     else:
