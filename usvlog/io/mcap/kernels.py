@@ -42,16 +42,9 @@ def _u32(buf, p):
 
 
 @njit
-def walk_records(buf, start, end, top_level):
-    """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
-
-    Stops before the first record that does not fit (``complete`` False), or, at top
-    level, after a Data End or Footer record (``complete`` True).
-    """
-    cap = max(1024, (end - start) // 64)
-    ops = np.empty(cap, np.uint8)
-    offs = np.empty(cap, np.int64)
-    lens = np.empty(cap, np.int64)
+def _walk_headers(buf, start, end, top_level, ops, offs, lens, store):
+    """The loop of :func:`walk_records`: (records, stop offset, complete), the records'
+    fields stored in ops/offs/lens when ``store``."""
     n = 0
     off = start
     complete = False
@@ -61,18 +54,10 @@ def walk_records(buf, start, end, top_level):
         if length > np.uint64(end - off - REC_HEADER):
             break
         nxt = off + REC_HEADER + np.int64(length)
-        if n == cap:
-            cap *= 2
-            ops2 = np.empty(cap, np.uint8)
-            offs2 = np.empty(cap, np.int64)
-            lens2 = np.empty(cap, np.int64)
-            ops2[:n] = ops[:n]
-            offs2[:n] = offs[:n]
-            lens2[:n] = lens[:n]
-            ops, offs, lens = ops2, offs2, lens2
-        ops[n] = op
-        offs[n] = off
-        lens[n] = nxt - off - REC_HEADER
+        if store:
+            ops[n] = op
+            offs[n] = off
+            lens[n] = nxt - off - REC_HEADER
         n += 1
         off = nxt
         if top_level and (op == OP_FOOTER or op == OP_DATA_END):
@@ -80,7 +65,26 @@ def walk_records(buf, start, end, top_level):
             break
     if off == end and not top_level:
         complete = True
-    return ops[:n], offs[:n], lens[:n], off, complete
+    return n, off, complete
+
+
+@njit
+def walk_records(buf, start, end, top_level):
+    """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
+
+    Stops before the first record that does not fit (``complete`` False), or, at top
+    level, after a Data End or Footer record (``complete`` True). Two passes over the
+    record headers, counting then filling arrays of the exact size: cheaper than
+    growing arrays as the walk goes (numba counts references on every rebinding).
+    """
+    none8 = np.empty(0, np.uint8)
+    none64 = np.empty(0, np.int64)
+    n, _stop, _complete = _walk_headers(buf, start, end, top_level, none8, none64, none64, False)
+    ops = np.empty(n, np.uint8)
+    offs = np.empty(n, np.int64)
+    lens = np.empty(n, np.int64)
+    n, off, complete = _walk_headers(buf, start, end, top_level, ops, offs, lens, True)
+    return ops, offs, lens, off, complete
 
 
 @njit
