@@ -423,6 +423,11 @@ def test_random_numbers_parse_exactly():
               "4.9406564584124654e-324", "1.7976931348623157e308", "0.1", "1E-5", "123456789012345678901",
               "1.00000000000000011102230246251565404236316680908203125", "7.4109846876186982e-323",
               "-0.000000000000000000000000000000000000000000001", "1e-342", "1e-343", "9e307"]
+    # short mantissas with small exponents (one exact multiplication or division)
+    mans, exps = rng.integers(-2**54, 2**54, 3000).tolist(), rng.integers(-25, 26, 3000).tolist()
+    texts += [f"{m}e{q}" for m, q in zip(mans, exps)]
+    texts += [f"{m / 1000}" for m in rng.integers(-10**6, 10**6, 1000).tolist()]
+    texts += ["-0.0", "-0e3", "0.000", "9007199254740992e22"]
     msgs = [b'{"x":' + t.encode() + b"}" for t in texts]
     want = np.array([float(t) for t in texts])
     got = codec.decode(msgs)["x"]

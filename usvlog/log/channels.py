@@ -199,7 +199,7 @@ def empty_frame(topic: str) -> pd.DataFrame:
 
 
 def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
-                       spec: ChannelSpec | None = None) -> pd.DataFrame:
+                       spec: ChannelSpec | None = None, *, copy: bool = True) -> pd.DataFrame:
     """Build a canonical frame.
 
     Parameters
@@ -211,6 +211,9 @@ def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
     spec : ChannelSpec, optional
         The channel's columns (:func:`channel_spec`): the frame has exactly these, in
         schema order. Without it, the columns of ``cols`` in their order.
+    copy : bool, default True
+        False: the frame takes the arrays as they are (a column per block, no copy into
+        one 2-D block), for a caller that does not touch them again (a reader's fresh arrays).
 
     Returns
     -------
@@ -225,4 +228,4 @@ def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
             data[c] = pd.array(a, dtype="str")
         else:
             data[c] = a
-    return pd.DataFrame(data, index=idx)
+    return pd.DataFrame(data, index=idx, copy=None if copy else False)

@@ -578,12 +578,25 @@ def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
     return out
 
 
+_SHORT_STRING = 64   # spans up to this long (bytes) are grouped by content before decoding
+
+
 def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
-    """String values (spans with quotes); each run of equal strings is decoded once."""
+    """String values (spans with quotes); each distinct string is decoded once."""
     if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
         raise _Mismatch
     firsts = np.flatnonzero(~same)
     labels = np.cumsum(~same) - 1
+    lens = ve[firsts] - vs[firsts]
+    if len(firsts) > 1 and lens.max() <= _SHORT_STRING:
+        # the runs' spans as zero-padded rows (a span holds no zero byte: JSON strings
+        # have no raw control characters), grouped by content: one decode per distinct string
+        width = int(lens.max())
+        at = vs[firsts, None] + np.arange(width)
+        rows = np.where(at < ve[firsts, None], buf[np.minimum(at, len(buf) - 1)], 0).astype(np.uint8)
+        _, first_of, inverse = np.unique(rows.view(f"V{width}").ravel(), return_index=True, return_inverse=True)
+        labels = inverse.ravel()[labels]
+        firsts = firsts[first_of]
     vals = []
     try:
         for i in firsts.tolist():

@@ -42,16 +42,9 @@ def _u32(buf, p):
 
 
 @njit
-def walk_records(buf, start, end, top_level):
-    """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
-
-    Stops before the first record that does not fit (``complete`` False), or, at top
-    level, after a Data End or Footer record (``complete`` True).
-    """
-    cap = max(1024, (end - start) // 64)
-    ops = np.empty(cap, np.uint8)
-    offs = np.empty(cap, np.int64)
-    lens = np.empty(cap, np.int64)
+def _walk_headers(buf, start, end, top_level, ops, offs, lens, store):
+    """The loop of :func:`walk_records`: (records, stop offset, complete), the records'
+    fields stored in ops/offs/lens when ``store``."""
     n = 0
     off = start
     complete = False
@@ -61,18 +54,10 @@ def walk_records(buf, start, end, top_level):
         if length > np.uint64(end - off - REC_HEADER):
             break
         nxt = off + REC_HEADER + np.int64(length)
-        if n == cap:
-            cap *= 2
-            ops2 = np.empty(cap, np.uint8)
-            offs2 = np.empty(cap, np.int64)
-            lens2 = np.empty(cap, np.int64)
-            ops2[:n] = ops[:n]
-            offs2[:n] = offs[:n]
-            lens2[:n] = lens[:n]
-            ops, offs, lens = ops2, offs2, lens2
-        ops[n] = op
-        offs[n] = off
-        lens[n] = nxt - off - REC_HEADER
+        if store:
+            ops[n] = op
+            offs[n] = off
+            lens[n] = nxt - off - REC_HEADER
         n += 1
         off = nxt
         if top_level and (op == OP_FOOTER or op == OP_DATA_END):
@@ -80,7 +65,26 @@ def walk_records(buf, start, end, top_level):
             break
     if off == end and not top_level:
         complete = True
-    return ops[:n], offs[:n], lens[:n], off, complete
+    return n, off, complete
+
+
+@njit
+def walk_records(buf, start, end, top_level):
+    """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
+
+    Stops before the first record that does not fit (``complete`` False), or, at top
+    level, after a Data End or Footer record (``complete`` True). Two passes over the
+    record headers, counting then filling arrays of the exact size: cheaper than
+    growing arrays as the walk goes (numba counts references on every rebinding).
+    """
+    none8 = np.empty(0, np.uint8)
+    none64 = np.empty(0, np.int64)
+    n, _stop, _complete = _walk_headers(buf, start, end, top_level, none8, none64, none64, False)
+    ops = np.empty(n, np.uint8)
+    offs = np.empty(n, np.int64)
+    lens = np.empty(n, np.int64)
+    n, off, complete = _walk_headers(buf, start, end, top_level, ops, offs, lens, True)
+    return ops, offs, lens, off, complete
 
 
 @njit
@@ -165,38 +169,67 @@ CH_CONTROL_END = 0x20                                     # bytes below are not 
 MAX_EXACT_DIGITS = 19                                     # decimal digits that always fit a uint64
 
 @njit
-def _digits(buf, q, end):
-    while q < end and CH_0 <= buf[q] <= CH_9:
-        q += 1
-    return q
-
-
-@njit
-def _scan_number(buf, p, end):
-    """End of a JSON number at p (or -1 if malformed), and whether it is an integer."""
+def _number(buf, p, end):
+    """One pass over the JSON number at p: (its end, or -1 if malformed; whether it is an
+    integer; whether it is negative; the decimal mantissa of its significant digits; the
+    decimal exponent; whether the mantissa holds them all (at most 19, leading zeros not
+    counted)). The number's value is mantissa * 10**exponent."""
     q = p
+    neg = False
     if q < end and buf[q] == CH_MINUS:
+        neg = True
         q += 1
     if q >= end or not CH_0 <= buf[q] <= CH_9:
-        return -1, False
-    q = q + 1 if buf[q] == CH_0 else _digits(buf, q, end)  # no leading zeros
+        return -1, False, neg, _U(0), 0, False
+    man = _U(0)
+    nd = 0          # significant digits taken
+    exact = True
+    exp10 = 0
+    if buf[q] == CH_0:  # no leading zeros
+        q += 1
+    else:
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            if nd == MAX_EXACT_DIGITS:
+                exact = False
+            else:
+                man = man * _U(10) + _U(buf[q] - CH_0)
+                nd += 1
+            q += 1
     is_int = True
     if q < end and buf[q] == CH_DOT:
         is_int = False
-        d0 = q + 1
-        q = _digits(buf, d0, end)
+        q += 1
+        d0 = q
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            c = buf[q]
+            if nd == 0 and c == CH_0:
+                exp10 -= 1
+            elif nd == MAX_EXACT_DIGITS:
+                exact = False
+            else:
+                man = man * _U(10) + _U(c - CH_0)
+                nd += 1
+                exp10 -= 1
+            q += 1
         if q == d0:
-            return -1, False
+            return -1, False, neg, _U(0), 0, False
     if q < end and (buf[q] == CH_E or buf[q] == CH_E_UPPER):
         is_int = False
         q += 1
+        eneg = False
         if q < end and (buf[q] == CH_PLUS or buf[q] == CH_MINUS):
+            eneg = buf[q] == CH_MINUS
             q += 1
         d0 = q
-        q = _digits(buf, d0, end)
+        e = 0
+        while q < end and CH_0 <= buf[q] <= CH_9:
+            if e < 100000:
+                e = e * 10 + np.int64(buf[q] - CH_0)
+            q += 1
         if q == d0:
-            return -1, False
-    return q, is_int
+            return -1, False, neg, _U(0), 0, False
+        exp10 += -e if eneg else e
+    return q, is_int, neg, man, exp10, exact
 
 
 @njit
@@ -315,47 +348,22 @@ def _eisel_lemire(man, q, neg, pow10):
     return sign | (_U(ret_exp2) << _U(52)) | (mant & _U(0x000FFFFFFFFFFFFF)), True
 
 
+_CLINGER_MAX_MAN = np.uint64(1 << 53)   # integers up to this are exact doubles
+_CLINGER_MAX_EXP = 22                   # 10**22 is the largest exact power of ten
+_EXACT_POW10 = np.array([10.0 ** k for k in range(_CLINGER_MAX_EXP + 1)])
+
+
 @njit
-def _decimal_bits(buf, p, q, pow10):
-    """A JSON number's text buf[p:q] (already checked) -> (double bits, decided)."""
-    neg = buf[p] == CH_MINUS
-    if neg:
-        p += 1
-    man = _U(0)
-    nd = 0          # significant digits taken
-    exp10 = 0
-    seen_point = False
-    while p < q:
-        c = buf[p]
-        if c == CH_DOT:
-            seen_point = True
-        elif CH_0 <= c <= CH_9:
-            if nd == 0 and c == CH_0:
-                if seen_point:
-                    exp10 -= 1
-            else:
-                if nd == MAX_EXACT_DIGITS:
-                    return _U(0), False
-                man = man * _U(10) + _U(c - CH_0)
-                nd += 1
-                if seen_point:
-                    exp10 -= 1
-        else:
-            break  # e or E
-        p += 1
-    if p < q:
-        p += 1
-        eneg = False
-        if buf[p] == CH_PLUS or buf[p] == CH_MINUS:
-            eneg = buf[p] == CH_MINUS
-            p += 1
-        e = 0
-        while p < q:
-            if e < 100000:
-                e = e * 10 + np.int64(buf[p] - CH_0)
-            p += 1
-        exp10 += -e if eneg else e
-    return _eisel_lemire(man, exp10, neg, pow10)
+def _to_double(man, exp10, neg, pow10):
+    """The double nearest (-1)**neg * man * 10**exp10 -> (its bits, decided, the double
+    itself, whether it is given as the double rather than as its bits)."""
+    if man <= _CLINGER_MAX_MAN and -_CLINGER_MAX_EXP <= exp10 <= _CLINGER_MAX_EXP and man != _U(0):
+        # Clinger's fast path: man and 10**|exp10| are exact doubles, so one IEEE
+        # multiplication or division rounds correctly
+        v = np.float64(man) * _EXACT_POW10[exp10] if exp10 >= 0 else np.float64(man) / _EXACT_POW10[-exp10]
+        return _U(0), True, -v if neg else v, True
+    bits, ok = _eisel_lemire(man, exp10, neg, pow10)
+    return bits, ok, 0.0, False
 
 
 _TRUE = np.frombuffer(b"true", np.uint8).copy()
@@ -389,6 +397,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
     sve = np.zeros((n, ns), np.int64)
     same = np.zeros((n, ns), np.bool_)
     fbits = np.zeros((n, nf), np.uint64)
+    fvals = fbits.view(np.float64)
     fund = np.zeros((n, nf), np.bool_)
     cap = 0
     if want_text:
@@ -416,6 +425,7 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
             c = buf[p]
             v0 = p
             ival = np.int64(0)
+            man, exp10, neg, exact = _U(0), 0, False, False   # a number's decimal digits (_number)
             if c == CH_QUOTE:
                 q = p + 1
                 kind = K_STR
@@ -448,20 +458,14 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
                 p += len(w_null)
                 kind = K_NULL
             else:
-                q, is_int = _scan_number(buf, p, end)
+                q, is_int, neg, man, exp10, exact = _number(buf, p, end)
                 if q < 0:
                     return kinds, i, fbits, fund, iv, svs, sve, same, fdata, foff
                 if is_int:
-                    neg = buf[p] == CH_MINUS
-                    d0 = p + 1 if neg else p
                     kind = K_INT_BIG
-                    if q - d0 <= MAX_EXACT_DIGITS:
-                        u = np.uint64(0)
-                        for j in range(d0, q):
-                            u = u * np.uint64(10) + np.uint64(buf[j] - CH_0)
-                        if u <= np.uint64(9223372036854775807):
-                            ival = -np.int64(u) if neg else np.int64(u)
-                            kind = K_INT
+                    if exact and man <= np.uint64(9223372036854775807):
+                        ival = -np.int64(man) if neg else np.int64(man)
+                        kind = K_INT
                 else:
                     kind = K_FLOAT
                 p = q
@@ -478,9 +482,15 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
                             fp += 1
                     foff[i * nf + f + 1] = fp
                 elif kind == K_FLOAT or kind == K_INT_BIG or (kind == K_INT and ival != 0):
-                    bits, ok = _decimal_bits(buf, v0, p, pow10)
-                    fbits[i, f] = bits
-                    fund[i, f] = not ok
+                    if exact:
+                        bits, ok, v, as_double = _to_double(man, exp10, neg, pow10)
+                    else:
+                        bits, ok, v, as_double = _U(0), False, 0.0, False
+                    if as_double:
+                        fvals[i, f] = v
+                    else:
+                        fbits[i, f] = bits
+                        fund[i, f] = not ok
             f = icol[k]
             if f >= 0:
                 iv[i, f] = ival

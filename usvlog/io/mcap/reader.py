@@ -997,7 +997,8 @@ class _ChannelParts:
             a = cat([p[c] for p in self.cols])
             cols[c] = a if order is None else a[order]
         self.cols = []
-        return frame_from_columns(cols, t if order is None else t[order], self.codec.spec), self.n_bad
+        own = len({id(a) for a in cols.values()}) == len(cols)   # fresh arrays, one per column
+        return frame_from_columns(cols, t if order is None else t[order], self.codec.spec, copy=not own), self.n_bad
 
 
 def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
