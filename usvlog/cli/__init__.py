@@ -16,6 +16,7 @@ import threading
 
 from .._version import __version__
 from ..errors import UsvlogError
+from .common import one_blas_thread
 
 VERBS = [
     "simulate",
@@ -147,6 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    one_blas_thread()   # before numpy loads: every verb's linear algebra is small products
     old = _install_signal_handlers()
     try:
         rc = args.func(args)

@@ -32,9 +32,9 @@ def one_blas_thread() -> None:
     """Ask the BLAS numpy loads for one thread, unless the user chose a number (one of
     :data:`BLAS_THREAD_VARS` set) or numpy is loaded already (then it has no effect).
 
-    For verbs whose linear algebra is many small products (a few thousand rows by ~10
-    columns): OpenBLAS's extra threads spin-wait between them, ~25 % of ``identify``'s CPU
-    time on a 1-hour log, for no shorter wall time on 2 cores. Products summed in one
+    Called for every verb (their linear algebra is many small products, a few thousand rows
+    by ~10 columns): OpenBLAS's extra threads spin-wait between them, ~25 % of ``identify``'s
+    CPU time on a 1-hour log, for no shorter wall time on 2 cores. Products summed in one
     thread may round differently in the last bit."""
     import os
 

@@ -7,7 +7,7 @@ import sys
 
 from ..choices import EXT_SCALE_FIX, EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS, PARAM_NAMES
 from ..errors import ConfigError, UnusableResultError
-from .common import one_blas_thread, print_json, stage
+from .common import print_json, stage
 
 
 def register(sub) -> None:
@@ -71,7 +71,6 @@ def parse_fix(items: list[str]) -> dict[str, float]:
 
 
 def run(args) -> int:
-    one_blas_thread()   # before numpy loads: small products, extra BLAS threads only spin
     from .. import api  # heavy: imported only when the verb runs
 
     fix = parse_fix(args.fix)
