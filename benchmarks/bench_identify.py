@@ -3,7 +3,8 @@
 Each figure is the whole ``usvlog.api.identify`` call (the ``usvlog identify`` verb on a log
 already in memory: the fit and the vessel TOML written), CPU seconds of this process and wall
 seconds, with the load average (the machine may be shared: CPU seconds are the figure to
-compare, wall seconds grow with the load). The numba kernels are compiled (or loaded from
+compare, wall seconds grow with the load). BLAS runs in one thread, as the verb runs it (set
+``OPENBLAS_NUM_THREADS`` to choose otherwise). The numba kernels are compiled (or loaded from
 their cache) by a warm-up fit on a 2-minute log first, not counted.
 Output error includes everything it does by default: its candidates fitted on the first 70 %,
 their validation on the last 30 %, and the refit of the chosen one on all the data.
@@ -25,10 +26,14 @@ from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
 
-from usvlog import api
-from usvlog.identify import Identifier
-from usvlog.model.vessel import PARAM_NAMES, VesselParams
-from usvlog.sim.simulate import SimSettings, simulate
+from usvlog.cli.common import one_blas_thread  # noqa: E402  (standard library only)
+
+one_blas_thread()   # before numpy loads, as every usvlog verb does (OPENBLAS_NUM_THREADS set by you wins)
+
+from usvlog import api  # noqa: E402
+from usvlog.identify import Identifier  # noqa: E402
+from usvlog.model.vessel import PARAM_NAMES, VesselParams  # noqa: E402
+from usvlog.sim.simulate import SimSettings, simulate  # noqa: E402
 
 
 def main() -> None:
