@@ -1369,13 +1369,7 @@ class Identifier:
         with np.errstate(over="ignore", invalid="ignore"):
             sim = simulate_run(run, theta, cur, x0, t0, t)
         meas = ks.at(t, cur)
-        sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
-        after = t > t_init
-        fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
-              "r": fit_percent(meas[after, 5], sim[after, 5]),
-              "track": fit_percent(meas[after, :2], sim[after, :2])}
-        return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
-                          current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0))
+        return _validation(t, meas, sim, cur, t0, t_init)
 
     def _validate_ext(self, run: RunData, ks: KinStates, theta, current, t0: float, t_init: float) -> Validation:
         """:meth:`_validate_run` for the extended model: the initial state fitted on [t0, t_init]
@@ -1387,13 +1381,7 @@ class Identifier:
         with np.errstate(over="ignore", invalid="ignore"):
             sim = free_run_full(run, theta, cur, x0, t0, t)
         meas = ks.at(t, tuple(cur))
-        sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
-        after = t > t_init
-        fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
-              "r": fit_percent(meas[after, 5], sim[after, 5]),
-              "track": fit_percent(meas[after, :2], sim[after, :2])}
-        return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
-                          current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0))
+        return _validation(t, meas, sim, cur, t0, t_init)
 
     def fit_frame(self, run_index: int = 0) -> tuple[np.ndarray, dict]:
         """(t_s, columns) of measured vs fitted-model states of a fitted run (``/identify/fit``):
@@ -1526,3 +1514,15 @@ class Identifier:
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"
+
+
+def _validation(t, meas, sim, cur, t0: float, t_init: float) -> Validation:
+    """A free run against the measured states: heading unwrapped onto the measurement, fit %
+    of u, v, r and the track after the initial-state window."""
+    sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
+    after = t > t_init
+    fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
+          "r": fit_percent(meas[after, 5], sim[after, 5]),
+          "track": fit_percent(meas[after, :2], sim[after, :2])}
+    return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
+                      current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0))
