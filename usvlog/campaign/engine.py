@@ -126,9 +126,17 @@ class Runner:
             except (OSError, TimeoutError) as err:
                 raise ConfigError(f"--scheduler {self.scheduler}: cannot connect ({err})") from err
         else:
+            import dask  # heavy: only when tasks run
+
             n = self.workers or default_workers()
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                        silence_logs=logging.ERROR)
+            # Dask starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then returns every
+            # freed block over 64 KB to the system at once, and a run's arrays come back as fresh
+            # pages. Measured on 8 ten-minute runs (2 workers): 10.6-11.4 s of kernel time in the
+            # workers instead of 2.1, tasks 25 % slower. glibc's own adaptive threshold is kept
+            # (read_log hands decoding's heap back itself); a value in the environment still wins.
+            with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                            dashboard_address=":0", silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         c, local = self.client, self.cluster is not None
         self.info = ClusterInfo(scheduler=str(c.scheduler.address), dashboard=_dashboard_note(c.dashboard_link, local),
