@@ -55,15 +55,19 @@ def test_jobs_and_workers_that_disagree_are_refused_before_any_run(tmp_path, cap
         usvlog.regress([tmp_path / "none.toml"], jobs=0)
 
 
-def test_local_workers_keep_glibcs_own_trim_threshold(monkeypatch):
+def test_local_workers_keep_glibcs_own_trim_threshold_and_do_not_profile(monkeypatch):
     """Dask would start the workers with MALLOC_TRIM_THRESHOLD_=65536 (every freed block over
     64 KB back to the system: a run's arrays come back as fresh pages, ~1 s of kernel time per
     ten-minute run); the local cluster is started without it, the rest of Dask's settings kept."""
     import os
+
+    import dask
 
     from usvlog.campaign.engine import Runner
 
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with Runner(workers=1) as run:
         got = run.map(os.getenv, ["MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS"])
+        profiling = run.map(dask.config.get, ["distributed.worker.profile.enabled"])
     assert got == [None, "1"]
+    assert profiling == [False]   # no sampling thread taking the GIL every 10 ms in the workers

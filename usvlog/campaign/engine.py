@@ -134,7 +134,11 @@ class Runner:
             # pages. Measured on 8 ten-minute runs (2 workers): 10.6-11.4 s of kernel time in the
             # workers instead of 2.1, tasks 25 % slower. glibc's own adaptive threshold is kept
             # (read_log hands decoding's heap back itself); a value in the environment still wins.
-            with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+            # The workers' statistical profiler (a thread taking the GIL every 10 ms to walk the
+            # task's stack, for the dashboard's Profile page) is off: the tasks are the
+            # pipeline's stages, profiled by its own benchmarks; the status pages stay.
+            with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                                  "distributed.worker.profile.enabled": False}):
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                             dashboard_address=":0", silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
