@@ -159,3 +159,17 @@ def test_identification_takes_the_stored_delay_off_the_fixes():
     idf = Identifier("output-error").fit([lg])
     err = {k: abs(getattr(idf.params_, k) / getattr(TRUE, k) - 1) for k in PARAM_NAMES}
     assert all(err[k] < TARGET[k] for k in PARAM_NAMES), err
+
+
+def test_gnss_logged_past_the_last_thrust_is_validated_up_to_it():
+    """Fixes stamped 0.2 s late and the delay not given: the smoothed states reach past the
+    last thrust sample. The held-out free run stops with the thrust (it has no input after
+    it) instead of ending in NaN and failing every candidate as "diverged"."""
+    log = simulate("excitation", SimSettings(duration_s=240.0, sensors=SensorSettings(gps_delay_s=0.2)), seed=21)
+    run = run_data(log)
+    assert log["/gnss/fix"].index[-1] - log["/thrust/command"].index[-1] > 0.1e9   # the case: GNSS past the thrust
+    idf = Identifier("equation-error").fit([log])
+    (v,) = idf.validation_ if isinstance(idf.validation_, list) else [idf.validation_]
+    assert not v.diverged and np.isfinite(v.simulated).all()
+    assert v.t[-1] <= run.t_thrust[-1] and v.t[-1] > run.t_thrust[-1] - 0.2
+    assert all(math.isfinite(x) for x in v.fit_percent.values()) and v.fit_percent["track"] > 50, v.fit_percent
