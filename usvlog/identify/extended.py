@@ -271,7 +271,7 @@ def velocity_validation(run: RunData, ks: KinStates, theta, current=(0.0, 0.0), 
         ``u``, ``v``, ``r``: fit % (100 perfect, NaN when the run diverged).
     """
     t0 = max(run.t_thrust[0], ks.t[0]) if t_from is None else t_from
-    t = ks.t[(ks.t >= t0) & (ks.t <= run.t_thrust[-1])]
+    t = ks.free_run_times(t0, run.t_thrust[-1])
     meas = ks.at(t, tuple(current))[:, 3:]
     sim = free_run(run, theta, meas[0], t[0], t)
     if not np.all(np.isfinite(sim)):

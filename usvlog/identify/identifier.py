@@ -1365,7 +1365,7 @@ class Identifier:
             cur = np.clip(cur, -self.max_current_mps, self.max_current_mps)
         else:
             x0, cur = fit_initial_state(run, theta, ks.at(t0), t0, t_init, fit_current=False, current0=current)
-        t = _free_run_times(run, ks, t0)
+        t = ks.free_run_times(t0, run.t_thrust[-1])
         with np.errstate(over="ignore", invalid="ignore"):
             sim = simulate_run(run, theta, cur, x0, t0, t)
         meas = ks.at(t, cur)
@@ -1377,7 +1377,7 @@ class Identifier:
         cur = np.zeros(2) if current is None else np.clip(np.asarray(current, float), -self.max_current_mps,
                                                           self.max_current_mps)
         x0 = fit_initial_state_ext(run, theta, ks.at(t0, tuple(cur)), t0, t_init, cur)
-        t = _free_run_times(run, ks, t0)
+        t = ks.free_run_times(t0, run.t_thrust[-1])
         with np.errstate(over="ignore", invalid="ignore"):
             sim = free_run_full(run, theta, cur, x0, t0, t)
         meas = ks.at(t, tuple(cur))
@@ -1514,14 +1514,6 @@ class Identifier:
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"
-
-
-def _free_run_times(run: RunData, ks: KinStates, t0: float) -> np.ndarray:
-    """Times (s) of a validation's free run: the smoothed states' from ``t0`` while there is
-    thrust to drive it. GNSS stamped late, or simply logged on after the thruster log ends,
-    reaches past the last thrust sample; a free run there has no input (NaN), and was taken
-    for a diverged model."""
-    return ks.t[(ks.t >= t0) & (ks.t <= run.t_thrust[-1])]
 
 
 def _validation(t, meas, sim, cur, t0: float, t_init: float) -> Validation:

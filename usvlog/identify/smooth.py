@@ -76,6 +76,12 @@ class KinStates:
         cols = [self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]]
         return np.stack([np.interp(t, self.t, c) for c in cols], -1)
 
+    def free_run_times(self, t0: float, t_thrust_end: float) -> np.ndarray:
+        """Times (s) a free run is compared over: the states' from ``t0`` while there is thrust
+        to drive it (up to ``t_thrust_end``, the last thrust sample, s). GNSS stamped late, or
+        logged on after the thruster log ends, reaches past it: a free run there has no input."""
+        return self.t[(self.t >= t0) & (self.t <= t_thrust_end)]
+
     def window(self, t_lo, t_hi) -> KinStates:
         """The states with ``t_lo <= t <= t_hi`` (s)."""
         k = (self.t >= t_lo) & (self.t <= t_hi)
