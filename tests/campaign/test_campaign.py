@@ -142,6 +142,14 @@ def test_the_report(camp, season):
     ents = {c.entity_path for c in RrdReader(out / "campaign.rrd").stream().to_chunks()}
     with_estimate = t[t["failed_stage"].isna()]["run_id"]
     assert all(f"/runs/{r}/map/gps" in ents for r in with_estimate)
+    # the map is drawn from each run's own small map file: its estimate's rows, one a second
+    d = out / "runs" / with_estimate.iloc[0]
+    m, e = usvlog.load(d / "map.mcap"), usvlog.load(d / "estimate.mcap")
+    assert set(m.topics) == {"/gnss/fix", "/estimate/state"} and m.datum == e.datum
+    ms, es = m["/estimate/state"], e["/estimate/state"]
+    assert ms.equals(es.loc[ms.index]) and ms.index[-1] == es.index[-1]
+    steps = np.diff(ms.index.to_numpy())[:-1] / 1e9
+    assert np.allclose(steps, 1.0, atol=0.011) and len(ms) >= (es.index[-1] - es.index[0]) / 1e9
     summary = json.loads((out / "campaign.json").read_text())
     assert summary["failed"] == 1 and summary["unusable"] == 1
 

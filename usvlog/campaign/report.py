@@ -20,11 +20,10 @@ from ..io.atomic import write_bytes_atomic, write_text_atomic
 from ..view.report import _plt, _render
 from . import columns as C
 from .drift import ParameterDrift
-from .tasks import ESTIMATE_FILE, LOG_FILE
+from .tasks import ESTIMATE_FILE, LOG_FILE, MAP_FILE, MAP_HZ, map_log
 
 PAGE = "campaign.html"
 RRD = "campaign.rrd"
-MAP_HZ = {"/gnss/fix": 1.0, "/estimate/state": 1.0}   # samples per second of each run on the campaign map
 COLOURS = {C.USABLE: "#c8ecc8", C.CAVEATS: "#fbe3a6", C.UNUSABLE: "#f4b6b6", C.FAILED: "#dddddd"}
 
 
@@ -177,24 +176,23 @@ def write_campaign_report(result, *, progress=None) -> dict[str, Path]:
 
 def _write_rrd(result, say) -> Path | None:
     from ..io.mcap import read_log  # heavy: the MCAP reader, only when the map is drawn
-    from ..view.rrd import _thin, to_rrd
+    from ..view.rrd import to_rrd
 
     out = Path(result.out)
     logs, names = [], []
     for _, r in result.table.iterrows():
         d = out / "runs" / str(r["run_id"])
-        f = d / ESTIMATE_FILE if (d / ESTIMATE_FILE).exists() else d / LOG_FILE
-        if not f.exists():
+        # the run's own map file (written by its task); a run directory from before it: its log
+        f = next((d / n for n in (MAP_FILE, ESTIMATE_FILE, LOG_FILE) if (d / n).exists()), None)
+        if f is None:
             continue
         try:
             lg = read_log(f, topics=list(MAP_HZ))
         except Exception as err:  # a run whose log cannot be read back is left off the map, said once
             say(f"warning: {f}: not on the map ({err})")
             continue
-        for topic, hz in MAP_HZ.items():   # a season of runs on one map: thinned, or the file grows huge
-            fr = lg.get(topic)
-            if fr is not None and len(fr):
-                lg.set(topic, fr.iloc[_thin(fr.index.to_numpy(dtype=np.int64), hz)])
+        if f.name != MAP_FILE:
+            lg = map_log(lg)
         if lg.time_range() is not None:
             logs.append(lg)
             names.append(str(r["run_id"]))

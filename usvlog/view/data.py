@@ -49,6 +49,32 @@ class Track:
     e_m: np.ndarray
 
 
+def thin_indices(t_ns: np.ndarray, max_hz: float) -> np.ndarray:
+    """Indices keeping at most ``max_hz`` samples per second of a series stamped ``t_ns`` (int64
+    ns): every k-th sample, k from the median step, and the last one.
+
+    Parameters
+    ----------
+    t_ns : numpy.ndarray
+        Time stamps, ns, rising.
+    max_hz : float
+        Samples per second to keep at most, Hz.
+
+    Returns
+    -------
+    numpy.ndarray
+        Row indices (int).
+    """
+    if len(t_ns) < 3:
+        return np.arange(len(t_ns))
+    dt = float(np.median(np.diff(t_ns))) / 1e9
+    step = max(1, int(round((1.0 / max_hz) / dt))) if dt > 0 else 1
+    k = np.arange(0, len(t_ns), step)
+    if k[-1] != len(t_ns) - 1:
+        k = np.append(k, len(t_ns) - 1)
+    return k
+
+
 def _col(frame, name):
     if frame is None or name not in frame.columns:
         return None

@@ -226,7 +226,7 @@ class _Writer:
             self.tag(path[:, 1], path[:, 0], "desired path", c)
         for _topic, label, f in vd.state_tracks(log):
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
-            k = _thin(t, OVERLAY_HZ)
+            k = vd.thin_indices(t, OVERLAY_HZ)
             n, e = np.asarray(f["n_m"].to_numpy(), float)[k], np.asarray(f["e_m"].to_numpy(), float)[k]
             ok = np.isfinite(n) & np.isfinite(e)
             n, e = n[ok], e[ok]
@@ -250,7 +250,7 @@ class _Writer:
             t, n, e = g[0], g[3], g[4]
         else:
             return
-        k = _thin(t, OVERLAY_HZ)
+        k = vd.thin_indices(t, OVERLAY_HZ)
         k = k[np.isfinite(n[k]) & np.isfinite(e[k])]
         if not len(k):
             return
@@ -275,7 +275,7 @@ class _Writer:
         shown = next((c[1] for c in ctls if c[1] != "whatif"), ctls[0][1] if ctls else None)
         for _topic, label, f, sf, desc in ctls:
             t = np.asarray(f.index.to_numpy(), dtype=np.int64)
-            k = _thin(t, OVERLAY_HZ)
+            k = vd.thin_indices(t, OVERLAY_HZ)
             tk = t[k]
             cols = self.index_cols(tk)
             if label != shown:   # one controller's overlays in sight; the others toggled off in the blueprint
@@ -484,18 +484,6 @@ def _same_frame(a, b, cols=("u_d_mps", "psi_d_rad", "tau_u_n", "tau_r_nm", "cros
 
 def _frame_of(t_ns, x):
     return pd.DataFrame({"x": x}, index=pd.Index(t_ns, name="t_ns"))
-
-
-def _thin(t_ns: np.ndarray, max_hz: float) -> np.ndarray:
-    """Indices keeping at most ``max_hz`` samples per second (every k-th sample)."""
-    if len(t_ns) < 3:
-        return np.arange(len(t_ns))
-    dt = float(np.median(np.diff(t_ns))) / 1e9
-    step = max(1, int(round((1.0 / max_hz) / dt))) if dt > 0 else 1
-    k = np.arange(0, len(t_ns), step)
-    if k[-1] != len(t_ns) - 1:
-        k = np.append(k, len(t_ns) - 1)
-    return k
 
 
 def _extent(log: FieldLog) -> float:
