@@ -31,13 +31,13 @@ from .tasks import (
     RunSettings,
     RunSpec,
     Stages,
-    content_sha256,
     expand_sources,
     failed_row,
     finished_row,
     make_spec,
     read_vessel_map,
     run_one,
+    source_hashes,
     vessel_for,
 )
 
@@ -181,12 +181,13 @@ def plan_runs(sources, out: Path, settings: RunSettings, *, vessel=None, vessel_
     if vfile is not None and not Path(vfile).is_file():
         raise ConfigError(f"--vessel {vessel}: no such file")
     specs = []
-    for src in expand_sources(sources):
+    srcs = expand_sources(sources)
+    for src, sha in zip(srcs, source_hashes(srcs, out)):
         if vmap:
             name, f = vessel_for(src, vmap)
         else:
             name, f = (Path(vfile).stem, vfile) if vfile else ("", None)
-        specs.append(make_spec(src, content_sha256(src), settings, out, name, f))
+        specs.append(make_spec(src, sha, settings, out, name, f))
     return specs
 
 

@@ -201,6 +201,63 @@ def content_sha256(path) -> str:
     return file_identity(path)["sha256"]
 
 
+HASH_CACHE = "hashes.json"
+"""The campaign directory's record of each source's sha256 with the size and modification time
+(ns) of its files when it was read: a campaign run again hashes only what changed."""
+
+
+def _stat_signature(path: Path) -> list:
+    files = sorted(x for x in path.rglob("*") if x.is_file()) if path.is_dir() else [path]
+    return [[str(f.relative_to(path)) if path.is_dir() else "", f.stat().st_size, f.stat().st_mtime_ns]
+            for f in files]
+
+
+def source_hashes(sources, out_dir, threads: int = 8) -> list[str]:
+    """sha256 (hex) of each source's content, as :func:`content_sha256` gives it.
+
+    A source whose files have the size and modification time recorded in
+    ``out_dir/hashes.json`` by an earlier campaign is not read again; the others are read
+    on up to ``threads`` threads at once (hashlib releases the GIL: a cluster's head node
+    reads its sources in parallel). The record is rewritten (atomically) with every source.
+
+    Parameters
+    ----------
+    sources : sequence of pathlib.Path
+        Source files or bag directories.
+    out_dir : pathlib.Path
+        The campaign directory (existing).
+    threads : int
+        Files read at once, at most.
+
+    Returns
+    -------
+    list of str
+        The sha256 of each source, in order.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..io.atomic import write_text_atomic  # heavy: the io package (numpy)
+
+    cache_file = Path(out_dir) / HASH_CACHE
+    try:
+        cache = json.loads(cache_file.read_text())
+    except (OSError, ValueError):
+        cache = {}
+    keys = [str(Path(src).resolve()) for src in sources]
+    sigs = [_stat_signature(Path(src)) for src in sources]
+    shas: list[str | None] = [cache[k]["sha256"] if k in cache and cache[k].get("files") == sig else None
+                              for k, sig in zip(keys, sigs)]
+    todo = [i for i, h in enumerate(shas) if h is None]
+    if todo:
+        with ThreadPoolExecutor(max(1, min(threads, len(todo)))) as pool:
+            for i, h in zip(todo, pool.map(lambda i: content_sha256(sources[i]), todo)):
+                shas[i] = h
+    cache.update({k: {"files": sig, "sha256": h} for k, sig, h in zip(keys, sigs, shas)})
+    if todo:
+        write_text_atomic(cache_file, json.dumps(cache, indent=0), force=True)
+    return [str(h) for h in shas]
+
+
 def read_vessel_map(path) -> list[tuple[str, str, tuple[str, ...]]]:
     """A vessel map TOML -> [(vessel name, vessel TOML path, source patterns)], in file order.
 
@@ -400,7 +457,7 @@ def failed_row(spec: RunSpec, err: BaseException) -> dict:
     return row
 
 
-__all__ = ["DEFAULT_SCENARIO", "DEFAULT_STAGES", "ESTIMATE_FILE", "LOG_FILE", "MAP_FILE", "MAP_HZ", "ROW_FILE",
-           "RunSettings", "RunSpec", "STAGES", "Stages", "VESSEL_FILE", "content_sha256", "expand_sources",
-           "failed_row", "finished_row", "make_spec", "map_log", "read_vessel_map", "run_key", "run_one",
-           "vessel_for"]
+__all__ = ["DEFAULT_SCENARIO", "DEFAULT_STAGES", "ESTIMATE_FILE", "HASH_CACHE", "LOG_FILE", "MAP_FILE", "MAP_HZ",
+           "ROW_FILE", "RunSettings", "RunSpec", "STAGES", "Stages", "VESSEL_FILE", "content_sha256",
+           "expand_sources", "failed_row", "finished_row", "make_spec", "map_log", "read_vessel_map", "run_key",
+           "run_one", "source_hashes", "vessel_for"]
