@@ -25,6 +25,7 @@ import io
 import json
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,8 +36,10 @@ from ..log.fieldlog import FieldLog, format_time
 from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
-from ..replay import TrackingMetrics, tracking_metrics_of
 from . import data as vd
+
+if TYPE_CHECKING:
+    from ..replay import TrackingMetrics
 
 PAGE = "report.html"
 FIGURES = ("fig1_track.png", "fig2_errors.png", "fig4_path.png", "fig5_speed_heading.png",
@@ -187,6 +190,11 @@ def path_metrics(log: FieldLog, start_s: float | None = None) -> list[tuple[str,
     function (:func:`usvlog.replay.tracking_metrics_of`) over the same window: ``start_s``, else
     the replay's, else the whole run.
     """
+    controllers = vd.controllers(log)
+    if not controllers:
+        return []
+    from ..replay import TrackingMetrics, tracking_metrics_of  # heavy: the closed loop; only a log with controllers
+
     rec = replay_record(log)
     stored = {}
     if rec is not None:
@@ -196,7 +204,7 @@ def path_metrics(log: FieldLog, start_s: float | None = None) -> list[tuple[str,
     if start_s is None:
         start_s = stored["replay"].start_s if "replay" in stored else 0.0
     out = []
-    for _topic, label, f, _sf, desc in vd.controllers(log):
+    for _topic, label, f, _sf, desc in controllers:
         m = stored.get(label)
         if m is None and "cross_track_m" in f.columns:
             m = tracking_metrics_of(f, start_s)
