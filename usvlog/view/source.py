@@ -25,8 +25,20 @@ VIEW_TOPICS = (*REPORT_TOPICS, "/thrust/command")
 
 
 def chunk_spans(path) -> list[tuple[int, int, frozenset]] | None:
-    """[(first ns, last ns, topics)] of every chunk of an MCAP file, from its summary's chunk
-    index (the summary and footer only are read); None without a usable summary."""
+    """The chunks of an MCAP file, from its summary's chunk index (only the footer and the
+    summary are read).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    list of (int, int, frozenset of str) or None
+        (first and last message log time in ns since the Unix epoch, topics it holds) per
+        chunk; None when the file has no usable summary (damaged, cut short, unchunked).
+    """
     try:
         from mcap.reader import make_reader  # only here: the summary, not the messages
 
