@@ -14,7 +14,7 @@ from usvlog.view.source import REPORT_TOPICS, VIEW_TOPICS, chunk_spans, read_dra
 
 @pytest.fixture(scope="module")
 def sim_log():
-    return simulate("excitation", SimSettings(duration_s=20.0), seed=2)
+    return simulate("excitation", SimSettings(duration_s=8.0), seed=2)
 
 
 def _with_yaw_rate(log, path, shift_s: float):
