@@ -53,9 +53,10 @@ def _say(progress: Progress, msg: str) -> None:
         progress(msg)
 
 
-def _read(log, progress: Progress = None, topics=None):
+def _read(log, progress: Progress = None, topics=None, drawn=None):
     """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded
-    (only the channels ``topics`` when given).
+    (only the channels ``topics`` when given; ``drawn``: the channels a view or report draws,
+    with the others only when they widen its time range, :func:`usvlog.view.source.read_drawn`).
 
     A damaged file loads with what could be recovered; then its one-line damage report
     ("input damaged: ...") goes to ``progress`` and into the log's provenance, so every
@@ -64,7 +65,12 @@ def _read(log, progress: Progress = None, topics=None):
     if _is_path(log):
         from .io.mcap import read_log  # heavy: imported only when a log is read
 
-        log = read_log(log, topics=topics)
+        if drawn is not None:
+            from .view.source import read_drawn  # heavy: numpy (view and report import it anyway)
+
+            log = read_drawn(log, drawn, read_log)
+        else:
+            log = read_log(log, topics=topics)
         if log.recovery is not None:
             note = log.recovery.one_line()
             _say(progress, f"{log.source}: {note}")
@@ -844,6 +850,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
     """
     from .io.atomic import check_output  # heavy: numpy
     from .view.rrd import to_rrd as write_rrd  # heavy: rerun is imported only when a recording is made
+    from .view.source import VIEW_TOPICS  # heavy: numpy (with the recording's imports above)
 
     items = list(logs) if isinstance(logs, (list, tuple)) else [logs]
     if not items:
@@ -862,7 +869,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
     for x in items:
         if _is_path(x):
             _say(progress, f"reading {x}")
-        read.append(_read(x, progress))
+        read.append(_read(x, progress, drawn=VIEW_TOPICS))
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy
 
     for lg in read:
@@ -901,10 +908,11 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
         The page ``out/report.html``.
     """
     from .view.report import check_report_outputs, write_report  # heavy: matplotlib, numpy
+    from .view.source import REPORT_TOPICS  # heavy: numpy (with the report's imports above)
 
     check_report_outputs(out, force)  # fail before the work, not after
-    log = _read(log, progress)
-    base = _read(baseline, progress) if baseline is not None else None
+    log = _read(log, progress, drawn=REPORT_TOPICS)
+    base = _read(baseline, progress, drawn=REPORT_TOPICS) if baseline is not None else None
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy (with the report's imports above)
 
     for lg in (log, base):

@@ -229,3 +229,44 @@ def test_image_regression(tmp_path, small_figs, name):
     diff = np.abs(a - b)
     # a small tolerance for anti-aliasing; a lost line, legend or axis changes far more pixels
     assert diff.mean() < 0.01 and (diff.max(axis=-1) > 0.25).mean() < 0.01, name
+
+
+# -----------------------------------------------------------------------------
+# a long band drawn at the axes' resolution
+# -----------------------------------------------------------------------------
+
+def test_band_envelope_keeps_each_slice_extremes_and_breaks():
+    rng = np.random.default_rng(3)
+    t = np.arange(20_000) * 0.01
+    y = np.cumsum(rng.normal(0, 0.1, len(t)))
+    lo, hi = y - 0.5, y + 0.5
+    lo[7000:7010] = np.nan   # a break (a wrapped heading)
+    n = 300
+    te, le, he = rp.band_envelope(t, lo, hi, n)
+    assert len(te) <= 2 * n + 2 and te[0] == t[0] and te[-1] == t[-1]
+    assert np.isnan(le).sum() == 1 and np.isnan(le[np.searchsorted(te, 70.0)])
+    for k in (0, 117, n - 1):   # brute force over the samples of a slice
+        sel = (t >= k * t[-1] / n) & (t < (k + 1) * t[-1] / n) & np.isfinite(lo)
+        m = (te >= t[sel][0]) & (te <= t[sel][-1])
+        assert le[m].min() == lo[sel].min() and he[m].max() == hi[sel].max()
+
+
+def test_long_band_draws_the_same_picture():
+    """The band reduced to four slices per pixel against the full polygon, rasterised: what
+    differs is anti-aliasing at the edges."""
+    plt = rp._plt()
+    rng = np.random.default_rng(4)
+    t = np.arange(60_000) * 0.01
+    y = np.sin(t / 40.0) * 20 + np.cumsum(rng.normal(0, 0.05, len(t)))
+    imgs = []
+    for draw in ("fill_between", "_band"):
+        fig, ax = plt.subplots(figsize=(5.0, 2.0), dpi=80)
+        if draw == "_band":
+            rp._band(ax, t, y - 2.0, y + 2.0, color="C0", alpha=0.25, lw=0)
+        else:
+            ax.fill_between(t, y - 2.0, y + 2.0, color="C0", alpha=0.25, lw=0)
+        fig.canvas.draw()
+        imgs.append(np.asarray(fig.canvas.buffer_rgba())[..., :3] / 255.0)
+        plt.close(fig)
+    d = np.abs(imgs[0] - imgs[1])
+    assert (d.max(-1) > 0.25).mean() == 0.0 and d.mean() < 1e-3

@@ -429,8 +429,9 @@ def metrics(log: FieldLog) -> list[tuple[str, str, str]]:
         rows.append(("GPS fixes rejected by the estimator", str(len(rej[0])), ""))
     inn = nonempty(log, "/estimate/innovations")
     if inn is not None and "nis" in inn.columns:
-        for sensor in sorted(set(inn["sensor"].astype(str))):
-            nis = _col(inn, "nis")[inn["sensor"].astype(str).to_numpy() == sensor]
+        sens, nis_all = inn["sensor"].astype(str).to_numpy(), _col(inn, "nis")
+        for sensor in sorted(set(sens.tolist())):   # over the array: iterating the Series is 20x slower
+            nis = nis_all[sens == sensor]
             nis = nis[np.isfinite(nis)]
             if len(nis):
                 rows.append((f"mean NIS, {sensor}", f"{nis.mean():.2f}", ""))

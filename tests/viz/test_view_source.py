@@ -1,0 +1,42 @@
+"""The view and the report read only the channels they draw, and the log's time range stays the
+whole file's (checked against a full read of the same real MCAP file)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from usvlog.io.mcap import read_log, write_log
+from usvlog.log.channels import channel_spec, frame_from_columns
+from usvlog.sim.simulate import SimSettings, simulate
+from usvlog.view.source import REPORT_TOPICS, VIEW_TOPICS, chunk_spans, read_drawn
+
+
+@pytest.fixture(scope="module")
+def sim_log():
+    return simulate("excitation", SimSettings(duration_s=8.0), seed=2)
+
+
+def _with_yaw_rate(log, path, shift_s: float):
+    t = log["/truth/state"].index.to_numpy() + int(shift_s * 1e9)
+    r = log["/truth/state"]["r_radps"].to_numpy()
+    log = log.copy()
+    log.set("/imu/yaw_rate", frame_from_columns({"stamp_ns": t, "r_radps": r}, t, channel_spec("/imu/yaw_rate")))
+    write_log(log, path, chunk_size=1 << 14)   # many chunks, each holding every channel of its time
+    return path
+
+
+@pytest.mark.parametrize("shift_s", [0.0, 5.0])
+def test_undrawn_channel_skipped_only_inside_the_time_range(tmp_path, sim_log, shift_s):
+    path = _with_yaw_rate(sim_log, tmp_path / "a.mcap", shift_s)
+    assert len(chunk_spans(path)) > 4
+    full = read_log(path)
+    for topics in (VIEW_TOPICS, REPORT_TOPICS):
+        log = read_drawn(path, topics, read_log)
+        assert log.time_range() == full.time_range()
+        assert ("/imu/yaw_rate" in log.channels) == (shift_s > 0)   # read only to widen the range
+        for t in set(full.channels) & set(topics):
+            assert np.array_equal(log[t].index.to_numpy(), full[t].index.to_numpy())
+    assert "/thrust/command" in read_drawn(path, VIEW_TOPICS, read_log).channels
+    if shift_s == 0:
+        assert "/thrust/command" not in read_drawn(path, REPORT_TOPICS, read_log).channels
