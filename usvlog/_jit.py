@@ -37,11 +37,12 @@ numba is loaded. A verb that never calls a kernel does not pay numba's import (~
 Loading a kernel from the cache does not set numba's CPU target up for compiling: numba's
 own cache load first installs every typing and lowering registry of the target (~180
 modules, among them numba's linear algebra, which imports all of ``scipy.linalg`` for its
-BLAS check: 0.25-0.45 CPU s, the larger part of a verb's numba cost), which only compiling
-needs. Cached machine code needs the runtime (NRT) and the symbols numba registers with
-LLVM, so a cache load of a usvlog kernel sets up just those (:func:`_cache_load_overload`);
-a kernel that is compiled (a cache miss) goes through numba's compiler, which installs the
-registries itself. The machine code run is the same either way.
+BLAS check: 0.25-0.45 CPU s per process in ``benchmarks/bench_numba_load.py``, the larger
+part of a verb's numba cost), which only compiling needs. Cached machine code needs the
+runtime (NRT) and the symbols numba registers with LLVM, so a cache load of a usvlog kernel
+sets up just those (:func:`_cache_load_overload`); a kernel that is compiled (a cache miss)
+goes through numba's compiler, which installs the registries itself. The machine code run
+is the same either way.
 """
 
 from __future__ import annotations
@@ -184,7 +185,7 @@ def _light_loads(dispatcher):
     """``dispatcher`` with its cache loading through :func:`_cache_load_overload`
     (this dispatcher only: numba's other users in the process are left as they are)."""
     cache = getattr(dispatcher, "_cache", None)
-    if cache is not None and hasattr(cache, "_load_overload"):
+    if all(hasattr(cache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors")):
         cache.load_overload = types.MethodType(_cache_load_overload, cache)
     return dispatcher
 
