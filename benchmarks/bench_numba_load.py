@@ -86,6 +86,8 @@ def main() -> None:
             "estimate": ["estimate", log, "--out", est, "--force"],
             "identify": ["identify", log, "--out", f"{d}/fit.json", "--force"],
             "replay": ["replay", log, "--scenario", "paper-sine", "--out", f"{d}/r.mcap", "--force"],
+            "view": ["view", log, "--out", f"{d}/e.rrd", "--force"],
+            "report": ["report", log, "--out", f"{d}/e.html", "--force"],
         }
         for argv in verbs.values():   # warm the cache (and make the inputs)
             run(argv)
