@@ -30,7 +30,13 @@ sha256), which is where the end-to-end figure goes.
 Records/s is given per wall-clock second and per CPU second of the process (the second
 is the fairer figure on a machine shared with other work).
 
-Run:  python benchmarks/bench_import.py [--rows 360000] [--lines 144000] [--scales 1,10] [--stages]
+Start-up depends on whether usvlog's modules have bytecode caches (``__pycache__``): an
+installed package has them, a checkout run with ``PYTHONDONTWRITEBYTECODE=1`` compiles every
+usvlog module it imports from source in every process (~0.1-0.2 CPU s of each import's
+start-up). The first line says which; ``--compile`` writes them first (``compileall``), as
+an installation does.
+
+Run:  python benchmarks/bench_import.py [--rows 360000] [--lines 144000] [--scales 1,10] [--stages] [--compile]
 """
 
 from __future__ import annotations
@@ -231,6 +237,18 @@ def measure_cli(src: Path, out: Path) -> dict:
             "cpu_seconds": ru.ru_utime + ru.ru_stime, "peak_rss_mb": ru.ru_maxrss / 1024}
 
 
+def bytecode_status() -> tuple[int, int]:
+    """(usvlog modules with an up-to-date bytecode cache, usvlog modules) in this checkout."""
+    import importlib.util
+
+    have = total = 0
+    for src in (ROOT / "usvlog").rglob("*.py"):
+        total += 1
+        pyc = Path(importlib.util.cache_from_source(str(src)))
+        have += pyc.exists() and pyc.stat().st_mtime >= src.stat().st_mtime
+    return have, total
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", type=int, default=360_000, help="CSV rows of the 1x file (1 hour at 100 Hz)")
@@ -238,7 +256,20 @@ def main() -> None:
     ap.add_argument("--scales", default="1", help="file lengths to run, comma-separated multiples of 1x")
     ap.add_argument("--skip-mcap", action="store_true", help="only the parse figures")
     ap.add_argument("--stages", action="store_true", help="also the CPU seconds per stage of one import")
+    ap.add_argument("--compile", action="store_true",
+                    help="write usvlog's bytecode caches first (compileall), as an installed package has them")
     args = ap.parse_args()
+    if args.compile:
+        import compileall
+
+        compileall.compile_dir(str(ROOT / "usvlog"), quiet=1)
+    have, total = bytecode_status()
+    try:
+        load = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        load = "?"
+    print(f"load average {load}; usvlog bytecode cached for {have} of {total} modules"
+          + ("" if have == total else " (the others are compiled from source in every process)"))
     with tempfile.TemporaryDirectory(prefix="usvlog-bench-") as d:
         d = Path(d)
         print(f"{'file':<20} {'MB':>6} {'records':>9} {'mode':>8} {'wall s':>7} {'records/s':>10} "

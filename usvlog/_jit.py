@@ -33,6 +33,16 @@ Nothing here imports numba until a kernel is first called: :func:`njit` returns 
 kernel (the numba dispatcher is made, and its machine code loaded from the cache, on the
 first call) and :func:`jitable` only notes the function, registering it with numba when
 numba is loaded. A verb that never calls a kernel does not pay numba's import (~0.3 s).
+
+Loading a kernel from the cache does not set numba's CPU target up for compiling: numba's
+own cache load first installs every typing and lowering registry of the target (~180
+modules, among them numba's linear algebra, which imports all of ``scipy.linalg`` for its
+BLAS check: 0.25-0.45 CPU s per process in ``benchmarks/bench_numba_load.py``, the larger
+part of a verb's numba cost), which only compiling needs. Cached machine code needs the
+runtime (NRT) and the symbols numba registers with LLVM, so a cache load of a usvlog kernel
+sets up just those (:func:`_cache_load_overload`); a kernel that is compiled (a cache miss)
+goes through numba's compiler, which installs the registries itself. The machine code run
+is the same either way.
 """
 
 from __future__ import annotations
@@ -44,6 +54,7 @@ import shutil
 import sys
 import tempfile
 import time
+import types
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 KEEP_DIRS = 8             # hash directories kept (most recently used first)
@@ -155,6 +166,30 @@ def cache_dir() -> str:
     return _cache_dir
 
 
+def _cache_load_overload(self, sig, target_context):
+    """numba's ``Cache.load_overload`` without the full target refresh (see the module doc).
+
+    The runtime and the hash-secret symbols are what cached machine code links against
+    beyond the symbols numba registers when its target context is made.
+    """
+    from numba.core.runtime import nrt  # heavy: numba internals, loaded with numba already
+
+    nrt.rtsys.initialize(target_context)
+    import numba.cpython.hashing  # noqa: F401  (registers the _numba_hashsecret_* symbols)
+
+    with self._guard_against_spurious_io_errors():
+        return self._load_overload(sig, target_context)
+
+
+def _light_loads(dispatcher):
+    """``dispatcher`` with its cache loading through :func:`_cache_load_overload`
+    (this dispatcher only: numba's other users in the process are left as they are)."""
+    cache = getattr(dispatcher, "_cache", None)
+    if all(hasattr(cache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors")):
+        cache.load_overload = types.MethodType(_cache_load_overload, cache)
+    return dispatcher
+
+
 def _compile(fn, kw: dict):
     """The numba dispatcher of ``fn`` with the cache keyed on the package source."""
     from numba import njit as numba_njit  # heavy: numba, only when a kernel is first called
@@ -174,7 +209,7 @@ def _compile(fn, kw: dict):
     saved = getattr(numba_config, "CACHE_DIR", "")
     numba_config.CACHE_DIR = path  # type: ignore[attr-defined,unused-ignore]
     try:
-        return numba_njit(**kw)(fn)
+        return _light_loads(numba_njit(**kw)(fn))
     finally:
         numba_config.CACHE_DIR = saved  # type: ignore[attr-defined,unused-ignore]
 
