@@ -131,9 +131,13 @@ class Codec:
         blobs: list[bytes] = []
         spans: list[tuple[int, np.ndarray, np.ndarray]] = []  # (blob index, starts, ends)
 
-        def slot(values: list | None = None, strings: list[str] | None = None) -> None:
-            if strings is not None:
-                codes, uniq = pd.factorize(np.array(strings, dtype=object))
+        def slot(values: list | None = None, strings: list[str] | None = None, text=None) -> None:
+            if strings is not None or text is not None:
+                if text is not None:   # a string column: its distinct values, each made a str once
+                    codes, uniq = pd.factorize(text, use_na_sentinel=False)
+                    uniq = [str(u) for u in uniq]
+                else:
+                    codes, uniq = pd.factorize(np.array(strings, dtype=object))
                 dumped = [orjson.dumps(u) for u in uniq]
                 lens = np.fromiter((len(d) for d in dumped), dtype=np.int64, count=len(dumped))
                 ends = np.cumsum(lens)
@@ -176,6 +180,10 @@ class Codec:
                 slot(np.asarray(col.to_numpy(), dtype=np.int64).tolist())
             elif f.kind == "bool":
                 slot(np.asarray(col.to_numpy(), dtype=bool).tolist())
+            elif pd.api.types.is_string_dtype(col.dtype) and col.dtype != object:
+                # str values only (pandas' string dtypes): grouped as they are, no str() per row;
+                # an object column may mix 1, 1.0 and True, which group as one but print apart
+                slot(text=col)
             else:
                 slot(strings=[str(x) for x in col.tolist()])
         lits[-1] += b"}"
