@@ -22,7 +22,7 @@ from ...log.channels import (
     auto_schema,
     schema_for_topic,
 )
-from ...log.fieldlog import FieldLog
+from ...log.fieldlog import Channels, DeferredSource, FieldLog
 from ..atomic import atomic_path
 from . import kernels as K
 from .codec import Codec, writer_codec
@@ -78,22 +78,115 @@ def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 <
     byte at the library's ``zstd_level=3``; ``_write_log_reference`` does it that way
     and the tests compare). Metadata records come first (a truncated file keeps them),
     then every channel, then the messages of all channels in (time, channel, row) order.
+
+    A channel still deferred (``log.deferred``: read from a file and never touched) is
+    copied from that file's message payloads without decoding them when the file
+    stores it with the schema record and message encoding this writer uses for it: the
+    same file as after decoding it, byte for byte. It is decoded instead when the file
+    stores it otherwise, when the log was read with damage recovered, or when its messages
+    are not in the time and sequence order a usvlog file has; a file changed since it was
+    read (size or modification time) is refused (:class:`InputError`).
     """
     _compression(compression)
-    frames = {topic: log.channels[topic] for topic in log.topics}
+    copy = _copied_channels(log)
     with atomic_path(path, force=force) as tmp:
-        with open(tmp, "wb", buffering=1 << 20) as fh:
-            w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        if copy:
             try:
-                for name in sorted(log.meta):
-                    w.add_metadata(name, log.meta[name])
-                for topic in log.topics:
-                    w.add_channel(topic, log.schemas.get(topic), log.channels[topic])
+                _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, copy)
+                return
+            except _OutOfOrder:   # the source's messages are not in time/row order: decode them
+                assert isinstance(log.channels, Channels)
+                log.channels.load_deferred(copy)
+        _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, [])
+
+
+def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: int, slice_messages: int,
+           copy: list[str]) -> None:
+    """:func:`write_log` to ``tmp``, the channels ``copy`` from the log's source file."""
+    decoded = log.channels.decoded() if isinstance(log.channels, Channels) else log.channels
+    frames = {topic: decoded[topic] for topic in log.topics if topic not in copy}
+    with open(tmp, "wb", buffering=1 << 20) as fh:
+        w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        feed = None
+        try:
+            for name in sorted(log.meta):
+                w.add_metadata(name, log.meta[name])
+            for topic in log.topics:
+                w.add_channel(topic, log.schemas.get(topic), frames.get(topic))
+            if not copy:
                 for batch in time_slices(frames, slice_messages):
                     w.add_frames(batch, log.schemas)
-                w.finish()
-            finally:
-                w.close()
+            else:
+                src = log.deferred
+                assert src is not None
+                feed = _RawFeed(src, copy)
+                cuts = _slice_cuts(_times(frames), slice_messages)
+                # frames whose times do not rise: one slice (the copied payloads held whole)
+                cuts = np.zeros(0, dtype=np.int64) if cuts is None else feed.cuts(cuts)
+                for k, batch in enumerate(_cut(frames, cuts)):
+                    w.add_frames(batch, log.schemas, feed.take(int(cuts[k]) if k < len(cuts) else None))
+                feed.finish()
+            w.finish()
+        finally:
+            w.close()
+            if feed is not None:
+                feed.close()
+
+
+def _copied_channels(log: FieldLog) -> list[str]:
+    """The deferred channels :func:`write_log` copies from the source file (the others it
+    must write are decoded now)."""
+    ch = log.channels
+    src = log.deferred
+    if src is None or not isinstance(ch, Channels):
+        return []
+    why = src.changed()
+    if why is not None:
+        raise InputError(f"{src.path} {why}: cannot write channel(s) {', '.join(ch.deferred_topics())} "
+                         "from it (load the log again)")
+    todo = ch.deferred_topics()
+    if log.recovery is not None:
+        ch.load_deferred()
+        return []
+    copy, decode = [], []
+    for topic in todo:
+        schema, codec = _codec_for(topic, log.schemas.get(topic))
+        mine = (codec.message_encoding, *_schema_record(topic, schema, codec))
+        (copy if mine == tuple(src.topics[topic]) else decode).append(topic)
+    ch.load_deferred(decode)
+    return copy
+
+
+class _OutOfOrder(Exception):
+    """The source's messages of a copied channel are not in (time, row) order."""
+
+
+def _times(frames: dict[str, pd.DataFrame]) -> dict[str, np.ndarray]:
+    return {t: np.asarray(f.index, dtype=np.int64) for t, f in frames.items() if len(f)}
+
+
+def _slice_cuts(times: dict[str, np.ndarray], size: int) -> np.ndarray | None:
+    """The times that cut ``times`` (topic -> rising int64 ns) into slices of about ``size``
+    messages (a slice is [cut k-1, cut k)); None when a channel's times do not rise (then
+    the frames are one slice)."""
+    total = sum(len(v) for v in times.values())
+    if not all(len(v) < 2 or bool(np.all(v[1:] >= v[:-1])) for v in times.values()):
+        return None
+    if total <= size:
+        return np.zeros(0, dtype=np.int64)
+    # boundaries at quantiles of every message's time (from a sample: boundaries need not be exact)
+    step = max(1, total // (64 * (total // size + 1)))
+    sample = np.sort(np.concatenate([v[::step] for v in times.values()]))
+    return np.unique(sample[np.linspace(0, len(sample), total // size + 1, endpoint=False).astype(np.int64)[1:]])
+
+
+def _cut(frames: dict[str, pd.DataFrame], cuts: np.ndarray):
+    """The slices of ``frames`` at ``cuts`` (one per cut and the last: len(cuts) + 1, some
+    may be empty dicts)."""
+    times = _times(frames)
+    edges = {t: np.concatenate(([0], np.searchsorted(v, cuts, side="left"), [len(v)])) for t, v in times.items()}
+    for k in range(len(cuts) + 1):
+        yield {t: frames[t].iloc[int(e[k]):int(e[k + 1])] for t, e in edges.items() if e[k + 1] > e[k]}
 
 
 def time_slices(frames: dict[str, pd.DataFrame], size: int):
@@ -117,20 +210,120 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
     dict
         Topic -> the rows of its frame in the slice (views, not copies).
     """
-    times = {t: np.asarray(f.index, dtype=np.int64) for t, f in frames.items() if len(f)}
-    total = sum(len(v) for v in times.values())
-    if total <= size or not all(len(v) < 2 or bool(np.all(v[1:] >= v[:-1])) for v in times.values()):
+    cuts = _slice_cuts(_times(frames), size)
+    if cuts is None or not len(cuts):
         yield frames
         return
-    # boundaries at quantiles of every message's time (from a sample: boundaries need not be exact)
-    step = max(1, total // (64 * (total // size + 1)))
-    sample = np.sort(np.concatenate([v[::step] for v in times.values()]))
-    cuts = np.unique(sample[np.linspace(0, len(sample), total // size + 1, endpoint=False).astype(np.int64)[1:]])
-    edges = {t: np.concatenate(([0], np.searchsorted(v, cuts, side="left"), [len(v)])) for t, v in times.items()}
-    for k in range(len(cuts) + 1):
-        batch = {t: frames[t].iloc[int(e[k]):int(e[k + 1])] for t, e in edges.items() if e[k + 1] > e[k]}
+    for batch in _cut(frames, cuts):
         if batch:
             yield batch
+
+
+_FEED_CHUNKS = 16   # a copied file's chunks per extra slice boundary
+
+
+class _RawFeed:
+    """The message payloads of channels of a canonical file, by time slice, as they are
+    stored (for :func:`write_log` to copy without decoding).
+
+    Memory: the payloads of the messages read ahead of the slice being written (a file
+    usvlog wrote is in time order, so about one slice plus one chunk).
+    """
+
+    def __init__(self, src: DeferredSource, topics: list[str]):
+        # the reader's walk (CRC checks, the chunk index to skip chunks without these channels)
+        from .reader import ChunkStream, _layout_windowed  # noqa: PLC0415 - same package, only when copying
+
+        self._src = src
+        self._stream = ChunkStream(src.path, topics=topics)
+        self._layout = _layout_windowed
+        self._topics = set(topics)
+        self._it = None
+        self._done = False
+        self._seen = np.iinfo(np.int64).min        # latest time read so far (ns)
+        self._emitted = np.iinfo(np.int64).min     # every message before this time was handed out
+        self._last: dict[str, tuple[int, int]] = {}  # topic -> (time, sequence) of its last message read
+        self._held: dict[str, list] = {t: [] for t in topics}   # topic -> [(t, data, offs)]
+
+    def cuts(self, cuts: np.ndarray) -> np.ndarray:
+        """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
+        (so the copied payloads are sliced too)."""
+        st = self._stream
+        from .reader import _Scan  # noqa: PLC0415 - same package, only when copying
+
+        scan = _Scan()
+        self._layout(scan, st._map, st._release_all)
+        if scan.summary is None:
+            return cuts
+        t0 = sorted(v[1] for v in scan.summary.chunks.values())[::_FEED_CHUNKS][1:]
+        return np.union1d(cuts, np.asarray(t0, dtype=np.int64))
+
+    def _pull(self) -> bool:
+        """Read the next batch of messages; False at the end of the file."""
+        if self._it is None:
+            self._it = self._stream._batches()
+        try:
+            records, _at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
+        except StopIteration:
+            self._done = True
+            return False
+        if len(t):
+            if int(t.min()) < self._emitted:
+                raise _OutOfOrder
+            self._seen = max(self._seen, int(t.max()))
+        chans = self._stream._scan.channels
+        for c in np.unique(cid).tolist():
+            topic = chans[c].topic
+            if topic not in self._topics:
+                continue
+            sel = np.flatnonzero(cid == c)
+            tc, sc = t[sel], seq[sel]
+            prev = self._last.get(topic)
+            if (len(tc) > 1 and (np.any(tc[1:] < tc[:-1]) or np.any(sc[1:] < sc[:-1]))) or \
+                    (prev is not None and (int(tc[0]) < prev[0] or int(sc[0]) < prev[1])):
+                raise _OutOfOrder
+            self._last[topic] = (int(tc[-1]), int(sc[-1]))
+            lens = pe[sel] - ps[sel]
+            offs = np.zeros(len(sel) + 1, dtype=np.int64)
+            np.cumsum(lens, out=offs[1:])
+            idx = np.repeat(ps[sel] - offs[:-1], lens) + np.arange(offs[-1], dtype=np.int64)
+            self._held[topic].append((tc, np.asarray(records)[idx], offs))
+        return True
+
+    def take(self, upto: int | None) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The payloads of every message before ``upto`` (ns; None: all the rest), topic ->
+        (times, bytes, offsets), in row order."""
+        while not self._done and (upto is None or self._seen < upto):
+            self._pull()
+        out = {}
+        for topic, parts in self._held.items():
+            if not parts:
+                continue
+            t = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
+            n = len(t) if upto is None else int(np.searchsorted(t, upto, side="left"))
+            if n == 0:
+                continue
+            lens = np.concatenate([np.diff(p[2]) for p in parts])
+            data = np.concatenate([p[1] for p in parts])
+            offs = np.zeros(len(t) + 1, dtype=np.int64)
+            np.cumsum(lens, out=offs[1:])
+            out[topic] = (t[:n], data[:offs[n]], offs[:n + 1])
+            self._held[topic] = [(t[n:], data[offs[n]:], offs[n:] - offs[n])] if n < len(t) else []
+        if upto is not None:
+            self._emitted = max(self._emitted, upto)
+        return out
+
+    def finish(self) -> None:
+        """After the last slice: the file must have read intact and be unchanged."""
+        assert self._done and not any(self._held.values())
+        rep = self._stream.recovery()
+        why = self._src.changed()
+        if rep is not None or why is not None:
+            raise InputError(f"{self._src.path} {why or 'is damaged: ' + rep.reason} since it was read; "
+                             "load the log again")
+
+    def close(self) -> None:
+        self._stream.close()
 
 
 def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
@@ -264,19 +457,35 @@ class McapWriter:
         self._meta_index.append(MetadataIndex(offset=self._write(b), length=len(b), name=name))
 
     # -- messages ------------------------------------------------------------------------
-    def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None) -> None:
-        """Append one batch: every row of every frame (index: int64 log time ns) as a message."""
+    def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None,
+                   raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> None:
+        """Append one batch: every row of every frame (index: int64 log time ns) as a message.
+
+        ``raw`` adds messages already encoded, topic -> (int64 log times in ns, uint8
+        payload bytes, int64 offsets of the n+1 payload bounds), in the channel's row order:
+        their channel must be registered (:meth:`add_channel`) and the payloads be what its
+        codec writes (e.g. copied from a file whose channel has the same schema record).
+        """
+        parts: list[tuple[str, object]] = [(topic, frame) for topic, frame in frames.items()]
+        parts += [(topic, r) for topic, r in (raw or {}).items()]
         bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
         base = 0
-        for topic, frame in frames.items():
-            if not len(frame):
-                continue
-            cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-            codec = self._topics[topic][1]
-            t = np.asarray(frame.index, dtype=np.int64)
+        for topic, item in parts:
+            if isinstance(item, tuple):
+                t, data, offs = item
+                if not len(t):
+                    continue
+                cid = self._topics[topic][0]
+            else:
+                frame = item
+                if not len(frame):
+                    continue
+                cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
+                codec = self._topics[topic][1]
+                t = np.asarray(frame.index, dtype=np.int64)
+                data, offs = codec.encode_packed(frame, topic)
             if t.min() < 0:
                 raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-            data, offs = codec.encode_packed(frame, topic)
             s0 = self._seq[cid]
             self._seq[cid] = s0 + len(t)
             bufs.append(data)
