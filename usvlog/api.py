@@ -43,6 +43,11 @@ Progress = Callable[[str], None] | None
 
 FIT_TOPIC = "/identify/fit"
 
+# the channels a verb decodes when it reads a file; the others stay in it (decoded if the verb
+# touches one after all, e.g. /truth/state when there is no estimate; copied undecoded to --out)
+_ESTIMATE_READS = ["/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity", "/imu/yaw_rate"]
+_REPLAY_READS = ["/estimate/state", "/thrust/command", "/control/state"]
+
 
 def _is_path(x: Any) -> bool:
     return isinstance(x, (str, os.PathLike))
@@ -53,9 +58,10 @@ def _say(progress: Progress, msg: str) -> None:
         progress(msg)
 
 
-def _read(log, progress: Progress = None, topics=None):
+def _read(log, progress: Progress = None, topics=None, defer: bool = False):
     """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded
-    (only the channels ``topics`` when given).
+    (only the channels ``topics`` when given; with ``defer`` the others stay in the file,
+    decoded when touched and copied undecoded when the log is saved).
 
     A damaged file loads with what could be recovered; then its one-line damage report
     ("input damaged: ...") goes to ``progress`` and into the log's provenance, so every
@@ -64,7 +70,7 @@ def _read(log, progress: Progress = None, topics=None):
     if _is_path(log):
         from .io.mcap import read_log  # heavy: imported only when a log is read
 
-        log = read_log(log, topics=topics)
+        log = read_log(log, topics=topics, defer=defer)
         if log.recovery is not None:
             note = log.recovery.one_line()
             _say(progress, f"{log.source}: {note}")
@@ -546,7 +552,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
                                 smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
                                 **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
     src = log if _is_path(log) else log.source
-    log = _read(log, progress)
+    log = _read(log, progress, topics=_ESTIMATE_READS, defer=True)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
                    f"{''.join(f', estimating the {k} delay' for k in auto)})")
@@ -806,7 +812,7 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         vessel = load_vessel_or_scenario_vessel(vessel)
     if _is_path(log):
         _say(progress, f"reading {log}")
-    log = _read(log, progress)
+    log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
                      whatif_controller=whatif_controller)
