@@ -78,6 +78,14 @@ def _read(log, progress: Progress = None, topics=None, defer: bool = False):
     return log
 
 
+def _redefer(log: FieldLog, topics: list[str]) -> None:
+    """Leave ``topics`` of a log read by :func:`_read` (their frames unchanged) in its file
+    again: the frames are freed, decoded again if touched, and copied undecoded by ``save``."""
+    redefer = getattr(log.channels, "redefer", None)
+    if redefer is not None:
+        redefer(topics)
+
+
 def _vessel_file(vessel):
     """None, a Vessel as given, or a vessel TOML file loaded."""
     if _is_path(vessel):
@@ -551,14 +559,19 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
                                 smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
                                 **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
-    src = log if _is_path(log) else log.source
+    read_here = _is_path(log)
+    src = log if read_here else log.source
     log = _read(log, progress, topics=_ESTIMATE_READS, defer=True)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
                    f"{''.join(f', estimating the {k} delay' for k in auto)})")
     result = run_estimate(log, settings, ves)
     if out is not None:
-        save(result.to_log(log), out, force=force)
+        out_log = result.to_log(log)
+        if read_here:   # read here: its channels go back to the file, copied undecoded
+            del log
+            _redefer(out_log, _ESTIMATE_READS)
+        save(out_log, out, force=force)
     return result
 
 
@@ -810,12 +823,16 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
             scen = replace(scen, guidance=guidance)
     if _is_path(vessel):
         vessel = load_vessel_or_scenario_vessel(vessel)
-    if _is_path(log):
+    read_here = _is_path(log)
+    if read_here:
         _say(progress, f"reading {log}")
     log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
                      whatif_controller=whatif_controller)
+    if read_here:   # memory: the channels read go back to the file (decoded again if touched)
+        del log
+        _redefer(res.log, _REPLAY_READS)
     if out is not None:
         save(res.log, out, force=force)
         _say(progress, f"wrote {out}")

@@ -242,7 +242,7 @@ class DeferredSource:
         Its modification time when it was read (ns since the Unix epoch).
     topics : dict of str to tuple
         Topic -> how the file stores it: (message encoding, schema name, schema encoding,
-        schema bytes). A topic leaves this dict when it is decoded.
+        schema bytes), for every canonical channel of the file.
     loader : callable
         ``loader(path, topics)`` -> ``{topic: DataFrame}``: decodes channels of the file
         (:func:`usvlog.io.mcap.reader.read_log`'s decoding).
@@ -276,10 +276,7 @@ class DeferredSource:
         if why is not None:
             raise InputError(f"{self.path} {why}: channel(s) {', '.join(sorted(topics))} not loaded "
                              "(load the log again)")
-        frames = self.loader(self.path, sorted(topics))
-        for t in topics:
-            self.topics.pop(t, None)
-        return frames
+        return self.loader(self.path, sorted(topics))
 
 
 class Channels(MutableMapping):
@@ -295,13 +292,19 @@ class Channels(MutableMapping):
     frames : dict, optional
         Topic -> DataFrame already in memory.
     deferred : DeferredSource, optional
-        The channels still in the file.
+        The file the channels were read from.
+    topics : iterable of str, optional
+        Its channels left in it (default: those of ``deferred.topics`` not in ``frames``).
     """
 
-    def __init__(self, frames: dict[str, pd.DataFrame] | None = None, deferred: DeferredSource | None = None):
+    def __init__(self, frames: dict[str, pd.DataFrame] | None = None, deferred: DeferredSource | None = None,
+                 topics=None):
         self._frames: dict[str, pd.DataFrame] = dict(frames or {})
         self._deferred = deferred
-        self._own: set[str] = set(deferred.topics) if deferred is not None else set()
+        if deferred is None:
+            self._own: set[str] = set()
+        else:
+            self._own = {t for t in (deferred.topics if topics is None else topics) if t not in self._frames}
 
     @property
     def deferred(self) -> DeferredSource | None:
@@ -312,7 +315,7 @@ class Channels(MutableMapping):
         """The channels not decoded yet, sorted."""
         if self._deferred is None:
             return []
-        return sorted(t for t in self._own if t not in self._frames and t in self._deferred.topics)
+        return sorted(t for t in self._own if t not in self._frames)
 
     def decoded(self) -> dict[str, pd.DataFrame]:
         """The channels in memory (without decoding the deferred ones)."""
@@ -327,6 +330,18 @@ class Channels(MutableMapping):
             assert self._deferred is not None
             self._frames.update(self._deferred.load(todo))
             self._own.difference_update(todo)
+
+    def redefer(self, topics: list[str]) -> None:
+        """Drop the frames of ``topics`` (channels of the file read, their frames unchanged
+        since): they are decoded again if touched, and copied undecoded when the log is
+        written. Topics the file does not hold are left alone.
+        """
+        if self._deferred is None:
+            return
+        for t in topics:
+            if t in self._deferred.topics and t in self._frames:
+                del self._frames[t]
+                self._own.add(t)
 
     def __getitem__(self, topic: str) -> pd.DataFrame:
         if topic not in self._frames and topic in self._own:

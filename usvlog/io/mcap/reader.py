@@ -864,7 +864,8 @@ def _read_deferred(p: Path, topics: list[str], strict: bool) -> FieldLog:
     rest = {t: v for t, v in stored.items() if t not in log.channels and t not in topics}
     for t, (enc, sname, senc, sdata) in rest.items():
         log.schemas[t] = _codec_of(p, t, enc, senc, sname, sdata)[0]
-    log.channels = Channels(log.channels, DeferredSource(str(p), st.st_size, st.st_mtime_ns, rest, _load_channels))
+    log.channels = Channels(log.channels, DeferredSource(str(p), st.st_size, st.st_mtime_ns, stored, _load_channels),
+                            rest)
     return log
 
 
