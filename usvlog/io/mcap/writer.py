@@ -30,6 +30,7 @@ from .format import (
     _REC,
     MAGIC,
 )
+from .reader import ChunkStream, _layout_windowed, _Scan
 
 
 def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
@@ -231,12 +232,9 @@ class _RawFeed:
     """
 
     def __init__(self, src: DeferredSource, topics: list[str]):
-        # the reader's walk (CRC checks, the chunk index to skip chunks without these channels)
-        from .reader import ChunkStream, _layout_windowed  # noqa: PLC0415 - same package, only when copying
-
         self._src = src
+        # the reader's walk: CRC checks, chunks without these channels skipped (chunk index)
         self._stream = ChunkStream(src.path, topics=topics)
-        self._layout = _layout_windowed
         self._topics = set(topics)
         self._it = None
         self._done = False
@@ -249,10 +247,8 @@ class _RawFeed:
         """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
         (so the copied payloads are sliced too)."""
         st = self._stream
-        from .reader import _Scan  # noqa: PLC0415 - same package, only when copying
-
         scan = _Scan()
-        self._layout(scan, st._map, st._release_all)
+        _layout_windowed(scan, st._map, st._release_all)
         if scan.summary is None:
             return cuts
         t0 = sorted(v[1] for v in scan.summary.chunks.values())[::_FEED_CHUNKS][1:]
