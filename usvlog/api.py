@@ -828,11 +828,9 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         _say(progress, f"reading {log}")
     log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
+    # memory: a log read here gives its channels back to the file once replay has used them
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
-                     whatif_controller=whatif_controller)
-    if read_here:   # memory: the channels read go back to the file (decoded again if touched)
-        del log
-        _redefer(res.log, _REPLAY_READS)
+                     whatif_controller=whatif_controller, release_inputs=read_here)
     if out is not None:
         save(res.log, out, force=force)
         _say(progress, f"wrote {out}")

@@ -297,11 +297,15 @@ def _current_of(log: FieldLog, topic: str) -> tuple[float, float]:
 
 def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, gains: Gains | None = None,
                controller: str | None = None, whatif: bool = True,
-               whatif_controller: str | None = None) -> ReplayResult:
+               whatif_controller: str | None = None, release_inputs: bool = False) -> ReplayResult:
     """Open-loop replay of a recorded run plus a what-if simulation; returns the log with the results.
 
     The controller's model (and the what-if plant) is ``vessel``, else the scenario's
     ``[vessel]``, else the log's ``usvlog.vessel``; the gains are ``gains`` else the scenario's.
+    With ``release_inputs`` (a log read from its file for this call alone, its frames
+    unchanged) the channels it reads are left in the file again once used, in ``log`` and
+    in the result (:meth:`usvlog.log.fieldlog.Channels.redefer`: decoded again if touched,
+    copied undecoded when written), so their frames do not stay in memory with the results.
     """
     src = log.source or "log"
     ves = vessel or (scen.sim.vessel if "vessel" in scen.doc else None) or log.vessel or default_vessel()
@@ -311,6 +315,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     datum = log.datum or scen.sim.datum
     path = scen.path(datum)
     topic, t_state, X = _state_source(log)
+    cur = _current_of(log, topic) if whatif else (0.0, 0.0)
     cmd = log.get("/thrust/command")
     rate = scen.guidance.rate_hz
     if cmd is not None and len(cmd):
@@ -372,9 +377,14 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     carrot = float(np.max(scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
     off = path_following_warning(rows[:, COL["cross_track_m"]], t_rel, scen.metrics_start_s, carrot)
     del rows, frame   # memory: the controller rows are in /replay/controller now
+    cmd = rec = rec_cs = None
+    if release_inputs:
+        for lg in (log, out):
+            redefer = getattr(lg.channels, "redefer", None)
+            if redefer is not None:
+                redefer([topic, "/thrust/command", "/control/state"])
     m_whatif = None
     if whatif:
-        cur = _current_of(log, topic)
         wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")
         dur = float(t_rel[-1] + dt[-1])
         dt_s = 1.0 / rate
