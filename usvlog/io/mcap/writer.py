@@ -227,8 +227,10 @@ class _RawFeed:
     """The message payloads of channels of a canonical file, by time slice, as they are
     stored (for :func:`write_log` to copy without decoding).
 
-    Memory: the payloads of the messages read ahead of the slice being written (a file
-    usvlog wrote is in time order, so about one slice plus one chunk).
+    Memory: the decompressed chunks read ahead of the slice being written, whose payloads
+    are copied straight into the message records (a file usvlog wrote is in time order, so
+    about one slice plus one chunk; one slice holding everything when the log's frames do
+    not rise in time).
     """
 
     def __init__(self, src: DeferredSource, topics: list[str]):
@@ -241,7 +243,7 @@ class _RawFeed:
         self._seen = np.iinfo(np.int64).min        # latest time read so far (ns)
         self._emitted = np.iinfo(np.int64).min     # every message before this time was handed out
         self._last: dict[str, tuple[int, int]] = {}  # topic -> (time, sequence) of its last message read
-        self._held: dict[str, list] = {t: [] for t in topics}   # topic -> [(t, data, offs)]
+        self._held: list = []   # per batch read: (its bytes, {topic: (times, payload starts, ends)})
 
     def cuts(self, cuts: np.ndarray) -> np.ndarray:
         """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
@@ -259,7 +261,7 @@ class _RawFeed:
         if self._it is None:
             self._it = self._stream._batches()
         try:
-            records, _at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
+            records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
         except StopIteration:
             self._done = True
             return False
@@ -268,6 +270,7 @@ class _RawFeed:
                 raise _OutOfOrder
             self._seen = max(self._seen, int(t.max()))
         chans = self._stream._scan.channels
+        held = {}
         for c in np.unique(cid).tolist():
             topic = chans[c].topic
             if topic not in self._topics:
@@ -279,39 +282,43 @@ class _RawFeed:
                     (prev is not None and (int(tc[0]) < prev[0] or int(sc[0]) < prev[1])):
                 raise _OutOfOrder
             self._last[topic] = (int(tc[-1]), int(sc[-1]))
-            lens = pe[sel] - ps[sel]
-            offs = np.zeros(len(sel) + 1, dtype=np.int64)
-            np.cumsum(lens, out=offs[1:])
-            idx = np.repeat(ps[sel] - offs[:-1], lens) + np.arange(offs[-1], dtype=np.int64)
-            self._held[topic].append((tc, np.asarray(records)[idx], offs))
+            held[topic] = (tc, ps[sel], pe[sel])
+        if held:
+            if at < 0:   # messages outside chunks: spans in the file's bytes, copied out
+                lo = min(int(v[1].min()) for v in held.values())
+                hi = max(int(v[2].max()) for v in held.values())
+                buf = np.frombuffer(bytes(records[lo:hi]), dtype=np.uint8)
+                held = {k: (v[0], v[1] - lo, v[2] - lo) for k, v in held.items()}
+            else:        # a chunk's records: the payloads are copied from it when written
+                buf = np.frombuffer(records, dtype=np.uint8) if not isinstance(records, np.ndarray) else records
+            self._held.append((buf, held))
         return True
 
-    def take(self, upto: int | None) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def take(self, upto: int | None) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]]:
         """The payloads of every message before ``upto`` (ns; None: all the rest), topic ->
-        (times, bytes, offsets), in row order."""
+        pieces (times, buffer, payload starts, payload ends), in row order."""
         while not self._done and (upto is None or self._seen < upto):
             self._pull()
-        out = {}
-        for topic, parts in self._held.items():
-            if not parts:
-                continue
-            t = parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
-            n = len(t) if upto is None else int(np.searchsorted(t, upto, side="left"))
-            if n == 0:
-                continue
-            lens = np.concatenate([np.diff(p[2]) for p in parts])
-            data = np.concatenate([p[1] for p in parts])
-            offs = np.zeros(len(t) + 1, dtype=np.int64)
-            np.cumsum(lens, out=offs[1:])
-            out[topic] = (t[:n], data[:offs[n]], offs[:n + 1])
-            self._held[topic] = [(t[n:], data[offs[n]:], offs[n:] - offs[n])] if n < len(t) else []
+        out: dict[str, list] = {}
+        keep = []
+        for buf, held in self._held:
+            rest = {}
+            for topic, (t, ps, pe) in held.items():
+                n = len(t) if upto is None else int(np.searchsorted(t, upto, side="left"))
+                if n:
+                    out.setdefault(topic, []).append((t[:n], buf, ps[:n], pe[:n]))
+                if n < len(t):
+                    rest[topic] = (t[n:], ps[n:], pe[n:])
+            if rest:
+                keep.append((buf, rest))
+        self._held = keep
         if upto is not None:
             self._emitted = max(self._emitted, upto)
         return out
 
     def finish(self) -> None:
         """After the last slice: the file must have read intact and be unchanged."""
-        assert self._done and not any(self._held.values())
+        assert self._done and not self._held
         rep = self._stream.recovery()
         why = self._src.changed()
         if rep is not None or why is not None:
@@ -454,43 +461,42 @@ class McapWriter:
 
     # -- messages ------------------------------------------------------------------------
     def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None,
-                   raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None) -> None:
+                   raw: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None = None) -> None:
         """Append one batch: every row of every frame (index: int64 log time ns) as a message.
 
-        ``raw`` adds messages already encoded, topic -> (int64 log times in ns, uint8
-        payload bytes, int64 offsets of the n+1 payload bounds), in the channel's row order:
-        their channel must be registered (:meth:`add_channel`) and the payloads be what its
-        codec writes (e.g. copied from a file whose channel has the same schema record).
+        ``raw`` adds messages already encoded, topic -> pieces (int64 log times in ns, a
+        uint8 buffer, int64 starts and ends of the payloads in it), in the channel's row
+        order (pieces may share a buffer): their channel must be registered
+        (:meth:`add_channel`) and the payloads be what its codec writes (e.g. copied from
+        a file whose channel has the same schema record).
         """
-        parts: list[tuple[str, object]] = [(topic, frame) for topic, frame in frames.items()]
-        parts += [(topic, r) for topic, r in (raw or {}).items()]
+        pieces: list[tuple[str, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        for topic, frame in frames.items():
+            if not len(frame):
+                continue
+            cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
+            data, offs = self._topics[topic][1].encode_packed(frame, topic)
+            pieces.append((topic, cid, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+        for topic, parts in (raw or {}).items():
+            pieces += [(topic, self._topics[topic][0], *p) for p in parts if len(p[0])]
         bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
+        bases: dict[int, int] = {}   # id of a buffer -> where it starts in the batch's bytes
         base = 0
-        for topic, item in parts:
-            if isinstance(item, tuple):
-                t, data, offs = item
-                if not len(t):
-                    continue
-                cid = self._topics[topic][0]
-            else:
-                frame = item
-                if not len(frame):
-                    continue
-                cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-                codec = self._topics[topic][1]
-                t = np.asarray(frame.index, dtype=np.int64)
-                data, offs = codec.encode_packed(frame, topic)
+        for topic, cid, t, data, ps, pe in pieces:
             if t.min() < 0:
                 raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
             s0 = self._seq[cid]
             self._seq[cid] = s0 + len(t)
-            bufs.append(data)
+            at = bases.get(id(data))
+            if at is None:
+                at = bases[id(data)] = base
+                bufs.append(data)
+                base += len(data)
             ts.append(t)
             cids.append(np.full(len(t), cid, dtype=np.int64))
             seqs.append(np.arange(s0, s0 + len(t), dtype=np.int64))
-            starts.append(offs[:-1] + base)
-            ends.append(offs[1:] + base)
-            base += len(data)
+            starts.append(ps + at)
+            ends.append(pe + at)
         if not ts:
             return
         t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
