@@ -109,7 +109,9 @@ def load(path, **kwargs) -> FieldLog:
         recording, ``run_000.mcap``, ``run_001.mcap``, ...) as one log.
     **kwargs
         ``topics`` (list of str): load only these channels. ``strict`` (bool, single file
-        only): raise instead of recovering a file cut short.
+        only): raise instead of recovering a file cut short. ``defer`` (bool, single file
+        only, with ``topics``): keep the other channels in the file, decoded when touched
+        and copied undecoded by :func:`save` (see :func:`usvlog.io.mcap.read_log`).
 
     Returns
     -------
