@@ -43,6 +43,11 @@ Progress = Callable[[str], None] | None
 
 FIT_TOPIC = "/identify/fit"
 
+# the channels a verb decodes when it reads a file; the others stay in it (decoded if the verb
+# touches one after all, e.g. /truth/state when there is no estimate; copied undecoded to --out)
+_ESTIMATE_READS = ["/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity", "/imu/yaw_rate"]
+_REPLAY_READS = ["/estimate/state", "/thrust/command", "/control/state"]
+
 
 def _is_path(x: Any) -> bool:
     return isinstance(x, (str, os.PathLike))
@@ -53,10 +58,12 @@ def _say(progress: Progress, msg: str) -> None:
         progress(msg)
 
 
-def _read(log, progress: Progress = None, topics=None, drawn=None):
+def _read(log, progress: Progress = None, topics=None, drawn=None, defer: bool = False):
     """``log`` itself when it is a FieldLog, else the canonical MCAP file at that path, loaded
-    (only the channels ``topics`` when given; ``drawn``: the channels a view or report draws,
-    with the others only when they widen its time range, :func:`usvlog.view.source.read_drawn`).
+    (only the channels ``topics`` when given; with ``defer`` the others stay in the file,
+    decoded when touched and copied undecoded when the log is saved; ``drawn``: the channels a
+    view or report draws, with the others only when they widen its time range,
+    :func:`usvlog.view.source.read_drawn`).
 
     A damaged file loads with what could be recovered; then its one-line damage report
     ("input damaged: ...") goes to ``progress`` and into the log's provenance, so every
@@ -70,12 +77,20 @@ def _read(log, progress: Progress = None, topics=None, drawn=None):
 
             log = read_drawn(log, drawn, read_log)
         else:
-            log = read_log(log, topics=topics)
+            log = read_log(log, topics=topics, defer=defer)
         if log.recovery is not None:
             note = log.recovery.one_line()
             _say(progress, f"{log.source}: {note}")
             log.add_provenance(producer="usvlog load", source=str(log.source or ""), input_damage=note)
     return log
+
+
+def _redefer(log: FieldLog, topics: list[str]) -> None:
+    """Leave ``topics`` of a log read by :func:`_read` (their frames unchanged) in its file
+    again: the frames are freed, decoded again if touched, and copied undecoded by ``save``."""
+    redefer = getattr(log.channels, "redefer", None)
+    if redefer is not None:
+        redefer(topics)
 
 
 def _vessel_file(vessel):
@@ -101,7 +116,9 @@ def load(path, **kwargs) -> FieldLog:
         recording, ``run_000.mcap``, ``run_001.mcap``, ...) as one log.
     **kwargs
         ``topics`` (list of str): load only these channels. ``strict`` (bool, single file
-        only): raise instead of recovering a file cut short.
+        only): raise instead of recovering a file cut short. ``defer`` (bool, single file
+        only, with ``topics``): keep the other channels in the file, decoded when touched
+        and copied undecoded by :func:`save` (see :func:`usvlog.io.mcap.read_log`).
 
     Returns
     -------
@@ -551,14 +568,19 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
                                 smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
                                 **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
-    src = log if _is_path(log) else log.source
-    log = _read(log, progress)
+    read_here = _is_path(log)
+    src = log if read_here else log.source
+    log = _read(log, progress, topics=_ESTIMATE_READS, defer=True)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
                    f"{''.join(f', estimating the {k} delay' for k in auto)})")
     result = run_estimate(log, settings, ves)
     if out is not None:
-        save(result.to_log(log), out, force=force)
+        out_log = result.to_log(log)
+        if read_here:   # read here: its channels go back to the file, copied undecoded
+            del log
+            _redefer(out_log, _ESTIMATE_READS)
+        save(out_log, out, force=force)
     return result
 
 
@@ -810,12 +832,14 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
             scen = replace(scen, guidance=guidance)
     if _is_path(vessel):
         vessel = load_vessel_or_scenario_vessel(vessel)
-    if _is_path(log):
+    read_here = _is_path(log)
+    if read_here:
         _say(progress, f"reading {log}")
-    log = _read(log, progress)
+    log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
+    # memory: a log read here gives its channels back to the file once replay has used them
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
-                     whatif_controller=whatif_controller)
+                     whatif_controller=whatif_controller, release_inputs=read_here)
     if out is not None:
         save(res.log, out, force=force)
         _say(progress, f"wrote {out}")

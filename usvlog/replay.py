@@ -115,15 +115,16 @@ def tracking_metrics(rows: np.ndarray, t_s: np.ndarray, start_s: float = 0.0) ->
     if not sel.any():  # a run shorter than the transient: measure all of it
         start_s = 0.0
         sel = np.ones(len(t_s), bool)
-    r = rows[sel]
-    xt = np.abs(r[:, COL["cross_track_m"]])
+    def col(name: str) -> np.ndarray:   # one column of the selected rows (not a copy of them all)
+        return rows[sel, COL[name]]
+    xt = np.abs(col("cross_track_m"))
     # NaN kept (omit_nonfinite=False): a diverged closed loop must show in the metrics
     return TrackingMetrics(n_ticks=int(sel.sum()), start_s=float(start_s), duration_s=float(dt[sel].sum()),
                            cross_track_rms_m=rms(xt), cross_track_p95_m=float(np.percentile(xt, 95)),
                            cross_track_max_m=float(xt.max()),
-                           heading_error_rms_rad=rms(r[:, COL["psi_e_rad"]]),
-                           surge_error_rms_mps=rms(r[:, COL["u_e_mps"]]),
-                           time_saturated_s=float(dt[sel][r[:, COL["saturated"]] != 0].sum()))
+                           heading_error_rms_rad=rms(col("psi_e_rad")),
+                           surge_error_rms_mps=rms(col("u_e_mps")),
+                           time_saturated_s=float(dt[sel][col("saturated") != 0].sum()))
 
 
 OFF_PATH = "the run does not follow the scenario's path"
@@ -296,11 +297,15 @@ def _current_of(log: FieldLog, topic: str) -> tuple[float, float]:
 
 def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, gains: Gains | None = None,
                controller: str | None = None, whatif: bool = True,
-               whatif_controller: str | None = None) -> ReplayResult:
+               whatif_controller: str | None = None, release_inputs: bool = False) -> ReplayResult:
     """Open-loop replay of a recorded run plus a what-if simulation; returns the log with the results.
 
     The controller's model (and the what-if plant) is ``vessel``, else the scenario's
     ``[vessel]``, else the log's ``usvlog.vessel``; the gains are ``gains`` else the scenario's.
+    With ``release_inputs`` (a log read from its file for this call alone, its frames
+    unchanged) the channels it reads are left in the file again once used, in ``log`` and
+    in the result (:meth:`usvlog.log.fieldlog.Channels.redefer`: decoded again if touched,
+    copied undecoded when written), so their frames do not stay in memory with the results.
     """
     src = log.source or "log"
     ves = vessel or (scen.sim.vessel if "vessel" in scen.doc else None) or log.vessel or default_vessel()
@@ -310,6 +315,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     datum = log.datum or scen.sim.datum
     path = scen.path(datum)
     topic, t_state, X = _state_source(log)
+    cur = _current_of(log, topic) if whatif else (0.0, 0.0)
     cmd = log.get("/thrust/command")
     rate = scen.guidance.rate_hz
     if cmd is not None and len(cmd):
@@ -322,6 +328,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     if len(t_tick) < 2:
         raise InputError(f"{src}: fewer than 2 controller ticks inside {topic}")
     Xt = _states_at(t_state, X, t_tick)
+    del X, t_state   # memory: only the states at the ticks are used from here
     t_rel = (t_tick - t_tick[0]) / 1e9
     dt = np.diff(t_rel, append=t_rel[-1] + (t_rel[-1] - t_rel[-2]))
     ctl = Controller(path, ves, gains, scen.guidance, full=ctl_name == "full")
@@ -369,23 +376,32 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     m_replay = tracking_metrics(rows, t_rel, scen.metrics_start_s)
     carrot = float(np.max(scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
     off = path_following_warning(rows[:, COL["cross_track_m"]], t_rel, scen.metrics_start_s, carrot)
+    del rows, frame   # memory: the controller rows are in /replay/controller now
+    cmd = rec = rec_cs = None
+    if release_inputs:
+        for lg in (log, out):
+            redefer = getattr(lg.channels, "redefer", None)
+            if redefer is not None:
+                redefer([topic, "/thrust/command", "/control/state"])
     m_whatif = None
     if whatif:
-        cur = _current_of(log, topic)
         wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")
         dur = float(t_rel[-1] + dt[-1])
         dt_s = 1.0 / rate
         run = closed_loop(path, ves, wctl, duration_s=dur, dt_s=dt_s, integrator=scen.sim.integrator,
                           current_ne=cur, eta0=Xt[0, :3], nu0=Xt[0, 3:], schedule=scen.schedule, rate_hz=rate)
         tw = t_tick[0] + np.round(run.t * 1e9).astype(np.int64)
+        m_whatif = tracking_metrics(run.ctrl, run.t[run.tick], scen.metrics_start_s)
         s = run.states
         st_cols = {"n_m": s[:, 0], "e_m": s[:, 1], "psi_rad": ssa(s[:, 2]), "u_mps": s[:, 3], "v_mps": s[:, 4],
                    "r_radps": s[:, 5], "current_n_mps": np.full(len(s), cur[0]),
                    "current_e_mps": np.full(len(s), cur[1]), "tau_u_n": run.tau[:, 0], "tau_r_nm": run.tau[:, 1]}
         out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state")))
-        out.set("/replay/whatif/controller",
-                controller_frame(run.ctrl, tw[run.tick], "/replay/whatif/controller", thr, unit))
-        m_whatif = tracking_metrics(run.ctrl, run.t[run.tick], scen.metrics_start_s)
+        del s, st_cols   # memory: the states are in the frame now
+        ctrl, t_ctrl = run.ctrl, tw[run.tick]
+        del run
+        out.set("/replay/whatif/controller", controller_frame(ctrl, t_ctrl, "/replay/whatif/controller", thr, unit))
+        del ctrl
     out.meta[META_PATH] = path.metadata()
     metrics = ReplayMetrics(state_source=topic, controller=ctl_name, replay=m_replay,
                             command_unit=unit if sel is not None else None, n_commands_compared=n_cmp,

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 import re
+from collections.abc import Callable, Iterator, MutableMapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -227,6 +229,167 @@ def parse_time(text: str) -> int:
 
 
 @dataclass
+class DeferredSource:
+    """Channels of a file not decoded when it was read (see :class:`Channels`).
+
+    Attributes
+    ----------
+    path : str
+        The file they are in.
+    size : int
+        Its size when it was read (bytes).
+    mtime_ns : int
+        Its modification time when it was read (ns since the Unix epoch).
+    topics : dict of str to tuple
+        Topic -> how the file stores it: (message encoding, schema name, schema encoding,
+        schema bytes), for every canonical channel of the file.
+    loader : callable
+        ``loader(path, topics)`` -> ``{topic: DataFrame}``: decodes channels of the file
+        (:func:`usvlog.io.mcap.reader.read_log`'s decoding).
+    """
+
+    path: str
+    size: int
+    mtime_ns: int
+    topics: dict[str, tuple]
+    loader: Callable[[str, list[str]], dict[str, pd.DataFrame]]
+
+    def changed(self) -> str | None:
+        """Why the file is no longer the one read (size or modification time differ), else None."""
+        try:
+            st = os.stat(self.path)
+        except OSError as err:
+            return f"cannot be read any more ({err.strerror or err})"
+        if st.st_size != self.size or st.st_mtime_ns != self.mtime_ns:
+            return "changed since it was read"
+        return None
+
+    def load(self, topics: list[str]) -> dict[str, pd.DataFrame]:
+        """Decode ``topics`` (some of :attr:`topics`) from the file, which must be unchanged.
+
+        Raises
+        ------
+        InputError
+            The file changed (size or modification time) or went since it was read.
+        """
+        why = self.changed()
+        if why is not None:
+            raise InputError(f"{self.path} {why}: channel(s) {', '.join(sorted(topics))} not loaded "
+                             "(load the log again)")
+        return self.loader(self.path, sorted(topics))
+
+
+class Channels(MutableMapping):
+    """Topic -> DataFrame, where channels of the file read may still be undecoded (deferred).
+
+    A plain mapping for every use (``in``, ``[]``, ``get``, iteration, ``items()``): a
+    deferred channel is listed with the others and decoded from its file the first time its
+    frame is asked for (all the deferred ones at once by ``values()``/``items()``). Setting
+    or deleting a channel drops its deferred copy.
+
+    Parameters
+    ----------
+    frames : dict, optional
+        Topic -> DataFrame already in memory.
+    deferred : DeferredSource, optional
+        The file the channels were read from.
+    topics : iterable of str, optional
+        Its channels left in it (default: those of ``deferred.topics`` not in ``frames``).
+    """
+
+    def __init__(self, frames: dict[str, pd.DataFrame] | None = None, deferred: DeferredSource | None = None,
+                 topics=None):
+        self._frames: dict[str, pd.DataFrame] = dict(frames or {})
+        self._deferred = deferred
+        if deferred is None:
+            self._own: set[str] = set()
+        else:
+            self._own = {t for t in (deferred.topics if topics is None else topics) if t not in self._frames}
+
+    @property
+    def deferred(self) -> DeferredSource | None:
+        """The source of the channels not decoded yet (None when every one is in memory)."""
+        return self._deferred if self.deferred_topics() else None
+
+    def deferred_topics(self) -> list[str]:
+        """The channels not decoded yet, sorted."""
+        if self._deferred is None:
+            return []
+        return sorted(t for t in self._own if t not in self._frames)
+
+    def decoded(self) -> dict[str, pd.DataFrame]:
+        """The channels in memory (without decoding the deferred ones)."""
+        return dict(self._frames)
+
+    def load_deferred(self, topics: list[str] | None = None) -> None:
+        """Decode deferred channels (``topics``, default all) now, in one pass over the file."""
+        todo = self.deferred_topics()
+        if topics is not None:
+            todo = [t for t in todo if t in set(topics)]
+        if todo:
+            assert self._deferred is not None
+            self._frames.update(self._deferred.load(todo))
+            self._own.difference_update(todo)
+
+    def redefer(self, topics: list[str]) -> None:
+        """Drop the frames of ``topics`` (channels of the file read, their frames unchanged
+        since): they are decoded again if touched, and copied undecoded when the log is
+        written. Topics the file does not hold are left alone.
+        """
+        if self._deferred is None:
+            return
+        for t in topics:
+            if t in self._deferred.topics and t in self._frames:
+                del self._frames[t]
+                self._own.add(t)
+
+    def __getitem__(self, topic: str) -> pd.DataFrame:
+        if topic not in self._frames and topic in self._own:
+            self.load_deferred([topic])
+        return self._frames[topic]
+
+    def __setitem__(self, topic: str, frame: pd.DataFrame) -> None:
+        self._own.discard(topic)
+        self._frames[topic] = frame
+
+    def __delitem__(self, topic: str) -> None:
+        if topic in self._own:
+            self._own.discard(topic)
+            if topic not in self._frames:
+                return
+        del self._frames[topic]
+
+    def __contains__(self, topic: object) -> bool:
+        return topic in self._frames or topic in self._own
+
+    def __iter__(self) -> Iterator[str]:
+        yield from self._frames
+        yield from (t for t in sorted(self._own) if t not in self._frames)
+
+    def __len__(self) -> int:
+        return len(self._frames) + sum(1 for t in self._own if t not in self._frames)
+
+    def values(self):  # type: ignore[override]
+        """Every frame (the deferred ones decoded first, in one pass)."""
+        self.load_deferred()
+        return self._frames.values()
+
+    def items(self):  # type: ignore[override]
+        """(topic, frame) of every channel (the deferred ones decoded first, in one pass)."""
+        self.load_deferred()
+        return self._frames.items()
+
+    def copy(self) -> Channels:
+        """A shallow copy that keeps the deferred channels deferred (frames shared)."""
+        out = Channels(self._frames, self._deferred)
+        out._own = set(self._own)
+        return out
+
+    def __repr__(self) -> str:
+        return f"Channels({sorted(self._frames)}, deferred={self.deferred_topics()})"
+
+
+@dataclass
 class FieldLog:
     """One run in memory: a pandas DataFrame per channel plus the run's metadata.
 
@@ -249,9 +412,13 @@ class FieldLog:
         What was lost when the file was damaged (None when it was read whole).
     source : str or None
         The path the log was loaded from.
+
+    A log read with a subset of its channels decoded keeps the others in its file
+    (``channels`` is then a :class:`Channels`, see :attr:`deferred`): they are listed like
+    the rest and decoded when first touched.
     """
 
-    channels: dict[str, pd.DataFrame] = field(default_factory=dict)
+    channels: MutableMapping[str, pd.DataFrame] = field(default_factory=dict)
     meta: dict[str, dict[str, str]] = field(default_factory=dict)
     schemas: dict[str, dict] = field(default_factory=dict)  # topic -> schema read from file (if any)
     recovery: RecoveryReport | None = None
@@ -300,6 +467,12 @@ class FieldLog:
                 vals = np.asarray(idx, dtype=np.int64)
             frame = frame.set_axis(pd.Index(vals, name="t_ns"), axis=0)
         self.channels[topic] = frame
+
+    @property
+    def deferred(self) -> DeferredSource | None:
+        """The file holding the channels not decoded yet, or None when all are in memory."""
+        ch = self.channels
+        return ch.deferred if isinstance(ch, Channels) else None
 
     @property
     def topics(self) -> list[str]:
@@ -380,7 +553,12 @@ class FieldLog:
         -------
         FieldLog
         """
-        channels = {k: f.copy(deep=True) for k, f in self.channels.items()} if deep else dict(self.channels)
+        if deep:
+            channels = {k: f.copy(deep=True) for k, f in self.channels.items()}
+        elif isinstance(self.channels, Channels):
+            channels = self.channels.copy()   # deferred channels stay deferred
+        else:
+            channels = dict(self.channels)
         return FieldLog(channels=channels, meta={k: dict(v) for k, v in self.meta.items()},
                         schemas=dict(self.schemas), recovery=self.recovery, source=self.source)
 

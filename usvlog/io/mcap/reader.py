@@ -30,7 +30,7 @@ import pandas as pd
 
 from ...errors import FormatError, InputError
 from ...log.channels import frame_from_columns
-from ...log.fieldlog import FieldLog, LostChunk, RecoveryReport
+from ...log.fieldlog import Channels, DeferredSource, FieldLog, LostChunk, RecoveryReport
 from ..atomic import reading
 from . import kernels as K
 from .codec import channel_codec, loadable
@@ -805,7 +805,7 @@ def scan_file(path, *, scanner=None) -> tuple[_Scan, int]:
         return _scan_fast(data, stream._release, stream._release_all), len(data)
 
 
-def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> FieldLog:
+def read_log(path, *, topics: list[str] | None = None, strict: bool = False, defer: bool = False) -> FieldLog:
     """Load a canonical MCAP log into a :class:`FieldLog`, checking every chunk's CRC.
 
     Parameters
@@ -816,6 +816,12 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
         Load only these channels.
     strict : bool
         Raise :class:`InputError` on any damage instead of recovering.
+    defer : bool
+        With ``topics``: decode only those now and keep the file's other canonical
+        channels deferred (``log.channels`` is a :class:`~usvlog.log.fieldlog.Channels`:
+        they are listed, their schemas are in ``log.schemas``, and each is decoded when first
+        touched; :func:`.writer.write_log` copies one still deferred without decoding it).
+        A damaged file is read whole instead (its recovery report is then the full one).
 
     Returns
     -------
@@ -826,9 +832,61 @@ def read_log(path, *, topics: list[str] | None = None, strict: bool = False) -> 
         damaged byte ranges, the chunks lost (time range and channels where known), the
         messages skipped and bytes after the footer. A chunk that fails is never loaded.
     """
-    log = _read_log(path, topics=topics, strict=strict)
+    if defer and topics is not None:
+        log = _read_deferred(Path(path), list(topics), strict)
+    else:
+        log = _read_log(path, topics=topics, strict=strict)
     _return_freed_memory()
     return log
+
+
+def _load_channels(path: str, topics: list[str]) -> dict[str, pd.DataFrame]:
+    """The frames of ``topics`` of the file (the loader of deferred channels)."""
+    log = _read_log(path, topics=topics)
+    if log.recovery is not None:   # it read intact before: it changed under the same size and time
+        raise InputError(f"{path}: damaged since it was read ({log.recovery.reason}); load it again")
+    frames = {t: log.channels[t] for t in topics if t in log.channels}
+    _return_freed_memory()
+    return frames
+
+
+def _read_deferred(p: Path, topics: list[str], strict: bool) -> FieldLog:
+    """:func:`read_log` of ``topics``, the file's other canonical channels deferred."""
+    import os  # stdlib: the file's size and time when read
+
+    st = os.stat(p)
+    log = _read_log(p, topics=topics, strict=strict)
+    if log.recovery is not None:   # damaged: read whole, as without deferral
+        return _read_log(p, strict=strict)
+    stored = _stored_channels(p)
+    if stored is None:   # no summary, or a topic on two channels: read whole
+        return _read_log(p, strict=strict)
+    rest = {t: v for t, v in stored.items() if t not in log.channels and t not in topics}
+    for t, (enc, sname, senc, sdata) in rest.items():
+        log.schemas[t] = _codec_of(p, t, enc, senc, sname, sdata)[0]
+    log.channels = Channels(log.channels, DeferredSource(str(p), st.st_size, st.st_mtime_ns, stored, _load_channels),
+                            rest)
+    return log
+
+
+def _stored_channels(p: Path) -> dict[str, tuple[str, str, str, bytes]] | None:
+    """Topic -> (message encoding, schema name, schema encoding, schema bytes) of every
+    canonical channel the file's summary lists (read from the summary alone); None when
+    there is no summary or a topic is on more than one channel."""
+    with ChunkStream(p) as stream:
+        scan = stream._scan
+        _layout_windowed(scan, stream._map, stream._release_all)
+        s = scan.summary
+        if s is None:
+            return None
+        out = {}
+        for _cid, (topic, sid, enc) in sorted(s.channels.items()):
+            sname, senc, sdata = s.schemas.get(sid, ("", "", b""))
+            if loadable(enc, senc, sname):
+                if topic in out:
+                    return None
+                out[topic] = (enc, sname, senc, bytes(sdata))
+        return out
 
 
 def _return_freed_memory() -> None:

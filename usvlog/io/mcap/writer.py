@@ -22,7 +22,7 @@ from ...log.channels import (
     auto_schema,
     schema_for_topic,
 )
-from ...log.fieldlog import FieldLog
+from ...log.fieldlog import Channels, DeferredSource, FieldLog
 from ..atomic import atomic_path
 from . import kernels as K
 from .codec import Codec, writer_codec
@@ -30,6 +30,7 @@ from .format import (
     _REC,
     MAGIC,
 )
+from .reader import ChunkStream, _layout_windowed, _Scan
 
 
 def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
@@ -78,22 +79,115 @@ def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 <
     byte at the library's ``zstd_level=3``; ``_write_log_reference`` does it that way
     and the tests compare). Metadata records come first (a truncated file keeps them),
     then every channel, then the messages of all channels in (time, channel, row) order.
+
+    A channel still deferred (``log.deferred``: read from a file and never touched) is
+    copied from that file's message payloads without decoding them when the file
+    stores it with the schema record and message encoding this writer uses for it: the
+    same file as after decoding it, byte for byte. It is decoded instead when the file
+    stores it otherwise, when the log was read with damage recovered, or when its messages
+    are not in the time and sequence order a usvlog file has; a file changed since it was
+    read (size or modification time) is refused (:class:`InputError`).
     """
     _compression(compression)
-    frames = {topic: log.channels[topic] for topic in log.topics}
+    copy = _copied_channels(log)
     with atomic_path(path, force=force) as tmp:
-        with open(tmp, "wb", buffering=1 << 20) as fh:
-            w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        if copy:
             try:
-                for name in sorted(log.meta):
-                    w.add_metadata(name, log.meta[name])
-                for topic in log.topics:
-                    w.add_channel(topic, log.schemas.get(topic), log.channels[topic])
+                _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, copy)
+                return
+            except _OutOfOrder:   # the source's messages are not in time/row order: decode them
+                assert isinstance(log.channels, Channels)
+                log.channels.load_deferred(copy)
+        _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, [])
+
+
+def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: int, slice_messages: int,
+           copy: list[str]) -> None:
+    """:func:`write_log` to ``tmp``, the channels ``copy`` from the log's source file."""
+    decoded = log.channels.decoded() if isinstance(log.channels, Channels) else log.channels
+    frames = {topic: decoded[topic] for topic in log.topics if topic not in copy}
+    with open(tmp, "wb", buffering=1 << 20) as fh:
+        w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        feed = None
+        try:
+            for name in sorted(log.meta):
+                w.add_metadata(name, log.meta[name])
+            for topic in log.topics:
+                w.add_channel(topic, log.schemas.get(topic), frames.get(topic))
+            if not copy:
                 for batch in time_slices(frames, slice_messages):
                     w.add_frames(batch, log.schemas)
-                w.finish()
-            finally:
-                w.close()
+            else:
+                src = log.deferred
+                assert src is not None
+                feed = _RawFeed(src, copy)
+                cuts = _slice_cuts(_times(frames), slice_messages)
+                # frames whose times do not rise: one slice (the copied payloads held whole)
+                cuts = np.zeros(0, dtype=np.int64) if cuts is None else feed.cuts(cuts)
+                for k, batch in enumerate(_cut(frames, cuts)):
+                    w.add_frames(batch, log.schemas, feed.take(int(cuts[k]) if k < len(cuts) else None))
+                feed.finish()
+            w.finish()
+        finally:
+            w.close()
+            if feed is not None:
+                feed.close()
+
+
+def _copied_channels(log: FieldLog) -> list[str]:
+    """The deferred channels :func:`write_log` copies from the source file (the others it
+    must write are decoded now)."""
+    ch = log.channels
+    src = log.deferred
+    if src is None or not isinstance(ch, Channels):
+        return []
+    why = src.changed()
+    if why is not None:
+        raise InputError(f"{src.path} {why}: cannot write channel(s) {', '.join(ch.deferred_topics())} "
+                         "from it (load the log again)")
+    todo = ch.deferred_topics()
+    if log.recovery is not None:
+        ch.load_deferred()
+        return []
+    copy, decode = [], []
+    for topic in todo:
+        schema, codec = _codec_for(topic, log.schemas.get(topic))
+        mine = (codec.message_encoding, *_schema_record(topic, schema, codec))
+        (copy if mine == tuple(src.topics[topic]) else decode).append(topic)
+    ch.load_deferred(decode)
+    return copy
+
+
+class _OutOfOrder(Exception):
+    """The source's messages of a copied channel are not in (time, row) order."""
+
+
+def _times(frames: dict[str, pd.DataFrame]) -> dict[str, np.ndarray]:
+    return {t: np.asarray(f.index, dtype=np.int64) for t, f in frames.items() if len(f)}
+
+
+def _slice_cuts(times: dict[str, np.ndarray], size: int) -> np.ndarray | None:
+    """The times that cut ``times`` (topic -> rising int64 ns) into slices of about ``size``
+    messages (a slice is [cut k-1, cut k)); None when a channel's times do not rise (then
+    the frames are one slice)."""
+    total = sum(len(v) for v in times.values())
+    if not all(len(v) < 2 or bool(np.all(v[1:] >= v[:-1])) for v in times.values()):
+        return None
+    if total <= size:
+        return np.zeros(0, dtype=np.int64)
+    # boundaries at quantiles of every message's time (from a sample: boundaries need not be exact)
+    step = max(1, total // (64 * (total // size + 1)))
+    sample = np.sort(np.concatenate([v[::step] for v in times.values()]))
+    return np.unique(sample[np.linspace(0, len(sample), total // size + 1, endpoint=False).astype(np.int64)[1:]])
+
+
+def _cut(frames: dict[str, pd.DataFrame], cuts: np.ndarray):
+    """The slices of ``frames`` at ``cuts`` (one per cut and the last: len(cuts) + 1, some
+    may be empty dicts)."""
+    times = _times(frames)
+    edges = {t: np.concatenate(([0], np.searchsorted(v, cuts, side="left"), [len(v)])) for t, v in times.items()}
+    for k in range(len(cuts) + 1):
+        yield {t: frames[t].iloc[int(e[k]):int(e[k + 1])] for t, e in edges.items() if e[k + 1] > e[k]}
 
 
 def time_slices(frames: dict[str, pd.DataFrame], size: int):
@@ -117,20 +211,122 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
     dict
         Topic -> the rows of its frame in the slice (views, not copies).
     """
-    times = {t: np.asarray(f.index, dtype=np.int64) for t, f in frames.items() if len(f)}
-    total = sum(len(v) for v in times.values())
-    if total <= size or not all(len(v) < 2 or bool(np.all(v[1:] >= v[:-1])) for v in times.values()):
+    cuts = _slice_cuts(_times(frames), size)
+    if cuts is None or not len(cuts):
         yield frames
         return
-    # boundaries at quantiles of every message's time (from a sample: boundaries need not be exact)
-    step = max(1, total // (64 * (total // size + 1)))
-    sample = np.sort(np.concatenate([v[::step] for v in times.values()]))
-    cuts = np.unique(sample[np.linspace(0, len(sample), total // size + 1, endpoint=False).astype(np.int64)[1:]])
-    edges = {t: np.concatenate(([0], np.searchsorted(v, cuts, side="left"), [len(v)])) for t, v in times.items()}
-    for k in range(len(cuts) + 1):
-        batch = {t: frames[t].iloc[int(e[k]):int(e[k + 1])] for t, e in edges.items() if e[k + 1] > e[k]}
+    for batch in _cut(frames, cuts):
         if batch:
             yield batch
+
+
+_FEED_CHUNKS = 16   # a copied file's chunks per extra slice boundary
+
+
+class _RawFeed:
+    """The message payloads of channels of a canonical file, by time slice, as they are
+    stored (for :func:`write_log` to copy without decoding).
+
+    Memory: the decompressed chunks read ahead of the slice being written, whose payloads
+    are copied straight into the message records (a file usvlog wrote is in time order, so
+    about one slice plus one chunk; one slice holding everything when the log's frames do
+    not rise in time).
+    """
+
+    def __init__(self, src: DeferredSource, topics: list[str]):
+        self._src = src
+        # the reader's walk: CRC checks, chunks without these channels skipped (chunk index)
+        self._stream = ChunkStream(src.path, topics=topics)
+        self._topics = set(topics)
+        self._it = None
+        self._done = False
+        self._seen = np.iinfo(np.int64).min        # latest time read so far (ns)
+        self._emitted = np.iinfo(np.int64).min     # every message before this time was handed out
+        self._last: dict[str, tuple[int, int]] = {}  # topic -> (time, sequence) of its last message read
+        self._held: list = []   # per batch read: (its bytes, {topic: (times, payload starts, ends)})
+
+    def cuts(self, cuts: np.ndarray) -> np.ndarray:
+        """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
+        (so the copied payloads are sliced too)."""
+        st = self._stream
+        scan = _Scan()
+        _layout_windowed(scan, st._map, st._release_all)
+        if scan.summary is None:
+            return cuts
+        t0 = sorted(v[1] for v in scan.summary.chunks.values())[::_FEED_CHUNKS][1:]
+        return np.union1d(cuts, np.asarray(t0, dtype=np.int64))
+
+    def _pull(self) -> bool:
+        """Read the next batch of messages; False at the end of the file."""
+        if self._it is None:
+            self._it = self._stream._batches()
+        try:
+            records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
+        except StopIteration:
+            self._done = True
+            return False
+        if len(t):
+            if int(t.min()) < self._emitted:
+                raise _OutOfOrder
+            self._seen = max(self._seen, int(t.max()))
+        chans = self._stream._scan.channels
+        held = {}
+        for c in np.unique(cid).tolist():
+            topic = chans[c].topic
+            if topic not in self._topics:
+                continue
+            sel = np.flatnonzero(cid == c)
+            tc, sc = t[sel], seq[sel]
+            prev = self._last.get(topic)
+            if (len(tc) > 1 and (np.any(tc[1:] < tc[:-1]) or np.any(sc[1:] < sc[:-1]))) or \
+                    (prev is not None and (int(tc[0]) < prev[0] or int(sc[0]) < prev[1])):
+                raise _OutOfOrder
+            self._last[topic] = (int(tc[-1]), int(sc[-1]))
+            held[topic] = (tc, ps[sel], pe[sel])
+        if held:
+            if at < 0:   # messages outside chunks: spans in the file's bytes, copied out
+                lo = min(int(v[1].min()) for v in held.values())
+                hi = max(int(v[2].max()) for v in held.values())
+                buf = np.frombuffer(bytes(records[lo:hi]), dtype=np.uint8)
+                held = {k: (v[0], v[1] - lo, v[2] - lo) for k, v in held.items()}
+            else:        # a chunk's records: the payloads are copied from it when written
+                buf = np.frombuffer(records, dtype=np.uint8) if not isinstance(records, np.ndarray) else records
+            self._held.append((buf, held))
+        return True
+
+    def take(self, upto: int | None) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]]:
+        """The payloads of every message before ``upto`` (ns; None: all the rest), topic ->
+        pieces (times, buffer, payload starts, payload ends), in row order."""
+        while not self._done and (upto is None or self._seen < upto):
+            self._pull()
+        out: dict[str, list] = {}
+        keep = []
+        for buf, held in self._held:
+            rest = {}
+            for topic, (t, ps, pe) in held.items():
+                n = len(t) if upto is None else int(np.searchsorted(t, upto, side="left"))
+                if n:
+                    out.setdefault(topic, []).append((t[:n], buf, ps[:n], pe[:n]))
+                if n < len(t):
+                    rest[topic] = (t[n:], ps[n:], pe[n:])
+            if rest:
+                keep.append((buf, rest))
+        self._held = keep
+        if upto is not None:
+            self._emitted = max(self._emitted, upto)
+        return out
+
+    def finish(self) -> None:
+        """After the last slice: the file must have read intact and be unchanged."""
+        assert self._done and not self._held
+        rep = self._stream.recovery()
+        why = self._src.changed()
+        if rep is not None or why is not None:
+            raise InputError(f"{self._src.path} {why or 'is damaged: ' + rep.reason} since it was read; "
+                             "load the log again")
+
+    def close(self) -> None:
+        self._stream.close()
 
 
 def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
@@ -264,28 +460,43 @@ class McapWriter:
         self._meta_index.append(MetadataIndex(offset=self._write(b), length=len(b), name=name))
 
     # -- messages ------------------------------------------------------------------------
-    def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None) -> None:
-        """Append one batch: every row of every frame (index: int64 log time ns) as a message."""
-        bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
-        base = 0
+    def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None,
+                   raw: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None = None) -> None:
+        """Append one batch: every row of every frame (index: int64 log time ns) as a message.
+
+        ``raw`` adds messages already encoded, topic -> pieces (int64 log times in ns, a
+        uint8 buffer, int64 starts and ends of the payloads in it), in the channel's row
+        order (pieces may share a buffer): their channel must be registered
+        (:meth:`add_channel`) and the payloads be what its codec writes (e.g. copied from
+        a file whose channel has the same schema record).
+        """
+        pieces: list[tuple[str, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
         for topic, frame in frames.items():
             if not len(frame):
                 continue
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-            codec = self._topics[topic][1]
-            t = np.asarray(frame.index, dtype=np.int64)
+            data, offs = self._topics[topic][1].encode_packed(frame, topic)
+            pieces.append((topic, cid, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+        for topic, parts in (raw or {}).items():
+            pieces += [(topic, self._topics[topic][0], *p) for p in parts if len(p[0])]
+        bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
+        bases: dict[int, int] = {}   # id of a buffer -> where it starts in the batch's bytes
+        base = 0
+        for topic, cid, t, data, ps, pe in pieces:
             if t.min() < 0:
                 raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-            data, offs = codec.encode_packed(frame, topic)
             s0 = self._seq[cid]
             self._seq[cid] = s0 + len(t)
-            bufs.append(data)
+            at = bases.get(id(data))
+            if at is None:
+                at = bases[id(data)] = base
+                bufs.append(data)
+                base += len(data)
             ts.append(t)
             cids.append(np.full(len(t), cid, dtype=np.int64))
             seqs.append(np.arange(s0, s0 + len(t), dtype=np.int64))
-            starts.append(offs[:-1] + base)
-            ends.append(offs[1:] + base)
-            base += len(data)
+            starts.append(ps + at)
+            ends.append(pe + at)
         if not ts:
             return
         t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
