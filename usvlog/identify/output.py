@@ -186,6 +186,8 @@ class Problem:
         self.r_run = self.seg_run[self.r_seg]
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         self.n_res = len(self.r_meas)
+        self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # row of out_S.reshape(-1, NS)
+        self._out_S: np.ndarray | None = None
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
@@ -212,12 +214,19 @@ class Problem:
             States at the measurement times.
         out_S : numpy.ndarray, shape (n_meas, 6, NS)
             Their sensitivities to [x0 (6), theta (6), current (2)] (shape (1, 6, NS)
-            when ``sens`` is False).
+            when ``sens`` is False). The problem's own buffer: the next call overwrites it.
         """
         seg_cur = np.ascontiguousarray(currents[self.seg_run], float)
         nm = len(self.meas_t)
         out_x = np.zeros((nm, 6))
-        out_S = np.zeros((nm, 6, NS)) if sens else np.zeros((1, 6, NS))
+        if sens:
+            # one buffer per problem: every call writes the same rows (those of the measurement
+            # times), so it need not be zeroed again (tens of MB per call on an hour of log)
+            out_S = self._out_S
+            if out_S is None:
+                out_S = self._out_S = np.zeros((nm, 6, NS))
+        else:
+            out_S = np.zeros((1, 6, NS))
         shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, np.ascontiguousarray(x0s, float),
               np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, max_step(theta), sens, out_x, out_S)
         return out_x, out_S
@@ -242,7 +251,8 @@ class Problem:
 
     def jac_rows(self, out_S, out_x):
         """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
-        J = out_S[self.r_meas, np.minimum(self.r_state, 2)]    # (n_res, NS), no (n_res, 6, NS) copy
+        # (n_res, NS): row min(state, 2) of each row's measurement, taken as whole rows of NS
+        J = out_S.reshape(-1, NS).take(self.r_srow, axis=0)
         vel = self.r_state >= R_VN
         if vel.any():
             x = out_x[self.r_meas[vel]]
@@ -255,7 +265,8 @@ class Problem:
             dvn[:, SENS_CUR_N] += 1.0
             dve[:, SENS_CUR_E] += 1.0
             J[vel] = np.where((st == R_VN)[:, None], dvn, np.where((st == R_VE)[:, None], dve, Sv[:, 5]))
-        return -J * self.r_w[:, None]
+        np.multiply(J, -self.r_w[:, None], out=J)
+        return J
 
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
@@ -314,7 +325,7 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
         J = prob.jac_rows(out_S, out_x)
-        J = np.where(np.isfinite(J), J, 0.0)
+        J[~np.isfinite(J)] = 0.0
         Jx = J[:, :6]
         JtJ = prob.seg_gram(Jx, Jx)
         JtJ += (1e-9 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)
