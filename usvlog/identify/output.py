@@ -317,9 +317,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
         out_x, out_S = prob.simulate(theta, currents, x0s)
         out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
-        bad = ~np.isfinite(r)
-        if bad.any():
-            r[bad] = 1e6
+        if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
+            r[~np.isfinite(r)] = 1e6
         seg_cost = prob.seg_sum(r * r)
         if seg_cost_prev is not None:
             worse = seg_cost > seg_cost_prev * (1 + 1e-12)
@@ -330,9 +329,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
         J = prob.jac_rows(out_S, out_x)
-        bad = ~np.isfinite(J)
-        if bad.any():
-            J[bad] = 0.0
+        if not np.isfinite(J.sum()):
+            J[~np.isfinite(J)] = 0.0
         Jx = J[:, :6]
         JtJ = prob.seg_gram(Jx, Jx)
         JtJ += (1e-9 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)
