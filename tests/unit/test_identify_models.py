@@ -81,6 +81,9 @@ def test_sensitivities_match_finite_differences():
     th = np.array([31.0, 9.0, 5.5, 4.0, 6.0, 0.12])
     cur = np.array([[0.05, -0.08]])
     ox, oS = prob.simulate(th, cur, x0s)
+    oS = oS.copy()   # the problem's buffer: another parameter set in between leaves no trace in it
+    prob.simulate(1.1 * th, -cur, x0s + 0.1)
+    assert np.array_equal(prob.simulate(th, cur, x0s)[1], oS)
     for col in range(14):
         h = 1e-6 * (1 + (abs(th[col - 6]) if 6 <= col < 12 else 1.0))
         x2, t2, c2 = x0s.copy(), th.copy(), cur.copy()

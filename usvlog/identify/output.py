@@ -186,6 +186,10 @@ class Problem:
         self.r_run = self.seg_run[self.r_seg]
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         self.n_res = len(self.r_meas)
+        self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # row of out_S.reshape(-1, NS)
+        self.r_vel = np.flatnonzero(self.r_state >= R_VN)     # velocity rows
+        self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
+        self._out_S: np.ndarray | None = None
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
@@ -212,12 +216,19 @@ class Problem:
             States at the measurement times.
         out_S : numpy.ndarray, shape (n_meas, 6, NS)
             Their sensitivities to [x0 (6), theta (6), current (2)] (shape (1, 6, NS)
-            when ``sens`` is False).
+            when ``sens`` is False). The problem's own buffer: the next call overwrites it.
         """
         seg_cur = np.ascontiguousarray(currents[self.seg_run], float)
         nm = len(self.meas_t)
         out_x = np.zeros((nm, 6))
-        out_S = np.zeros((nm, 6, NS)) if sens else np.zeros((1, 6, NS))
+        if sens:
+            # one buffer per problem: every call writes the same rows (those of the measurement
+            # times), so it need not be zeroed again (tens of MB per call on an hour of log)
+            out_S = self._out_S
+            if out_S is None:
+                out_S = self._out_S = np.zeros((nm, 6, NS))
+        else:
+            out_S = np.zeros((1, 6, NS))
         shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, np.ascontiguousarray(x0s, float),
               np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, max_step(theta), sens, out_x, out_S)
         return out_x, out_S
@@ -226,25 +237,27 @@ class Problem:
         """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped.
 
         ``currents`` (n_runs, 2): north, east in m/s (the ground velocity includes them)."""
-        x = out_x[self.r_meas]
-        sim = x[np.arange(len(x)), np.minimum(self.r_state, 2)]
-        vel = self.r_state >= R_VN
-        if vel.any():
-            psi, u, v = x[vel, 2], x[vel, 3], x[vel, 4]
+        sim = out_x.reshape(-1).take(self.r_srow)     # state min(row's quantity, 2) at its measurement
+        vel = self.r_vel
+        if len(vel):
+            x = out_x[self.r_meas[vel]]
+            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
             c, s = np.cos(psi), np.sin(psi)
             cur = np.asarray(currents, float)[self.r_run[vel]]
             st = self.r_state[vel]
             sim[vel] = np.where(st == R_VN, c * u - s * v + cur[:, 0],
-                                np.where(st == R_VE, s * u + c * v + cur[:, 1], x[vel, 5]))
+                                np.where(st == R_VE, s * u + c * v + cur[:, 1], x[:, 5]))
         d = self.r_val - sim
-        d = np.where(self.r_state == R_PSI, ssa(d), d)
-        return d * self.r_w
+        d[self.r_psi] = ssa(d[self.r_psi])
+        d *= self.r_w
+        return d
 
     def jac_rows(self, out_S, out_x):
         """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
-        J = out_S[self.r_meas, np.minimum(self.r_state, 2)]    # (n_res, NS), no (n_res, 6, NS) copy
-        vel = self.r_state >= R_VN
-        if vel.any():
+        # (n_res, NS): row min(state, 2) of each row's measurement, taken as whole rows of NS
+        J = out_S.reshape(-1, NS).take(self.r_srow, axis=0)
+        vel = self.r_vel
+        if len(vel):
             x = out_x[self.r_meas[vel]]
             psi, u, v = x[:, 2], x[:, 3], x[:, 4]
             c, s = np.cos(psi), np.sin(psi)
@@ -255,7 +268,8 @@ class Problem:
             dvn[:, SENS_CUR_N] += 1.0
             dve[:, SENS_CUR_E] += 1.0
             J[vel] = np.where((st == R_VN)[:, None], dvn, np.where((st == R_VE)[:, None], dve, Sv[:, 5]))
-        return -J * self.r_w[:, None]
+        np.multiply(J, -self.r_w[:, None], out=J)
+        return J
 
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
@@ -303,7 +317,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
         out_x, out_S = prob.simulate(theta, currents, x0s)
         out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
-        r = np.where(np.isfinite(r), r, 1e6)
+        if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
+            r[~np.isfinite(r)] = 1e6
         seg_cost = prob.seg_sum(r * r)
         if seg_cost_prev is not None:
             worse = seg_cost > seg_cost_prev * (1 + 1e-12)
@@ -314,7 +329,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
         J = prob.jac_rows(out_S, out_x)
-        J = np.where(np.isfinite(J), J, 0.0)
+        if not np.isfinite(J.sum()):
+            J[~np.isfinite(J)] = 0.0
         Jx = J[:, :6]
         JtJ = prob.seg_gram(Jx, Jx)
         JtJ += (1e-9 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] + 1e-12) * np.eye(6)

@@ -30,11 +30,20 @@ NS = 14
 # parameter positions, PARAM_NAMES order
 P_M, P_IZ, P_D11, P_D22, P_D33, P_XG = (PARAM_NAMES.index(p) for p in ("m", "Iz", "d11", "d22", "d33", "xg"))
 NP = len(PARAM_NAMES)
+# the sensitivity columns that move: of n and e, all but those of their own initial values
+# (n0 and e0 shift n and e by one, nothing else does: those stay 1 and 0); of psi, u, v, r, those
+# of the initial u, v, r and of the parameters (the initial position and heading and the current
+# do not enter the velocity dynamics: those columns stay as they start, 1 for psi0, else 0).
+# Skipped, they are the same numbers; the derivatives of the rest are computed as before.
+NE_LO = SENS_X0 + X_PSI
+DYN_LO, DYN_HI = SENS_X0 + X_U, SENS_PARAM + NP
 
-_nd = njit(nu_dot_terms)
+# the step's helpers are inlined into shoot (numba IR inlining: the same arithmetic in the same
+# order, without a call and its array arguments per stage; ~20 % of the kernel's time)
+_nd = njit(inline="always")(nu_dot_terms)
 
 
-@njit
+@njit(inline="always")
 def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     """State derivative into ``xd`` and, with ``sens``, sensitivity derivative into ``Sd`` (NX, NS)."""
     psi, u, v, r = x[X_PSI], x[X_U], x[X_V], x[X_R]
@@ -61,10 +70,12 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     A00, A01, A02 = i00 * g00, i00 * g01, i00 * g02
     A10, A11, A12 = i11 * g10 + i12 * g20, i11 * g11 + i12 * g21, i11 * g12 + i12 * g22
     A20, A21, A22 = i12 * g10 + i22 * g20, i12 * g11 + i22 * g21, i12 * g12 + i22 * g22
-    for k in range(NS):
-        s_psi, s_u, s_v, s_r = S[X_PSI, k], S[X_U, k], S[X_V, k], S[X_R, k]
+    for k in range(NE_LO, NS):      # only the columns that move (see DYN_LO)
+        s_psi, s_u, s_v = S[X_PSI, k], S[X_U, k], S[X_V, k]
         Sd[X_N, k] = a02 * s_psi + c * s_u - s * s_v
         Sd[X_E, k] = a12 * s_psi + s * s_u + c * s_v
+    for k in range(DYN_LO, DYN_HI):
+        s_u, s_v, s_r = S[X_U, k], S[X_V, k], S[X_R, k]
         Sd[X_PSI, k] = s_r
         Sd[X_U, k] = A00 * s_u + A01 * s_v + A02 * s_r
         Sd[X_V, k] = A10 * s_u + A11 * s_v + A12 * s_r
@@ -89,18 +100,21 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     Sd[X_E, SENS_CUR_E] += 1.0
 
 
-@njit
+@njit(inline="always")
 def _trial(x, S, h, k, K, sens, xt, St):
     """xt = x + h k (and St = S + h K): the state an RK4 stage is evaluated at."""
     for i in range(NX):
         xt[i] = x[i] + h * k[i]
-    if sens:
-        for i in range(NX):
-            for c in range(NS):
+    if sens:   # the columns that move (the others of St hold S's constant values)
+        for i in range(X_PSI):
+            for c in range(NE_LO, NS):
+                St[i, c] = S[i, c] + h * K[i, c]
+        for i in range(X_PSI, NX):
+            for c in range(DYN_LO, DYN_HI):
                 St[i, c] = S[i, c] + h * K[i, c]
 
 
-@njit
+@njit(inline="always")
 def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
     """One RK4 step of state and sensitivities; ``w6`` (5, NX) and ``W6`` (5, NX, NS) are scratch."""
     k1, k2, k3, k4, xt = w6[0], w6[1], w6[2], w6[3], w6[4]
@@ -115,9 +129,12 @@ def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
     w = dt / 6.0
     for i in range(NX):
         x[i] += w * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i])
-    if sens:
-        for i in range(NX):
-            for k in range(NS):
+    if sens:   # the columns that move
+        for i in range(X_PSI):
+            for k in range(NE_LO, NS):
+                S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
+        for i in range(X_PSI, NX):
+            for k in range(DYN_LO, DYN_HI):
                 S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
 
 
@@ -136,6 +153,7 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
         S = np.zeros((NX, NS))
         for i in range(NX):
             S[i, SENS_X0 + i] = 1.0
+        W6[4, :, :] = S   # St: the columns that do not move keep these values
         xa = x.copy()
         Sa = S.copy()
         cn, ce = seg_cur[k, 0], seg_cur[k, 1]   # current north, east (m/s)
@@ -148,9 +166,12 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
             dt = tb - ta
             need = meas_t[j] <= tb + 1e-9
             if need:
-                xa[:] = x
+                for q in range(NX):   # element loops: slice assignment costs more per step
+                    xa[q] = x[q]
                 if sens:
-                    Sa[:, :] = S
+                    for q in range(NX):
+                        for c in range(NS):
+                            Sa[q, c] = S[q, c]
             nsub = max(1, int(math.ceil(dt / max_dt - 1e-9)))
             h = dt / nsub
             for _ in range(nsub):
