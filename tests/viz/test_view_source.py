@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from usvlog.io.mcap import read_log, write_log
+from usvlog.io.mcap.reader import chunk_spans
 from usvlog.log.channels import channel_spec, frame_from_columns
 from usvlog.sim.simulate import SimSettings, simulate
-from usvlog.view.source import REPORT_TOPICS, VIEW_TOPICS, chunk_spans, read_drawn
+from usvlog.view.source import REPORT_TOPICS, VIEW_TOPICS, read_drawn
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +30,16 @@ def _with_yaw_rate(log, path, shift_s: float):
 @pytest.mark.parametrize("shift_s", [0.0, 5.0])
 def test_undrawn_channel_skipped_only_inside_the_time_range(tmp_path, sim_log, shift_s):
     path = _with_yaw_rate(sim_log, tmp_path / "a.mcap", shift_s)
-    assert len(chunk_spans(path)) > 4
+    spans = chunk_spans(path)
+    assert len(spans) > 4
+    # the same chunks as the mcap library's summary reader finds
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        lib = make_reader(fh).get_summary()
+    topic = {cid: ch.topic for cid, ch in lib.channels.items()}
+    assert spans == [(c.message_start_time, c.message_end_time, frozenset(topic[k] for k in c.message_index_offsets))
+                     for c in sorted(lib.chunk_indexes, key=lambda c: c.chunk_start_offset)]
     full = read_log(path)
     for topics in (VIEW_TOPICS, REPORT_TOPICS):
         log = read_drawn(path, topics, read_log)
@@ -40,3 +50,12 @@ def test_undrawn_channel_skipped_only_inside_the_time_range(tmp_path, sim_log, s
     assert "/thrust/command" in read_drawn(path, VIEW_TOPICS, read_log).channels
     if shift_s == 0:
         assert "/thrust/command" not in read_drawn(path, REPORT_TOPICS, read_log).channels
+
+
+def test_chunk_spans_of_a_file_without_a_usable_summary_is_none(tmp_path, sim_log):
+    path = _with_yaw_rate(sim_log, tmp_path / "a.mcap", 0.0)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[:-100])     # footer and part of the summary gone
+    assert chunk_spans(cut) is None
+    (tmp_path / "x.mcap").write_bytes(b"not an mcap file")
+    assert chunk_spans(tmp_path / "x.mcap") is None

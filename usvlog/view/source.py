@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
 
@@ -22,35 +23,6 @@ REPORT_TOPICS = tuple(dict.fromkeys([
     *(t for t, _label, _desc in vd.STATES), *(t for t, _label, _state, _desc in vd.CONTROLLERS),
     *(s for _t, _label, s, _desc in vd.CONTROLLERS)]))
 VIEW_TOPICS = (*REPORT_TOPICS, "/thrust/command")
-
-
-def chunk_spans(path) -> list[tuple[int, int, frozenset]] | None:
-    """The chunks of an MCAP file, from its summary's chunk index (only the footer and the
-    summary are read).
-
-    Parameters
-    ----------
-    path : str or os.PathLike
-        The file.
-
-    Returns
-    -------
-    list of (int, int, frozenset of str) or None
-        (first and last message log time in ns since the Unix epoch, topics it holds) per
-        chunk; None when the file has no usable summary (damaged, cut short, unchunked).
-    """
-    try:
-        from mcap.reader import make_reader  # only here: the summary, not the messages
-
-        with open(path, "rb") as f:
-            s = make_reader(f).get_summary()
-    except Exception:   # noqa: BLE001 - a damaged or foreign file: read it whole instead
-        return None
-    if s is None or not s.chunk_indexes:
-        return None
-    topic = {cid: ch.topic for cid, ch in s.channels.items()}
-    return [(int(c.message_start_time), int(c.message_end_time),
-             frozenset(topic.get(cid, "") for cid in c.message_index_offsets)) for c in s.chunk_indexes]
 
 
 def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> FieldLog:

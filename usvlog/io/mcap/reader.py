@@ -1594,3 +1594,33 @@ def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:
     if damaged:
         out.recovery = damaged[-1].recovery
     return out
+
+
+def chunk_spans(path) -> list[tuple[int, int, frozenset]] | None:
+    """The chunks of an MCAP file from its summary's chunk index (only the footer and the
+    summary are read, their CRC checked).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    list of (int, int, frozenset of str) or None
+        Per chunk: its first and last message log time (ns since the Unix epoch) and the
+        topics it holds; None when the file has no usable summary (damaged, cut short,
+        unchunked, not MCAP).
+    """
+    try:
+        with ChunkStream(path) as stream:
+            data = stream._map
+            at = _find_footer_windowed(data, stream._release_all)
+            s = _read_summary(data, at) if at >= 0 else None
+    except (FormatError, OSError):
+        return None
+    if s is None or not s.chunks:
+        return None
+    topic = {cid: ch[0] for cid, ch in s.channels.items()}
+    return [(int(t0), int(t1), frozenset(topic.get(c, "") for c in cids))
+            for _size, t0, t1, cids in (s.chunks[o] for o in s.chunk_offsets)]
