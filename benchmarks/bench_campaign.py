@@ -92,10 +92,12 @@ def main() -> None:
               f"peak RSS {rss_seq:.0f} MB", flush=True)
 
     started = {}
-    t = time.perf_counter()
+    shutil.rmtree(work / "dask", ignore_errors=True)   # from an empty campaign, also with --skip-sequential
+    t, c_main = time.perf_counter(), time.process_time()
     r = usvlog.campaign([s["runs"]], work / "dask", workers=args.workers,
                         progress=lambda m: started.setdefault("t", time.perf_counter()), **opts)
     wall = time.perf_counter() - t
+    c_main = time.process_time() - c_main
     start = started.get("t", t) - t
     per = r.table["seconds"].to_numpy()
     rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
@@ -103,6 +105,8 @@ def main() -> None:
     print(f"dask {args.workers} workers: {wall:.1f} s ({start:.1f} s to plan and start the cluster); per run "
           f"{per.mean():.2f} s in the task; scheduling overhead {over:.3f} s per run; peak RSS of a worker "
           f"{rss:.0f} MB", flush=True)
+    print(f"  this process (scheduler, nannies, client) used {c_main:.1f} s CPU meanwhile: "
+          f"{100 * c_main / (wall * (os.cpu_count() or 1)):.1f} % of the machine's cores", flush=True)
     if seq:
         print(f"speed-up {seq / wall:.2f}x (ideal {args.workers}x)")
     # the client's own part: the same campaign again (every run reused: planning with each
