@@ -68,6 +68,7 @@ def test_local_workers_keep_glibcs_own_trim_threshold_and_do_not_profile(monkeyp
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     with Runner(workers=1) as run:
         got = run.map(os.getenv, ["MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS"])
-        profiling = run.map(dask.config.get, ["distributed.worker.profile.enabled"])
+        cfg = run.map(dask.config.get, ["distributed.worker.profile.enabled",
+                                        "distributed.worker.memory.monitor-interval"])
     assert got == [None, "1"]
-    assert profiling == [False]   # no sampling thread taking the GIL every 10 ms in the workers
+    assert cfg == [False, "1s"]   # no sampling thread taking the GIL every 10 ms; a calmer memory monitor
