@@ -43,9 +43,9 @@ Progress = Callable[[str], None] | None
 
 FIT_TOPIC = "/identify/fit"
 
-# the channels a verb decodes when it reads a file; the others stay in it (decoded if the verb
-# touches one after all, e.g. /truth/state when there is no estimate; copied undecoded to --out)
-_ESTIMATE_READS = ["/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity", "/imu/yaw_rate"]
+# the channels replay decodes when it reads a file (estimate: usvlog.estimate.core.INPUT_TOPICS);
+# the others stay in it (decoded if the verb touches one after all, e.g. /truth/state when there is
+# no estimate; copied undecoded to --out)
 _REPLAY_READS = ["/estimate/state", "/thrust/command", "/control/state"]
 
 
@@ -556,6 +556,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     """
     from .estimate import EstimateSettings  # heavy: numpy, numba kernels
     from .estimate import estimate as run_estimate
+    from .estimate.core import INPUT_TOPICS  # heavy: with the estimator
     from .io.atomic import check_output
 
     if out is not None:
@@ -570,7 +571,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
                                 **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
     read_here = _is_path(log)
     src = log if read_here else log.source
-    log = _read(log, progress, topics=_ESTIMATE_READS, defer=True)
+    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
                    f"{''.join(f', estimating the {k} delay' for k in auto)})")
@@ -579,7 +580,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         out_log = result.to_log(log)
         if read_here:   # read here: its channels go back to the file, copied undecoded
             del log
-            _redefer(out_log, _ESTIMATE_READS)
+            _redefer(out_log, list(INPUT_TOPICS))
         save(out_log, out, force=force)
     return result
 

@@ -39,6 +39,8 @@ INNOVATION_TOPIC = "/estimate/innovations"
 GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thrust/command"
 YAW_RATE_TOPIC = "/imu/yaw_rate"   # fused without being asked for when no heading is
 VELOCITY_TOPIC = "/gnss/velocity"  # speed and course over ground: fused by the kinematic model in NED
+INPUT_TOPICS = (GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
+"""Every channel the estimator reads (the ``usvlog estimate`` verb decodes only these)."""
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
 _P0_SIGMA = (10.0, 10.0, 0.5, 1.0, 1.0, 0.3)

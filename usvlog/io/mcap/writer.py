@@ -30,7 +30,7 @@ from .format import (
     _REC,
     MAGIC,
 )
-from .reader import ChunkStream, _layout_windowed, _Scan
+from .reader import ChunkStream, chunk_spans
 
 
 def _codec_for(topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> tuple[dict, Codec]:
@@ -248,12 +248,10 @@ class _RawFeed:
     def cuts(self, cuts: np.ndarray) -> np.ndarray:
         """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
         (so the copied payloads are sliced too)."""
-        st = self._stream
-        scan = _Scan()
-        _layout_windowed(scan, st._map, st._release_all)
-        if scan.summary is None:
+        spans = chunk_spans(self._src.path)
+        if spans is None:
             return cuts
-        t0 = sorted(v[1] for v in scan.summary.chunks.values())[::_FEED_CHUNKS][1:]
+        t0 = sorted(a for a, _b, _topics in spans)[::_FEED_CHUNKS][1:]
         return np.union1d(cuts, np.asarray(t0, dtype=np.int64))
 
     def _pull(self) -> bool:
