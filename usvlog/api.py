@@ -85,14 +85,6 @@ def _read(log, progress: Progress = None, topics=None, drawn=None, defer: bool =
     return log
 
 
-def _redefer(log: FieldLog, topics: list[str]) -> None:
-    """Leave ``topics`` of a log read by :func:`_read` (their frames unchanged) in its file
-    again: the frames are freed, decoded again if touched, and copied undecoded by ``save``."""
-    redefer = getattr(log.channels, "redefer", None)
-    if redefer is not None:
-        redefer(topics)
-
-
 def _vessel_file(vessel):
     """None, a Vessel as given, or a vessel TOML file loaded."""
     if _is_path(vessel):
@@ -580,7 +572,7 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         out_log = result.to_log(log)
         if read_here:   # read here: its channels go back to the file, copied undecoded
             del log
-            _redefer(out_log, list(INPUT_TOPICS))
+            out_log.redefer(INPUT_TOPICS)
         save(out_log, out, force=force)
     return result
 

@@ -304,7 +304,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     ``[vessel]``, else the log's ``usvlog.vessel``; the gains are ``gains`` else the scenario's.
     With ``release_inputs`` (a log read from its file for this call alone, its frames
     unchanged) the channels it reads are left in the file again once used, in ``log`` and
-    in the result (:meth:`usvlog.log.fieldlog.Channels.redefer`: decoded again if touched,
+    in the result (:meth:`usvlog.log.fieldlog.FieldLog.redefer`: decoded again if touched,
     copied undecoded when written), so their frames do not stay in memory with the results.
     """
     src = log.source or "log"
@@ -380,9 +380,7 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     cmd = rec = rec_cs = None
     if release_inputs:
         for lg in (log, out):
-            redefer = getattr(lg.channels, "redefer", None)
-            if redefer is not None:
-                redefer([topic, "/thrust/command", "/control/state"])
+            lg.redefer([topic, "/thrust/command", "/control/state"])
     m_whatif = None
     if whatif:
         wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")

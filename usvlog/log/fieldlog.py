@@ -479,6 +479,20 @@ class FieldLog:
         """The channel names, sorted."""
         return sorted(self.channels)
 
+    def redefer(self, topics) -> None:
+        """Leave ``topics`` (channels of the file this log was read from, their frames unchanged
+        since) in that file again: their frames are freed, decoded again if touched, and copied
+        undecoded when the log is written. Nothing happens for a log not read with deferred
+        channels, or for topics its file does not hold.
+
+        Parameters
+        ----------
+        topics : iterable of str
+            The channels.
+        """
+        if isinstance(self.channels, Channels):
+            self.channels.redefer(list(topics))
+
     def time_range(self) -> tuple[int, int] | None:
         """(first, last) time stamp over every channel in ns since the Unix epoch; None when empty."""
         lo = [int(f.index.min()) for f in self.channels.values() if len(f)]
