@@ -105,3 +105,17 @@ def test_a_diverged_estimate_is_refused_not_written(tmp_path, capsys):
     assert main(["estimate", str(src), "--out", str(out), "--model", "kinematic"]) == 0
     st = read_log(out)["/estimate/state"]
     assert np.isfinite(st[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()).all()
+
+
+@pytest.mark.parametrize("verb", ["estimate", "replay"])
+def test_a_missing_input_file_is_a_one_line_error(tmp_path, capsys, verb):
+    """The verbs that read only some channels (the rest left in the file) still say plainly
+    that the file is not there (exit 2), not an internal error."""
+    args = [verb, str(tmp_path / "missing.mcap"), "--out", str(tmp_path / "o.mcap")]
+    if verb == "replay":
+        args += ["--scenario", "paper-sine"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    last = err.splitlines()[-1]   # after replay's progress line "reading ..."
+    assert last.startswith(f"usvlog {verb}: error: ") and last.endswith("missing.mcap: no such file")
+    assert "internal error" not in err

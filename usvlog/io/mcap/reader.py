@@ -854,7 +854,8 @@ def _read_deferred(p: Path, topics: list[str], strict: bool) -> FieldLog:
     """:func:`read_log` of ``topics``, the file's other canonical channels deferred."""
     import os  # stdlib: the file's size and time when read
 
-    st = os.stat(p)
+    with reading(p):   # a missing or unreadable file: the one-line error of any read
+        st = os.stat(p)
     log = _read_log(p, topics=topics, strict=strict)
     if log.recovery is not None:   # damaged: read whole, as without deferral
         return _read_log(p, strict=strict)
