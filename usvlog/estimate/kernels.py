@@ -342,12 +342,16 @@ def _store_row(r, x, P, X, SD, PB):
 
 @njit
 def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
-                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, bad):
+                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, BXp, BPp, BB,
+                   bad):
     """Steps k0 .. k1 - 1 of the forward pass from the state x, P, ist, fst (updated in place).
 
     Writes each step's posterior into row ``row[k]`` of X, SD, PB (none when ``row`` is
     empty or ``row[k] < 0``) and, when BX has rows, the state and the upper triangle of P
-    (row by row) into BX[k - k0], BP[k - k0]; ``bad[0]`` gets the first step whose
+    (row by row) into BX[k - k0], BP[k - k0], and the step's prior (the state and P before
+    its measurements) and Phi P_{k-1} (the posterior of the step before propagated; P_{k-1}
+    itself when there was no prediction) into BXp[k - k0], BPp[k - k0], BB[k - k0] (for the
+    smoother: exactly what it would compute again); ``bad[0]`` gets the first step whose
     state is unusable (:func:`_bad_step`), if none did yet."""
     nx = x.shape[0]
     M = mstep.shape[0]
@@ -364,12 +368,24 @@ def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkin
     j = ist[IS_J]
     for k in range(k0, k1):
         resets[k] = 0
+        keep = BX.shape[0] > 0
         if k > 0 and dts[k] > 0.0:
             predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
+            if keep:
+                sparse_matmul(Phi, P, BB[k - k0])
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
                     P[a, b] = Po[a, b]
+        elif keep:   # no prediction: Phi = I
+            for a in range(nx):
+                for b in range(nx):
+                    BB[k - k0, a, b] = P[a, b]
+        if keep:
+            for a in range(nx):
+                BXp[k - k0, a] = x[a]
+                for b in range(nx):
+                    BPp[k - k0, a, b] = P[a, b]
         while j < M and mstep[j] == k:
             kind = mkind[j]
             force = ist[1 + kind] >= max_rej
@@ -447,6 +463,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     bad[0] = -1
     none = np.zeros((0, nx))
     none_tri = np.zeros((0, 1))
+    none_sq = np.zeros((0, nx, nx))
     for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK):
         if CX.shape[0]:
             for a in range(nx):
@@ -457,15 +474,18 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
             CF[c, :] = fst
         _forward_steps(c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK), x, P, ist, fst, x0, P0, dts, taus, qjump,
                        mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit, reinit_nis, innov,
-                       accepted, resets, row, X, SD, PB, none, none_tri, bad)
+                       accepted, resets, row, X, SD, PB, none, none_tri, none, none_sq, none_sq, bad)
     return fst[FS_LOGLIK]
 
 
 @njit
 def _chol_solve(L, inv, A, B, X):
     """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
-    (reciprocals of the diagonal: no divisions in the loops)."""
+    (reciprocals of the diagonal: no divisions in the loops). The substitutions run over
+    all columns of B at once (row operations: contiguous, vectorised); each entry sees the
+    same operations in the same order as column by column."""
     n = A.shape[0]
+    m = B.shape[1]
     for i in range(n):
         for j in range(i + 1):
             s = A[i, j]
@@ -476,17 +496,24 @@ def _chol_solve(L, inv, A, B, X):
                 inv[i] = 1.0 / L[i, i]
             else:
                 L[i, j] = s * inv[j]
-    for c in range(B.shape[1]):
-        for i in range(n):
-            s = B[i, c]
-            for k in range(i):
-                s -= L[i, k] * X[k, c]
-            X[i, c] = s * inv[i]
-        for i in range(n - 1, -1, -1):
-            s = X[i, c]
-            for k in range(i + 1, n):
-                s -= L[k, i] * X[k, c]
-            X[i, c] = s * inv[i]
+    for i in range(n):
+        for c in range(m):
+            X[i, c] = B[i, c]
+        for k in range(i):
+            w = L[i, k]
+            for c in range(m):
+                X[i, c] -= w * X[k, c]
+        w = inv[i]
+        for c in range(m):
+            X[i, c] *= w
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            w = L[k, i]
+            for c in range(m):
+                X[i, c] -= w * X[k, c]
+        w = inv[i]
+        for c in range(m):
+            X[i, c] *= w
 
 
 @njit
@@ -508,8 +535,8 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
 
     The forward posteriors of a block of SMOOTH_BLOCK steps are made again from its
     checkpoint (CX, CP, CI, CF of :func:`forward`, the same arguments: the very same
-    numbers) and smoothed backwards; priors and Phi are recomputed with the same prediction
-    as the forward pass. Writes the smoothed state of step k in row ``row[k]`` of XS (its
+    numbers), with each step's prior and Phi P of the posterior before it, and smoothed
+    backwards. Writes the smoothed state of step k in row ``row[k]`` of XS (its
     first XS.shape[1] states; skipped when ``row[k] < 0``), their one-sigma in SD and the
     covariance block of states
     PB_FIRST.. (PB_SIZE) in PB (PB may have no rows: not stored); ``bad[0]``: the first step
@@ -520,6 +547,12 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
     nx = x0.shape[0]
     BX = np.zeros((SMOOTH_BLOCK, nx))
     BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
+    BXp = np.zeros((SMOOTH_BLOCK, nx))
+    BPp = np.zeros((SMOOTH_BLOCK, nx, nx))
+    BB = np.zeros((SMOOTH_BLOCK, nx, nx))
+    xpn = np.zeros(nx)          # the prior of the step after the block (the first of the later block)
+    Ppn = np.zeros((nx, nx))
+    Bn = np.zeros((nx, nx))
     x = np.zeros(nx)
     P = np.zeros((nx, nx))
     ist = np.zeros(N_IST, np.int64)
@@ -528,13 +561,7 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
     no_row = np.zeros(0, np.int64)
     none = np.zeros((0, nx))
     none_pb = np.zeros((0, PB_SIZE, PB_SIZE))
-    xp = np.zeros(nx)
-    Pp = np.zeros((nx, nx))
-    Phi = np.zeros((nx, nx))
-    f = np.zeros(nx)
-    F = np.zeros((nx, nx))
     tmp = np.zeros((nx, nx))
-    B = np.zeros((nx, nx))
     Ct = np.zeros((nx, nx))
     L = np.zeros((nx, nx))
     inv = np.zeros(nx)
@@ -542,6 +569,7 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
     Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
+    acc = np.zeros(nx)
     xs = np.zeros(nx)
     sd_limit = math.sqrt(pos_var_limit)
     bad[0] = -1
@@ -555,7 +583,7 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
         fst[:] = CF[c]
         _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
                        gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, no_row, none, none,
-                       none_pb, BX, BP, seen)
+                       none_pb, BX, BP, BXp, BPp, BB, seen)
         for k in range(k1 - 1, k0 - 1, -1):
             _unpack(BP[k - k0], Pk)
             xk = BX[k - k0]
@@ -564,39 +592,44 @@ def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
                     xs[a] = xk[a]
                     for b in range(nx):
                         Ps[a, b] = Pk[a, b]
+            elif k == k1 - 1:
+                _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Bn, tmp, Ct, L, inv, Pn, d, acc)
             else:
-                _smooth_step(xk, Pk, xs, Ps, dts[k + 1], taus[k + 1, TAU_U], taus[k + 1, TAU_R], qjump[k + 1], prm,
-                             model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d)
+                _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BB[k + 1 - k0], tmp, Ct, L, inv,
+                             Pn, d, acc)
             if row[k] >= 0:
                 _store_row(row[k], xs, Ps, XS, SD, PB)
             if _bad_step(xs, Ps, sd_limit):
                 bad[0] = k   # (going backwards: the last one found is the first)
+        for a in range(nx):
+            xpn[a] = BXp[0, a]
+            for b in range(nx):
+                Ppn[a, b] = BPp[0, a, b]
+                Bn[a, b] = BB[0, a, b]
 
 
 @njit
-def _smooth_step(xk, Pk, xs, Ps, dt, tau_u, tau_r, qj, prm, model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d):
-    """One RTS step: from the forward posterior xk, Pk of step k and the smoothed xs, Ps of
-    step k + 1 (``dt`` etc. those of step k + 1), the smoothed state of step k into xs, Ps."""
+def _smooth_step(xk, Pk, xs, Ps, xp, Pp, B, tmp, Ct, L, inv, Pn, d, acc):
+    """One RTS step: from the forward posterior xk, Pk of step k, the prior xp, Pp of step
+    k + 1 and B = Phi Pk (Phi of step k + 1), and the smoothed xs, Ps of step k + 1, the
+    smoothed state of step k into xs, Ps.
+
+    The products run row-wise (contiguous, vectorised) with every entry's sum taken in
+    the same order as the textbook loops (the sum over c from 0 up)."""
     nx = xk.shape[0]
-    if dt > 0.0:
-        predict(xk, Pk, tau_u, tau_r, dt, prm, model, q, qj, xp, Pp, Phi, f, F, tmp)
-    else:
-        for a in range(nx):
-            xp[a] = xk[a]
-            for b in range(nx):
-                Pp[a, b] = Pk[a, b]
-                Phi[a, b] = 1.0 if a == b else 0.0
     # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-    sparse_matmul(Phi, Pk, B)
     _chol_solve(L, inv, Pp, B, Ct)
     for a in range(nx):
         d[a] = xs[a] - xp[a]
     d[X_PSI] = wrap_angle(d[X_PSI])
     for a in range(nx):
-        acc = 0.0
-        for c in range(nx):
-            acc += Ct[c, a] * d[c]
-        xs[a] = xk[a] + acc
+        acc[a] = 0.0
+    for c in range(nx):
+        w = d[c]
+        for a in range(nx):
+            acc[a] += Ct[c, a] * w
+    for a in range(nx):
+        xs[a] = xk[a] + acc[a]
     xs[X_PSI] = wrap_angle(xs[X_PSI])
     # Ps_k = Pk + C (Ps - Pp) C^T
     for a in range(nx):
@@ -604,14 +637,20 @@ def _smooth_step(xk, Pk, xs, Ps, dt, tau_u, tau_r, qj, prm, model, q, xp, Pp, Ph
             Pn[a, b] = Ps[a, b] - Pp[a, b]
     for a in range(nx):
         for b in range(nx):
-            acc = 0.0
-            for c in range(nx):
-                acc += Ct[c, a] * Pn[c, b]
-            tmp[a, b] = acc
+            tmp[a, b] = 0.0
+        for c in range(nx):
+            w = Ct[c, a]
+            for b in range(nx):
+                tmp[a, b] += w * Pn[c, b]
     for a in range(nx):
         for b in range(a, nx):
-            acc = 0.0
-            for c in range(nx):
-                acc += tmp[a, c] * Ct[c, b]
-            Ps[a, b] = Pk[a, b] + acc
-            Ps[b, a] = Ps[a, b]
+            acc[b] = 0.0
+        for c in range(nx):
+            w = tmp[a, c]
+            for b in range(a, nx):
+                acc[b] += w * Ct[c, b]
+        for b in range(a, nx):
+            v = Pk[a, b] + acc[b]
+            Ps[a, b] = v
+            Ps[b, a] = v
+
