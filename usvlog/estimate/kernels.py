@@ -167,14 +167,18 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
     xo[X_PSI] = wrap_angle(xo[X_PSI])
     sparse_matmul(F, P, tmp)
     dt2 = dt * dt
+    # (F P F^T)[i, j], i <= j, summed over the non-zero F[j, k] (k upwards) into Po[j, i]
+    for j in range(nx):
+        for i in range(j + 1):
+            Po[j, i] = 0.0
+        for k in range(nx):
+            a = F[j, k]
+            if a != 0.0:
+                for i in range(j + 1):
+                    Po[j, i] += tmp[i, k] * a
     for i in range(nx):
         for j in range(i, nx):
-            acc = 0.0
-            for k in range(nx):
-                a = F[j, k]
-                if a != 0.0:
-                    acc += tmp[i, k] * a
-            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * acc
+            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * Po[j, i]
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
