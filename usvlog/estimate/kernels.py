@@ -446,7 +446,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). When CX has rows, the
     filter's state entering every SMOOTH_BLOCK-th step is kept there and in CP, CI, CF
-    (checkpoints, for :func:`smooth`). ``bad[0]``: the first step whose state or
+    (checkpoints, for :func:`smooth_rerun`). ``bad[0]``: the first step whose state or
     one-sigma is not finite or whose position one-sigma exceeds sqrt(pos_var_limit), -1
     for none. Returns the sum of the log-likelihood terms.
 
@@ -532,84 +532,89 @@ def _unpack(tri, P):
             i += 1
 
 
-@njit
-def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
-           reinit_nis, innov, accepted, resets, CX, CP, CI, CF, row, XS, SD, PB, bad):
-    """Extended RTS smoother over the forward posteriors, block by block from the end.
+class SmoothBuffers:
+    """One block's forward posteriors made again (:func:`smooth_rerun`) for the smoother:
+    BX, BP the posterior state and the upper triangle of its P (row by row), BXp, BPp the
+    prior of each step and BB = Phi P of the posterior before it (SMOOTH_BLOCK rows)."""
 
-    The forward posteriors of a block of SMOOTH_BLOCK steps are made again from its
+    def __init__(self, nx: int):
+        self.BX = np.zeros((SMOOTH_BLOCK, nx))
+        self.BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
+        self.BXp = np.zeros((SMOOTH_BLOCK, nx))
+        self.BPp = np.zeros((SMOOTH_BLOCK, nx, nx))
+        self.BB = np.zeros((SMOOTH_BLOCK, nx, nx))
+
+
+@njit(nogil=True)
+def smooth_rerun(c, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
+                 reinit_nis, innov, accepted, resets, CX, CP, CI, CF, BX, BP, BXp, BPp, BB):
+    """The forward pass over block ``c`` (steps c SMOOTH_BLOCK ..) made again from its
     checkpoint (CX, CP, CI, CF of :func:`forward`, the same arguments: the very same
-    numbers), with each step's prior and Phi P of the posterior before it, and smoothed
-    backwards. Writes the smoothed state of step k in row ``row[k]`` of XS (its
-    first XS.shape[1] states; skipped when ``row[k] < 0``), their one-sigma in SD and the
-    covariance block of states
-    PB_FIRST.. (PB_SIZE) in PB (PB may have no rows: not stored); ``bad[0]``: the first step
-    whose smoothed state is unusable (as in :func:`forward`), -1 for none. A step the
-    forward pass re-initialised (``resets[k] != 0``) starts a new segment: the steps before
-    it are smoothed from their own forward posterior, not across the restart."""
+    numbers), keeping every step's posterior, prior and Phi P in the buffers
+    (:class:`SmoothBuffers`) for :func:`smooth_back`. Writes only block ``c``'s entries of
+    innov, accepted and resets (the values the forward pass wrote there)."""
     N = dts.shape[0]
     nx = x0.shape[0]
-    BX = np.zeros((SMOOTH_BLOCK, nx))
-    BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
-    BXp = np.zeros((SMOOTH_BLOCK, nx))
-    BPp = np.zeros((SMOOTH_BLOCK, nx, nx))
-    BB = np.zeros((SMOOTH_BLOCK, nx, nx))
-    xpn = np.zeros(nx)          # the prior of the step after the block (the first of the later block)
-    Ppn = np.zeros((nx, nx))
-    Bn = np.zeros((nx, nx))
-    x = np.zeros(nx)
-    P = np.zeros((nx, nx))
-    ist = np.zeros(N_IST, np.int64)
-    fst = np.zeros(NFS)
-    seen = np.zeros(1, np.int64)
-    no_row = np.zeros(0, np.int64)
+    k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
+    x = CX[c].copy()
+    P = CP[c].copy()
+    ist = CI[c].copy()
+    fst = CF[c].copy()
     none = np.zeros((0, nx))
-    none_pb = np.zeros((0, PB_SIZE, PB_SIZE))
+    _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
+                   gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, np.zeros(0, np.int64), none,
+                   none, np.zeros((0, PB_SIZE, PB_SIZE)), BX, BP, BXp, BPp, BB, np.zeros(1, np.int64))
+
+
+@njit(nogil=True)
+def smooth_back(c, N, resets, BX, BP, BXp, BPp, BB, xs, Ps, xpn, Ppn, Bn, pos_var_limit, row, XS, SD, PB, bad):
+    """Extended RTS smoother over block ``c`` of an N-step run, backwards, from the buffers
+    :func:`smooth_rerun` filled for it.
+
+    ``xs``, ``Ps`` enter as the smoothed state of the step after the block (ignored for
+    the last block) and leave as that of the block's first step; ``xpn``, ``Ppn``, ``Bn``
+    enter as the prior and Phi P of the step after the block and leave as those of the
+    block's first step (the carry to block c - 1). Writes the smoothed state of step k in
+    row ``row[k]`` of XS (its first XS.shape[1] states; skipped when ``row[k] < 0``), their
+    one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB (PB may
+    have no rows: not stored); ``bad[0]`` becomes any step of the block whose smoothed
+    state is unusable (as in :func:`forward`; going backwards, the last one set is the
+    first). A step the forward pass re-initialised (``resets[k] != 0``) starts a new
+    segment: the steps before it are smoothed from their own forward posterior, not across
+    the restart."""
+    nx = xs.shape[0]
+    k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
     tmp = np.zeros((nx, nx))
     Ct = np.zeros((nx, nx))
     L = np.zeros((nx, nx))
     inv = np.zeros(nx)
-    Ps = np.zeros((nx, nx))
     Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
     acc = np.zeros(nx)
-    xs = np.zeros(nx)
     sd_limit = math.sqrt(pos_var_limit)
-    bad[0] = -1
-    for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK - 1, -1, -1):
-        k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
-        for a in range(nx):
-            x[a] = CX[c, a]
-            for b in range(nx):
-                P[a, b] = CP[c, a, b]
-        ist[:] = CI[c]
-        fst[:] = CF[c]
-        _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
-                       gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, no_row, none, none,
-                       none_pb, BX, BP, BXp, BPp, BB, seen)
-        for k in range(k1 - 1, k0 - 1, -1):
-            _unpack(BP[k - k0], Pk)
-            xk = BX[k - k0]
-            if k == N - 1 or resets[k + 1] != 0:   # the end, or a restart: a segment ends at k
-                for a in range(nx):
-                    xs[a] = xk[a]
-                    for b in range(nx):
-                        Ps[a, b] = Pk[a, b]
-            elif k == k1 - 1:
-                _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Bn, tmp, Ct, L, inv, Pn, d, acc)
-            else:
-                _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BB[k + 1 - k0], tmp, Ct, L, inv,
-                             Pn, d, acc)
-            if row[k] >= 0:
-                _store_row(row[k], xs, Ps, XS, SD, PB)
-            if _bad_step(xs, Ps, sd_limit):
-                bad[0] = k   # (going backwards: the last one found is the first)
-        for a in range(nx):
-            xpn[a] = BXp[0, a]
-            for b in range(nx):
-                Ppn[a, b] = BPp[0, a, b]
-                Bn[a, b] = BB[0, a, b]
+    for k in range(k1 - 1, k0 - 1, -1):
+        _unpack(BP[k - k0], Pk)
+        xk = BX[k - k0]
+        if k == N - 1 or resets[k + 1] != 0:   # the end, or a restart: a segment ends at k
+            for a in range(nx):
+                xs[a] = xk[a]
+                for b in range(nx):
+                    Ps[a, b] = Pk[a, b]
+        elif k == k1 - 1:
+            _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Bn, tmp, Ct, L, inv, Pn, d, acc)
+        else:
+            _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BB[k + 1 - k0], tmp, Ct, L, inv,
+                         Pn, d, acc)
+        if row[k] >= 0:
+            _store_row(row[k], xs, Ps, XS, SD, PB)
+        if _bad_step(xs, Ps, sd_limit):
+            bad[0] = k
+    for a in range(nx):
+        xpn[a] = BXp[0, a]
+        for b in range(nx):
+            Ppn[a, b] = BPp[0, a, b]
+            Bn[a, b] = BB[0, a, b]
 
 
 @njit
