@@ -834,16 +834,16 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
     if threads is None:
         threads = (os.cpu_count() or 1) > 1 and blocks > 1
     buf = [kernels.SmoothBuffers(nx) for _ in range(2 if threads else 1)]
-    xs, Ps, xpn, Ppn, Bn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
+    xs, Ps, xpn, Ppn, Cn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
     resets = run[2]
 
     def rerun(c: int) -> None:
         b = buf[c % len(buf)]
-        kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BB)
+        kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
 
     def back(c: int) -> None:
         b = buf[c % len(buf)]
-        kernels.smooth_back(c, N, resets, b.BX, b.BP, b.BXp, b.BPp, b.BB, xs, Ps, xpn, Ppn, Bn, pos_var_limit,
+        kernels.smooth_back(c, N, resets, b.BX, b.BP, b.BXp, b.BPp, b.BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit,
                             row, XS, SD, PB, bad)
 
     if not threads:
@@ -1395,10 +1395,10 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     state = grid_frame(raw.XS, raw.SDs, raw.PBs)
     raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
     innov = frame_from_columns(
-        {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
+        {"sensor": np.array(SENSORS, dtype=object)[pb.mkind],
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
          "accepted": raw.accepted > 0},
-        pb.m_t_ns, channel_spec(INNOVATION_TOPIC))
+        pb.m_t_ns, channel_spec(INNOVATION_TOPIC), copy=False)   # (fresh arrays: taken as they are)
     reps = []
     for k in range(len(SENSORS)):
         sel = pb.mkind == k

@@ -346,17 +346,19 @@ def _store_row(r, x, P, X, SD, PB):
 
 @njit
 def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
-                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, BXp, BPp, BB,
+                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, BXp, BPp, BC,
                    bad):
     """Steps k0 .. k1 - 1 of the forward pass from the state x, P, ist, fst (updated in place).
 
     Writes each step's posterior into row ``row[k]`` of X, SD, PB (none when ``row`` is
     empty or ``row[k] < 0``) and, when BX has rows, the state and the upper triangle of P
-    (row by row) into BX[k - k0], BP[k - k0], and the step's prior (the state and P before
-    its measurements) and Phi P_{k-1} (the posterior of the step before propagated; P_{k-1}
-    itself when there was no prediction) into BXp[k - k0], BPp[k - k0], BB[k - k0] (for the
-    smoother: exactly what it would compute again); ``bad[0]`` gets the first step whose
-    state is unusable (:func:`_bad_step`), if none did yet."""
+    (row by row) into BX[k - k0], BP[k - k0], the step's prior (the state and P before its
+    measurements) into BXp[k - k0], BPp[k - k0] and, for a step the smoother smooths the
+    one before across (k > 0, not re-initialised), the transposed RTS gain of the step
+    before, C^T = Pp^-1 Phi P_{k-1} (Pp the prior, P_{k-1} the posterior before it, Phi = I
+    without a prediction), into BC[k - k0]: all of it only the forward pass's numbers, made
+    here for the smoother; ``bad[0]`` gets the first step whose state is unusable
+    (:func:`_bad_step`), if none did yet."""
     nx = x.shape[0]
     M = mstep.shape[0]
     xo = np.zeros(nx)
@@ -368,24 +370,27 @@ def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkin
     P2 = np.zeros((nx, nx))
     K = np.zeros((nx, 2))
     res = np.zeros(NRES)
+    store = BX.shape[0] > 0
+    PhiP = np.zeros((nx, nx))   # Phi P of the posterior before the step (for the smoother's gain)
+    L = np.zeros((nx, nx))
+    inv = np.zeros(nx)
     sd_limit = math.sqrt(pos_var_limit)
     j = ist[IS_J]
     for k in range(k0, k1):
         resets[k] = 0
-        keep = BX.shape[0] > 0
         if k > 0 and dts[k] > 0.0:
             predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
-            if keep:
-                sparse_matmul(Phi, P, BB[k - k0])
+            if store:
+                sparse_matmul(Phi, P, PhiP)
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
                     P[a, b] = Po[a, b]
-        elif keep:   # no prediction: Phi = I
+        elif store:   # no prediction: Phi = I
             for a in range(nx):
                 for b in range(nx):
-                    BB[k - k0, a, b] = P[a, b]
-        if keep:
+                    PhiP[a, b] = P[a, b]
+        if store:
             for a in range(nx):
                 BXp[k - k0, a] = x[a]
                 for b in range(nx):
@@ -422,6 +427,8 @@ def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkin
             resets[k] = why
         if bad[0] < 0 and _bad_step(x, P, sd_limit):
             bad[0] = k
+        if store and k > 0 and resets[k] == 0:   # C^T of step k - 1: Pp C^T = Phi P_{k-1}
+            _chol_solve(L, inv, BPp[k - k0], PhiP, BC[k - k0])
         if row.shape[0] and row[k] >= 0:
             _store_row(row[k], x, P, X, SD, PB)
         if BX.shape[0]:   # P is symmetric (predict and update write both halves): its upper triangle
@@ -535,22 +542,22 @@ def _unpack(tri, P):
 class SmoothBuffers:
     """One block's forward posteriors made again (:func:`smooth_rerun`) for the smoother:
     BX, BP the posterior state and the upper triangle of its P (row by row), BXp, BPp the
-    prior of each step and BB = Phi P of the posterior before it (SMOOTH_BLOCK rows)."""
+    prior of each step and BC the transposed RTS gain of the step before it (SMOOTH_BLOCK rows)."""
 
     def __init__(self, nx: int):
         self.BX = np.zeros((SMOOTH_BLOCK, nx))
         self.BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
         self.BXp = np.zeros((SMOOTH_BLOCK, nx))
         self.BPp = np.zeros((SMOOTH_BLOCK, nx, nx))
-        self.BB = np.zeros((SMOOTH_BLOCK, nx, nx))
+        self.BC = np.zeros((SMOOTH_BLOCK, nx, nx))
 
 
 @njit(nogil=True)
 def smooth_rerun(c, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
-                 reinit_nis, innov, accepted, resets, CX, CP, CI, CF, BX, BP, BXp, BPp, BB):
+                 reinit_nis, innov, accepted, resets, CX, CP, CI, CF, BX, BP, BXp, BPp, BC):
     """The forward pass over block ``c`` (steps c SMOOTH_BLOCK ..) made again from its
     checkpoint (CX, CP, CI, CF of :func:`forward`, the same arguments: the very same
-    numbers), keeping every step's posterior, prior and Phi P in the buffers
+    numbers), keeping every step's posterior, prior and RTS gain in the buffers
     (:class:`SmoothBuffers`) for :func:`smooth_back`. Writes only block ``c``'s entries of
     innov, accepted and resets (the values the forward pass wrote there)."""
     N = dts.shape[0]
@@ -563,18 +570,18 @@ def smooth_rerun(c, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, 
     none = np.zeros((0, nx))
     _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
                    gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, np.zeros(0, np.int64), none,
-                   none, np.zeros((0, PB_SIZE, PB_SIZE)), BX, BP, BXp, BPp, BB, np.zeros(1, np.int64))
+                   none, np.zeros((0, PB_SIZE, PB_SIZE)), BX, BP, BXp, BPp, BC, np.zeros(1, np.int64))
 
 
 @njit(nogil=True)
-def smooth_back(c, N, resets, BX, BP, BXp, BPp, BB, xs, Ps, xpn, Ppn, Bn, pos_var_limit, row, XS, SD, PB, bad):
+def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit, row, XS, SD, PB, bad):
     """Extended RTS smoother over block ``c`` of an N-step run, backwards, from the buffers
     :func:`smooth_rerun` filled for it.
 
     ``xs``, ``Ps`` enter as the smoothed state of the step after the block (ignored for
-    the last block) and leave as that of the block's first step; ``xpn``, ``Ppn``, ``Bn``
-    enter as the prior and Phi P of the step after the block and leave as those of the
-    block's first step (the carry to block c - 1). Writes the smoothed state of step k in
+    the last block) and leave as that of the block's first step; ``xpn``, ``Ppn``, ``Cn``
+    enter as the prior and gain (BXp, BPp, BC) of the step after the block and leave as
+    those of the block's first step (the carry to block c - 1). Writes the smoothed state of step k in
     row ``row[k]`` of XS (its first XS.shape[1] states; skipped when ``row[k] < 0``), their
     one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB (PB may
     have no rows: not stored); ``bad[0]`` becomes any step of the block whose smoothed
@@ -585,9 +592,6 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BB, xs, Ps, xpn, Ppn, Bn, pos_va
     nx = xs.shape[0]
     k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
     tmp = np.zeros((nx, nx))
-    Ct = np.zeros((nx, nx))
-    L = np.zeros((nx, nx))
-    inv = np.zeros(nx)
     Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
@@ -602,10 +606,9 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BB, xs, Ps, xpn, Ppn, Bn, pos_va
                 for b in range(nx):
                     Ps[a, b] = Pk[a, b]
         elif k == k1 - 1:
-            _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Bn, tmp, Ct, L, inv, Pn, d, acc)
+            _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Cn, tmp, Pn, d, acc)
         else:
-            _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BB[k + 1 - k0], tmp, Ct, L, inv,
-                         Pn, d, acc)
+            _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BC[k + 1 - k0], tmp, Pn, d, acc)
         if row[k] >= 0:
             _store_row(row[k], xs, Ps, XS, SD, PB)
         if _bad_step(xs, Ps, sd_limit):
@@ -614,20 +617,18 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BB, xs, Ps, xpn, Ppn, Bn, pos_va
         xpn[a] = BXp[0, a]
         for b in range(nx):
             Ppn[a, b] = BPp[0, a, b]
-            Bn[a, b] = BB[0, a, b]
+            Cn[a, b] = BC[0, a, b]
 
 
 @njit
-def _smooth_step(xk, Pk, xs, Ps, xp, Pp, B, tmp, Ct, L, inv, Pn, d, acc):
+def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
     """One RTS step: from the forward posterior xk, Pk of step k, the prior xp, Pp of step
-    k + 1 and B = Phi Pk (Phi of step k + 1), and the smoothed xs, Ps of step k + 1, the
-    smoothed state of step k into xs, Ps.
+    k + 1, the transposed gain Ct (C = Pk Phi^T Pp^-1, Phi of step k + 1) and the smoothed
+    xs, Ps of step k + 1, the smoothed state of step k into xs, Ps.
 
     The products run row-wise (contiguous, vectorised) with every entry's sum taken in
     the same order as the textbook loops (the sum over c from 0 up)."""
     nx = xk.shape[0]
-    # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-    _chol_solve(L, inv, Pp, B, Ct)
     for a in range(nx):
         d[a] = xs[a] - xp[a]
     d[X_PSI] = wrap_angle(d[X_PSI])
