@@ -512,13 +512,25 @@ def test_chi2_quantile_closed_form_equals_scipy():
 def test_output_rows_are_the_all_step_run_bit_for_bit():
     """The memory-bounded run (some rows, the first states, the smoother re-making the forward
     posteriors block by block from checkpoints) gives exactly those rows of the all-step run,
-    across several blocks and at the same first unusable step."""
+    across several blocks and at the same first unusable step; the smoother with the blocks
+    made again in a second thread gives the very numbers of the one-thread run, and both the
+    filterpy reference's across the block boundaries (each block's last step smoothed with
+    the prior carried over from the block after it)."""
     log = simulate("excitation", SimSettings(duration_s=50.0), seed=4)
     s = EstimateSettings(sway_damping=False)
     pb = build_problem(log, s, default_vessel())
     assert len(pb.dts) > 2 * kernels.SMOOTH_BLOCK
     q = process_noise(s)
-    every = run_fast(pb, q, s.max_consecutive_rejects, True)
+    every = run_fast(pb, q, s.max_consecutive_rejects, True, threads=True)
+    one = run_fast(pb, q, s.max_consecutive_rejects, True, threads=False)
+    for a, b in ((every.XS, one.XS), (every.SDs, one.SDs), (every.PBs, one.PBs), (every.innov, one.innov)):
+        np.testing.assert_array_equal(a, b)
+    ref = run_reference_path(pb, q, s.max_consecutive_rejects, True)
+    for a, b in ((every.XS, ref.XS), (every.SDs, ref.SDs), (every.PBs, ref.PBs)):
+        d = np.abs(a - b)
+        if a.ndim == 2:
+            d[:, 2] = np.abs(ssa(a[:, 2] - b[:, 2]))
+        assert np.nanmax(d) < 1e-9
     rows = np.zeros(len(pb.dts), bool)
     rows[::7] = rows[-1] = True
     some = run_fast(pb, q, s.max_consecutive_rejects, True, rows=rows, columns=5, covariance_block=False)

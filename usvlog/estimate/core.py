@@ -4,6 +4,8 @@ extended RTS smoother, innovation gating, process-noise tuning, results."""
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
 from typing import Literal, overload
@@ -739,12 +741,12 @@ class RawRun:
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-             covariance_block: bool = True, columns: int | None = None) -> RawRun:
+             covariance_block: bool = True, columns: int | None = None, threads: bool | None = None) -> RawRun:
     """Forward EKF (and RTS smoother) with the numba-compiled kernels.
 
     Memory is that of the rows asked for, not of the steps: the smoother makes the forward
     posteriors again a block at a time from checkpoints of the forward pass (the same
-    numbers; see ``kernels.smooth``).
+    numbers; see :func:`smooth`).
 
     Parameters
     ----------
@@ -761,6 +763,8 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
         Return the covariance block of states 2..4 (``PBf``, ``PBs``).
     columns : int, optional
         Return the first ``columns`` states (and their one-sigma) only; default all.
+    threads : bool, optional
+        The smoother's two halves in two threads (:func:`smooth`; default: with more than one CPU).
 
     Returns
     -------
@@ -788,11 +792,72 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
     ll = kernels.forward(*args, row, X, SDf, PBf, innov, acc, resets, CX, CP, CI, CF, bad_f)
     if smoother:
         XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty_like(PBf)
-        kernels.smooth(*args, innov, acc, resets, CX, CP, CI, CF, row, XS, SDs, PBs, bad_s)
+        smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s, threads)
     else:
         XS, SDs, PBs = X, SDf, PBf
     bad = [int(b[0]) for b in (bad_f, bad_s) if b[0] >= 0]
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, min(bad) if bad else -1)
+
+
+def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndarray, PB: np.ndarray,
+           bad: np.ndarray, threads: bool | None = None) -> None:
+    """The extended RTS smoother after ``kernels.forward``, block by block from the end.
+
+    Each block's forward posteriors are made again from its checkpoint
+    (``kernels.smooth_rerun``) and smoothed backwards (``kernels.smooth_back``). With
+    ``threads`` (default: when the machine has more than one CPU) the next (earlier)
+    block is made again in a second thread while this one is smoothed: the same numbers in
+    the same order, the wall time of the larger of the two halves.
+
+    Parameters
+    ----------
+    args : tuple
+        The arguments ``kernels.forward`` took before its outputs (x0 .. reinit_nis).
+    run : tuple
+        Its innov, accepted, resets and checkpoints CX, CP, CI, CF.
+    row : numpy.ndarray
+        (N,) int64: the output row of each step, -1 for none.
+    XS, SD, PB : numpy.ndarray
+        Outputs: smoothed states (R, columns), their one-sigma and covariance block (R, 3, 3)
+        or (0, 3, 3).
+    bad : numpy.ndarray
+        (1,) int64: the first step whose smoothed state is unusable, -1 for none.
+    threads : bool, optional
+        Overlap the blocks' re-runs with the smoothing (see above).
+    """
+    x0, dts, pos_var_limit = args[0], args[2], args[14]
+    N, nx = len(dts), len(x0)
+    blocks = -(-N // kernels.SMOOTH_BLOCK)
+    bad[0] = -1
+    if not blocks:
+        return
+    if threads is None:
+        threads = (os.cpu_count() or 1) > 1 and blocks > 1
+    buf = [kernels.SmoothBuffers(nx) for _ in range(2 if threads else 1)]
+    xs, Ps, xpn, Ppn, Cn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
+    resets = run[2]
+
+    def rerun(c: int) -> None:
+        b = buf[c % len(buf)]
+        kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
+
+    def back(c: int) -> None:
+        b = buf[c % len(buf)]
+        kernels.smooth_back(c, N, resets, b.BX, b.BP, b.BXp, b.BPp, b.BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit,
+                            row, XS, SD, PB, bad)
+
+    if not threads:
+        for c in range(blocks - 1, -1, -1):
+            rerun(c)
+            back(c)
+        return
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        rerun(blocks - 1)
+        for c in range(blocks - 1, -1, -1):
+            nxt = pool.submit(rerun, c - 1) if c else None   # into the other buffer
+            back(c)
+            if nxt is not None:
+                nxt.result()
 
 
 REINIT_GATE_FACTOR = 100.0
@@ -1330,10 +1395,10 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     state = grid_frame(raw.XS, raw.SDs, raw.PBs)
     raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
     innov = frame_from_columns(
-        {"sensor": np.array([SENSORS[k] for k in pb.mkind], dtype=object),
+        {"sensor": np.array(SENSORS, dtype=object)[pb.mkind],
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
          "accepted": raw.accepted > 0},
-        pb.m_t_ns, channel_spec(INNOVATION_TOPIC))
+        pb.m_t_ns, channel_spec(INNOVATION_TOPIC), copy=False)   # (fresh arrays: taken as they are)
     reps = []
     for k in range(len(SENSORS)):
         sel = pb.mkind == k

@@ -167,14 +167,18 @@ def predict(x, P, tau_u, tau_r, dt, prm, model, q, qj, xo, Po, Phi, f, F, tmp):
     xo[X_PSI] = wrap_angle(xo[X_PSI])
     sparse_matmul(F, P, tmp)
     dt2 = dt * dt
+    # (F P F^T)[i, j], i <= j, summed over the non-zero F[j, k] (k upwards) into Po[j, i]
+    for j in range(nx):
+        for i in range(j + 1):
+            Po[j, i] = 0.0
+        for k in range(nx):
+            a = F[j, k]
+            if a != 0.0:
+                for i in range(j + 1):
+                    Po[j, i] += tmp[i, k] * a
     for i in range(nx):
         for j in range(i, nx):
-            acc = 0.0
-            for k in range(nx):
-                a = F[j, k]
-                if a != 0.0:
-                    acc += tmp[i, k] * a
-            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * acc
+            v = P[i, j] + dt * (tmp[i, j] + tmp[j, i]) + dt2 * Po[j, i]
             Po[i, j] = v
             Po[j, i] = v
         Po[i, i] += q[i] * dt
@@ -342,13 +346,19 @@ def _store_row(r, x, P, X, SD, PB):
 
 @njit
 def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates,
-                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, bad):
+                   max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, row, X, SD, PB, BX, BP, BXp, BPp, BC,
+                   bad):
     """Steps k0 .. k1 - 1 of the forward pass from the state x, P, ist, fst (updated in place).
 
     Writes each step's posterior into row ``row[k]`` of X, SD, PB (none when ``row`` is
     empty or ``row[k] < 0``) and, when BX has rows, the state and the upper triangle of P
-    (row by row) into BX[k - k0], BP[k - k0]; ``bad[0]`` gets the first step whose
-    state is unusable (:func:`_bad_step`), if none did yet."""
+    (row by row) into BX[k - k0], BP[k - k0], the step's prior (the state and P before its
+    measurements) into BXp[k - k0], BPp[k - k0] and, for a step the smoother smooths the
+    one before across (k > 0, not re-initialised), the transposed RTS gain of the step
+    before, C^T = Pp^-1 Phi P_{k-1} (Pp the prior, P_{k-1} the posterior before it, Phi = I
+    without a prediction), into BC[k - k0]: all of it only the forward pass's numbers, made
+    here for the smoother; ``bad[0]`` gets the first step whose state is unusable
+    (:func:`_bad_step`), if none did yet."""
     nx = x.shape[0]
     M = mstep.shape[0]
     xo = np.zeros(nx)
@@ -360,16 +370,31 @@ def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkin
     P2 = np.zeros((nx, nx))
     K = np.zeros((nx, 2))
     res = np.zeros(NRES)
+    store = BX.shape[0] > 0
+    PhiP = np.zeros((nx, nx))   # Phi P of the posterior before the step (for the smoother's gain)
+    L = np.zeros((nx, nx))
+    inv = np.zeros(nx)
     sd_limit = math.sqrt(pos_var_limit)
     j = ist[IS_J]
     for k in range(k0, k1):
         resets[k] = 0
         if k > 0 and dts[k] > 0.0:
             predict(x, P, taus[k, TAU_U], taus[k, TAU_R], dts[k], prm, model, q, qjump[k], xo, Po, Phi, f, F, tmp)
+            if store:
+                sparse_matmul(Phi, P, PhiP)
             for a in range(nx):
                 x[a] = xo[a]
                 for b in range(nx):
                     P[a, b] = Po[a, b]
+        elif store:   # no prediction: Phi = I
+            for a in range(nx):
+                for b in range(nx):
+                    PhiP[a, b] = P[a, b]
+        if store:
+            for a in range(nx):
+                BXp[k - k0, a] = x[a]
+                for b in range(nx):
+                    BPp[k - k0, a, b] = P[a, b]
         while j < M and mstep[j] == k:
             kind = mkind[j]
             force = ist[1 + kind] >= max_rej
@@ -402,6 +427,8 @@ def _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkin
             resets[k] = why
         if bad[0] < 0 and _bad_step(x, P, sd_limit):
             bad[0] = k
+        if store and k > 0 and resets[k] == 0:   # C^T of step k - 1: Pp C^T = Phi P_{k-1}
+            _chol_solve(L, inv, BPp[k - k0], PhiP, BC[k - k0])
         if row.shape[0] and row[k] >= 0:
             _store_row(row[k], x, P, X, SD, PB)
         if BX.shape[0]:   # P is symmetric (predict and update write both halves): its upper triangle
@@ -426,7 +453,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     per-measurement [res_0, res_1, nis, loglik] in innov and the decision in accepted
     (0 rejected, 1 accepted, 2 accepted after too many rejections). When CX has rows, the
     filter's state entering every SMOOTH_BLOCK-th step is kept there and in CP, CI, CF
-    (checkpoints, for :func:`smooth`). ``bad[0]``: the first step whose state or
+    (checkpoints, for :func:`smooth_rerun`). ``bad[0]``: the first step whose state or
     one-sigma is not finite or whose position one-sigma exceeds sqrt(pos_var_limit), -1
     for none. Returns the sum of the log-likelihood terms.
 
@@ -447,6 +474,7 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
     bad[0] = -1
     none = np.zeros((0, nx))
     none_tri = np.zeros((0, 1))
+    none_sq = np.zeros((0, nx, nx))
     for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK):
         if CX.shape[0]:
             for a in range(nx):
@@ -457,15 +485,18 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
             CF[c, :] = fst
         _forward_steps(c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK), x, P, ist, fst, x0, P0, dts, taus, qjump,
                        mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit, reinit_nis, innov,
-                       accepted, resets, row, X, SD, PB, none, none_tri, bad)
+                       accepted, resets, row, X, SD, PB, none, none_tri, none, none_sq, none_sq, bad)
     return fst[FS_LOGLIK]
 
 
 @njit
 def _chol_solve(L, inv, A, B, X):
     """Solve A X = B for symmetric positive definite A (n x n) via Cholesky; L scratch
-    (reciprocals of the diagonal: no divisions in the loops)."""
+    (reciprocals of the diagonal: no divisions in the loops). The substitutions run over
+    all columns of B at once (row operations: contiguous, vectorised); each entry sees the
+    same operations in the same order as column by column."""
     n = A.shape[0]
+    m = B.shape[1]
     for i in range(n):
         for j in range(i + 1):
             s = A[i, j]
@@ -476,17 +507,24 @@ def _chol_solve(L, inv, A, B, X):
                 inv[i] = 1.0 / L[i, i]
             else:
                 L[i, j] = s * inv[j]
-    for c in range(B.shape[1]):
-        for i in range(n):
-            s = B[i, c]
-            for k in range(i):
-                s -= L[i, k] * X[k, c]
-            X[i, c] = s * inv[i]
-        for i in range(n - 1, -1, -1):
-            s = X[i, c]
-            for k in range(i + 1, n):
-                s -= L[k, i] * X[k, c]
-            X[i, c] = s * inv[i]
+    for i in range(n):
+        for c in range(m):
+            X[i, c] = B[i, c]
+        for k in range(i):
+            w = L[i, k]
+            for c in range(m):
+                X[i, c] -= w * X[k, c]
+        w = inv[i]
+        for c in range(m):
+            X[i, c] *= w
+    for i in range(n - 1, -1, -1):
+        for k in range(i + 1, n):
+            w = L[k, i]
+            for c in range(m):
+                X[i, c] -= w * X[k, c]
+        w = inv[i]
+        for c in range(m):
+            X[i, c] *= w
 
 
 @njit
@@ -501,102 +539,107 @@ def _unpack(tri, P):
             i += 1
 
 
-@njit
-def smooth(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
-           reinit_nis, innov, accepted, resets, CX, CP, CI, CF, row, XS, SD, PB, bad):
-    """Extended RTS smoother over the forward posteriors, block by block from the end.
+class SmoothBuffers:
+    """One block's forward posteriors made again (:func:`smooth_rerun`) for the smoother:
+    BX, BP the posterior state and the upper triangle of its P (row by row), BXp, BPp the
+    prior of each step and BC the transposed RTS gain of the step before it (SMOOTH_BLOCK rows)."""
 
-    The forward posteriors of a block of SMOOTH_BLOCK steps are made again from its
+    def __init__(self, nx: int):
+        self.BX = np.zeros((SMOOTH_BLOCK, nx))
+        self.BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
+        self.BXp = np.zeros((SMOOTH_BLOCK, nx))
+        self.BPp = np.zeros((SMOOTH_BLOCK, nx, nx))
+        self.BC = np.zeros((SMOOTH_BLOCK, nx, nx))
+
+
+@njit(nogil=True)
+def smooth_rerun(c, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit,
+                 reinit_nis, innov, accepted, resets, CX, CP, CI, CF, BX, BP, BXp, BPp, BC):
+    """The forward pass over block ``c`` (steps c SMOOTH_BLOCK ..) made again from its
     checkpoint (CX, CP, CI, CF of :func:`forward`, the same arguments: the very same
-    numbers) and smoothed backwards; priors and Phi are recomputed with the same prediction
-    as the forward pass. Writes the smoothed state of step k in row ``row[k]`` of XS (its
-    first XS.shape[1] states; skipped when ``row[k] < 0``), their one-sigma in SD and the
-    covariance block of states
-    PB_FIRST.. (PB_SIZE) in PB (PB may have no rows: not stored); ``bad[0]``: the first step
-    whose smoothed state is unusable (as in :func:`forward`), -1 for none. A step the
-    forward pass re-initialised (``resets[k] != 0``) starts a new segment: the steps before
-    it are smoothed from their own forward posterior, not across the restart."""
+    numbers), keeping every step's posterior, prior and RTS gain in the buffers
+    (:class:`SmoothBuffers`) for :func:`smooth_back`. Writes only block ``c``'s entries of
+    innov, accepted and resets (the values the forward pass wrote there)."""
     N = dts.shape[0]
     nx = x0.shape[0]
-    BX = np.zeros((SMOOTH_BLOCK, nx))
-    BP = np.zeros((SMOOTH_BLOCK, nx * (nx + 1) // 2))
-    x = np.zeros(nx)
-    P = np.zeros((nx, nx))
-    ist = np.zeros(N_IST, np.int64)
-    fst = np.zeros(NFS)
-    seen = np.zeros(1, np.int64)
-    no_row = np.zeros(0, np.int64)
+    k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
+    x = CX[c].copy()
+    P = CP[c].copy()
+    ist = CI[c].copy()
+    fst = CF[c].copy()
     none = np.zeros((0, nx))
-    none_pb = np.zeros((0, PB_SIZE, PB_SIZE))
-    xp = np.zeros(nx)
-    Pp = np.zeros((nx, nx))
-    Phi = np.zeros((nx, nx))
-    f = np.zeros(nx)
-    F = np.zeros((nx, nx))
+    _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
+                   gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, np.zeros(0, np.int64), none,
+                   none, np.zeros((0, PB_SIZE, PB_SIZE)), BX, BP, BXp, BPp, BC, np.zeros(1, np.int64))
+
+
+@njit(nogil=True)
+def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit, row, XS, SD, PB, bad):
+    """Extended RTS smoother over block ``c`` of an N-step run, backwards, from the buffers
+    :func:`smooth_rerun` filled for it.
+
+    ``xs``, ``Ps`` enter as the smoothed state of the step after the block (ignored for
+    the last block) and leave as that of the block's first step; ``xpn``, ``Ppn``, ``Cn``
+    enter as the prior and gain (BXp, BPp, BC) of the step after the block and leave as
+    those of the block's first step (the carry to block c - 1). Writes the smoothed state of step k in
+    row ``row[k]`` of XS (its first XS.shape[1] states; skipped when ``row[k] < 0``), their
+    one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB (PB may
+    have no rows: not stored); ``bad[0]`` becomes any step of the block whose smoothed
+    state is unusable (as in :func:`forward`; going backwards, the last one set is the
+    first). A step the forward pass re-initialised (``resets[k] != 0``) starts a new
+    segment: the steps before it are smoothed from their own forward posterior, not across
+    the restart."""
+    nx = xs.shape[0]
+    k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
     tmp = np.zeros((nx, nx))
-    B = np.zeros((nx, nx))
-    Ct = np.zeros((nx, nx))
-    L = np.zeros((nx, nx))
-    inv = np.zeros(nx)
-    Ps = np.zeros((nx, nx))
     Pk = np.zeros((nx, nx))
     Pn = np.zeros((nx, nx))
     d = np.zeros(nx)
-    xs = np.zeros(nx)
+    acc = np.zeros(nx)
     sd_limit = math.sqrt(pos_var_limit)
-    bad[0] = -1
-    for c in range((N + SMOOTH_BLOCK - 1) // SMOOTH_BLOCK - 1, -1, -1):
-        k0, k1 = c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK)
-        for a in range(nx):
-            x[a] = CX[c, a]
-            for b in range(nx):
-                P[a, b] = CP[c, a, b]
-        ist[:] = CI[c]
-        fst[:] = CF[c]
-        _forward_steps(k0, k1, x, P, ist, fst, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q,
-                       gates, max_rej, pos_var_limit, reinit_nis, innov, accepted, resets, no_row, none, none,
-                       none_pb, BX, BP, seen)
-        for k in range(k1 - 1, k0 - 1, -1):
-            _unpack(BP[k - k0], Pk)
-            xk = BX[k - k0]
-            if k == N - 1 or resets[k + 1] != 0:   # the end, or a restart: a segment ends at k
-                for a in range(nx):
-                    xs[a] = xk[a]
-                    for b in range(nx):
-                        Ps[a, b] = Pk[a, b]
-            else:
-                _smooth_step(xk, Pk, xs, Ps, dts[k + 1], taus[k + 1, TAU_U], taus[k + 1, TAU_R], qjump[k + 1], prm,
-                             model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d)
-            if row[k] >= 0:
-                _store_row(row[k], xs, Ps, XS, SD, PB)
-            if _bad_step(xs, Ps, sd_limit):
-                bad[0] = k   # (going backwards: the last one found is the first)
+    for k in range(k1 - 1, k0 - 1, -1):
+        _unpack(BP[k - k0], Pk)
+        xk = BX[k - k0]
+        if k == N - 1 or resets[k + 1] != 0:   # the end, or a restart: a segment ends at k
+            for a in range(nx):
+                xs[a] = xk[a]
+                for b in range(nx):
+                    Ps[a, b] = Pk[a, b]
+        elif k == k1 - 1:
+            _smooth_step(xk, Pk, xs, Ps, xpn, Ppn, Cn, tmp, Pn, d, acc)
+        else:
+            _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BC[k + 1 - k0], tmp, Pn, d, acc)
+        if row[k] >= 0:
+            _store_row(row[k], xs, Ps, XS, SD, PB)
+        if _bad_step(xs, Ps, sd_limit):
+            bad[0] = k
+    for a in range(nx):
+        xpn[a] = BXp[0, a]
+        for b in range(nx):
+            Ppn[a, b] = BPp[0, a, b]
+            Cn[a, b] = BC[0, a, b]
 
 
 @njit
-def _smooth_step(xk, Pk, xs, Ps, dt, tau_u, tau_r, qj, prm, model, q, xp, Pp, Phi, f, F, tmp, B, Ct, L, inv, Pn, d):
-    """One RTS step: from the forward posterior xk, Pk of step k and the smoothed xs, Ps of
-    step k + 1 (``dt`` etc. those of step k + 1), the smoothed state of step k into xs, Ps."""
+def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
+    """One RTS step: from the forward posterior xk, Pk of step k, the prior xp, Pp of step
+    k + 1, the transposed gain Ct (C = Pk Phi^T Pp^-1, Phi of step k + 1) and the smoothed
+    xs, Ps of step k + 1, the smoothed state of step k into xs, Ps.
+
+    The products run row-wise (contiguous, vectorised) with every entry's sum taken in
+    the same order as the textbook loops (the sum over c from 0 up)."""
     nx = xk.shape[0]
-    if dt > 0.0:
-        predict(xk, Pk, tau_u, tau_r, dt, prm, model, q, qj, xp, Pp, Phi, f, F, tmp)
-    else:
-        for a in range(nx):
-            xp[a] = xk[a]
-            for b in range(nx):
-                Pp[a, b] = Pk[a, b]
-                Phi[a, b] = 1.0 if a == b else 0.0
-    # C = Pk Phi^T Pp^-1  <=>  Pp C^T = Phi Pk
-    sparse_matmul(Phi, Pk, B)
-    _chol_solve(L, inv, Pp, B, Ct)
     for a in range(nx):
         d[a] = xs[a] - xp[a]
     d[X_PSI] = wrap_angle(d[X_PSI])
     for a in range(nx):
-        acc = 0.0
-        for c in range(nx):
-            acc += Ct[c, a] * d[c]
-        xs[a] = xk[a] + acc
+        acc[a] = 0.0
+    for c in range(nx):
+        w = d[c]
+        for a in range(nx):
+            acc[a] += Ct[c, a] * w
+    for a in range(nx):
+        xs[a] = xk[a] + acc[a]
     xs[X_PSI] = wrap_angle(xs[X_PSI])
     # Ps_k = Pk + C (Ps - Pp) C^T
     for a in range(nx):
@@ -604,14 +647,20 @@ def _smooth_step(xk, Pk, xs, Ps, dt, tau_u, tau_r, qj, prm, model, q, xp, Pp, Ph
             Pn[a, b] = Ps[a, b] - Pp[a, b]
     for a in range(nx):
         for b in range(nx):
-            acc = 0.0
-            for c in range(nx):
-                acc += Ct[c, a] * Pn[c, b]
-            tmp[a, b] = acc
+            tmp[a, b] = 0.0
+        for c in range(nx):
+            w = Ct[c, a]
+            for b in range(nx):
+                tmp[a, b] += w * Pn[c, b]
     for a in range(nx):
         for b in range(a, nx):
-            acc = 0.0
-            for c in range(nx):
-                acc += tmp[a, c] * Ct[c, b]
-            Ps[a, b] = Pk[a, b] + acc
-            Ps[b, a] = Ps[a, b]
+            acc[b] = 0.0
+        for c in range(nx):
+            w = tmp[a, c]
+            for b in range(a, nx):
+                acc[b] += w * Ct[c, b]
+        for b in range(a, nx):
+            v = Pk[a, b] + acc[b]
+            Ps[a, b] = v
+            Ps[b, a] = v
+
