@@ -168,7 +168,7 @@ CH_T, CH_F, CH_N = ord("t"), ord("f"), ord("n")          # first bytes of true, 
 CH_CONTROL_END = 0x20                                     # bytes below are not allowed raw in strings
 MAX_EXACT_DIGITS = 19                                     # decimal digits that always fit a uint64
 
-@njit
+@njit(inline="always")
 def _number(buf, p, end):
     """One pass over the JSON number at p: (its end, or -1 if malformed; whether it is an
     integer; whether it is negative; the decimal mantissa of its significant digits; the
@@ -232,7 +232,7 @@ def _number(buf, p, end):
     return q, is_int, neg, man, exp10, exact
 
 
-@njit
+@njit(inline="always")
 def _lit(buf, p, end, word):
     n = len(word)
     if p + n > end:
@@ -273,7 +273,7 @@ _M32 = np.uint64(0xFFFFFFFF)
 _U = np.uint64
 
 
-@njit
+@njit(inline="always")
 def _mul64(a, b):
     """Full 128-bit product of two uint64: (hi, lo)."""
     a_lo, a_hi = a & _M32, a >> _U(32)
@@ -288,7 +288,7 @@ def _mul64(a, b):
     return hi, lo
 
 
-@njit
+@njit(inline="always")
 def _clz64(x):
     n = 0
     if x <= _U(0x00000000FFFFFFFF):
@@ -311,7 +311,7 @@ def _clz64(x):
     return n
 
 
-@njit
+@njit(inline="always")
 def _eisel_lemire(man, q, neg, pow10):
     """The bits of the double nearest man * 10**q, and whether that was decided."""
     sign = _U(0x8000000000000000) if neg else _U(0)
@@ -353,7 +353,7 @@ _CLINGER_MAX_EXP = 22                   # 10**22 is the largest exact power of t
 _EXACT_POW10 = np.array([10.0 ** k for k in range(_CLINGER_MAX_EXP + 1)])
 
 
-@njit
+@njit(inline="always")
 def _to_double(man, exp10, neg, pow10):
     """The double nearest (-1)**neg * man * 10**exp10 -> (its bits, decided, the double
     itself, whether it is given as the double rather than as its bits)."""
@@ -612,6 +612,5 @@ def gather_rows(buf, starts, size):
     out = np.empty((len(starts), size), np.uint8)
     for i in range(len(starts)):
         s = starts[i]
-        for j in range(size):
-            out[i, j] = buf[s + j]
+        out[i, :] = buf[s:s + size]   # a block copy (a byte loop is ~1.5x slower)
     return out
