@@ -1091,15 +1091,16 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                 bufs = [g[0] for g in group]
                 shift = np.cumsum([0] + [len(b) for b in bufs[:-1]])
                 buf = np.concatenate(bufs)
-                cid, seq, t, ps, pe, ordinal = (np.concatenate([g[1][k] + (shift[i] if k in (3, 4) else 0)
+                cid, seq, t, ps, pe, ordinal = (np.concatenate([g[1][k] + shift[i] if k in (3, 4) else g[1][k]
                                                                 for i, g in enumerate(group)]) for k in range(6))
             group.clear()
-            ids = np.unique(cid)
+            counts = np.bincount(cid)   # channel ids are uint16 (malformed records were left out)
+            ids = np.flatnonzero(counts)
             if len(ids) == 1:
                 sels = [np.arange(len(cid))]
-            else:
-                by = np.argsort(cid, kind="stable")
-                sels = np.split(by, np.searchsorted(cid[by], ids[1:]))
+            else:   # a stable sort of 16-bit keys is a radix sort
+                by = np.argsort(cid.astype(np.uint16), kind="stable")
+                sels = np.split(by, np.cumsum(counts[ids[:-1]]))
             for c, sel in zip(ids.tolist(), sels):
                 part = channel(c)
                 if part is not None and not part.mismatch:
@@ -1375,7 +1376,9 @@ class ChunkStream:
                 pending.append((np.array(records[:pe[later].max()]) if at >= 0 else records,
                                 at, t0, t1, cid[later], seq[later], t[later], ps[later], pe[later], ordinal[later]))
             keep = known & (ordinal > first)
-            if keep.any():
+            if len(keep) and keep.all():   # the usual case: no copies
+                yield records, at, t0, t1, cid, seq, t, ps, pe, ordinal
+            elif keep.any():
                 yield records, at, t0, t1, cid[keep], seq[keep], t[keep], ps[keep], pe[keep], ordinal[keep]
         _finish_windowed(scan, data, self._release_all)
         # messages met before their channel's record: kept when it never came (the summary has it)
