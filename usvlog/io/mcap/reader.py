@@ -1094,14 +1094,7 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                 cid, seq, t, ps, pe, ordinal = (np.concatenate([g[1][k] + shift[i] if k in (3, 4) else g[1][k]
                                                                 for i, g in enumerate(group)]) for k in range(6))
             group.clear()
-            counts = np.bincount(cid)   # channel ids are uint16 (malformed records were left out)
-            ids = np.flatnonzero(counts)
-            if len(ids) == 1:
-                sels = [np.arange(len(cid))]
-            else:   # a stable sort of 16-bit keys is a radix sort
-                by = np.argsort(cid.astype(np.uint16), kind="stable")
-                sels = np.split(by, np.cumsum(counts[ids[:-1]]))
-            for c, sel in zip(ids.tolist(), sels):
+            for c, sel in by_channel(cid):
                 part = channel(c)
                 if part is not None and not part.mismatch:
                     part.add(buf, sel, t, seq, ordinal, ps, pe)
@@ -1282,6 +1275,27 @@ class ChannelInfo:
 
 _RELEASE_BYTES = 8 << 20    # a memory-mapped file drops the pages behind the walk this often (bytes)
 _WINDOW_BYTES = 8 << 20      # top-level records walked at a time when streaming (bytes)
+
+
+def by_channel(cid: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """Messages grouped by channel.
+
+    Parameters
+    ----------
+    cid : numpy.ndarray
+        int64 channel id of each message (0 to 65535, as a walk yields them).
+
+    Returns
+    -------
+    list of (int, numpy.ndarray)
+        (channel id, indices of its messages in their order in ``cid``), by increasing id.
+    """
+    counts = np.bincount(cid)
+    ids = np.flatnonzero(counts)
+    if len(ids) <= 1:
+        return [(int(c), np.arange(len(cid))) for c in ids]
+    by = np.argsort(cid.astype(np.uint16), kind="stable")   # a stable sort of 16-bit keys is a radix sort
+    return list(zip(ids.tolist(), np.split(by, np.cumsum(counts[ids[:-1]]))))
 
 
 def _first_definitions(defined: dict, cid: np.ndarray) -> np.ndarray:
