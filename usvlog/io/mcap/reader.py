@@ -56,6 +56,11 @@ from .format import (
     OP_SCHEMA,
 )
 
+try:   # CRC-32 (zlib's polynomial) at ~10 GB/s, zlib's ~1.3 GB/s; zlib's when fastcrc is missing
+    from fastcrc.crc32 import iso_hdlc as _crc32
+except ImportError:  # pragma: no cover - fastcrc is a dependency
+    _crc32 = zlib.crc32
+
 
 class _CorruptChunk(Exception):
     pass
@@ -204,7 +209,7 @@ def _chunk_data(buf, body: int, nxt: int) -> tuple[int, int, bytes]:
         raise _CorruptChunk(f"cannot decompress: {err}") from err
     if len(out) != usize:
         raise _CorruptChunk(f"{len(out)} bytes uncompressed, header says {usize}")
-    if crc and zlib.crc32(out) != crc:
+    if crc and _crc32(out) != crc:
         raise _CorruptChunk("CRC mismatch")
     return t0, t1, out
 
@@ -269,7 +274,7 @@ def _read_summary(data: bytes, footer_at: int) -> _Summary | None:
     if start == 0 or not 8 <= start <= footer_at:
         return None
     mv = memoryview(data)
-    if crc and zlib.crc32(mv[start:footer_at + 25]) != crc:
+    if crc and _crc32(mv[start:footer_at + 25]) != crc:
         return None
     stop = offsets_at if start <= offsets_at <= footer_at and offsets_at else footer_at
     s = _Summary(start=start)
@@ -505,7 +510,7 @@ def _finish(scan: _Scan, data: bytes, crc_upto=None) -> None:
                 scan.notes.append("the summary section is damaged (its CRC fails; the data section was read in full)")
     if not scan.regions and scan.data_end_at >= 0:
         crc = _U32.unpack_from(mv, scan.data_end_at + 9)[0]
-        if crc and (crc_upto(scan.data_end_at) if crc_upto else zlib.crc32(mv[:scan.data_end_at])) != crc:
+        if crc and (crc_upto(scan.data_end_at) if crc_upto else _crc32(mv[:scan.data_end_at])) != crc:
             scan.notes.append("data section CRC mismatch: a record outside the chunks (header, metadata or"
                               " an index) is damaged, the metadata may be wrong")
 
@@ -775,7 +780,7 @@ def _decompress(comp: str, raw, usize: int) -> bytes:
     if comp == "zstd":
         import zstandard  # only the decompressor the file uses is loaded
 
-        return zstandard.ZstdDecompressor().decompress(bytes(raw), max_output_size=usize)
+        return zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)   # from the map, no copy
     if comp == "lz4":
         import lz4.frame  # only the decompressor the file uses is loaded
 
@@ -1557,7 +1562,7 @@ def _finish_windowed(scan: _Scan, data, release, window: int = 8 << 20) -> None:
         crc, off = 0, 0
         try:
             while off < n:
-                crc = zlib.crc32(mv[off:min(n, off + window)], crc)
+                crc = _crc32(mv[off:min(n, off + window)], crc)
                 off += window
                 release()
         finally:
