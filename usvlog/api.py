@@ -276,10 +276,8 @@ def _is_canonical_candidate(path: Path) -> bool:
 
 def _inspect_file(path: Path) -> LogSummary:
     """:func:`inspect` of an MCAP file, streamed: the same summary as ``summarize(load(path))``."""
-
-    import numpy as np
-
     # heavy: numpy, the MCAP reader
+    from .io.mcap.reader import by_channel as split_channels
     from .io.mcap.reader import codec_of_channel, iter_chunks
     from .log.channels import schema_for_topic
     from .log.fieldlog import META_PROVENANCE
@@ -287,14 +285,11 @@ def _inspect_file(path: Path) -> LogSummary:
 
     def by_channel(chunk):
         """(channel id, its times, its sequence numbers) in the chunk, in file order."""
-        cid = chunk.channel_id
-        ids = np.unique(cid)
-        if len(ids) == 1:
-            yield int(ids[0]), chunk.log_time_ns, chunk.sequence
+        groups = split_channels(chunk.channel_id)
+        if len(groups) == 1:
+            yield groups[0][0], chunk.log_time_ns, chunk.sequence
             return
-        order = np.argsort(cid, kind="stable")
-        cuts = np.searchsorted(cid[order], ids[1:])
-        for c, ix in zip(ids.tolist(), np.split(order, cuts)):
+        for c, ix in groups:
             yield c, chunk.log_time_ns[ix], chunk.sequence[ix]
 
     stats: dict[int, TimeStats] = {}

@@ -506,3 +506,22 @@ def test_topics_skip_the_chunks_that_hold_none_of_them(tmp_path):
     only_b = read_log(p, topics=["/b"])
     assert not (only_b.recovery and only_b.recovery.lost_chunks)   # the damaged chunk was not read
     pd.testing.assert_frame_equal(only_b["/b"], full["/b"], check_exact=True)
+
+
+def test_the_readers_crc_is_zlibs():
+    # the reader's CRC-32 (fastcrc's when installed) against zlib's: whole, chained as the
+    # data section's check runs it window by window, and over memoryview slices of a larger buffer
+    import zlib
+
+    from usvlog.io.mcap.reader import _crc32
+
+    rng = np.random.default_rng(3)
+    data = rng.integers(0, 256, 100_003, dtype=np.uint8).tobytes()
+    mv = memoryview(data)
+    assert _crc32(b"") == zlib.crc32(b"") == 0
+    assert _crc32(data) == zlib.crc32(data)
+    chained = 0
+    for off in range(0, len(data), 4096):
+        chained = _crc32(mv[off:off + 4096], chained)
+    assert chained == zlib.crc32(data)
+    assert _crc32(mv[7:90_001]) == zlib.crc32(data[7:90_001])

@@ -769,17 +769,29 @@ class CdrCodec(Codec):
             return self.empty_columns()
         starts = np.asarray(starts, dtype=np.int64)
         self._check_sizes(np.asarray(ends, dtype=np.int64) - starts, topic)
-        rows = K.gather_rows(np.asarray(buf, dtype=np.uint8), starts, self.size)
-        bad = np.flatnonzero((rows[:, 0] != CDR_LE[0]) | (rows[:, 1] != CDR_LE[1]))
+        buf = np.asarray(buf, dtype=np.uint8)
+        head = buf[starts[:, None] + np.arange(2)]
+        bad = np.flatnonzero((head[:, 0] != CDR_LE[0]) | (head[:, 1] != CDR_LE[1]))
         if len(bad):
             raise InputError(f"channel {topic}: message {int(bad[0])} is not little-endian CDR "
-                             f"(encapsulation {rows[bad[0], :2].tobytes().hex()})")
-        rec = rows.view(self._dtype).reshape(n)
-        out = {}
+                             f"(encapsulation {head[bad[0]].tobytes().hex()})")
+        # every field's bits gathered in one pass, a contiguous row per column (no copy of the
+        # messages nor a structured view: ~2x faster); NaN and inf kept bit for bit
+        offs, wide = self._fields
+        bits = K.gather_fields(buf, starts, offs, wide)
+        out, k = {}, 0
         for f in self.fields:
             for c in f.columns:
-                out[c] = rec[c] != 0 if f.kind == "bool" else rec[c].astype(_CDR_KINDS[f.kind][2])
+                out[c] = bits[k] != 0 if f.kind == "bool" else bits[k].view(_CDR_KINDS[f.kind][2])
+                k += 1
         return out
+
+    @property
+    def _fields(self) -> tuple[np.ndarray, np.ndarray]:
+        """(byte offset of each column in a message, whether it is 8 bytes wide, else one)."""
+        cols = [self._dtype.fields[c] for c in self._dtype.names]
+        return (np.array([o for _dt, o in cols], dtype=np.int64),
+                np.array([dt.itemsize == 8 for dt, _o in cols], dtype=np.bool_))
 
     def decode_reference(self, payloads: list[bytes] | list[memoryview], topic: str = "") -> dict[str, np.ndarray]:
         """CDR messages -> {column: array} through ``struct.unpack``, one message at a time

@@ -27,7 +27,7 @@ MSG_CHANNEL, MSG_SEQUENCE, MSG_LOG_TIME, MSG_PUBLISH_TIME, MSG_HEADER = 0, 2, 6,
 # MCAP records
 # -----------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def _u64(buf, p):
     v = np.uint64(0)
     for i in range(7, -1, -1):
@@ -35,7 +35,7 @@ def _u64(buf, p):
     return v
 
 
-@njit
+@njit(inline="always")
 def _u32(buf, p):
     return (np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16)
             | (np.int64(buf[p + 3]) << 24))
@@ -168,7 +168,7 @@ CH_T, CH_F, CH_N = ord("t"), ord("f"), ord("n")          # first bytes of true, 
 CH_CONTROL_END = 0x20                                     # bytes below are not allowed raw in strings
 MAX_EXACT_DIGITS = 19                                     # decimal digits that always fit a uint64
 
-@njit
+@njit(inline="always")
 def _number(buf, p, end):
     """One pass over the JSON number at p: (its end, or -1 if malformed; whether it is an
     integer; whether it is negative; the decimal mantissa of its significant digits; the
@@ -232,7 +232,7 @@ def _number(buf, p, end):
     return q, is_int, neg, man, exp10, exact
 
 
-@njit
+@njit(inline="always")
 def _lit(buf, p, end, word):
     n = len(word)
     if p + n > end:
@@ -273,7 +273,7 @@ _M32 = np.uint64(0xFFFFFFFF)
 _U = np.uint64
 
 
-@njit
+@njit(inline="always")
 def _mul64(a, b):
     """Full 128-bit product of two uint64: (hi, lo)."""
     a_lo, a_hi = a & _M32, a >> _U(32)
@@ -288,7 +288,7 @@ def _mul64(a, b):
     return hi, lo
 
 
-@njit
+@njit(inline="always")
 def _clz64(x):
     n = 0
     if x <= _U(0x00000000FFFFFFFF):
@@ -311,7 +311,7 @@ def _clz64(x):
     return n
 
 
-@njit
+@njit(inline="always")
 def _eisel_lemire(man, q, neg, pow10):
     """The bits of the double nearest man * 10**q, and whether that was decided."""
     sign = _U(0x8000000000000000) if neg else _U(0)
@@ -353,7 +353,7 @@ _CLINGER_MAX_EXP = 22                   # 10**22 is the largest exact power of t
 _EXACT_POW10 = np.array([10.0 ** k for k in range(_CLINGER_MAX_EXP + 1)])
 
 
-@njit
+@njit(inline="always")
 def _to_double(man, exp10, neg, pow10):
     """The double nearest (-1)**neg * man * 10**exp10 -> (its bits, decided, the double
     itself, whether it is given as the double rather than as its bits)."""
@@ -606,12 +606,16 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
 # -----------------------------------------------------------------------------
 
 @njit
-def gather_rows(buf, starts, size):
-    """Messages ``buf[starts[i]:starts[i] + size]`` (all ``size`` bytes) -> one (n, size)
-    uint8 array, a row per message, for a numpy structured view."""
-    out = np.empty((len(starts), size), np.uint8)
-    for i in range(len(starts)):
+def gather_fields(buf, starts, offs, wide):
+    """Fields of fixed-size messages -> one (F, n) uint64 array, a row per field: field k of
+    message i is the little-endian unsigned integer at ``buf[starts[i] + offs[k]]`` of 8
+    bytes when ``wide[k]``, else of one byte (a float64's or int64's bits, a bool)."""
+    n = len(starts)
+    nf = len(offs)
+    out = np.empty((nf, n), np.uint64)
+    for i in range(n):
         s = starts[i]
-        for j in range(size):
-            out[i, j] = buf[s + j]
+        for k in range(nf):
+            p = s + offs[k]
+            out[k, i] = _u64(buf, p) if wide[k] else np.uint64(buf[p])
     return out
