@@ -394,7 +394,8 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         st_cols = {"n_m": s[:, 0], "e_m": s[:, 1], "psi_rad": ssa(s[:, 2]), "u_mps": s[:, 3], "v_mps": s[:, 4],
                    "r_radps": s[:, 5], "current_n_mps": np.full(len(s), cur[0]),
                    "current_e_mps": np.full(len(s), cur[1]), "tau_u_n": run.tau[:, 0], "tau_r_nm": run.tau[:, 1]}
-        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state")))
+        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state"),
+                                                           copy=False))   # the run's own arrays, no 2-D copy
         del s, st_cols   # memory: the states are in the frame now
         ctrl, t_ctrl = run.ctrl, tw[run.tick]
         del run

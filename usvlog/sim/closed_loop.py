@@ -169,7 +169,8 @@ def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, 
     cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
     cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
     cols["saturated"] = rows[:, COL["saturated"]] != 0.0
-    return frame_from_columns(cols, t_ns, channel_spec(topic))
+    # a column per block (views of ``rows``): no copy of the columns into one 2-D block
+    return frame_from_columns(cols, t_ns, channel_spec(topic), copy=False)
 
 
 def command_unit(thrusters) -> str:

@@ -573,9 +573,7 @@ def message_records(data, ps, pe, cid, seq, t):
             out[body + MSG_LOG_TIME + k] = b
             out[body + MSG_PUBLISH_TIME + k] = b
         q = body + MSG_HEADER
-        for j in range(ps[i], pe[i]):
-            out[q] = data[j]
-            q += 1
+        out[q:q + (pe[i] - ps[i])] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
     return out, offs
 
 
