@@ -168,22 +168,18 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):
     """Controller rows -> a usvlog.ControllerState.v1 frame (commands in ``unit``).
 
-    The frame's numbers are one array of their own (a column's values contiguous: fast to
-    fill from rows stored by column, as the compiled loops return them), not views of ``rows``.
+    The frame's columns are views of ``rows`` (no copy: rows stored by column, as the
+    compiled loops return them, give contiguous columns), plus the commands and the
+    saturation flag as arrays of their own.
     """
-    names = ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m", "psi_ref_rad", "psi_d_rad",
-             "r_d_radps", "r_d_dot_radps2", "u_d_mps", "u_d_dot_mps2", "u_e_mps", "psi_e_rad", "cross_track_m",
-             "tau_u_n", "tau_r_nm", "thrust_left_n", "thrust_right_n")
-    block = np.empty((len(names) + 2, len(rows)))
-    cols = {}
-    for i, c in enumerate(names):
-        block[i] = rows[:, COL[c]]
-        cols[c] = block[i]
-    block[-2] = thrusters.force_to_command(cols["thrust_left_n"], unit)
-    block[-1] = thrusters.force_to_command(cols["thrust_right_n"], unit)
-    cols["cmd_left"], cols["cmd_right"] = block[-2], block[-1]
+    cols = {c: rows[:, COL[c]] for c in ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m",
+                                         "psi_ref_rad", "psi_d_rad", "r_d_radps", "r_d_dot_radps2", "u_d_mps",
+                                         "u_d_dot_mps2", "u_e_mps", "psi_e_rad", "cross_track_m", "tau_u_n",
+                                         "tau_r_nm", "thrust_left_n", "thrust_right_n")}
+    cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
+    cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
     cols["saturated"] = rows[:, COL["saturated"]] != 0.0
-    # the columns as they are (rows of ``block``): no second copy into pandas' own 2-D block
+    # memory: one copy of the numbers (the rows), not a second one in a pandas 2-D block
     return frame_from_columns(cols, t_ns, channel_spec(topic), copy=False)
 
 

@@ -64,7 +64,7 @@ ZSTD_LEVEL = 1
 2-2.5x faster than the library's level 3 and compresses better (ratio 4.3 vs 3.7 on a
 replay log); see the README's "Output encoding and compression"."""
 
-SLICE_MESSAGES = 1 << 17
+SLICE_MESSAGES = 1 << 16
 """Messages :func:`write_log` encodes at a time (one time slice of the whole log)."""
 
 
@@ -221,7 +221,7 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
 
 
 _FEED_CHUNKS = 16   # a copied file's chunks per extra slice boundary
-_READ_AHEAD = 4     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
+_READ_AHEAD = 2     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
 
 
 class _ReadAhead:
@@ -401,7 +401,7 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
 
 
 _WORKERS = max(1, min(4, (os.cpu_count() or 1) - 1))   # chunk compression threads
-_PENDING_BYTES = 24 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
+_PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
 _CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
 
