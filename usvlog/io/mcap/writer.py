@@ -421,8 +421,9 @@ class McapWriter:
     packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
-    plus one batch) and the chunks being compressed are held. Chunks are compressed
-    on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
+    plus one batch: a chunk is a view of the batch's records, not a copy) and the chunks
+    being compressed (at most ``_PENDING_BYTES`` uncompressed) are held. Chunks are
+    compressed on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
     compresses in the calling thread) while the caller encodes the next batch, and
     written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's
     ``sequence`` is its row number in its channel over all batches, as :func:`read_log` expects; within a batch messages
@@ -642,19 +643,12 @@ class McapWriter:
         self._write(packed)
         rec_len = _REC.size + len(head) + len(packed)
         # one Message Index record per channel, in order of the channel's first message in the chunk
-        uniq, first, inv = np.unique(cc, return_index=True, return_inverse=True)
-        rank = np.empty(len(uniq), dtype=np.int64)
-        rank[np.argsort(first)] = np.arange(len(uniq))
-        by = np.argsort(rank[inv], kind="stable")   # messages grouped by channel, in chunk order
-        entries = np.empty((len(cc), 2), dtype="<u8")
-        entries[:, 0] = tc[by]
-        entries[:, 1] = in_chunk[by]
-        counts = np.bincount(rank[inv], minlength=len(uniq))
+        ids, counts, entries = K.message_index(cc, tc, in_chunk)
         index_at = self._pos
         offsets = {}
         parts = []
         at, e0 = index_at, 0
-        for cid, m in zip(uniq[np.argsort(first)].tolist(), counts.tolist()):
+        for cid, m in zip(ids.tolist(), counts.tolist()):
             nb = 16 * m
             parts.append(_REC.pack(Opcode.MESSAGE_INDEX, 6 + nb) + struct.pack("<HI", cid, nb))
             parts.append(entries[e0:e0 + m].tobytes())
