@@ -329,58 +329,66 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         raise InputError(f"{src}: fewer than 2 controller ticks inside {topic}")
     Xt = _states_at(t_state, X, t_tick)
     del X, t_state   # memory: only the states at the ticks are used from here
-    t_rel = (t_tick - t_tick[0]) / 1e9
-    dt = np.diff(t_rel, append=t_rel[-1] + (t_rel[-1] - t_rel[-2]))
-    ctl = Controller(path, ves, gains, scen.guidance, full=ctl_name == "full")
-    ctl.reset(Xt[0])
-    rows = ctl.run(Xt, speed_at(scen.schedule, t_rel), dt, speed_at(scen.schedule, t_rel, 2))
     thr = ves.thrusters
     unit = command_unit(thr)
-    n_cmp, c_rms, c_max, f_rms = 0, None, None, None
+    # the recorded commands and decisions compared below, taken now: the input channels can
+    # then go (memory: with release_inputs they are not held while the controller runs)
+    rec_lr = rec_f = None
     if sel is not None:
-        rec = cmd[sel]
-        units = rec["unit"].astype(str).unique().tolist() if "unit" in rec.columns else []
-        if len(units) == 1 and (units[0] == "newton" or thr.map != "identity"):
-            unit = units[0]
-    out = log.copy()
-    frame = controller_frame(rows, t_tick, "/replay/controller", thr, unit)
-    out.set("/replay/controller", frame)
-    if sel is not None:
-        rec = cmd[sel]
-        d = np.concatenate([frame["cmd_left"].to_numpy() - rec["left"].to_numpy(dtype=float),
-                            frame["cmd_right"].to_numpy() - rec["right"].to_numpy(dtype=float)])
-        ok = np.isfinite(d)
-        n_cmp = int(ok.sum() // 2)
-        if ok.any():
-            c_rms = rms(d, omit_nonfinite=True)   # over the ticks both sides have
-            c_max = float(np.max(np.abs(d[ok])))
+        if "unit" in cmd.columns:
+            units = cmd["unit"][sel].astype(str).unique().tolist()
+            if len(units) == 1 and (units[0] == "newton" or thr.map != "identity"):
+                unit = units[0]
+        rec_lr = [cmd[c].to_numpy(dtype=float)[sel] for c in ("left", "right")]
         # a vessel identified in command units has no newtons to compare with
-        if thr.scale != "command" and {"thrust_left_n", "thrust_right_n"} <= set(rec.columns):
-            df = np.concatenate([frame["thrust_left_n"].to_numpy() - rec["thrust_left_n"].to_numpy(dtype=float),
-                                 frame["thrust_right_n"].to_numpy() - rec["thrust_right_n"].to_numpy(dtype=float)])
-            okf = np.isfinite(df)
-            if okf.any():
-                f_rms = rms(df, omit_nonfinite=True)
-    n_dec, dec_max = 0, None
+        if thr.scale != "command" and {"thrust_left_n", "thrust_right_n"} <= set(cmd.columns):
+            rec_f = [cmd[c].to_numpy(dtype=float)[sel] for c in ("thrust_left_n", "thrust_right_n")]
+    dec_cols = ["tau_u_n", "tau_r_nm", "thrust_left_n", "thrust_right_n"]
+    hit, rec_dec = None, None
     rec_cs = log.get("/control/state")
     if rec_cs is not None and len(rec_cs):
         tr_ns = np.asarray(rec_cs.index, dtype=np.int64)
         j = np.clip(np.searchsorted(tr_ns, t_tick), 0, len(tr_ns) - 1)
         hit = tr_ns[j] == t_tick
-        n_dec = int(hit.sum())
-        if n_dec:
-            cols = ["tau_u_n", "tau_r_nm", "thrust_left_n", "thrust_right_n"]
-            a = frame[cols].to_numpy(dtype=float)[hit]
-            b = rec_cs[cols].to_numpy(dtype=float)[j[hit]]
-            dec_max = float(np.nanmax(np.abs(a - b)))
+        if hit.any():
+            rec_dec = rec_cs[dec_cols].to_numpy(dtype=float)[j[hit]]
+    cmd = rec_cs = None
+    if release_inputs:
+        log.redefer([topic, "/thrust/command", "/control/state"])
+    t_rel = (t_tick - t_tick[0]) / 1e9
+    dt = np.diff(t_rel, append=t_rel[-1] + (t_rel[-1] - t_rel[-2]))
+    ctl = Controller(path, ves, gains, scen.guidance, full=ctl_name == "full")
+    ctl.reset(Xt[0])
+    rows = ctl.run(Xt, speed_at(scen.schedule, t_rel), dt, speed_at(scen.schedule, t_rel, 2))
     m_replay = tracking_metrics(rows, t_rel, scen.metrics_start_s)
     carrot = float(np.max(scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
     off = path_following_warning(rows[:, COL["cross_track_m"]], t_rel, scen.metrics_start_s, carrot)
-    del rows, frame   # memory: the controller rows are in /replay/controller now
-    cmd = rec = rec_cs = None
-    if release_inputs:
-        for lg in (log, out):
-            lg.redefer([topic, "/thrust/command", "/control/state"])
+    frame = controller_frame(rows, t_tick, "/replay/controller", thr, unit)
+    del rows   # memory: the controller rows are in the frame now
+    out = log.copy()   # (the inputs released above stay in the file in the copy too)
+    out.set("/replay/controller", frame)
+    n_cmp, c_rms, c_max, f_rms = 0, None, None, None
+    if rec_lr is not None:
+        d = np.concatenate([frame["cmd_left"].to_numpy() - rec_lr[0], frame["cmd_right"].to_numpy() - rec_lr[1]])
+        ok = np.isfinite(d)
+        n_cmp = int(ok.sum() // 2)
+        if ok.any():
+            c_rms = rms(d, omit_nonfinite=True)   # over the ticks both sides have
+            c_max = float(np.max(np.abs(d[ok])))
+        if rec_f is not None:
+            df = np.concatenate([frame["thrust_left_n"].to_numpy() - rec_f[0],
+                                 frame["thrust_right_n"].to_numpy() - rec_f[1]])
+            okf = np.isfinite(df)
+            if okf.any():
+                f_rms = rms(df, omit_nonfinite=True)
+    n_dec, dec_max = 0, None
+    if hit is not None:
+        n_dec = int(hit.sum())
+        if n_dec:
+            a = frame[dec_cols].to_numpy(dtype=float)[hit]
+            dec_max = float(np.nanmax(np.abs(a - rec_dec)))
+    del frame
+    rec_lr = rec_f = rec_dec = None
     m_whatif = None
     if whatif:
         wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")
@@ -394,7 +402,8 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         st_cols = {"n_m": s[:, 0], "e_m": s[:, 1], "psi_rad": ssa(s[:, 2]), "u_mps": s[:, 3], "v_mps": s[:, 4],
                    "r_radps": s[:, 5], "current_n_mps": np.full(len(s), cur[0]),
                    "current_e_mps": np.full(len(s), cur[1]), "tau_u_n": run.tau[:, 0], "tau_r_nm": run.tau[:, 1]}
-        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state")))
+        out.set("/replay/whatif/state", frame_from_columns(st_cols, tw, channel_spec("/replay/whatif/state"),
+                                                           copy=False))   # the run's own arrays, no 2-D copy
         del s, st_cols   # memory: the states are in the frame now
         ctrl, t_ctrl = run.ctrl, tw[run.tick]
         del run

@@ -72,6 +72,25 @@ def test_a_source_changed_since_reading_is_refused(tmp_path, source, excitation_
     assert not (tmp_path / "out.mcap").exists()
 
 
+def test_a_source_damaged_since_reading_is_refused_while_copying(tmp_path, source):
+    from mcap.reader import make_reader
+
+    path = tmp_path / "src.mcap"
+    data = bytearray(source.read_bytes())
+    path.write_bytes(data)
+    lazy = read_log(path, topics=READ, defer=True)
+    st = os.stat(path)
+    with open(path, "rb") as fh:
+        chunks = make_reader(fh).get_summary().chunk_indexes
+    c = chunks[len(chunks) // 2]
+    data[c.chunk_start_offset + c.chunk_length - 8] ^= 0xFF   # in a chunk's compressed records
+    path.write_bytes(data)
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))       # same size and time: found by the copy's CRC check
+    with pytest.raises(InputError, match="damaged"):
+        write_log(_with_result(lazy), tmp_path / "out.mcap", **SMALL)
+    assert not (tmp_path / "out.mcap").exists()
+
+
 def test_a_damaged_source_is_read_whole(tmp_path, source):
     data = source.read_bytes()
     path = tmp_path / "cut.mcap"

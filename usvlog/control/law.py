@@ -208,14 +208,18 @@ def run_open_loop(states, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, ga
     """Controller decisions for a sequence of states (N x 6) at ticks with steps ``dt`` (N, s).
 
     Arguments as :func:`control_tick`, with ``u_ref``, ``dtheta`` and ``dt`` per tick
-    (arrays of N); returns the (N, NOUT) output rows.
+    (arrays of N); returns the (N, NOUT) output rows, stored by column (a transposed
+    (NOUT, N) array: each output's N values are contiguous, for the channel frames).
     """
     n = states.shape[0]
-    out = np.empty((n, NOUT))
+    out = np.empty((NOUT, n))
+    row = np.empty(NOUT)
     for k in range(n):
         control_tick(states[k], u_ref[k], dtheta[k], dt[k], ctrl_state, path_kind, path_prm, gains, params,
-                     settings, thrusters, out[k])
-    return out
+                     settings, thrusters, row)
+        for i in range(NOUT):
+            out[i, k] = row[i]
+    return out.T
 
 
 def speed_at(schedule: np.ndarray, t_rel, column: int = 1) -> np.ndarray:

@@ -84,14 +84,17 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
     the controller arguments as :func:`usvlog.control.law.control_tick`; ``ext`` True steps
     the plant with ``plant_step_ext`` and ``ext_prm`` (extended model and thruster lag)
     instead. Returns the plant states (n_steps, 6), the commanded (tau_u, tau_r)
-    (n_steps, 2), the controller rows and the applied (lagged) force (n_steps, 2).
+    (n_steps, 2), the controller rows and the applied (lagged) force (n_steps, 2); states,
+    commands and controller rows stored by column (transposed arrays: a column's values
+    are contiguous, for the channel frames).
     """
     x = state0
-    states = np.empty((n_steps, 6))
-    tau = np.empty((n_steps, 2))
+    states = np.empty((6, n_steps))
+    tau = np.empty((2, n_steps))
     applied = np.empty((n_steps, 2))
     force = (0.0, 0.0)
-    ctrl = np.empty(((n_steps + every - 1) // every, NOUT))
+    ctrl = np.empty((NOUT, (n_steps + every - 1) // every))
+    row = np.empty(NOUT)
     xa = np.empty(6)
     tu = 0.0
     tr = 0.0
@@ -101,18 +104,20 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
             for i in range(6):
                 xa[i] = x[i]
             control_tick(xa, u_ref[k], dtheta[k], every * dt, ctrl_state, path_kind, path_prm, gains, params,
-                         settings, thrusters, ctrl[j])
-            tu = ctrl[j, OUT_TAU_U]
-            tr = ctrl[j, OUT_TAU_R]
+                         settings, thrusters, row)
+            for i in range(NOUT):
+                ctrl[i, j] = row[i]
+            tu = row[OUT_TAU_U]
+            tr = row[OUT_TAU_R]
             j += 1
         for i in range(6):
-            states[k, i] = x[i]
-        tau[k, 0] = tu
-        tau[k, 1] = tr
+            states[i, k] = x[i]
+        tau[0, k] = tu
+        tau[1, k] = tr
         x, force, au, ar = plant_advance(x, force, tu, tr, ext, plant_prm, ext_prm, dt, current_n, current_e, rk4)
         applied[k, 0] = au
         applied[k, 1] = ar
-    return states, tau, ctrl, applied
+    return states.T, tau.T, ctrl.T, applied
 
 
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
@@ -161,7 +166,12 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
 
 
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):
-    """Controller rows -> a usvlog.ControllerState.v1 frame (commands in ``unit``)."""
+    """Controller rows -> a usvlog.ControllerState.v1 frame (commands in ``unit``).
+
+    The frame's columns are views of ``rows`` (no copy: rows stored by column, as the
+    compiled loops return them, give contiguous columns), plus the commands and the
+    saturation flag as arrays of their own.
+    """
     cols = {c: rows[:, COL[c]] for c in ("theta", "closest_n_m", "closest_e_m", "carrot_n_m", "carrot_e_m",
                                          "psi_ref_rad", "psi_d_rad", "r_d_radps", "r_d_dot_radps2", "u_d_mps",
                                          "u_d_dot_mps2", "u_e_mps", "psi_e_rad", "cross_track_m", "tau_u_n",
@@ -169,7 +179,8 @@ def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, 
     cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
     cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
     cols["saturated"] = rows[:, COL["saturated"]] != 0.0
-    return frame_from_columns(cols, t_ns, channel_spec(topic))
+    # memory: one copy of the numbers (the rows), not a second one in a pandas 2-D block
+    return frame_from_columns(cols, t_ns, channel_spec(topic), copy=False)
 
 
 def command_unit(thrusters) -> str:

@@ -573,10 +573,44 @@ def message_records(data, ps, pe, cid, seq, t):
             out[body + MSG_LOG_TIME + k] = b
             out[body + MSG_PUBLISH_TIME + k] = b
         q = body + MSG_HEADER
-        for j in range(ps[i], pe[i]):
-            out[q] = data[j]
-            q += 1
+        out[q:q + (pe[i] - ps[i])] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
     return out, offs
+
+
+@njit
+def message_index(cid, t, offset):
+    """A chunk's Message Index entries: its messages grouped by channel, channels in order
+    of their first message, messages in chunk order within a channel (a counting sort).
+
+    Returns (channel ids (k,), their message counts (k,), uint64 (n, 2) entries of
+    (log time, offset in the chunk) in that order)."""
+    n = len(cid)
+    m = 0
+    for i in range(n):
+        m = max(m, cid[i] + 1)
+    slot = np.full(m, -1, np.int64)
+    ids = np.empty(n, np.int64)
+    counts = np.zeros(n, np.int64)
+    k = 0
+    for i in range(n):
+        c = cid[i]
+        if slot[c] < 0:
+            slot[c] = k
+            ids[k] = c
+            k += 1
+        counts[slot[c]] += 1
+    start = np.empty(k, np.int64)
+    acc = 0
+    for j in range(k):
+        start[j] = acc
+        acc += counts[j]
+    entries = np.empty((n, 2), np.uint64)
+    for i in range(n):
+        j = slot[cid[i]]
+        entries[start[j], 0] = np.uint64(t[i])
+        entries[start[j], 1] = np.uint64(offset[i])
+        start[j] += 1
+    return ids[:k], counts[:k], entries
 
 
 @njit

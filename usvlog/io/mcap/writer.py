@@ -64,7 +64,7 @@ ZSTD_LEVEL = 1
 2-2.5x faster than the library's level 3 and compresses better (ratio 4.3 vs 3.7 on a
 replay log); see the README's "Output encoding and compression"."""
 
-SLICE_MESSAGES = 1 << 17
+SLICE_MESSAGES = 1 << 16
 """Messages :func:`write_log` encodes at a time (one time slice of the whole log)."""
 
 
@@ -221,6 +221,61 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
 
 
 _FEED_CHUNKS = 16   # a copied file's chunks per extra slice boundary
+_READ_AHEAD = 2     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
+
+
+class _ReadAhead:
+    """The items of iterator ``it``, produced by a thread up to ``depth`` ahead of the
+    caller (zstd decompression and the CRC release the GIL: the copied file's chunks are
+    unpacked on another core while the caller encodes). An exception of ``it`` is raised
+    by the :func:`next` that would have returned its item; :meth:`close` stops the thread
+    (it must be called before the source ``it`` reads is closed)."""
+
+    _END = object()
+
+    def __init__(self, it, depth: int = _READ_AHEAD):
+        import queue
+        import threading
+
+        self._q: queue.Queue = queue.Queue(depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(it,), name="usvlog-mcap-read", daemon=True)
+        self._thread.start()
+
+    def _run(self, it) -> None:
+        try:
+            for item in it:
+                self._q.put((item, None))
+                if self._stop.is_set():
+                    return
+            self._q.put((self._END, None))
+        except BaseException as err:  # noqa: BLE001 - handed to the caller's next()
+            self._q.put((None, err))
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        item, err = self._q.get()
+        if err is not None:
+            self._stop.set()
+            raise err
+        if item is self._END:
+            self._stop.set()
+            raise StopIteration
+        return item
+
+    def close(self) -> None:
+        """Stop the thread (waits for the item it is producing) and drop what it read."""
+        import queue
+
+        self._stop.set()
+        while self._thread.is_alive():
+            try:   # make room: the thread may be waiting to put an item
+                self._q.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        self._thread.join()
 
 
 class _RawFeed:
@@ -257,7 +312,7 @@ class _RawFeed:
     def _pull(self) -> bool:
         """Read the next batch of messages; False at the end of the file."""
         if self._it is None:
-            self._it = self._stream._batches()
+            self._it = _ReadAhead(self._stream._batches())
         try:
             records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
         except StopIteration:
@@ -324,6 +379,8 @@ class _RawFeed:
                              "load the log again")
 
     def close(self) -> None:
+        if self._it is not None:
+            self._it.close()   # the thread stops before the file it reads is closed
         self._stream.close()
 
 
@@ -344,6 +401,8 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
 
 
 _WORKERS = max(1, min(4, (os.cpu_count() or 1) - 1))   # chunk compression threads
+_PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
+_CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
 
 class McapWriter:
@@ -362,8 +421,9 @@ class McapWriter:
     packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
 
     Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
-    plus one batch) and the chunks being compressed are held. Chunks are compressed
-    on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
+    plus one batch: a chunk is a view of the batch's records, not a copy) and the chunks
+    being compressed (at most ``_PENDING_BYTES`` uncompressed) are held. Chunks are
+    compressed on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
     compresses in the calling thread) while the caller encodes the next batch, and
     written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's
     ``sequence`` is its row number in its channel over all batches, as :func:`read_log` expects; within a batch messages
@@ -395,13 +455,16 @@ class McapWriter:
         self._t_min: int | None = None
         self._t_max: int | None = None
         self._n = 0
-        # the open chunk: its bytes, and its messages' times, channels, offsets in it
-        self._open = bytearray()
+        # the open chunk: its bytes (pieces: records, views of a batch's records), their
+        # total length, and its messages' times, channels, offsets in it
+        self._open: list = []
+        self._open_len = 0
         self._open_msgs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         # chunks being compressed on worker threads, written in order as they are done
         self._threads = _WORKERS if threads is None else int(threads)
         self._pool = None
         self._pending: deque = deque()
+        self._pending_bytes = 0   # uncompressed bytes of the chunks in self._pending
         self._write(MAGIC)
         self._write(self._record(Header(profile="", library=f"usvlog {__version__}")))
 
@@ -439,14 +502,18 @@ class McapWriter:
         if sid is None:
             sid = self._schema_ids[(sname, sdata)] = len(self._schemas) + 1
             self._schemas.append(Schema(id=sid, name=sname, encoding=senc, data=sdata))
-            self._open += self._record(self._schemas[-1])
+            self._add_open(self._record(self._schemas[-1]))
         cid = len(self._channels) + 1
         self._channels.append(Channel(id=cid, topic=topic, message_encoding=codec.message_encoding, schema_id=sid,
                                       metadata={}))
-        self._open += self._record(self._channels[-1])
+        self._add_open(self._record(self._channels[-1]))
         self._topics[topic] = (cid, codec)
         self._seq[cid] = 0
         return cid
+
+    def _add_open(self, b) -> None:
+        self._open.append(b)
+        self._open_len += len(b)
 
     def add_metadata(self, name: str, record: dict) -> None:
         """A metadata record (values stored as strings), after the messages written so far."""
@@ -477,6 +544,9 @@ class McapWriter:
             pieces.append((topic, cid, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
         for topic, parts in (raw or {}).items():
             pieces += [(topic, self._topics[topic][0], *p) for p in parts if len(p[0])]
+        # by channel id (stable: a channel's pieces stay in row order), so that the messages
+        # in (time, channel, row) order are a stable sort by time of the concatenation
+        pieces.sort(key=lambda p: p[1])
         bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
         bases: dict[int, int] = {}   # id of a buffer -> where it starts in the batch's bytes
         base = 0
@@ -498,7 +568,7 @@ class McapWriter:
         if not ts:
             return
         t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
-        order = np.lexsort((s_all, c_all, t_all))
+        order = np.argsort(t_all, kind="stable")   # = np.lexsort((s_all, c_all, t_all)): see above
         t_all, c_all, s_all = t_all[order], c_all[order], s_all[order]
         recs, rec_offs = K.message_records(np.concatenate(bufs), np.concatenate(starts)[order],
                                            np.concatenate(ends)[order], c_all, s_all, t_all)
@@ -512,13 +582,14 @@ class McapWriter:
         self._n += len(t_all)
         self._t_min = int(t_all[0]) if self._t_min is None else min(self._t_min, int(t_all[0]))
         self._t_max = int(t_all[-1]) if self._t_max is None else max(self._t_max, int(t_all[-1]))
-        bounds = K.chunk_bounds(rec_offs, self._chunk_size, len(self._open)).tolist()
+        bounds = K.chunk_bounds(rec_offs, self._chunk_size, self._open_len).tolist()
+        view = memoryview(recs)   # the chunks hold views of the batch's records (no copy)
         a = 0
         for k, b in enumerate(bounds):
-            at = len(self._open)
-            self._open += memoryview(recs)[rec_offs[a]:rec_offs[b]]
+            at = self._open_len
+            self._add_open(view[rec_offs[a]:rec_offs[b]])
             self._open_msgs.append((t_all[a:b], c_all[a:b], rec_offs[a:b] - rec_offs[a] + at))
-            if k < len(bounds) - 1 or len(self._open) > self._chunk_size:
+            if k < len(bounds) - 1 or self._open_len > self._chunk_size:
                 self._close_chunk()
             a = b
 
@@ -530,11 +601,13 @@ class McapWriter:
             self._emit(*self._pending.popleft())
 
     def _close_chunk(self) -> None:
-        data = bytes(self._open)
+        # one piece (most chunks: a run of one batch's records) is compressed as it is
+        data = self._open[0] if len(self._open) == 1 else b"".join(self._open)
         tc = np.concatenate([m[0] for m in self._open_msgs])
         cc = np.concatenate([m[1] for m in self._open_msgs])
         in_chunk = np.concatenate([m[2] for m in self._open_msgs])
-        self._open = bytearray()
+        self._open = []
+        self._open_len = 0
         self._open_msgs = []
         if self._threads <= 0 or self._comp == "none":
             self._emit(_pack_chunk(self._comp, self._zstd_level, data), data, tc, cc, in_chunk)
@@ -545,8 +618,10 @@ class McapWriter:
             self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="usvlog-mcap-zstd")
         self._pending.append((self._pool.submit(_pack_chunk, self._comp, self._zstd_level, data),
                               data, tc, cc, in_chunk))
-        # at most a few chunks in flight: memory stays bounded by them
-        while len(self._pending) > 2 * self._threads or (self._pending and self._pending[0][0].done()):
+        self._pending_bytes += len(data)
+        # at most _PENDING_BYTES in flight (the threads compress while the caller encodes the
+        # next batch): memory stays bounded by them
+        while self._pending_bytes > _PENDING_BYTES or (self._pending and self._pending[0][0].done()):
             self._emit(*self._pending.popleft())
 
     def _emit(self, packed, data: bytes, tc: np.ndarray, cc: np.ndarray, in_chunk: np.ndarray) -> None:
@@ -554,27 +629,36 @@ class McapWriter:
         its message indexes."""
         # start-up: the mcap library loads on first write, not on read
         from mcap.opcode import Opcode
-        from mcap.records import Chunk, ChunkIndex
+        from mcap.records import ChunkIndex
 
-        packed, cname, crc = packed if isinstance(packed, tuple) else packed.result()
+        if not isinstance(packed, tuple):
+            packed = packed.result()
+            self._pending_bytes -= len(data)
+        packed, cname, crc = packed
         t0, t1 = int(tc.min()), int(tc.max())
-        rec = self._record(Chunk(compression=cname, data=packed, message_start_time=t0, message_end_time=t1,
-                                 uncompressed_crc=crc, uncompressed_size=len(data)))
-        chunk_at = self._write(rec)
+        # the Chunk record (mcap.records.Chunk's bytes), its compressed records written as they are
+        cn = cname.encode()
+        head = _CHUNK_HEAD.pack(t0, t1, len(data), crc, len(cn)) + cn + struct.pack("<Q", len(packed))
+        chunk_at = self._write(_REC.pack(Opcode.CHUNK, len(head) + len(packed)) + head)
+        self._write(packed)
+        rec_len = _REC.size + len(head) + len(packed)
         # one Message Index record per channel, in order of the channel's first message in the chunk
-        uniq, first = np.unique(cc, return_index=True)
+        ids, counts, entries = K.message_index(cc, tc, in_chunk)
         index_at = self._pos
         offsets = {}
-        for cid in uniq[np.argsort(first)].tolist():
-            sel = cc == cid
-            entries = np.empty((int(sel.sum()), 2), dtype="<u8")
-            entries[:, 0] = tc[sel]
-            entries[:, 1] = in_chunk[sel]
-            offsets[cid] = self._write(_REC.pack(Opcode.MESSAGE_INDEX, 6 + entries.nbytes)
-                                       + struct.pack("<HI", cid, entries.nbytes) + entries.tobytes())
+        parts = []
+        at, e0 = index_at, 0
+        for cid, m in zip(ids.tolist(), counts.tolist()):
+            nb = 16 * m
+            parts.append(_REC.pack(Opcode.MESSAGE_INDEX, 6 + nb) + struct.pack("<HI", cid, nb))
+            parts.append(entries[e0:e0 + m].tobytes())
+            offsets[cid] = at
+            at += _REC.size + 6 + nb
+            e0 += m
+        self._write(b"".join(parts))
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_at,
-            chunk_length=len(rec), message_index_offsets=offsets,
+            chunk_length=rec_len, message_index_offsets=offsets,
             message_index_length=self._pos - index_at, compression=cname,
             compressed_size=len(packed), uncompressed_size=len(data)))
 
@@ -582,6 +666,7 @@ class McapWriter:
         """Stop the compression threads (after :meth:`finish`, or to give up a file half
         written: chunks not yet written are dropped)."""
         self._pending.clear()
+        self._pending_bytes = 0
         if self._pool is not None:
             self._pool.shutdown(wait=True)
             self._pool = None
