@@ -21,11 +21,14 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from ..resources import schemas_dir
+
+if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
+    import pandas as pd
 
 SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
@@ -173,6 +176,8 @@ def spec_for_schema(schema: dict) -> ChannelSpec:
 
 def auto_schema(topic: str, frame: pd.DataFrame) -> dict:
     """A flat JSON Schema for a frame whose topic has no registered schema."""
+    import pandas as pd  # (loaded already: a frame is given)
+
     props = {}
     for c in frame.columns:
         dt = frame[c].dtype
@@ -219,6 +224,8 @@ def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
     -------
     pandas.DataFrame
     """
+    import pandas as pd
+
     idx = pd.Index(np.asarray(t_ns, dtype=np.int64), name="t_ns")
     data = {}
     order = spec.columns if spec is not None else list(cols)

@@ -12,14 +12,17 @@ import os
 import re
 from collections.abc import Callable, Iterator, MutableMapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .._version import __version__
 from ..errors import InputError
 from ..model.frames import Datum
 from ..model.vessel import Vessel
+
+if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
+    import pandas as pd
 
 META_DATUM = "usvlog.datum"
 META_VESSEL = "usvlog.vessel"
@@ -461,6 +464,8 @@ class FieldLog:
         """
         idx = frame.index
         if idx.name != "t_ns" or idx.dtype != np.int64:
+            import pandas as pd  # (loaded already: a frame is given)
+
             if isinstance(idx, pd.DatetimeIndex):
                 vals = idx.as_unit("ns").asi8
             else:

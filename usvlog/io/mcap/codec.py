@@ -23,10 +23,10 @@ import json
 import re
 import struct
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 import orjson
-import pandas as pd
 
 from ...errors import InputError
 from ...log.channels import (
@@ -41,6 +41,9 @@ from ...log.channels import (
     spec_for_schema,
 )
 from . import kernels as K
+
+if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
+    import pandas as pd
 
 __all__ = ["CdrCodec", "Codec", "cdr_codec", "channel_codec", "codec_for_schema", "codec_for_topic",
            "writer_codec"]
@@ -123,6 +126,8 @@ class Codec:
         The same bytes as :meth:`encode_reference`: each column is formatted by one
         ``orjson.dumps`` call and the messages are assembled around a fixed layout.
         """
+        import pandas as pd  # (loaded already: a frame is given)
+
         self._check_columns(frame, topic)
         n = len(frame)
         if n == 0:

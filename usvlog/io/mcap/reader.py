@@ -21,12 +21,11 @@ from __future__ import annotations
 
 import bisect
 import struct
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from ...errors import FormatError, InputError
 from ...log.channels import frame_from_columns
@@ -55,11 +54,13 @@ from .format import (
     OP_METADATA_INDEX,
     OP_SCHEMA,
 )
+from .format import (
+    crc32 as _crc32,
+)
 
-try:   # CRC-32 (zlib's polynomial) at ~10 GB/s, zlib's ~1.3 GB/s; zlib's when fastcrc is missing
-    from fastcrc.crc32 import iso_hdlc as _crc32
-except ImportError:  # pragma: no cover - fastcrc is a dependency
-    _crc32 = zlib.crc32
+if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
+    import pandas as pd
+
 
 
 class _CorruptChunk(Exception):
@@ -1612,7 +1613,11 @@ def read_logs(paths, *, topics: list[str] | None = None) -> FieldLog:
         out.schemas.update({t: s for t, s in lg.schemas.items() if t not in out.schemas})
     for t in topics_all:
         frames = [lg.channels[t] for lg in logs if t in lg.channels]
-        out.channels[t] = frames[0] if len(frames) == 1 else pd.concat(frames)
+        if len(frames) == 1:
+            out.channels[t] = frames[0]
+        else:
+            import pandas as pd
+            out.channels[t] = pd.concat(frames)
     damaged = [lg for lg in logs if lg.recovery is not None]
     if damaged:
         out.recovery = damaged[-1].recovery
