@@ -117,8 +117,8 @@ def _col_deriv(co, k, sn, se, spsi, su, sv, sr):
 @njit
 def _col_rk4(S, k, h, c1, c2, c3, c4):
     """One RK4 step of length ``h`` of sensitivity column ``k`` of ``S`` (NX, NS) in place, from
-    the four stages' coefficients ``c1``..``c4``; only the rows that move are written. Called
-    with a constant ``k``, it compiles to that column's own arithmetic."""
+    the four stages' coefficients ``c1``..``c4``; only the rows that move are written (shoot
+    calls it once per moving column, each with a constant ``k`` the compiler can fold)."""
     h2 = 0.5 * h
     w = h / 6.0
     s0, s1, s2, s3, s4, s5 = S[X_N, k], S[X_E, k], S[X_PSI, k], S[X_U, k], S[X_V, k], S[X_R, k]
