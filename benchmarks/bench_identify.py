@@ -8,6 +8,10 @@ compare, wall seconds grow with the load). BLAS runs in one thread, as the verb 
 their cache) by a warm-up fit on a 2-minute log first, not counted.
 Output error includes everything it does by default: its candidates fitted on the first 70 %,
 their validation on the last 30 %, and the refit of the chosen one on all the data.
+Before them, the shooting kernel alone (:func:`usvlog.identify.shoot.shoot` through
+``Problem.simulate``) on the whole log in 300 s segments from the true states: one model
+evaluation with sensitivities (as each Gauss-Newton step of the fit) and states only (as the
+validation's free runs), CPU ms, best of 5.
 ``--model extended``: the extended model's candidates (output error from the paper's and from
 the extended equation-error fit, and that fit), the errors those of its paper terms;
 ``--model both``: the paper's and the extended candidates together.
@@ -30,10 +34,38 @@ from usvlog.cli.common import one_blas_thread  # noqa: E402  (standard library o
 
 one_blas_thread()   # before numpy loads, as every usvlog verb does (OPENBLAS_NUM_THREADS set by you wins)
 
+import numpy as np  # noqa: E402
+
 from usvlog import api  # noqa: E402
 from usvlog.identify import Identifier  # noqa: E402
+from usvlog.identify.data import run_data  # noqa: E402
+from usvlog.identify.output import Problem  # noqa: E402
 from usvlog.model.vessel import PARAM_NAMES, VesselParams  # noqa: E402
 from usvlog.sim.simulate import SimSettings, simulate  # noqa: E402
+
+
+def bench_shoot(log, current) -> None:
+    """Print the shooting kernel's CPU time per evaluation of the whole log (best of 5)."""
+    run = run_data(log)
+    prob = Problem([run], 300.0)
+    tr = log["/truth/state"]
+    X = tr[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()
+    tt = (tr.index.to_numpy() - run.t0_ns) / 1e9
+    x0s = prob.initial_states(lambda i, t: X[min(int(np.searchsorted(tt, t - 1e-9)), len(X) - 1)])
+    theta = VesselParams().as_array()
+    cur = np.asarray(current, float)[None, :]
+    out = []
+    for sens in (True, False):
+        prob.simulate(theta, cur, x0s, sens=sens)   # compiled or loaded from the cache
+        best = np.inf
+        for _ in range(5):
+            c = time.process_time()
+            prob.simulate(theta, cur, x0s, sens=sens)
+            best = min(best, time.process_time() - c)
+        out.append(best)
+    print(f"shooting kernel, {len(prob.meas_t)} measurement times in {prob.n_seg} segments: "
+          f"{1e3 * out[0]:.1f} ms CPU with sensitivities, {1e3 * out[1]:.1f} ms states only "
+          f"(load {os.getloadavg()[0]:.1f})")
 
 
 def main() -> None:
@@ -46,6 +78,7 @@ def main() -> None:
     log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0),
                    seed=args.seed)
     print(f"simulated {args.duration_s:.0f} s log in {time.perf_counter() - t:.1f} s")
+    bench_shoot(log, (0.2 * np.cos(np.radians(60.0)), 0.2 * np.sin(np.radians(60.0))))
     Identifier("output-error", model=args.model).fit(  # JIT warm-up
         [simulate("excitation", SimSettings(duration_s=120.0), seed=1)])
     true = VesselParams().as_array()

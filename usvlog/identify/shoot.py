@@ -38,26 +38,28 @@ NP = len(PARAM_NAMES)
 NE_LO = SENS_X0 + X_PSI
 DYN_LO, DYN_HI = SENS_X0 + X_U, SENS_PARAM + NP
 
-# the step's helpers are inlined into shoot (numba IR inlining: the same arithmetic in the same
-# order, without a call and its array arguments per stage; ~20 % of the kernel's time)
+# the state's stage is inlined into shoot (numba IR inlining: scalars in registers, no call per
+# stage); the column helpers are left to LLVM (inlined at the IR level too they run ~7 % faster
+# but take 2.5 times as long to compile)
 _nd = njit(inline="always")(nu_dot_terms)
+# coefficients of the sensitivity equations at one RK4 stage (:func:`_stage`): cos psi, sin psi,
+# d(n_dot, e_dot)/d(psi), d(nu_dot)/d(nu) (3 x 3, row-major), then per parameter j its forcing
+# of (u_dot, v_dot, r_dot) from CO_PARAM + 3 j
+CO_C, CO_S, CO_A02, CO_A12, CO_A = 0, 1, 2, 3, 4
+CO_PARAM = CO_A + 9
+N_CO = CO_PARAM + 3 * NP
+_NO_CO = (0.0,) * N_CO   # the coefficients' place without sensitivities
 
 
 @njit(inline="always")
-def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
-    """State derivative into ``xd`` and, with ``sens``, sensitivity derivative into ``Sd`` (NX, NS)."""
-    psi, u, v, r = x[X_PSI], x[X_U], x[X_V], x[X_R]
+def _stage(n, e, psi, u, v, r, tu, tr, m, Iz, d11, d22, d33, xg, cn, ce, sens):
+    """State derivative at one RK4 stage (a tuple of NX) and, with ``sens``, the coefficients of
+    the sensitivity equations there (a tuple of N_CO, layout CO_*; zeros without)."""
     c, s = math.cos(psi), math.sin(psi)
-    m, Iz, d11, d22, d33, xg = prm  # PARAM_NAMES order
     ud, vd, rd = _nd(u, v, r, tu, tr, m, Iz, d11, d22, d33, xg)
-    xd[X_N] = c * u - s * v + cn
-    xd[X_E] = s * u + c * v + ce
-    xd[X_PSI] = r
-    xd[X_U] = ud
-    xd[X_V] = vd
-    xd[X_R] = rd
+    xd = (c * u - s * v + cn, s * u + c * v + ce, r, ud, vd, rd)
     if not sens:
-        return
+        return xd, _NO_CO
     a02 = -s * u - c * v
     a12 = c * u - s * v
     # d(nu_dot)/d(nu) and d(nu_dot)/d(theta) = M^-1 (dF - dM nu_dot), F = tau - C(nu) nu - D nu
@@ -70,72 +72,75 @@ def _deriv(x, S, tu, tr, prm, cn, ce, xd, Sd, sens):
     A00, A01, A02 = i00 * g00, i00 * g01, i00 * g02
     A10, A11, A12 = i11 * g10 + i12 * g20, i11 * g11 + i12 * g21, i11 * g12 + i12 * g22
     A20, A21, A22 = i12 * g10 + i22 * g20, i12 * g11 + i22 * g21, i12 * g12 + i22 * g22
-    for k in range(NE_LO, NS):      # only the columns that move (see DYN_LO)
-        s_psi, s_u, s_v = S[X_PSI, k], S[X_U, k], S[X_V, k]
-        Sd[X_N, k] = a02 * s_psi + c * s_u - s * s_v
-        Sd[X_E, k] = a12 * s_psi + s * s_u + c * s_v
-    for k in range(DYN_LO, DYN_HI):
-        s_u, s_v, s_r = S[X_U, k], S[X_V, k], S[X_R, k]
-        Sd[X_PSI, k] = s_r
-        Sd[X_U, k] = A00 * s_u + A01 * s_v + A02 * s_r
-        Sd[X_V, k] = A10 * s_u + A11 * s_v + A12 * s_r
-        Sd[X_R, k] = A20 * s_u + A21 * s_v + A22 * s_r
-    for j in range(NP):  # (dF - dM nu_dot)/d(parameter j)
-        if j == P_M:      # m (with xg held: m xg moves too)
-            q0, q1, q2 = xg * r * r + v * r - ud, -u * r - vd - xg * rd, -xg * u * r - xg * vd
-        elif j == P_IZ:
-            q0, q1, q2 = 0.0, 0.0, -rd
-        elif j == P_D11:
-            q0, q1, q2 = -u, 0.0, 0.0
-        elif j == P_D22:
-            q0, q1, q2 = 0.0, -v, 0.0
-        elif j == P_D33:
-            q0, q1, q2 = 0.0, 0.0, -r
-        else:             # P_XG
-            q0, q1, q2 = m * r * r, -m * rd, -m * u * r - m * vd
-        Sd[X_U, SENS_PARAM + j] += i00 * q0
-        Sd[X_V, SENS_PARAM + j] += i11 * q1 + i12 * q2
-        Sd[X_R, SENS_PARAM + j] += i12 * q1 + i22 * q2
-    Sd[X_N, SENS_CUR_N] += 1.0
-    Sd[X_E, SENS_CUR_E] += 1.0
+    # (dF - dM nu_dot)/d(parameter), PARAM_NAMES order: m (with xg held: m xg moves too), Iz,
+    # d11, d22, d33, xg
+    qm0, qm1, qm2 = xg * r * r + v * r - ud, -u * r - vd - xg * rd, -xg * u * r - xg * vd
+    qi0, qi1, qi2 = 0.0, 0.0, -rd
+    qa0, qa1, qa2 = -u, 0.0, 0.0
+    qb0, qb1, qb2 = 0.0, -v, 0.0
+    qc0, qc1, qc2 = 0.0, 0.0, -r
+    qx0, qx1, qx2 = m * r * r, -m * rd, -m * u * r - m * vd
+    return xd, (c, s, a02, a12, A00, A01, A02, A10, A11, A12, A20, A21, A22,
+                i00 * qm0, i11 * qm1 + i12 * qm2, i12 * qm1 + i22 * qm2,
+                i00 * qi0, i11 * qi1 + i12 * qi2, i12 * qi1 + i22 * qi2,
+                i00 * qa0, i11 * qa1 + i12 * qa2, i12 * qa1 + i22 * qa2,
+                i00 * qb0, i11 * qb1 + i12 * qb2, i12 * qb1 + i22 * qb2,
+                i00 * qc0, i11 * qc1 + i12 * qc2, i12 * qc1 + i22 * qc2,
+                i00 * qx0, i11 * qx1 + i12 * qx2, i12 * qx1 + i22 * qx2)
 
 
-@njit(inline="always")
-def _trial(x, S, h, k, K, sens, xt, St):
-    """xt = x + h k (and St = S + h K): the state an RK4 stage is evaluated at."""
-    for i in range(NX):
-        xt[i] = x[i] + h * k[i]
-    if sens:   # the columns that move (the others of St hold S's constant values)
-        for i in range(X_PSI):
-            for c in range(NE_LO, NS):
-                St[i, c] = S[i, c] + h * K[i, c]
-        for i in range(X_PSI, NX):
-            for c in range(DYN_LO, DYN_HI):
-                St[i, c] = S[i, c] + h * K[i, c]
+@njit
+def _col_deriv(co, k, sn, se, spsi, su, sv, sr):
+    """Derivative of sensitivity column ``k`` (rows n, e, psi, u, v, r) at a stage with
+    coefficients ``co`` (:func:`_stage`); zero in the rows that do not move (see DYN_LO)."""
+    c, s = co[CO_C], co[CO_S]
+    dn = co[CO_A02] * spsi + c * su - s * sv
+    de = co[CO_A12] * spsi + s * su + c * sv
+    if k == SENS_CUR_N:
+        dn += 1.0
+    if k == SENS_CUR_E:
+        de += 1.0
+    dpsi, du, dv, dr = 0.0, 0.0, 0.0, 0.0
+    if DYN_LO <= k < DYN_HI:
+        dpsi = sr
+        du = co[CO_A] * su + co[CO_A + 1] * sv + co[CO_A + 2] * sr
+        dv = co[CO_A + 3] * su + co[CO_A + 4] * sv + co[CO_A + 5] * sr
+        dr = co[CO_A + 6] * su + co[CO_A + 7] * sv + co[CO_A + 8] * sr
+        if k >= SENS_PARAM:
+            b = CO_PARAM + 3 * (k - SENS_PARAM)
+            du += co[b]
+            dv += co[b + 1]
+            dr += co[b + 2]
+    return dn, de, dpsi, du, dv, dr
 
 
-@njit(inline="always")
-def _rk4(x, S, tu, tr, prm, cn, ce, dt, sens, w6, W6):
-    """One RK4 step of state and sensitivities; ``w6`` (5, NX) and ``W6`` (5, NX, NS) are scratch."""
-    k1, k2, k3, k4, xt = w6[0], w6[1], w6[2], w6[3], w6[4]
-    K1, K2, K3, K4, St = W6[0], W6[1], W6[2], W6[3], W6[4]
-    _deriv(x, S, tu, tr, prm, cn, ce, k1, K1, sens)
-    _trial(x, S, 0.5 * dt, k1, K1, sens, xt, St)
-    _deriv(xt, St, tu, tr, prm, cn, ce, k2, K2, sens)
-    _trial(x, S, 0.5 * dt, k2, K2, sens, xt, St)
-    _deriv(xt, St, tu, tr, prm, cn, ce, k3, K3, sens)
-    _trial(x, S, dt, k3, K3, sens, xt, St)
-    _deriv(xt, St, tu, tr, prm, cn, ce, k4, K4, sens)
-    w = dt / 6.0
-    for i in range(NX):
-        x[i] += w * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i])
-    if sens:   # the columns that move
-        for i in range(X_PSI):
-            for k in range(NE_LO, NS):
-                S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
-        for i in range(X_PSI, NX):
-            for k in range(DYN_LO, DYN_HI):
-                S[i, k] += w * (K1[i, k] + 2 * K2[i, k] + 2 * K3[i, k] + K4[i, k])
+@njit
+def _col_rk4(S, k, h, c1, c2, c3, c4):
+    """One RK4 step of length ``h`` of sensitivity column ``k`` of ``S`` (NX, NS) in place, from
+    the four stages' coefficients ``c1``..``c4``; only the rows that move are written (shoot
+    calls it once per moving column, each with a constant ``k`` the compiler can fold)."""
+    h2 = 0.5 * h
+    w = h / 6.0
+    s0, s1, s2, s3, s4, s5 = S[X_N, k], S[X_E, k], S[X_PSI, k], S[X_U, k], S[X_V, k], S[X_R, k]
+    dyn = DYN_LO <= k < DYN_HI   # psi, u, v, r move
+    K1 = _col_deriv(c1, k, s0, s1, s2, s3, s4, s5)
+    t2, t3, t4, t5 = s2, s3, s4, s5
+    if dyn:
+        t2, t3, t4, t5 = s2 + h2 * K1[2], s3 + h2 * K1[3], s4 + h2 * K1[4], s5 + h2 * K1[5]
+    K2 = _col_deriv(c2, k, s0 + h2 * K1[0], s1 + h2 * K1[1], t2, t3, t4, t5)
+    if dyn:
+        t2, t3, t4, t5 = s2 + h2 * K2[2], s3 + h2 * K2[3], s4 + h2 * K2[4], s5 + h2 * K2[5]
+    K3 = _col_deriv(c3, k, s0 + h2 * K2[0], s1 + h2 * K2[1], t2, t3, t4, t5)
+    if dyn:
+        t2, t3, t4, t5 = s2 + h * K3[2], s3 + h * K3[3], s4 + h * K3[4], s5 + h * K3[5]
+    K4 = _col_deriv(c4, k, s0 + h * K3[0], s1 + h * K3[1], t2, t3, t4, t5)
+    S[X_N, k] = s0 + w * (K1[0] + 2 * K2[0] + 2 * K3[0] + K4[0])
+    S[X_E, k] = s1 + w * (K1[1] + 2 * K2[1] + 2 * K3[1] + K4[1])
+    if dyn:
+        S[X_PSI, k] = s2 + w * (K1[2] + 2 * K2[2] + 2 * K3[2] + K4[2])
+        S[X_U, k] = s3 + w * (K1[3] + 2 * K2[3] + 2 * K3[3] + K4[3])
+        S[X_V, k] = s4 + w * (K1[4] + 2 * K2[4] + 2 * K3[4] + K4[4])
+        S[X_R, k] = s5 + w * (K1[5] + 2 * K2[5] + 2 * K3[5] + K4[5])
 
 
 @njit
@@ -144,18 +149,22 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
     """Integrate every segment k from ``x0s[k]`` at ``tg[seg_i0[k]]`` to ``tg[seg_i1[k]]``,
     thrust held over each grid step (RK4, sub-stepped to <= ``max_dt``); write the state (and
     sensitivities) at the segment's measurement times ``meas_t[meas_ptr[k]:meas_ptr[k+1]]``
-    (sorted, linear interpolation inside a step)."""
+    (sorted, linear interpolation inside a step).
+
+    The state is held in scalars; each RK4 stage's state derivative also gives the
+    coefficients of the (linear) sensitivity equations there, and the sensitivity columns
+    that move are stepped one by one from those (the same arithmetic per entry as stepping
+    the whole matrix, a column's entries in registers)."""
     nseg = len(seg_i0)
+    m, Iz, d11, d22, d33, xg = prm[P_M], prm[P_IZ], prm[P_D11], prm[P_D22], prm[P_D33], prm[P_XG]
+    S = np.zeros((NX, NS))
+    Sa = np.zeros((NX, NS))
     for k in range(nseg):
-        w6 = np.empty((5, NX))
-        W6 = np.zeros((5, NX, NS))
-        x = x0s[k].copy()
-        S = np.zeros((NX, NS))
+        x0, x1, x2, x3, x4, x5 = x0s[k, 0], x0s[k, 1], x0s[k, 2], x0s[k, 3], x0s[k, 4], x0s[k, 5]
+        a0, a1, a2, a3, a4, a5 = x0, x1, x2, x3, x4, x5   # the state at the step's start
+        S[:, :] = 0.0
         for i in range(NX):
             S[i, SENS_X0 + i] = 1.0
-        W6[4, :, :] = S   # St: the columns that do not move keep these values
-        xa = x.copy()
-        Sa = S.copy()
         cn, ce = seg_cur[k, 0], seg_cur[k, 1]   # current north, east (m/s)
         j = meas_ptr[k]
         jend = meas_ptr[k + 1]
@@ -166,24 +175,55 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
             dt = tb - ta
             need = meas_t[j] <= tb + 1e-9
             if need:
-                for q in range(NX):   # element loops: slice assignment costs more per step
-                    xa[q] = x[q]
+                a0, a1, a2, a3, a4, a5 = x0, x1, x2, x3, x4, x5
                 if sens:
-                    for q in range(NX):
+                    for q in range(NX):   # element loops: slice assignment costs more per step
                         for c in range(NS):
                             Sa[q, c] = S[q, c]
             nsub = max(1, int(math.ceil(dt / max_dt - 1e-9)))
             h = dt / nsub
+            tu, tr = tau_u[i], tau_r[i]
             for _ in range(nsub):
-                _rk4(x, S, tau_u[i], tau_r[i], prm, cn, ce, h, sens, w6, W6)
+                h2 = 0.5 * h
+                k1, c1 = _stage(x0, x1, x2, x3, x4, x5, tu, tr, m, Iz, d11, d22, d33, xg, cn, ce, sens)
+                k2, c2 = _stage(x0 + h2 * k1[0], x1 + h2 * k1[1], x2 + h2 * k1[2], x3 + h2 * k1[3],
+                                x4 + h2 * k1[4], x5 + h2 * k1[5], tu, tr, m, Iz, d11, d22, d33, xg, cn, ce, sens)
+                k3, c3 = _stage(x0 + h2 * k2[0], x1 + h2 * k2[1], x2 + h2 * k2[2], x3 + h2 * k2[3],
+                                x4 + h2 * k2[4], x5 + h2 * k2[5], tu, tr, m, Iz, d11, d22, d33, xg, cn, ce, sens)
+                k4, c4 = _stage(x0 + h * k3[0], x1 + h * k3[1], x2 + h * k3[2], x3 + h * k3[3],
+                                x4 + h * k3[4], x5 + h * k3[5], tu, tr, m, Iz, d11, d22, d33, xg, cn, ce, sens)
+                w = h / 6.0
+                x0 += w * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+                x1 += w * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+                x2 += w * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
+                x3 += w * (k1[3] + 2 * k2[3] + 2 * k3[3] + k4[3])
+                x4 += w * (k1[4] + 2 * k2[4] + 2 * k3[4] + k4[4])
+                x5 += w * (k1[5] + 2 * k2[5] + 2 * k3[5] + k4[5])
+                if sens:   # the columns that move (NE_LO..NS-1), each with a constant index
+                    _col_rk4(S, 2, h, c1, c2, c3, c4)
+                    _col_rk4(S, 3, h, c1, c2, c3, c4)
+                    _col_rk4(S, 4, h, c1, c2, c3, c4)
+                    _col_rk4(S, 5, h, c1, c2, c3, c4)
+                    _col_rk4(S, 6, h, c1, c2, c3, c4)
+                    _col_rk4(S, 7, h, c1, c2, c3, c4)
+                    _col_rk4(S, 8, h, c1, c2, c3, c4)
+                    _col_rk4(S, 9, h, c1, c2, c3, c4)
+                    _col_rk4(S, 10, h, c1, c2, c3, c4)
+                    _col_rk4(S, 11, h, c1, c2, c3, c4)
+                    _col_rk4(S, 12, h, c1, c2, c3, c4)
+                    _col_rk4(S, 13, h, c1, c2, c3, c4)
             if need:
                 while j < jend and meas_t[j] <= tb + 1e-9:
-                    w = (meas_t[j] - ta) / dt
-                    w = min(max(w, 0.0), 1.0)
-                    for q in range(NX):
-                        out_x[j, q] = (1 - w) * xa[q] + w * x[q]
+                    wt = (meas_t[j] - ta) / dt
+                    wt = min(max(wt, 0.0), 1.0)
+                    out_x[j, X_N] = (1 - wt) * a0 + wt * x0
+                    out_x[j, X_E] = (1 - wt) * a1 + wt * x1
+                    out_x[j, X_PSI] = (1 - wt) * a2 + wt * x2
+                    out_x[j, X_U] = (1 - wt) * a3 + wt * x3
+                    out_x[j, X_V] = (1 - wt) * a4 + wt * x4
+                    out_x[j, X_R] = (1 - wt) * a5 + wt * x5
                     if sens:
                         for q in range(NX):
                             for c in range(NS):
-                                out_S[j, q, c] = (1 - w) * Sa[q, c] + w * S[q, c]
+                                out_S[j, q, c] = (1 - wt) * Sa[q, c] + wt * S[q, c]
                     j += 1
