@@ -2,6 +2,7 @@
 path against the filterpy reference, accuracy against simulated truth, robustness."""
 
 import math
+import pickle
 
 import numpy as np
 import pandas as pd
@@ -548,9 +549,11 @@ def test_output_rows_are_the_all_step_run_bit_for_bit():
     assert lean.loglik == some.loglik and lean.first_bad == some.first_bad
     # the estimate's forward frame, made when first asked for, is the all-step run's forward pass
     res = estimate(log, s)
+    copied = pickle.loads(pickle.dumps(res))   # a result sent to another process, its forward frame not made yet
     g = pb.is_grid
     for frame, X, SD in ((res.state, every.XS, every.SDs), (res.forward, every.X, every.SDf)):
         for i, c in ((0, "n_m"), (1, "e_m"), (2, "psi_rad"), (5, "r_radps")):
             np.testing.assert_array_equal(frame[c].to_numpy(), X[g, i])
             np.testing.assert_array_equal(frame[c + "_std"].to_numpy(), SD[g, i])
     assert res.forward is res.forward   # made once
+    pd.testing.assert_frame_equal(copied.forward, res.forward, check_exact=True)

@@ -1249,6 +1249,28 @@ class EstimateResult:
         return out
 
 
+def _grid_frame(pb: Problem, X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
+    """The state frame of a run's output rows (the grid's: X, SD, PB hold those rows only);
+    a GNSS-only kinematic run's heading is its course (:func:`course_as_heading`)."""
+    if pb.mode == "gps-only" and pb.model == KINEMATIC:
+        X, SD, PB = course_as_heading(X, SD, PB, bool((pb.mkind == YAW_RATE).any()))
+    return _state_frame(X, SD, PB, pb.t_ns[pb.is_grid], pb.model)
+
+
+@dataclass(frozen=True)
+class _ForwardFrame:
+    """Makes the forward filter's frame of a run when called (for :attr:`EstimateResult.forward`):
+    the forward pass over ``pb`` with process noise ``q`` again (picklable, unlike a closure)."""
+
+    pb: Problem
+    q: np.ndarray
+    settings: EstimateSettings
+
+    def __call__(self) -> pd.DataFrame:
+        fwd = _output_run(self.pb, self.q, self.settings, smoother=False)
+        return _grid_frame(self.pb, fwd.X, fwd.SDf, fwd.PBf)
+
+
 def _divergence_hint(settings: EstimateSettings) -> str:
     """What to check after a divergence, by model."""
     if settings.model == "dynamic":
@@ -1425,23 +1447,11 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     settings = run_settings
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
-    g = pb.is_grid
-    gyro = bool((pb.mkind == YAW_RATE).any())
-
-    def grid_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
-        # (the raw arrays hold the grid's rows only)
-        if pb.mode == "gps-only" and pb.model == KINEMATIC:
-            X, SD, PB = course_as_heading(X, SD, PB, gyro)
-        return _state_frame(X, SD, PB, pb.t_ns[g], pb.model)
-    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
+    state = _grid_frame(pb, raw.XS, raw.SDs, raw.PBs)
     gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
     raw = replace(raw, X=gone, SDf=gone, PBf=gone, XS=gone, SDs=gone, PBs=gone)
-    if settings.smoother:   # the forward frame when first asked for: the forward pass made again
-        def make_forward() -> pd.DataFrame:
-            fwd = _output_run(pb, q, settings, smoother=False)
-            return grid_frame(fwd.X, fwd.SDf, fwd.PBf)
-    else:                   # the state is the forward filter's
-        make_forward = state.copy
+    # the forward frame when first asked for: the forward pass made again, or (no smoother) the state's
+    make_forward = _ForwardFrame(pb, q, settings) if settings.smoother else state.copy
     innov = frame_from_columns(
         {"sensor": np.array(SENSORS, dtype=object)[pb.mkind],
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
