@@ -14,12 +14,23 @@ the machine has two CPUs) and in one thread. Default: both models, the CLI defau
 first SECONDS only and scales its time to the whole run (the loop's cost is linear in the
 number of steps). ``--gps-only`` drops the compass channel (the GNSS-only path: the kinematic
 model over ground, heading = course; ``estimate()`` as a whole includes its course post-processing).
+
+    python benchmarks/bench_estimate.py --verb [--duration-s 3600] [--runs 3]
+
+times the ``usvlog estimate`` verb as a user runs it instead: a simulated excitation log
+written to a temporary MCAP file, then ``python -m usvlog estimate raw.mcap --out e.mcap``
+in a process of its own ``--runs`` times (wall, CPU and peak RSS of each, with the load
+average), and the verb's stages in this process (read, problem, kernels, frames, ``to_log``,
+write; the kernels' cache loaded first). Nothing in the verb is changed for the timing.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -48,7 +59,12 @@ def main() -> None:
                     help="kinematic model with sway damping (default: as EstimateSettings, on for kinematic)")
     ap.add_argument("--gps-only", action="store_true", help="no compass channel: the GNSS-only path")
     ap.add_argument("--gps-rate-hz", type=float, default=10.0)
+    ap.add_argument("--verb", action="store_true", help="time the usvlog estimate verb (see the module doc)")
+    ap.add_argument("--runs", type=int, default=3, help="--verb: runs of the verb")
     args = ap.parse_args()
+    if args.verb:
+        bench_verb(args.duration_s, args.runs)
+        return
 
     t = time.perf_counter()
     sens = SensorSettings(gps_rate_hz=args.gps_rate_hz)
@@ -112,6 +128,71 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
     else:  # compare the forward pass on the common head
         d = float(np.max(np.abs(fast.X[:k] - ref.X)))
     print(f"max |fast - filterpy|     : {d:.2e}")
+
+
+def _load() -> str:
+    return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def bench_verb(duration_s: float, runs: int) -> None:
+    """Time ``usvlog estimate`` on a simulated log: the verb in processes of its own, then its stages here."""
+    import resource
+
+    from usvlog import api
+    from usvlog.estimate import core
+    from usvlog.io.mcap import read_log
+
+    with tempfile.TemporaryDirectory() as tmp:
+        raw, out = os.path.join(tmp, "raw.mcap"), os.path.join(tmp, "e.mcap")
+        env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+        cmd = [sys.executable, "-m", "usvlog"]
+        subprocess.run([*cmd, "simulate", "excitation", "--out", raw, "--duration-s", f"{duration_s:g}"],
+                       env=env, check=True, capture_output=True)
+        print(f"{duration_s:.0f} s excitation log: {os.path.getsize(raw) / 1e6:.1f} MB")
+        print("usvlog estimate raw.mcap --out e.mcap   (wall, CPU = user + sys, peak RSS)")
+        for i in range(runs + 1):   # the first run fills the kernels' cache, not counted
+            t = time.perf_counter()
+            p = subprocess.Popen([*cmd, "estimate", raw, "--out", out, "--force"], env=env,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            _, status, ru = os.wait4(p.pid, 0)
+            wall = time.perf_counter() - t
+            if status:
+                raise SystemExit(f"usvlog estimate failed (status {status})")
+            if i:
+                print(f"  run {i}: wall {wall:6.2f} s  CPU {ru.ru_utime + ru.ru_stime:6.2f} s "
+                      f"(user {ru.ru_utime:.2f}, sys {ru.ru_stime:.2f})  peak RSS {ru.ru_maxrss / 1024:6.0f} MB  "
+                      f"[{_load()}]")
+        print(f"output {os.path.getsize(out) / 1e6:.1f} MB")
+
+        marks: list[tuple[str, float, float]] = []
+
+        def mark(name: str) -> None:
+            marks.append((name, time.perf_counter(), time.process_time()))
+
+        mark("")
+        log = read_log(raw, topics=list(core.INPUT_TOPICS), defer=True)
+        mark("read (the inputs, others deferred)")
+        vessel = log.vessel or default_vessel()
+        s = EstimateSettings()
+        pb = build_problem(log, s, vessel)
+        mark("build_problem")
+        run_fast(head_problem(pb, 1000), process_noise(s), s.max_consecutive_rejects, True)
+        mark("kernels' cache loaded")
+        core._output_run(pb, process_noise(gps_only_settings(s) if pb.mode == "gps-only" else s), s, smoother=True)
+        mark("kernels (forward + smoother)")
+        res = estimate(log, s, vessel)
+        mark("whole estimate() call")
+        out_log = res.to_log(log)
+        del log
+        out_log.redefer(core.INPUT_TOPICS)
+        mark("to_log")
+        api.save(out_log, out, force=True)
+        mark("write")
+        print("stages in this process (wall [CPU] s):")
+        for (name, w, c), (_, w0, c0) in zip(marks[1:], marks):
+            print(f"  {name:36s} {w - w0:6.2f} [{c - c0:5.2f}]")
+        print(f"  peak RSS of this process {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB; "
+              f"{_load()}")
 
 
 if __name__ == "__main__":

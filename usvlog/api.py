@@ -538,8 +538,8 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     -------
     EstimateResult
         ``state`` (n_m, e_m, psi_rad, u_mps, v_mps, r_radps, ... and their std on a 0.01 s
-        grid), ``forward``, ``innovations``, ``report`` (consistency, ``format()``,
-        ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
+        grid), ``forward`` (the forward filter, made on first access), ``innovations``, ``report``
+        (consistency, ``format()``, ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
     """
     from .estimate import EstimateSettings  # heavy: numpy, numba kernels
     from .estimate import estimate as run_estimate

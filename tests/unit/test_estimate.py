@@ -2,6 +2,7 @@
 path against the filterpy reference, accuracy against simulated truth, robustness."""
 
 import math
+import pickle
 
 import numpy as np
 import pandas as pd
@@ -539,3 +540,20 @@ def test_output_rows_are_the_all_step_run_bit_for_bit():
     assert some.PBs.shape == (0, 3, 3) and some.first_bad == every.first_bad == -1
     np.testing.assert_array_equal(some.innov, every.innov)
     assert some.loglik == every.loglik
+    # the smoothed states alone (the forward posteriors not stored): the very same numbers
+    lean = run_fast(pb, q, s.max_consecutive_rejects, True, rows=rows, columns=5, covariance_block=False,
+                    forward=False)
+    assert lean.X.shape == lean.SDf.shape == (0, 5) and lean.PBf.shape == (0, 3, 3)
+    for a, b in ((lean.XS, some.XS), (lean.SDs, some.SDs), (lean.innov, some.innov), (lean.accepted, some.accepted)):
+        np.testing.assert_array_equal(a, b)
+    assert lean.loglik == some.loglik and lean.first_bad == some.first_bad
+    # the estimate's forward frame, made when first asked for, is the all-step run's forward pass
+    res = estimate(log, s)
+    copied = pickle.loads(pickle.dumps(res))   # a result sent to another process, its forward frame not made yet
+    g = pb.is_grid
+    for frame, X, SD in ((res.state, every.XS, every.SDs), (res.forward, every.X, every.SDf)):
+        for i, c in ((0, "n_m"), (1, "e_m"), (2, "psi_rad"), (5, "r_radps")):
+            np.testing.assert_array_equal(frame[c].to_numpy(), X[g, i])
+            np.testing.assert_array_equal(frame[c + "_std"].to_numpy(), SD[g, i])
+    assert res.forward is res.forward   # made once
+    pd.testing.assert_frame_equal(copied.forward, res.forward, check_exact=True)

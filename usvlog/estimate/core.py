@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from statistics import NormalDist
 from typing import Literal, overload
 
@@ -741,7 +743,8 @@ class RawRun:
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-             covariance_block: bool = True, columns: int | None = None, threads: bool | None = None) -> RawRun:
+             covariance_block: bool = True, columns: int | None = None, threads: bool | None = None,
+             forward: bool = True) -> RawRun:
     """Forward EKF (and RTS smoother) with the numba-compiled kernels.
 
     Memory is that of the rows asked for, not of the steps: the smoother makes the forward
@@ -765,11 +768,17 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
         Return the first ``columns`` states (and their one-sigma) only; default all.
     threads : bool, optional
         The smoother's two halves in two threads (:func:`smooth`; default: with more than one CPU).
+    forward : bool
+        Return the forward posteriors (``X``, ``SDf``, ``PBf``); False (with the smoother
+        only): not stored, they have no rows (memory and time, when only the smoothed
+        states are wanted; every other output is the same).
 
     Returns
     -------
     RawRun
     """
+    if not (forward or smoother):
+        raise ValueError("run_fast: without the smoother the forward posteriors are the result (forward=True)")
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     nc = nx if columns is None else columns
     if rows is None:
@@ -779,7 +788,8 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
         row[~np.asarray(rows, bool)] = -1
     R = int(row.max()) + 1 if N else 0
     npb = R if covariance_block else 0
-    X, SDf, PBf = np.empty((R, nc)), np.empty((R, nc)), np.empty((npb, 3, 3))
+    Rf = R if forward else 0
+    X, SDf, PBf = np.empty((Rf, nc)), np.empty((Rf, nc)), np.empty((npb if forward else 0, 3, 3))
     C = -(-N // kernels.SMOOTH_BLOCK) if smoother else 0   # checkpoints, for the smoother
     CX, CP = np.empty((C, nx)), np.empty((C, nx, nx))
     CI, CF = np.empty((C, kernels.N_IST), np.int64), np.empty((C, kernels.NFS))
@@ -789,9 +799,10 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
     bad_f, bad_s = np.full(1, -1, np.int64), np.full(1, -1, np.int64)
     args = (pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm, pb.model, q, pb.gates,
             max_rej, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb))
-    ll = kernels.forward(*args, row, X, SDf, PBf, innov, acc, resets, CX, CP, CI, CF, bad_f)
+    ll = kernels.forward(*args, row if forward else np.empty(0, np.int64), X, SDf, PBf, innov, acc, resets,
+                         CX, CP, CI, CF, bad_f)
     if smoother:
-        XS, SDs, PBs = np.empty_like(X), np.empty_like(X), np.empty_like(PBf)
+        XS, SDs, PBs = np.empty((R, nc)), np.empty((R, nc)), np.empty((npb, 3, 3))
         smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s, threads)
     else:
         XS, SDs, PBs = X, SDf, PBf
@@ -884,7 +895,7 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-                       covariance_block: bool = True, columns: int | None = None) -> RawRun:
+                       covariance_block: bool = True, columns: int | None = None, forward: bool = True) -> RawRun:
     """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
     from .reference import run_reference  # heavy: filterpy and scipy.stats, only for the reference path
 
@@ -897,6 +908,8 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool,
     keep = slice(None) if rows is None else np.asarray(rows, bool)
     X, SDf, XS, SDs = (a[keep, :columns] for a in (X, SDf, XS, SDs))
     PBf, PBs = (PBf[keep], PBs[keep]) if covariance_block else (PBf[:0], PBs[:0])
+    if not forward and smoother:
+        X, SDf, PBf = X[:0], SDf[:0], PBf[:0]
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, int(bad[0]) if len(bad) else -1)
 
 
@@ -1175,18 +1188,42 @@ class EstimateResult:
     """State estimate of a run.
 
     ``state``: smoothed (or forward, with the smoother off) state on the output grid,
-    indexed by ``t_ns``; ``forward``: the forward filter alone, same columns;
-    ``innovations``: one row per measurement; ``report``: counts and consistency.
-    For the kinematic model u, v are body velocities over ground; for the dynamic model
-    they are the model's nu, relative to the water when current states are estimated.
+    indexed by ``t_ns``; ``forward``: the forward filter alone, same columns (made when
+    first asked for, see :attr:`forward`); ``innovations``: one row per measurement;
+    ``report``: counts and consistency. For the kinematic model u, v are body velocities
+    over ground; for the dynamic model they are the model's nu, relative to the water when
+    current states are estimated.
     """
 
     state: pd.DataFrame
-    forward: pd.DataFrame
     innovations: pd.DataFrame
     report: EstimateReport
     settings: EstimateSettings
     vessel: Vessel | None = None
+    _make_forward: Callable[[], pd.DataFrame] | None = field(default=None, repr=False, compare=False)
+
+    @cached_property
+    def forward(self) -> pd.DataFrame:
+        """The forward filter's state alone, the columns of ``state`` on the same grid.
+
+        Made on first access (then kept): with the smoother on, by running the forward pass
+        again over the same problem (the very same numbers as the pass the smoother
+        started from; about a third of the estimate's filter time), so that an estimate
+        whose forward frame is never looked at (``usvlog estimate``) neither builds nor holds
+        it; with the smoother off, a copy of ``state``.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Columns as ``state`` (positions m, heading rad, velocities m/s and rad/s and
+            their ``_std``), indexed by ``t_ns`` (ns since the Unix epoch).
+        """
+        make = self._make_forward
+        if make is None:
+            raise AttributeError("this EstimateResult was made without its forward filter")
+        frame = make()
+        object.__setattr__(self, "_make_forward", None)   # its problem arrays are let go
+        return frame
 
     def to_dataframe(self) -> pd.DataFrame:
         """The state estimate ``state`` (not a copy): columns n_m, e_m, psi_rad, u_mps,
@@ -1210,6 +1247,28 @@ class EstimateResult:
                                                 reasons=tuple(self.report.status_reasons())))
         out.meta[META_LATENCY] = latency_record(self.settings, self.report.latency)
         return out
+
+
+def _grid_frame(pb: Problem, X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
+    """The state frame of a run's output rows (the grid's: X, SD, PB hold those rows only);
+    a GNSS-only kinematic run's heading is its course (:func:`course_as_heading`)."""
+    if pb.mode == "gps-only" and pb.model == KINEMATIC:
+        X, SD, PB = course_as_heading(X, SD, PB, bool((pb.mkind == YAW_RATE).any()))
+    return _state_frame(X, SD, PB, pb.t_ns[pb.is_grid], pb.model)
+
+
+@dataclass(frozen=True)
+class _ForwardFrame:
+    """Makes the forward filter's frame of a run when called (for :attr:`EstimateResult.forward`):
+    the forward pass over ``pb`` with process noise ``q`` again (picklable, unlike a closure)."""
+
+    pb: Problem
+    q: np.ndarray
+    settings: EstimateSettings
+
+    def __call__(self) -> pd.DataFrame:
+        fwd = _output_run(self.pb, self.q, self.settings, smoother=False)
+        return _grid_frame(self.pb, fwd.X, fwd.SDf, fwd.PBf)
 
 
 def _divergence_hint(settings: EstimateSettings) -> str:
@@ -1284,10 +1343,11 @@ def _compass_disagrees(pb: Problem, raw: RawRun) -> str:
 
 
 def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vessel
-           ) -> tuple[EstimateSettings, RawRun, dict | None, tuple[DelayEstimate, ...], Problem]:
+           ) -> tuple[EstimateSettings, RawRun, dict | None, tuple[DelayEstimate, ...], Problem, np.ndarray]:
     """Settings in effect, the filter (and smoother) run, the tuning result, the sensor delays
-    searched and the problem they give, for one run (``pb`` built from ``log`` with
-    ``settings``)."""
+    searched, the problem they give and the process noise, for one run (``pb`` built from
+    ``log`` with ``settings``). With the smoother the run holds no forward posteriors
+    (:func:`_output_run` makes them again when asked for)."""
     if pb.mode == "gps-only":
         settings = gps_only_settings(settings)
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
@@ -1311,13 +1371,19 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     q = process_noise(settings)
     if settings.estimate_delays:   # (again) with the noise in effect
         latency, settings, pb = search_delays(settings, q)
+    raw = _output_run(pb, q, settings, smoother=settings.smoother)
+    return settings, raw, tuned, latency, pb, q
+
+
+def _output_run(pb: Problem, q: np.ndarray, settings: EstimateSettings, smoother: bool) -> RawRun:
+    """The run of the output frames: with the smoother, the smoothed states only (the forward
+    posteriors not stored); without it, the forward ones."""
     runner = run_fast if settings.fast else run_reference_path
     # only what the output needs (memory): the grid's rows, the frame's states (the kinematic
     # model's accelerations too, for course_as_heading) and the covariance block of the NED model
     kinematic = pb.model == KINEMATIC
-    raw = runner(pb, q, settings.max_consecutive_rejects, settings.smoother, rows=pb.is_grid,
-                 covariance_block=kinematic, columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6)
-    return settings, raw, tuned, latency, pb
+    return runner(pb, q, settings.max_consecutive_rejects, smoother, rows=pb.is_grid, covariance_block=kinematic,
+                  columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6, forward=not smoother)
 
 
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
@@ -1371,29 +1437,21 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     if vessel is None:
         vessel = log.vessel or default_vessel()
     pb = build_problem(log, settings, vessel)
-    run_settings, raw, tuned, latency, pb = _solve(pb, settings, log, vessel)
+    run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel)
     why = _compass_disagrees(pb, raw)
     if why:   # a heading source the track contradicts: GNSS only
         settings = replace(settings, gps_only=True)
         pb = build_problem(log, settings, vessel)
-        run_settings, raw, tuned, latency, pb = _solve(pb, settings, log, vessel)
+        run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel)
         pb = replace(pb, mode_reason=why)
     settings = run_settings
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
-    g = pb.is_grid
-    gyro = bool((pb.mkind == YAW_RATE).any())
-
-    def grid_frame(X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
-        # (the raw arrays hold the grid's rows only)
-        if pb.mode == "gps-only" and pb.model == KINEMATIC:
-            X, SD, PB = course_as_heading(X, SD, PB, gyro)
-        return _state_frame(X, SD, PB, pb.t_ns[g], pb.model)
+    state = _grid_frame(pb, raw.XS, raw.SDs, raw.PBs)
     gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
-    forward = grid_frame(raw.X, raw.SDf, raw.PBf)
-    raw = replace(raw, X=gone, SDf=gone, PBf=gone)
-    state = grid_frame(raw.XS, raw.SDs, raw.PBs)
-    raw = replace(raw, XS=gone, SDs=gone, PBs=gone)
+    raw = replace(raw, X=gone, SDf=gone, PBf=gone, XS=gone, SDs=gone, PBs=gone)
+    # the forward frame when first asked for: the forward pass made again, or (no smoother) the state's
+    make_forward = _ForwardFrame(pb, q, settings) if settings.smoother else state.copy
     innov = frame_from_columns(
         {"sensor": np.array(SENSORS, dtype=object)[pb.mkind],
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
@@ -1419,5 +1477,5 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
                             dropouts=pb.dropouts, loglik=raw.loglik,
                             thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned,
                             mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits, latency=latency)
-    return EstimateResult(state=state, forward=forward, innovations=innov, report=report,
-                          settings=settings, vessel=vessel)
+    return EstimateResult(state=state, innovations=innov, report=report, settings=settings, vessel=vessel,
+                          _make_forward=make_forward)
