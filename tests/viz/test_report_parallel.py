@@ -10,8 +10,6 @@ import pytest
 
 from usvlog.view import report as rp
 
-pytestmark = pytest.mark.skipif(not rp._two_cores(), reason="drawing on two CPUs needs Linux and a second CPU")
-
 
 def _figs(parent: int, fail_in_copy: bool = False):
     """Four small figures (one the log 'lacks'); with ``fail_in_copy`` the copy cannot draw."""
@@ -35,6 +33,8 @@ def _figs(parent: int, fail_in_copy: bool = False):
 
 @pytest.mark.parametrize("fail_in_copy", [False, True])
 def test_two_cpus_draw_the_same_bytes(fail_in_copy):
+    if not rp._two_cores():
+        pytest.skip("drawing on two CPUs needs Linux, a second CPU and no other thread running")
     pid = os.getpid()
     one = [rp._drawn(title, make) for _name, title, make, _needs in _figs(pid)]
     two = rp.draw_all(_figs(pid, fail_in_copy))

@@ -740,8 +740,12 @@ class _Forked:
 
 
 def _two_cores() -> bool:
-    """A second CPU to draw on, and a fork that copies matplotlib's state safely (Linux)."""
-    return sys.platform.startswith("linux") and hasattr(os, "fork") and len(os.sched_getaffinity(0)) > 1
+    """A second CPU to draw on, and a fork that copies matplotlib's state safely: Linux, and no
+    other thread running (one could hold a lock, e.g. an import's, the copy would wait on forever)."""
+    import threading  # stdlib: only when a report draws
+
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and len(os.sched_getaffinity(0)) > 1
+            and threading.active_count() == 1)
 
 
 def draw_all(figs) -> list[tuple[str, bytes] | None]:
