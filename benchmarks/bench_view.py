@@ -9,6 +9,12 @@ The per-row baseline logs the very same time-series scalars (read back from the 
 one sample at a time, ``rec.set_time(...)`` + ``rec.log(path, rr.Scalars(x))``. It is timed
 on a 1/20 slice of every series and scaled by 20 (the cost is linear in the rows), so the
 benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
+
+``--cli LOG`` instead runs ``usvlog view LOG`` and ``usvlog report LOG`` as a user would
+(separate processes, ``--repeat`` times each) and prints per run the wall time, the CPU of
+the main thread, of the import-ahead thread (rerun/matplotlib imported while the log is read),
+of the rest of the process (rerun's threads) and of the report's forked figure drawer, the
+peak RSS of the process and of the drawer, and the load average: what the two cores do.
 """
 
 from __future__ import annotations
@@ -86,11 +92,62 @@ def per_row(series, path: Path, fraction: int) -> tuple[float, int]:
     return time.perf_counter() - t0, n
 
 
+PER_THREAD = """
+import os, resource, runpy, sys, threading, time
+ended = {}
+run = threading.Thread.run
+def timed(self):
+    try:
+        run(self)
+    finally:
+        ended[self.name] = time.thread_time()
+threading.Thread.run = timed
+t0 = time.perf_counter()
+sys.argv = ["usvlog", *sys.argv[1:]]
+try:
+    runpy.run_module("usvlog", run_name="__main__")
+except SystemExit:
+    pass
+s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+main, ahead = time.thread_time(), ended.get("usvlog-import-ahead", 0.0)
+print(f"{time.perf_counter() - t0:.2f} {s.ru_utime + s.ru_stime:.2f} {main:.2f} {ahead:.2f} "
+      f"{c.ru_utime + c.ru_stime:.2f} {s.ru_maxrss / 1024:.0f} {c.ru_maxrss / 1024:.0f}", file=sys.stderr)
+"""
+
+
+def cli(log: Path, repeat: int) -> None:
+    """``usvlog view`` and ``usvlog report`` of ``log`` in separate processes, CPU per thread."""
+    import os
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with tempfile.TemporaryDirectory() as d:
+        verbs = {"view": ["view", str(log), "--out", str(Path(d) / "v.rrd"), "--force"],
+                 "report": ["report", str(log), "--out", str(Path(d) / "report"), "--force"]}
+        for _ in range(repeat):
+            for name, args in verbs.items():
+                load = os.getloadavg()[0]
+                p = subprocess.run([sys.executable, "-c", PER_THREAD, *args], env=env, capture_output=True,
+                                   text=True, check=True)
+                wall, cpu, main, ahead, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
+                rest = float(cpu) - float(main) - float(ahead)
+                print(f"{name:6s} {float(wall):5.2f} s wall; CPU {cpu} s in the process (main thread {main}, "
+                      f"import-ahead {ahead}, other threads {rest:.2f}) + {kids} s forked drawer; "
+                      f"peak RSS {rss} MB (drawer {kid_rss} MB); load {load:.2f}", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--fraction", type=int, default=20, help="per-row logging is timed on 1/fraction of the rows")
+    ap.add_argument("--cli", type=Path, metavar="LOG",
+                    help="time `usvlog view LOG` and `usvlog report LOG` as processes, CPU per thread")
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each verb with --cli")
     args = ap.parse_args()
+    if args.cli is not None:
+        cli(args.cli, args.repeat)
+        return
     t = time.perf_counter()
     log = hour_log(args.duration_s)
     print(f"built a {args.duration_s:.0f} s log in {time.perf_counter() - t:.1f} s: "

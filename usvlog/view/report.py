@@ -24,6 +24,10 @@ import html
 import io
 import json
 import math
+import os
+import pickle
+import sys
+import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -90,6 +94,11 @@ def _plt():
     plt.rcParams.update({"font.size": 10, "axes.grid": True, "grid.alpha": 0.3, "figure.dpi": 110,
                          "savefig.bbox": "tight"})
     return plt
+
+
+def load_matplotlib() -> None:
+    """Import matplotlib with the report's settings (the Agg backend), e.g. while a log is read."""
+    _plt()
 
 
 # -----------------------------------------------------------------------------
@@ -685,6 +694,88 @@ def _render(fig) -> bytes:
     return buf.getvalue()
 
 
+def _drawn(title: str, make) -> tuple[str, bytes] | None:
+    """(caption, PNG bytes) of one figure, or None when the log lacks what it needs."""
+    fig = make()
+    if fig is None:
+        return None
+    return f"{title}: " + "; ".join(_labels(fig)), _render(fig)
+
+
+class _Forked:
+    """``fn()`` run in a forked copy of this process; :meth:`result` waits for its (picklable) value."""
+
+    def __init__(self, fn):
+        self._file = tempfile.TemporaryFile()   # noqa: SIM115 - closed by result() or stop()
+        self.pid = os.fork()
+        if self.pid == 0:   # the copy: the value into the file, then out without the parent's exit handlers
+            code = 1
+            try:
+                pickle.dump(fn(), self._file)
+                self._file.flush()
+                code = 0
+            finally:
+                os._exit(code)
+
+    def result(self):
+        """``fn()``'s value, or None when the copy failed (the caller then does the work itself)."""
+        try:
+            _pid, status = os.waitpid(self.pid, 0)
+            if os.waitstatus_to_exitcode(status) != 0:
+                return None
+            self._file.seek(0)
+            return pickle.load(self._file)   # noqa: S301 - written by this process's own copy
+        finally:
+            self._file.close()
+
+    def stop(self) -> None:
+        """End the copy (the caller failed) and reap it."""
+        import signal  # stdlib: only when a report fails
+
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(self.pid, 0)
+        self._file.close()
+
+
+def _two_cores() -> bool:
+    """A second CPU to draw on, and a fork that copies matplotlib's state safely: Linux, and no
+    other thread running (one could hold a lock, e.g. an import's, the copy would wait on forever)."""
+    import threading  # stdlib: only when a report draws
+
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and len(os.sched_getaffinity(0)) > 1
+            and threading.active_count() == 1)
+
+
+def draw_all(figs) -> list[tuple[str, bytes] | None]:
+    """Every figure of ``figs`` (as :func:`figures` lists them) drawn: (caption, PNG bytes), or
+    None for one the log cannot give, in order.
+
+    matplotlib's drawing holds the GIL, so on a machine with a second CPU (Linux) a forked
+    copy of the process draws every second figure while this one draws the others. A figure
+    depends only on the log and matplotlib's settings, both the same in the copy, so the
+    bytes are those drawn here; when the copy fails, its figures are drawn here after all.
+    """
+    n = len(figs)
+    out: list[tuple[str, bytes] | None] = [None] * n
+    theirs = list(range(1, n, 2)) if n > 1 and _two_cores() else []
+    child = _Forked(lambda: [_drawn(figs[i][1], figs[i][2]) for i in theirs]) if theirs else None
+    try:
+        for i in range(n):
+            if i not in theirs:
+                out[i] = _drawn(figs[i][1], figs[i][2])
+    except BaseException:
+        if child is not None:
+            child.stop()
+        raise
+    if child is not None:
+        got = child.result()
+        for k, i in enumerate(theirs):
+            out[i] = got[k] if got is not None else _drawn(figs[i][1], figs[i][2])
+    return out
+
+
 def figures(log: FieldLog, *, baseline: FieldLog | None = None, axes: str = "paper"):
     """[(file name, title, make, needs)] of the report's figures, in page order.
 
@@ -768,13 +859,13 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
         log, baseline = log[0], (log[1] if len(log) == 2 else baseline)
     out = check_report_outputs(out_dir, force)
     shown, missing, pngs = [], [], []
-    for name, title, make, needs in figures(log, baseline=baseline, axes=axes):
-        fig = make()
-        if fig is None:
+    figs = figures(log, baseline=baseline, axes=axes)
+    for (name, title, _make, needs), drawn in zip(figs, draw_all(figs)):
+        if drawn is None:
             missing.append((title, needs))
             continue
-        caption = f"{title}: " + "; ".join(_labels(fig))
-        pngs.append((name, _render(fig)))
+        caption, png = drawn
+        pngs.append((name, png))
         shown.append((name, caption))
     page_text = _html(log, baseline, shown, missing, AXES_NOTE[axes], links)
     try:

@@ -144,12 +144,14 @@ class _Writer:
             color = free[0] if free else SERIES_PALETTE[len(used) % len(SERIES_PALETTE)]
         path = f"{self.prefix}/ts/{sub}"
         kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
+        index, column = self.index_cols(t_ns[ok]), rr.Scalars.columns(scalars=y[ok])
+        # the series before written out now, not sooner: rerun encodes it on its own thread while this one
+        # was built; every sample of the log is a series sample, and rerun's pipeline would otherwise hold
+        # them all until the end (1-hour log: 80 MB less at the peak)
+        self.rec.flush()
         self.rec.log(path, rr.SeriesLines(colors=[color], names=[self.label(name)], widths=[width], **kw),
                      static=True)
-        self.rec.send_columns(path, indexes=self.index_cols(t_ns[ok]), columns=rr.Scalars.columns(scalars=y[ok]))
-        # written out before the next series is built: every sample of the log is a series sample, and
-        # rerun's pipeline would otherwise hold them all until the end (1-hour log: 80 MB less at the peak)
-        self.rec.flush()
+        self.rec.send_columns(path, indexes=index, columns=column)
         self.views[view].append(path)
         self.series[view].append(name)
         used.append(tuple(color))

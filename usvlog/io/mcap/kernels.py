@@ -68,7 +68,7 @@ def _walk_headers(buf, start, end, top_level, ops, offs, lens, store):
     return n, off, complete
 
 
-@njit
+@njit(nogil=True)
 def walk_records(buf, start, end, top_level):
     """Records in buf[start:end] -> (ops, offsets, body lengths, stop offset, complete).
 
@@ -87,7 +87,7 @@ def walk_records(buf, start, end, top_level):
     return ops, offs, lens, off, complete
 
 
-@njit
+@njit(nogil=True)
 def find_chunk(buf, start, end):
     """First offset p >= start where a chunk record with a consistent header begins, or -1.
 
@@ -124,7 +124,7 @@ def find_chunk(buf, start, end):
     return -1
 
 
-@njit
+@njit(nogil=True)
 def message_fields(buf, offs, lens):
     """(channel id, sequence, log time, payload start, payload end) of message records, and
     False if one is malformed (shorter than its header, or a log time past int64)."""
@@ -371,7 +371,7 @@ _FALSE = np.frombuffer(b"false", np.uint8).copy()
 _NULL = np.frombuffer(b"null", np.uint8).copy()
 
 
-@njit
+@njit(nogil=True)
 def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fcol, icol, scol, pow10,
                    want_text):
     """Match messages buf[starts[i]:ends[i]] against ``lit_0 v_0 lit_1 ... v_{S-1} lit_S``.
@@ -639,7 +639,7 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
 # fixed-size (CDR) messages
 # -----------------------------------------------------------------------------
 
-@njit
+@njit(nogil=True)
 def gather_fields(buf, starts, offs, wide):
     """Fields of fixed-size messages -> one (F, n) uint64 array, a row per field: field k of
     message i is the little-endian unsigned integer at ``buf[starts[i] + offs[k]]`` of 8
