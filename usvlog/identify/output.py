@@ -184,11 +184,9 @@ class Problem:
         self.r_val = self.val[self.r_meas, col]
         self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
                                                                          self.sig[self.r_meas]))
-        self.r_run = self.seg_run[self.r_seg]
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         self.n_res = len(self.r_meas)
         self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # its state in out_x.reshape(-1)
-        self.r_vel = np.flatnonzero(self.r_state >= R_VN)     # velocity rows
         self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
         # the sensitivity rows the kernel writes (shoot's row_*), per measurement: each GPS and
         # compass residual row's own (of state n, e or psi), weighted as its residual with the
@@ -204,7 +202,11 @@ class Problem:
         self.e_q = np.concatenate([np.minimum(self.r_state[pos], 2), np.tile(np.arange(2, 6), len(vmeas))])[o]
         self.e_res = np.concatenate([pos, np.full(4 * len(vmeas), -1)])[o]   # residual row, -1 velocity
         self.e_ptr = np.searchsorted(e_meas[o], np.arange(len(self.meas_t) + 1)).astype(np.int64)
-        self.r_vmeas = self.n_res + 4 * np.searchsorted(vmeas, self.r_meas[self.r_vel])   # first of its 4 rows
+        # the velocity measurements, the run of each, and per velocity row quantity (vn, ve, r)
+        # its rows and their measurements' positions in vmeas
+        self.v_meas, self.v_run = vmeas, self.seg_run[self.meas_seg[vmeas]]
+        self.v_rows = tuple(np.flatnonzero(self.r_state == q) for q in (R_VN, R_VE, R_R))
+        self.v_k = tuple(np.searchsorted(vmeas, self.r_meas[rr]) for rr in self.v_rows)
         self._set_weights(1.0 / self.r_sig0)
         self._rows: np.ndarray | None = None
         self.threads: bool | None = None
@@ -284,15 +286,13 @@ class Problem:
 
         ``currents`` (n_runs, 2): north, east in m/s (the ground velocity includes them)."""
         sim = out_x.reshape(-1).take(self.r_srow)     # state min(row's quantity, 2) at its measurement
-        vel = self.r_vel
-        if len(vel):
-            x = out_x[self.r_meas[vel]]
-            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
-            c, s = np.cos(psi), np.sin(psi)
-            cur = np.asarray(currents, float)[self.r_run[vel]]
-            st = self.r_state[vel]
-            sim[vel] = np.where(st == R_VN, c * u - s * v + cur[:, 0],
-                                np.where(st == R_VE, s * u + c * v + cur[:, 1], x[:, 5]))
+        if self.n_vmeas:   # once per velocity measurement, then into its three rows
+            x, c, s = self._vel_states(out_x)
+            u, v = x[:, 3], x[:, 4]
+            cur = np.asarray(currents, float)[self.v_run]
+            for rr, kk, q in zip(self.v_rows, self.v_k, (c * u - s * v + cur[:, 0], s * u + c * v + cur[:, 1],
+                                                         x[:, 5])):
+                sim[rr] = q[kk]
         d = self.r_val - sim
         d[self.r_psi] = ssa(d[self.r_psi])
         d *= self.r_w
@@ -302,20 +302,22 @@ class Problem:
         """d(residual)/d(sensitivity columns), shape (n_res, NS), from :meth:`simulate`'s
         ``rows`` (its first n_res rows, completed in place: the velocity rows made here)."""
         J = rows[:self.n_res]
-        vel = self.r_vel
-        if len(vel):
-            x = out_x[self.r_meas[vel]]
-            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
-            c, s = np.cos(psi), np.sin(psi)
-            Sv = rows[self.r_vmeas[:, None] + np.arange(4)]   # rows psi, u, v, r of each row's measurement
-            st = self.r_state[vel]
+        if self.n_vmeas:   # once per velocity measurement, then into its three rows
+            x, c, s = self._vel_states(out_x)
+            u, v = x[:, 3], x[:, 4]
+            Sv = rows[self.n_res:].reshape(self.n_vmeas, 4, NS)   # rows psi, u, v, r of each
             dvn = (-s * u - c * v)[:, None] * Sv[:, 0] + c[:, None] * Sv[:, 1] - s[:, None] * Sv[:, 2]
             dve = (c * u - s * v)[:, None] * Sv[:, 0] + s[:, None] * Sv[:, 1] + c[:, None] * Sv[:, 2]
             dvn[:, SENS_CUR_N] += 1.0
             dve[:, SENS_CUR_E] += 1.0
-            J[vel] = (np.where((st == R_VN)[:, None], dvn, np.where((st == R_VE)[:, None], dve, Sv[:, 3]))
-                      * -self.r_w[vel, None])
+            for rr, kk, q in zip(self.v_rows, self.v_k, (dvn, dve, Sv[:, 3])):
+                J[rr] = q[kk] * -self.r_w[rr, None]
         return J
+
+    def _vel_states(self, out_x):
+        """States at the velocity measurements and the cosine and sine of their heading."""
+        x = out_x[self.v_meas]
+        return x, np.cos(x[:, 2]), np.sin(x[:, 2])
 
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
