@@ -453,15 +453,14 @@ class _VP:
                 C[k, 2 * ri:2 * ri + 2] = J[k, 12:14]
             cols.append(C)
         G = np.concatenate(cols, 1)
-        # project out the segment initial states
+        # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
         JtG = prob.seg_gram(Jx, G)
         coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P)
-        Gp = G.copy()
         for k in range(prob.n_seg):
             a, b = prob.r_start[k], prob.r_start[k + 1]
-            Gp[a:b] -= Jx[a:b] @ coef[k]
-        self._key, self._r, self._J = key, r, Gp
+            G[a:b] -= Jx[a:b] @ coef[k]
+        self._key, self._r, self._J = key, r, G
 
     def fun(self, p):
         self._eval(p)
