@@ -10,8 +10,10 @@ Output error includes everything it does by default: its candidates fitted on th
 their validation on the last 30 %, and the refit of the chosen one on all the data.
 Before them, the shooting kernel alone (:func:`usvlog.identify.shoot.shoot` through
 ``Problem.simulate``) on the whole log in 300 s segments from the true states: one model
-evaluation with sensitivities (as each Gauss-Newton step of the fit) and states only (as the
-validation's free runs), CPU ms, best of 5.
+evaluation with the Jacobian rows (``simulate`` + ``jac_rows``, as each Gauss-Newton step of
+the fit) and states only (as the validation's free runs), CPU and wall ms, best of 5, with
+the segments in one thread and in two (the verb's default on a machine of two or more CPUs;
+the same numbers: wall time falls only where the second core is idle).
 ``--model extended``: the extended model's candidates (output error from the paper's and from
 the extended equation-error fit, and that fit), the errors those of its paper terms;
 ``--model both``: the paper's and the extended candidates together.
@@ -54,18 +56,27 @@ def bench_shoot(log, current) -> None:
     x0s = prob.initial_states(lambda i, t: X[min(int(np.searchsorted(tt, t - 1e-9)), len(X) - 1)])
     theta = VesselParams().as_array()
     cur = np.asarray(current, float)[None, :]
-    out = []
-    for sens in (True, False):
-        prob.simulate(theta, cur, x0s, sens=sens)   # compiled or loaded from the cache
-        best = np.inf
-        for _ in range(5):
-            c = time.process_time()
-            prob.simulate(theta, cur, x0s, sens=sens)
-            best = min(best, time.process_time() - c)
-        out.append(best)
-    print(f"shooting kernel, {len(prob.meas_t)} measurement times in {prob.n_seg} segments: "
-          f"{1e3 * out[0]:.1f} ms CPU with sensitivities, {1e3 * out[1]:.1f} ms states only "
-          f"(load {os.getloadavg()[0]:.1f})")
+
+    def model(sens):
+        out_x, rows = prob.simulate(theta, cur, x0s, sens=sens)
+        if sens:
+            prob.jac_rows(rows, out_x)
+
+    print(f"shooting kernel, {len(prob.meas_t)} measurement times in {prob.n_seg} segments "
+          f"(CPU / wall ms, best of 5):")
+    for threads in (False, True):
+        prob.threads = threads
+        out = []
+        for sens in (True, False):
+            model(sens)   # compiled or loaded from the cache
+            best_c = best_w = np.inf
+            for _ in range(5):
+                c, w = time.process_time(), time.perf_counter()
+                model(sens)
+                best_c, best_w = min(best_c, time.process_time() - c), min(best_w, time.perf_counter() - w)
+            out.append(f"{1e3 * best_c:.1f} / {1e3 * best_w:.1f}")
+        print(f"  {2 if threads else 1} thread{'s' if threads else ''}: {out[0]} with the Jacobian rows, "
+              f"{out[1]} states only (load {os.getloadavg()[0]:.1f})")
 
 
 def main() -> None:

@@ -5,7 +5,7 @@ import pytest
 
 from usvlog.identify.data import run_data
 from usvlog.identify.equation import LIN_NAMES, fit_equation_error, regressors
-from usvlog.identify.output import Problem, simulate_run
+from usvlog.identify.output import Problem, simulate_run, velocity_samples
 from usvlog.model.vessel import VesselParams, nu_dot
 from usvlog.sim.simulate import SimSettings, simulate
 
@@ -71,36 +71,43 @@ def test_shooting_reproduces_the_simulator_exactly():
 
 
 def test_sensitivities_match_finite_differences():
+    """The Jacobian rows the kernel writes (GPS, compass: weighted rows of the state's
+    sensitivities; velocity rows made from its rows psi, u, v, r) against central differences
+    of the residuals themselves; the two-thread run gives the same bits as one thread."""
     log = simulate("excitation", SimSettings(duration_s=60.0, current_mps=0.1), seed=6)
     run = run_data(log)
-    prob = Problem([run], 20.0)
     tr = log["/truth/state"]
     X = tr[["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]].to_numpy()
     tt = (tr.index.to_numpy() - run.t0_ns) / 1e9
+    vel = velocity_samples(tt, X[:, 3], X[:, 4], X[:, 5])   # any values: the rows' derivatives are checked
+    prob = Problem([run], 20.0, [vel])
+    prob.set_sensor_scale([0.8, 1.3, 1.1, 0.7])
+    assert set(prob.r_sensor) == {0, 1, 2, 3} and prob.n_seg == 3
     x0s = prob.initial_states(lambda i, t: X[np.searchsorted(tt, t - 1e-9)])
     th = np.array([31.0, 9.0, 5.5, 4.0, 6.0, 0.12])
     cur = np.array([[0.05, -0.08]])
-    ox, oS = prob.simulate(th, cur, x0s)
-    oS = oS.copy()   # the problem's buffer: another parameter set in between leaves no trace in it
-    prob.simulate(1.1 * th, -cur, x0s + 0.1)
-    assert np.array_equal(prob.simulate(th, cur, x0s)[1], oS)
+
+    def jac(threads):
+        prob.threads = threads
+        ox, rows = prob.simulate(th, cur, x0s)
+        return ox, prob.jac_rows(rows, ox).copy()
+
+    ox, J = jac(False)
+    prob.simulate(1.1 * th, -cur, x0s + 0.1)   # the problem's buffer: this leaves no trace in the next
+    ox2, J2 = jac(True)
+    assert ox2.tobytes() == ox.tobytes() and J2.tobytes() == J.tobytes()
     for col in range(14):
         h = 1e-6 * (1 + (abs(th[col - 6]) if 6 <= col < 12 else 1.0))
-        x2, t2, c2 = x0s.copy(), th.copy(), cur.copy()
-        if col < 6:
-            x2[:, col] += h
-        elif col < 12:
-            t2[col - 6] += h
-        else:
-            c2[0, col - 12] += h
-        xp, _ = prob.simulate(t2, c2, x2, sens=False)
-        if col < 6:
-            x2[:, col] -= 2 * h
-        elif col < 12:
-            t2[col - 6] -= 2 * h
-        else:
-            c2[0, col - 12] -= 2 * h
-        xm, _ = prob.simulate(t2, c2, x2, sens=False)
-        fd = (xp - xm) / (2 * h)
+        res = []
+        for sign in (1, -1):
+            x2, t2, c2 = x0s.copy(), th.copy(), cur.copy()
+            if col < 6:
+                x2[:, col] += sign * h
+            elif col < 12:
+                t2[col - 6] += sign * h
+            else:
+                c2[0, col - 12] += sign * h
+            res.append(prob.residuals(prob.simulate(t2, c2, x2, sens=False)[0], c2))
+        fd = (res[0] - res[1]) / (2 * h)
         scale = max(np.abs(fd).max(), 1e-3)
-        assert np.abs(fd - oS[:, :, col]).max() < 1e-5 * scale, col
+        assert np.abs(fd - J[:, col]).max() < 1e-5 * scale, col

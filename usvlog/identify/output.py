@@ -12,6 +12,8 @@ standard errors come from it scaled by the residual variance).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -22,7 +24,7 @@ from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
 from .extended_oe import coarse_thrust
-from .shoot import NS, SENS_CUR_E, SENS_CUR_N, shoot
+from .shoot import NS, SENS_CUR_E, SENS_CUR_N, no_rows, shoot
 
 MAX_DT = 0.05
 OUTLIER_SIGMA = 5.0
@@ -182,19 +184,43 @@ class Problem:
         self.r_val = self.val[self.r_meas, col]
         self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
                                                                          self.sig[self.r_meas]))
-        self.r_w = 1.0 / self.r_sig0
-        self.r_run = self.seg_run[self.r_seg]
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         self.n_res = len(self.r_meas)
-        self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # row of out_S.reshape(-1, NS)
-        self.r_vel = np.flatnonzero(self.r_state >= R_VN)     # velocity rows
+        self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # its state in out_x.reshape(-1)
         self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
-        self._out_S: np.ndarray | None = None
+        # the sensitivity rows the kernel writes (shoot's row_*), per measurement: each GPS and
+        # compass residual row's own (of state n, e or psi), weighted as its residual with the
+        # sign of d(residual) = -d(state), in that row; each velocity measurement's rows psi,
+        # u, v, r unweighted into 4 rows of its own below the n_res (jac_rows makes the
+        # velocity residual rows of them)
+        pos = np.flatnonzero(self.r_state < R_VN)
+        vmeas = np.flatnonzero(self.kind == 2)
+        self.n_vmeas = len(vmeas)
+        e_meas = np.concatenate([self.r_meas[pos], np.repeat(vmeas, 4)])
+        o = np.argsort(e_meas, kind="stable")
+        self.e_dst = np.concatenate([pos, self.n_res + np.arange(4 * len(vmeas))])[o]
+        self.e_q = np.concatenate([np.minimum(self.r_state[pos], 2), np.tile(np.arange(2, 6), len(vmeas))])[o]
+        self.e_res = np.concatenate([pos, np.full(4 * len(vmeas), -1)])[o]   # residual row, -1 velocity
+        self.e_ptr = np.searchsorted(e_meas[o], np.arange(len(self.meas_t) + 1)).astype(np.int64)
+        # the velocity measurements, the run of each, and per velocity row quantity (vn, ve, r)
+        # its rows and their measurements' positions in vmeas
+        self.v_meas, self.v_run = vmeas, self.seg_run[self.meas_seg[vmeas]]
+        self.v_rows = tuple(np.flatnonzero(self.r_state == q) for q in (R_VN, R_VE, R_R))
+        self.v_k = tuple(np.searchsorted(vmeas, self.r_meas[rr]) for rr in self.v_rows)
+        self._set_weights(1.0 / self.r_sig0)
+        self._rows: np.ndarray | None = None
+        self.threads: bool | None = None
+        """Integrate the segments in two threads (the same numbers; default: with more than one
+        CPU and segment)."""
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
         scatter; ``scales``: one factor per group (gps, compass, ground velocity, yaw rate)."""
-        self.r_w = 1.0 / (self.r_sig0 * np.asarray(scales, float)[self.r_sensor])
+        self._set_weights(1.0 / (self.r_sig0 * np.asarray(scales, float)[self.r_sensor]))
+
+    def _set_weights(self, r_w) -> None:
+        self.r_w = r_w
+        self.e_w = np.where(self.e_res >= 0, -r_w[self.e_res], 1.0)   # the kernel's row weights
 
     def simulate(self, theta, currents, x0s, sens=True):
         """Integrate every segment and sample it at the measurement times.
@@ -214,62 +240,84 @@ class Problem:
         -------
         out_x : numpy.ndarray, shape (n_meas, 6)
             States at the measurement times.
-        out_S : numpy.ndarray, shape (n_meas, 6, NS)
-            Their sensitivities to [x0 (6), theta (6), current (2)] (shape (1, 6, NS)
+        rows : numpy.ndarray, shape (n_res + 4 n_vel, NS)
+            Sensitivity rows (to [x0 (6), theta (6), current (2)]) for :meth:`jac_rows`: the
+            first n_res are each GPS and compass residual row's (its state's times minus its
+            weight), then the rows psi, u, v, r of each velocity measurement (shape (0, NS)
             when ``sens`` is False). The problem's own buffer: the next call overwrites it.
         """
         seg_cur = np.ascontiguousarray(currents[self.seg_run], float)
-        nm = len(self.meas_t)
-        out_x = np.zeros((nm, 6))
+        x0s = np.ascontiguousarray(x0s, float)
+        theta = np.asarray(theta, float)
+        out_x = np.zeros((len(self.meas_t), 6))
         if sens:
             # one buffer per problem: every call writes the same rows (those of the measurement
-            # times), so it need not be zeroed again (tens of MB per call on an hour of log)
-            out_S = self._out_S
-            if out_S is None:
-                out_S = self._out_S = np.zeros((nm, 6, NS))
+            # times), so it need not be zeroed again (MB per call on an hour of log)
+            rows = self._rows
+            if rows is None:
+                rows = self._rows = np.zeros((self.n_res + 4 * self.n_vmeas, NS))
+            args = (self.e_ptr, self.e_dst, self.e_q, self.e_w, rows)
         else:
-            out_S = np.zeros((1, 6, NS))
-        shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0, self.seg_i1, np.ascontiguousarray(x0s, float),
-              np.asarray(theta, float), seg_cur, self.meas_t, self.meas_ptr, max_step(theta), sens, out_x, out_S)
-        return out_x, out_S
+            args = no_rows()
+            rows = args[-1]
+        dt = max_step(theta)
+
+        def run(a: int, b: int) -> None:   # segments a..b-1 (they write their own rows only)
+            shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0[a:b], self.seg_i1[a:b], x0s[a:b], theta,
+                  seg_cur[a:b], self.meas_t, self.meas_ptr[a:b + 1], dt, sens, out_x, *args)
+
+        threads = self.threads
+        if threads is None:
+            threads = (os.cpu_count() or 1) > 1 and self.n_seg > 1
+        if not threads:
+            run(0, self.n_seg)
+            return out_x, rows
+        # two halves of about equal grid steps, the later one in a second thread
+        steps = np.cumsum(self.seg_i1 - self.seg_i0)
+        half = int(np.clip(np.searchsorted(steps, 0.5 * steps[-1]) + 1, 1, self.n_seg - 1))
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            later = pool.submit(run, half, self.n_seg)
+            run(0, half)
+            later.result()
+        return out_x, rows
 
     def residuals(self, out_x, currents):
         """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped.
 
         ``currents`` (n_runs, 2): north, east in m/s (the ground velocity includes them)."""
         sim = out_x.reshape(-1).take(self.r_srow)     # state min(row's quantity, 2) at its measurement
-        vel = self.r_vel
-        if len(vel):
-            x = out_x[self.r_meas[vel]]
-            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
-            c, s = np.cos(psi), np.sin(psi)
-            cur = np.asarray(currents, float)[self.r_run[vel]]
-            st = self.r_state[vel]
-            sim[vel] = np.where(st == R_VN, c * u - s * v + cur[:, 0],
-                                np.where(st == R_VE, s * u + c * v + cur[:, 1], x[:, 5]))
+        if self.n_vmeas:   # once per velocity measurement, then into its three rows
+            x, c, s = self._vel_states(out_x)
+            u, v = x[:, 3], x[:, 4]
+            cur = np.asarray(currents, float)[self.v_run]
+            for rr, kk, q in zip(self.v_rows, self.v_k, (c * u - s * v + cur[:, 0], s * u + c * v + cur[:, 1],
+                                                         x[:, 5])):
+                sim[rr] = q[kk]
         d = self.r_val - sim
         d[self.r_psi] = ssa(d[self.r_psi])
         d *= self.r_w
         return d
 
-    def jac_rows(self, out_S, out_x):
-        """d(residual)/d(sensitivity columns), shape (n_res, NS)."""
-        # (n_res, NS): row min(state, 2) of each row's measurement, taken as whole rows of NS
-        J = out_S.reshape(-1, NS).take(self.r_srow, axis=0)
-        vel = self.r_vel
-        if len(vel):
-            x = out_x[self.r_meas[vel]]
-            psi, u, v = x[:, 2], x[:, 3], x[:, 4]
-            c, s = np.cos(psi), np.sin(psi)
-            Sv = out_S[self.r_meas[vel]]
-            st = self.r_state[vel]
-            dvn = (-s * u - c * v)[:, None] * Sv[:, 2] + c[:, None] * Sv[:, 3] - s[:, None] * Sv[:, 4]
-            dve = (c * u - s * v)[:, None] * Sv[:, 2] + s[:, None] * Sv[:, 3] + c[:, None] * Sv[:, 4]
+    def jac_rows(self, rows, out_x):
+        """d(residual)/d(sensitivity columns), shape (n_res, NS), from :meth:`simulate`'s
+        ``rows`` (its first n_res rows, completed in place: the velocity rows made here)."""
+        J = rows[:self.n_res]
+        if self.n_vmeas:   # once per velocity measurement, then into its three rows
+            x, c, s = self._vel_states(out_x)
+            u, v = x[:, 3], x[:, 4]
+            Sv = rows[self.n_res:].reshape(self.n_vmeas, 4, NS)   # rows psi, u, v, r of each
+            dvn = (-s * u - c * v)[:, None] * Sv[:, 0] + c[:, None] * Sv[:, 1] - s[:, None] * Sv[:, 2]
+            dve = (c * u - s * v)[:, None] * Sv[:, 0] + s[:, None] * Sv[:, 1] + c[:, None] * Sv[:, 2]
             dvn[:, SENS_CUR_N] += 1.0
             dve[:, SENS_CUR_E] += 1.0
-            J[vel] = np.where((st == R_VN)[:, None], dvn, np.where((st == R_VE)[:, None], dve, Sv[:, 5]))
-        np.multiply(J, -self.r_w[:, None], out=J)
+            for rr, kk, q in zip(self.v_rows, self.v_k, (dvn, dve, Sv[:, 3])):
+                J[rr] = q[kk] * -self.r_w[rr, None]
         return J
+
+    def _vel_states(self, out_x):
+        """States at the velocity measurements and the cosine and sine of their heading."""
+        x = out_x[self.v_meas]
+        return x, np.cos(x[:, 2]), np.sin(x[:, 2])
 
     def seg_sum(self, a):
         """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
@@ -314,7 +362,7 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     seg_cost_prev = None
     step = np.zeros_like(x0s)
     for it in range(max_iter + 1):
-        out_x, out_S = prob.simulate(theta, currents, x0s)
+        out_x, rows = prob.simulate(theta, currents, x0s)
         out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
         if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
@@ -328,7 +376,7 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 step[~worse] = 0.0
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
-        J = prob.jac_rows(out_S, out_x)
+        J = prob.jac_rows(rows, out_x)
         if not np.isfinite(J.sum()):
             J[~np.isfinite(J)] = 0.0
         Jx = J[:, :6]
@@ -405,15 +453,14 @@ class _VP:
                 C[k, 2 * ri:2 * ri + 2] = J[k, 12:14]
             cols.append(C)
         G = np.concatenate(cols, 1)
-        # project out the segment initial states
+        # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
         JtG = prob.seg_gram(Jx, G)
         coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P)
-        Gp = G.copy()
         for k in range(prob.n_seg):
             a, b = prob.r_start[k], prob.r_start[k + 1]
-            Gp[a:b] -= Jx[a:b] @ coef[k]
-        self._key, self._r, self._J = key, r, Gp
+            G[a:b] -= Jx[a:b] @ coef[k]
+        self._key, self._r, self._J = key, r, G
 
     def fun(self, p):
         self._eval(p)
@@ -690,7 +737,7 @@ def _state_at(prob: Problem, x0s, theta, cur, run, t):
     t_start = prob.tg[prob.seg_i0[segs]]
     k = segs[max(int(np.searchsorted(t_start, t + 1e-9)) - 1, 0)]
     sub = _SingleSeg(prob, k, t)
-    out_x, _ = sub.run(theta, cur[run], x0s[k])
+    out_x = sub.run(theta, cur[run], x0s[k])
     return out_x[0]
 
 
@@ -702,11 +749,10 @@ class _SingleSeg:
         p = self.prob
         i0, i1 = p.seg_i0[self.k], p.seg_i1[self.k]
         out_x = np.zeros((1, 6))
-        out_S = np.zeros((1, 6, NS))
         shoot(p.tg, p.tau_u, p.tau_r, np.array([i0]), np.array([i1]), x0[None, :].astype(float),
               np.asarray(theta, float), np.asarray(cur, float)[None, :], np.array([float(self.t)]),
-              np.array([0, 1], np.int64), max_step(theta), False, out_x, out_S)
-        return out_x, out_S
+              np.array([0, 1], np.int64), max_step(theta), False, out_x, *no_rows())
+        return out_x
 
 
 def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarray:
@@ -719,13 +765,12 @@ def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarr
     times = np.asarray(times, float)
     i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     out_x = np.full((len(times), 6), np.nan)
-    out_S = np.zeros((1, 6, NS))
     ok = (times >= run.t_thrust[i0] - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
     tt = np.ascontiguousarray(times[ok])
     ox = np.zeros((len(tt), 6))
     shoot(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
           np.asarray(x0, float)[None, :], np.asarray(theta, float), np.asarray(current, float)[None, :],
-          tt, np.array([0, len(tt)], np.int64), max_step(theta), False, ox, out_S)
+          tt, np.array([0, len(tt)], np.int64), max_step(theta), False, ox, *no_rows())
     out_x[ok] = ox
     return out_x
 

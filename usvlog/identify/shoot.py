@@ -143,18 +143,24 @@ def _col_rk4(S, k, h, c1, c2, c3, c4):
         S[X_R, k] = s5 + w * (K1[5] + 2 * K2[5] + 2 * K3[5] + K4[5])
 
 
-@njit
+@njit(nogil=True)
 def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr, max_dt, sens,
-          out_x, out_S):
+          out_x, row_ptr, row_dst, row_q, row_w, out_rows):
     """Integrate every segment k from ``x0s[k]`` at ``tg[seg_i0[k]]`` to ``tg[seg_i1[k]]``,
-    thrust held over each grid step (RK4, sub-stepped to <= ``max_dt``); write the state (and
-    sensitivities) at the segment's measurement times ``meas_t[meas_ptr[k]:meas_ptr[k+1]]``
-    (sorted, linear interpolation inside a step).
+    thrust held over each grid step (RK4, sub-stepped to <= ``max_dt``); write the state at
+    the segment's measurement times ``meas_t[meas_ptr[k]:meas_ptr[k+1]]`` (sorted, linear
+    interpolation inside a step) into ``out_x`` (rows j of those times).
+
+    With ``sens``, the sensitivities there too, only the rows asked for: for measurement j and
+    each e in ``row_ptr[j]:row_ptr[j+1]``, row ``row_q[e]`` (a state) of its (NX, NS)
+    sensitivity matrix times ``row_w[e]`` into ``out_rows[row_dst[e]]`` (e.g. a residual
+    row's Jacobian row, weight and sign applied). Without, those four are not read.
 
     The state is held in scalars; each RK4 stage's state derivative also gives the
     coefficients of the (linear) sensitivity equations there, and the sensitivity columns
     that move are stepped one by one from those (the same arithmetic per entry as stepping
-    the whole matrix, a column's entries in registers)."""
+    the whole matrix, a column's entries in registers). Segments write disjoint rows and
+    share nothing: a caller may run groups of them in parallel threads (no GIL held)."""
     nseg = len(seg_i0)
     m, Iz, d11, d22, d33, xg = prm[P_M], prm[P_IZ], prm[P_D11], prm[P_D22], prm[P_D33], prm[P_XG]
     S = np.zeros((NX, NS))
@@ -223,7 +229,14 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
                     out_x[j, X_V] = (1 - wt) * a4 + wt * x4
                     out_x[j, X_R] = (1 - wt) * a5 + wt * x5
                     if sens:
-                        for q in range(NX):
+                        for e in range(row_ptr[j], row_ptr[j + 1]):
+                            q, d, we = row_q[e], row_dst[e], row_w[e]
                             for c in range(NS):
-                                out_S[j, q, c] = (1 - wt) * Sa[q, c] + wt * S[q, c]
+                                out_rows[d, c] = ((1 - wt) * Sa[q, c] + wt * S[q, c]) * we
                     j += 1
+
+
+def no_rows() -> tuple:
+    """:func:`shoot`'s last five arguments (row_ptr .. out_rows) when ``sens`` is False
+    (not read)."""
+    return np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, NS))
