@@ -544,26 +544,27 @@ def assemble(lits, lit_off, data, vs, ve):
 
 
 @njit
-def place_records(out, at, data, ps, pe, cid, seq0, t):
-    """MCAP Message records (publish time = log time) of one channel's payloads
-    data[ps[i]:pe[i]], written into ``out`` at ``at[i]`` (where the caller's order puts
-    them; a record is REC_HEADER + MSG_HEADER + payload bytes), channel id ``cid``,
-    sequences seq0, seq0 + 1, ... and log times ``t``. The payloads are copied straight
-    from their own buffer (no concatenation of buffers first)."""
-    c = np.uint64(cid)
-    c0 = np.uint8(c & np.uint64(255))
-    c1 = np.uint8((c >> np.uint64(8)) & np.uint64(255))
-    for i in range(len(at)):
-        p = at[i]
-        n = pe[i] - ps[i]
+def message_records(data, ps, pe, cid, seq, t):
+    """MCAP Message records (publish time = log time) for payloads data[ps[i]:pe[i]].
+
+    Returns (bytes uint8, int64 offsets of the n+1 record bounds)."""
+    n = len(ps)
+    offs = np.empty(n + 1, np.int64)
+    offs[0] = 0
+    for i in range(n):
+        offs[i + 1] = offs[i] + REC_HEADER + MSG_HEADER + (pe[i] - ps[i])
+    out = np.empty(offs[n], np.uint8)
+    for i in range(n):
+        p = offs[i]
         out[p + REC_OPCODE] = OP_MESSAGE
-        length = np.uint64(MSG_HEADER + n)
+        length = np.uint64(MSG_HEADER + pe[i] - ps[i])
         for k in range(8):
             out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
         body = p + REC_HEADER
-        out[body + MSG_CHANNEL] = c0
-        out[body + MSG_CHANNEL + 1] = c1
-        s = np.uint64(seq0 + i)
+        c = np.uint64(cid[i])
+        out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
+        out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
+        s = np.uint64(seq[i])
         for k in range(4):
             out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
         tt = np.uint64(t[i])
@@ -572,7 +573,8 @@ def place_records(out, at, data, ps, pe, cid, seq0, t):
             out[body + MSG_LOG_TIME + k] = b
             out[body + MSG_PUBLISH_TIME + k] = b
         q = body + MSG_HEADER
-        out[q:q + n] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
+        out[q:q + (pe[i] - ps[i])] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
+    return out, offs
 
 
 @njit

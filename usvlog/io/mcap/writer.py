@@ -547,32 +547,31 @@ class McapWriter:
         # by channel id (stable: a channel's pieces stay in row order), so that the messages
         # in (time, channel, row) order are a stable sort by time of the concatenation
         pieces.sort(key=lambda p: p[1])
-        ts, cids, lens, seq0 = [], [], [], []
-        for topic, cid, t, _data, ps, pe in pieces:
+        bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
+        bases: dict[int, int] = {}   # id of a buffer -> where it starts in the batch's bytes
+        base = 0
+        for topic, cid, t, data, ps, pe in pieces:
             if t.min() < 0:
                 raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-            seq0.append(self._seq[cid])
-            self._seq[cid] += len(t)
+            s0 = self._seq[cid]
+            self._seq[cid] = s0 + len(t)
+            at = bases.get(id(data))
+            if at is None:
+                at = bases[id(data)] = base
+                bufs.append(data)
+                base += len(data)
             ts.append(t)
             cids.append(np.full(len(t), cid, dtype=np.int64))
-            lens.append(pe - ps)
+            seqs.append(np.arange(s0, s0 + len(t), dtype=np.int64))
+            starts.append(ps + at)
+            ends.append(pe + at)
         if not ts:
             return
-        t_all, c_all = np.concatenate(ts), np.concatenate(cids)
-        order = np.argsort(t_all, kind="stable")   # = (time, channel, row) order: see above
-        t_all, c_all = t_all[order], c_all[order]
-        # record bounds in that order; each piece's records are placed there straight from
-        # its own buffer (the buffers are not concatenated first)
-        rec_offs = np.zeros(len(order) + 1, dtype=np.int64)
-        np.cumsum(np.concatenate(lens)[order] + (K.REC_HEADER + K.MSG_HEADER), out=rec_offs[1:])
-        at = np.empty(len(order), dtype=np.int64)
-        at[order] = rec_offs[:-1]
-        recs = np.empty(int(rec_offs[-1]), dtype=np.uint8)
-        a = 0
-        for (_topic, cid, t, data, ps, pe), s0 in zip(pieces, seq0):
-            K.place_records(recs, at[a:a + len(t)], data, ps, pe, cid, s0, t)
-            a += len(t)
-        del at
+        t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
+        order = np.argsort(t_all, kind="stable")   # = np.lexsort((s_all, c_all, t_all)): see above
+        t_all, c_all, s_all = t_all[order], c_all[order], s_all[order]
+        recs, rec_offs = K.message_records(np.concatenate(bufs), np.concatenate(starts)[order],
+                                           np.concatenate(ends)[order], c_all, s_all, t_all)
         _, first = np.unique(c_all, return_index=True)
         for cid in c_all[np.sort(first)].tolist():
             self._counts.setdefault(cid, 0)
