@@ -203,7 +203,7 @@ def control_tick(state, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gain
                                               settings[S_U_ZETA])
 
 
-@njit
+@njit(nogil=True)   # replay runs it beside the what-if closed loop (two cores)
 def run_open_loop(states, u_ref, dtheta, dt, ctrl_state, path_kind, path_prm, gains, params, settings, thrusters):
     """Controller decisions for a sequence of states (N x 6) at ticks with steps ``dt`` (N, s).
 

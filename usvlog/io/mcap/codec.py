@@ -136,7 +136,7 @@ class Codec:
         blobs: list[bytes] = []
         spans: list[tuple[int, np.ndarray, np.ndarray]] = []  # (blob index, starts, ends)
 
-        def slot(values: list | None = None, strings: list[str] | None = None, text=None) -> None:
+        def slot(values: np.ndarray | None = None, strings: list[str] | None = None, text=None) -> None:
             if strings is not None or text is not None:
                 if text is not None:   # a string column: its distinct values, each made a str once
                     codes, uniq = pd.factorize(text, use_na_sentinel=False)
@@ -148,8 +148,8 @@ class Codec:
                 ends = np.cumsum(lens)
                 blob = b"".join(dumped)
                 spans.append((len(blobs), (ends - lens)[codes], ends[codes]))
-            else:
-                blob = orjson.dumps(values)
+            else:   # a numpy column straight (orjson's numbers are the same as from a list: ~2-4x faster)
+                blob = orjson.dumps(np.ascontiguousarray(values), option=orjson.OPT_SERIALIZE_NUMPY)
                 commas = np.flatnonzero(np.frombuffer(blob, dtype=np.uint8) == 44)
                 starts = np.empty(n, dtype=np.int64)
                 ends = np.empty(n, dtype=np.int64)
@@ -168,23 +168,23 @@ class Codec:
                 t = np.asarray(col.to_numpy(), dtype=np.int64)
                 sec, nsec = np.divmod(t, _NS)
                 lits[-1] += b'{"sec":'
-                slot(sec.tolist())
+                slot(sec)
                 lits[-1] += b',"nsec":'
-                slot(nsec.tolist())
+                slot(nsec)
                 lits[-1] += b"}"
             elif f.kind == "array":
                 lits[-1] += b"["
                 for j, c in enumerate(f.columns):
                     if j:
                         lits[-1] += b","
-                    slot(np.asarray(frame[c].to_numpy(), dtype=float).tolist())
+                    slot(np.asarray(frame[c].to_numpy(), dtype=float))
                 lits[-1] += b"]"
             elif f.kind == "float":
-                slot(np.asarray(col.to_numpy(), dtype=float).tolist())
+                slot(np.asarray(col.to_numpy(), dtype=float))
             elif f.kind == "int":
-                slot(np.asarray(col.to_numpy(), dtype=np.int64).tolist())
+                slot(np.asarray(col.to_numpy(), dtype=np.int64))
             elif f.kind == "bool":
-                slot(np.asarray(col.to_numpy(), dtype=bool).tolist())
+                slot(np.asarray(col.to_numpy(), dtype=bool))
             elif pd.api.types.is_string_dtype(col.dtype) and col.dtype != object:
                 # str values only (pandas' string dtypes): grouped as they are, no str() per row;
                 # an object column may mix 1, 1.0 and True, which group as one but print apart
