@@ -231,11 +231,19 @@ class _LazyKernel:
         """The numba dispatcher (made, and numba imported, on first use)."""
         d = self._dispatcher
         if d is None:
-            d = self._dispatcher = _compile(self.py_func, self._kw)
-            # later calls through the defining module's name skip this wrapper
-            mod = sys.modules.get(self.py_func.__module__)
-            if mod is not None and getattr(mod, self.py_func.__name__, None) is self:
-                setattr(mod, self.py_func.__name__, d)
+            # One thread at a time (_compile points numba's global CACHE_DIR for a moment), under numba's own
+            # re-entrant compiler lock, so no other lock is taken in the opposite order by a thread that is
+            # compiling a kernel calling this one
+            from numba.core.compiler_lock import global_compiler_lock  # heavy: numba, for the dispatcher
+
+            with global_compiler_lock:
+                d = self._dispatcher
+                if d is None:
+                    d = self._dispatcher = _compile(self.py_func, self._kw)
+                    # later calls through the defining module's name skip this wrapper
+                    mod = sys.modules.get(self.py_func.__module__)
+                    if mod is not None and getattr(mod, self.py_func.__name__, None) is self:
+                        setattr(mod, self.py_func.__name__, d)
         return d
 
     @property
