@@ -1,24 +1,45 @@
 """The report's figures drawn on two CPUs (a forked copy draws every second one) are the bytes
-drawn one after another in this process, and a copy that fails leaves its figures to this one."""
+drawn one after another in this process, and a copy that fails leaves its figures to this one.
+
+Run in a fresh interpreter: the report forks only when no other thread runs, and a test
+worker (pytest-xdist) has threads of its own.
+"""
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
+from pathlib import Path
 
-import numpy as np
 import pytest
 
+import usvlog
+
+ROOT = Path(usvlog.__file__).resolve().parents[1]
+
+SCRIPT = r'''
+import hashlib, json, os, sys
+import numpy as np
 from usvlog.view import report as rp
 
+fail_in_copy = sys.argv[1] == "fail"
+parent = os.getpid()
+forked = []
+_init = rp._Forked.__init__
+def init(self, fn):
+    forked.append(True)
+    _init(self, fn)
+rp._Forked.__init__ = init
 
-def _figs(parent: int, fail_in_copy: bool = False):
-    """Four small figures (one the log 'lacks'); with ``fail_in_copy`` the copy cannot draw."""
+def figs(fail):
+    """Four small figures (one the log 'lacks'); with ``fail`` the copy cannot draw."""
     plt = rp._plt()
     x = np.linspace(0.0, 10.0, 2000)
-
     def make(k):
         def draw():
-            if fail_in_copy and os.getpid() != parent:
+            if fail and os.getpid() != parent:
                 raise RuntimeError("the copy fails")
             if k == 2:
                 return None
@@ -30,17 +51,33 @@ def _figs(parent: int, fail_in_copy: bool = False):
         return draw
     return [(f"f{k}.png", f"Figure {k}", make(k), "nothing") for k in range(4)]
 
+def digest(d):
+    return None if d is None else [d[0], hashlib.sha256(d[1]).hexdigest(), d[1][:8].hex()]
+
+two_cores = rp._two_cores()
+one = [rp._drawn(title, make) for _name, title, make, _needs in figs(False)]
+two = rp.draw_all(figs(fail_in_copy))
+print(json.dumps({"two_cores": two_cores, "forked": bool(forked), "one": [digest(d) for d in one],
+                  "two": [digest(d) for d in two]}))
+'''
+
 
 @pytest.mark.parametrize("fail_in_copy", [False, True])
 def test_two_cpus_draw_the_same_bytes(fail_in_copy):
-    if not rp._two_cores():
-        pytest.skip("drawing on two CPUs needs Linux, a second CPU and no other thread running")
-    pid = os.getpid()
-    one = [rp._drawn(title, make) for _name, title, make, _needs in _figs(pid)]
-    two = rp.draw_all(_figs(pid, fail_in_copy))
-    assert one[2] is None and two[2] is None
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    r = subprocess.run([sys.executable, "-c", SCRIPT, "fail" if fail_in_copy else "ok"], capture_output=True,
+                       text=True, env=env, cwd=ROOT, timeout=300)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    if not got["two_cores"]:
+        pytest.skip("drawing on two CPUs needs Linux and a second CPU")
+    assert got["forked"]                               # the copy really drew (or failed to)
+    one, two = got["one"], got["two"]
+    assert one[2] is None and two[2] is None           # the figure the log lacks, in both
     assert [d is None for d in one] == [d is None for d in two]
     for a, b in zip(one, two):
         if a is not None:
-            assert a[0] == b[0]                       # caption
-            assert a[1] == b[1] and a[1][:8] == b"\x89PNG\r\n\x1a\n"   # the very same PNG bytes
+            assert a[0] == b[0]                        # caption
+            assert a[1] == b[1]                        # the very same PNG bytes
+            assert bytes.fromhex(a[2]) == b"\x89PNG\r\n\x1a\n"
