@@ -52,7 +52,8 @@ UNITS: dict[str, tuple[str, ...]] = {
     "control":  ("usvlog.control",),
     "log":      ("usvlog.log",),
     "model":    ("usvlog.model",),
-    "base":     ("usvlog.errors", "usvlog._version", "usvlog._jit", "usvlog.resources", "usvlog.choices"),
+    "base":     ("usvlog.errors", "usvlog._version", "usvlog._jit", "usvlog._cpu", "usvlog.resources",
+                 "usvlog.choices"),
     "io":       ("usvlog.io",),
 }
 

@@ -63,12 +63,16 @@ def test_local_workers_keep_glibcs_own_trim_threshold_and_do_not_profile(monkeyp
 
     import dask
 
+    from usvlog._cpu import spare_cpu
     from usvlog.campaign.engine import Runner
 
     monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    monkeypatch.delenv("USVLOG_THREADS", raising=False)
     with Runner(workers=1) as run:
-        got = run.map(os.getenv, ["MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS"])
+        got = run.map(os.getenv, ["MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS", "USVLOG_THREADS"])
+        spare = run.map(lambda _: spare_cpu(), [0])
         cfg = run.map(dask.config.get, ["distributed.worker.profile.enabled",
                                         "distributed.worker.memory.monitor-interval"])
-    assert got == [None, "1"]
+    assert got == [None, "1", "1"]
+    assert spare == [False]   # a worker is one core: the verbs' second-core work stays in it
     assert cfg == [False, "1s"]   # no sampling thread taking the GIL every 10 ms; a calmer memory monitor

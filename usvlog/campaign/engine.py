@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from .._cpu import THREADS_VAR
 from ..errors import ConfigError
 
 
@@ -140,8 +141,12 @@ class Runner:
             # loops' health tick (20 ms), the memory monitor (100 ms) and the system monitor
             # (500 ms) run every 1, 1 and 2 s: a run takes seconds, and on a small machine the
             # scheduler, nannies and client share the cores with the workers (40 ten-minute runs
-            # on 2 cores: 3.5-3.9 s of CPU in this process instead of 5.8-6.1 s).
+            # on 2 cores: 3.5-3.9 s of CPU in this process instead of 5.8-6.1 s). Each worker is one
+            # core: its verbs keep their second-core work (threads, the report's forked drawer) in
+            # one, unless USVLOG_THREADS is set in the environment.
             with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                                  f"distributed.nanny.pre-spawn-environ.{THREADS_VAR}":
+                                      os.environ.get(THREADS_VAR) or "1",
                                   "distributed.worker.profile.enabled": False,
                                   "distributed.admin.tick.interval": "1s",
                                   "distributed.worker.memory.monitor-interval": "1s",

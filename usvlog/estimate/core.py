@@ -4,7 +4,6 @@ extended RTS smoother, innovation gating, process-noise tuning, results."""
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -15,6 +14,7 @@ from typing import Literal, overload
 import numpy as np
 import pandas as pd
 
+from .._cpu import spare_cpu
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
@@ -843,7 +843,7 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
     if not blocks:
         return
     if threads is None:
-        threads = (os.cpu_count() or 1) > 1 and blocks > 1
+        threads = spare_cpu() and blocks > 1
     buf = [kernels.SmoothBuffers(nx) for _ in range(2 if threads else 1)]
     xs, Ps, xpn, Ppn, Cn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
     resets = run[2]

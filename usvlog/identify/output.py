@@ -12,7 +12,6 @@ standard errors come from it scaled by the residual variance).
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -20,6 +19,7 @@ import numpy as np
 from scipy.linalg import qr as scipy_qr
 from scipy.optimize import least_squares
 
+from .._cpu import spare_cpu
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
@@ -268,7 +268,7 @@ class Problem:
 
         threads = self.threads
         if threads is None:
-            threads = (os.cpu_count() or 1) > 1 and self.n_seg > 1
+            threads = spare_cpu() and self.n_seg > 1
         if not threads:
             run(0, self.n_seg)
             return out_x, rows

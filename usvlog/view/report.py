@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._cpu import spare_cpu
 from ..choices import PARAM_NAMES
 from ..errors import ConfigError, OutputExistsError, StorageError
 from ..io.atomic import atomic_dir, atomic_path, deferred_signals
@@ -744,7 +745,7 @@ def _two_cores() -> bool:
     other thread running (one could hold a lock, e.g. an import's, the copy would wait on forever)."""
     import threading  # stdlib: only when a report draws
 
-    return (sys.platform.startswith("linux") and hasattr(os, "fork") and len(os.sched_getaffinity(0)) > 1
+    return (sys.platform.startswith("linux") and hasattr(os, "fork") and spare_cpu()
             and threading.active_count() == 1)
 
 
