@@ -75,4 +75,5 @@ def test_local_workers_keep_glibcs_own_trim_threshold_and_do_not_profile(monkeyp
                                         "distributed.worker.memory.monitor-interval"])
     assert got == [None, "1", "1"]
     assert spare == [False]   # a worker is one core: the verbs' second-core work stays in it
+    assert "USVLOG_THREADS" not in os.environ   # ... and the campaign's own process keeps its cores
     assert cfg == [False, "1s"]   # no sampling thread taking the GIL every 10 ms; a calmer memory monitor

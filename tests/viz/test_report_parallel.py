@@ -55,9 +55,13 @@ def digest(d):
     return None if d is None else [d[0], hashlib.sha256(d[1]).hexdigest(), d[1][:8].hex()]
 
 two_cores = rp._two_cores()
+import threading
+from usvlog._cpu import spare_cpu
+why = {"threads": [t.name for t in threading.enumerate()], "spare_cpu": spare_cpu(),
+       "affinity": len(os.sched_getaffinity(0)), "USVLOG_THREADS": os.environ.get("USVLOG_THREADS")}
 one = [rp._drawn(title, make) for _name, title, make, _needs in figs(False)]
 two = rp.draw_all(figs(fail_in_copy))
-print(json.dumps({"two_cores": two_cores, "forked": bool(forked), "one": [digest(d) for d in one],
+print(json.dumps({"two_cores": two_cores, "why": why, "forked": bool(forked), "one": [digest(d) for d in one],
                   "two": [digest(d) for d in two]}))
 '''
 
@@ -71,7 +75,7 @@ def test_two_cpus_draw_the_same_bytes(fail_in_copy):
     assert r.returncode == 0, r.stderr
     got = json.loads(r.stdout.strip().splitlines()[-1])
     if not got["two_cores"]:
-        pytest.skip("drawing on two CPUs needs Linux and a second CPU")
+        pytest.skip(f"drawing on two CPUs needs Linux, a second CPU and no other thread: {got['why']}")
     assert got["forked"]                               # the copy really drew (or failed to)
     one, two = got["one"], got["two"]
     assert one[2] is None and two[2] is None           # the figure the log lacks, in both

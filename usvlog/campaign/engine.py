@@ -143,16 +143,16 @@ class Runner:
             # scheduler, nannies and client share the cores with the workers (40 ten-minute runs
             # on 2 cores: 3.5-3.9 s of CPU in this process instead of 5.8-6.1 s). Each worker is one
             # core: its verbs keep their second-core work (threads, the report's forked drawer) in
-            # one, unless USVLOG_THREADS is set in the environment.
+            # one, unless USVLOG_THREADS is set in the environment. (Given as the workers' own
+            # environment: Dask's pre-spawn variables are also written into this process's.)
             with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-                                  f"distributed.nanny.pre-spawn-environ.{THREADS_VAR}":
-                                      os.environ.get(THREADS_VAR) or "1",
                                   "distributed.worker.profile.enabled": False,
                                   "distributed.admin.tick.interval": "1s",
                                   "distributed.worker.memory.monitor-interval": "1s",
                                   "distributed.admin.system-monitor.interval": "2s"}):
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                            dashboard_address=":0", silence_logs=logging.ERROR)
+                                            dashboard_address=":0", silence_logs=logging.ERROR,
+                                            env={THREADS_VAR: os.environ.get(THREADS_VAR) or "1"})
             self.client = Client(self.cluster)
         c, local = self.client, self.cluster is not None
         self.info = ClusterInfo(scheduler=str(c.scheduler.address), dashboard=_dashboard_note(c.dashboard_link, local),
