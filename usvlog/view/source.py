@@ -15,6 +15,7 @@ import importlib
 import threading
 from collections.abc import Callable
 
+from .._cpu import spare_cpu
 from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
@@ -92,7 +93,12 @@ def import_ahead(*modules: str, then: Callable[[], object] | None = None) -> Cal
     callable
         ``done()`` waits for the thread. Errors are not raised there: the caller imports the
         same modules after ``done()`` and meets any error itself, as without the thread.
+        Without a spare CPU (:func:`usvlog._cpu.spare_cpu`) nothing is started and ``done()``
+        does nothing: the caller's own imports do the work.
     """
+    if not spare_cpu():
+        return lambda: None
+
     def run() -> None:
         try:
             for m in modules:
