@@ -188,6 +188,21 @@ _MAX_CHUNK = 1 << 32     # an uncompressed size above this is taken as a damaged
 _DAY_NS = 86_400 * 10**9
 
 
+_DECOMPRESSED = [0]   # chunks this process has decompressed (see chunks_decompressed)
+
+
+def chunks_decompressed() -> int:
+    """How many chunk records this process's reads have decompressed so far (every chunk
+    a read does not skip is decompressed and its CRC checked, by any thread).
+
+    Returns
+    -------
+    int
+        The count since the module was loaded (compare two calls around a read).
+    """
+    return _DECOMPRESSED[0]
+
+
 def _chunk_data(buf, body: int, nxt: int) -> tuple[int, int, bytes]:
     """A chunk record's (start time, end time, uncompressed records), checked.
 
@@ -204,6 +219,7 @@ def _chunk_data(buf, body: int, nxt: int) -> tuple[int, int, bytes]:
         raise _CorruptChunk("its data length disagrees with its record length")
     if usize > _MAX_CHUNK:
         raise _CorruptChunk(f"implausible uncompressed size {usize}")
+    _DECOMPRESSED[0] += 1
     try:
         out = _decompress(comp, buf[p + 8:nxt], usize)
     except Exception as err:  # any decompressor failure: the chunk is damaged
@@ -1640,15 +1656,47 @@ def chunk_spans(path) -> list[tuple[int, int, frozenset]] | None:
         topics it holds; None when the file has no usable summary (damaged, cut short,
         unchunked, not MCAP).
     """
-    try:
-        with ChunkStream(path) as stream:
-            data = stream._map
-            at = _find_footer_windowed(data, stream._release_all)
-            s = _read_summary(data, at) if at >= 0 else None
-    except (FormatError, OSError):
-        return None
+    s = _summary_of(path)
     if s is None or not s.chunks:
         return None
     topic = {cid: ch[0] for cid, ch in s.channels.items()}
     return [(int(t0), int(t1), frozenset(topic.get(c, "") for c in cids))
             for _size, t0, t1, cids in (s.chunks[o] for o in s.chunk_offsets)]
+
+
+def _summary_of(path) -> _Summary | None:
+    """The summary of an MCAP file (only the footer and the summary read, their CRC
+    checked); None when it has none usable or is not MCAP."""
+    try:
+        with ChunkStream(path) as stream:
+            data = stream._map
+            at = _find_footer_windowed(data, stream._release_all)
+            return _read_summary(data, at) if at >= 0 else None
+    except (FormatError, OSError):
+        return None
+
+
+def channel_ids(path) -> dict[str, int]:
+    """Topic -> channel id of the channels an MCAP file's summary lists (a topic on more
+    than one channel left out; empty without a usable summary).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+
+    Returns
+    -------
+    dict
+        Topic -> channel id (1 to 65535).
+    """
+    s = _summary_of(path)
+    if s is None:
+        return {}
+    out: dict[str, int] = {}
+    twice = set()
+    for cid, (topic, _sid, _enc) in s.channels.items():
+        if topic in out:
+            twice.add(topic)
+        out[topic] = cid
+    return {t: c for t, c in out.items() if t not in twice}

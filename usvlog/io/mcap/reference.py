@@ -50,7 +50,7 @@ def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, di
     from mcap.records import Channel, Schema
 
     schemas, channels, both, out, ids = [], [], [], [], {}
-    for topic in log.topics:
+    for topic in log.channels:   # ids in the log's channel order, as write_log gives them
         schema, codec = _codec_for(topic, log.schemas.get(topic), log.channels[topic])
         sname, senc, sdata = _schema_record(topic, schema, codec)
         key = (sname, sdata)
@@ -67,40 +67,53 @@ def _schema_records(log: FieldLog) -> tuple[list, list, list, list[tuple[str, di
 
 def _write_log_reference(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 << 20,
                          compression: str = "zstd") -> None:
-    """Write ``log`` through the mcap library's Writer, one ``add_message`` per message
-    (the reference :func:`write_log` is tested against)."""
+    """Write ``log`` through the mcap library's Writer, one ``add_message`` per message, in
+    :func:`.writer.write_log`'s layout (the reference it is tested against): schema and
+    channel records outside chunks; each channel's messages, in (time, row) order, in
+    chunks of their own, one closed after the message that takes it past ``chunk_size``
+    (message record bytes); the chunks so closed in order of (last message's time,
+    channel id), then the channels' last chunks in that order."""
     # start-up: the mcap library loads only for the reference paths
     from mcap.writer import CompressionType, Writer
 
     comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
             "none": CompressionType.NONE}[_compression(compression)]
     _schemas, _channels, registered, encs = _schema_records(log)
-    encoded = []
-    for topic, _schema, codec in encs:
+    closed, last = [], []   # chunks: (last time, channel id, [(time, row, payload)])
+    for cid, (topic, _schema, codec) in enumerate(encs, start=1):
         frame = log.channels[topic]
         t = np.asarray(frame.index, dtype=np.int64)
         if len(t) and t.min() < 0:
             raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-        encoded.append((t, codec.encode_reference(frame, topic)))
+        payloads = codec.encode_reference(frame, topic)
+        chunk, size = [], 0
+        for r in np.argsort(t, kind="stable").tolist():
+            chunk.append((int(t[r]), r, payloads[r]))
+            size += 31 + len(payloads[r])   # a Message record: 9 + 22 bytes before the payload
+            if size > chunk_size:
+                closed.append((chunk[-1][0], cid, chunk))
+                chunk, size = [], 0
+        if chunk:
+            last.append((chunk[-1][0], cid, chunk))
     with atomic_path(path, force=force) as tmp:
         with open(tmp, "wb") as fh:
-            w = Writer(fh, chunk_size=chunk_size, compression=comp, enable_data_crcs=True)
+            w = Writer(fh, chunk_size=1 << 62, compression=comp, enable_data_crcs=True)
             w.start(profile="", library=f"usvlog {__version__}")
             for name in sorted(log.meta):
                 w.add_metadata(name, {str(k): str(v) for k, v in log.meta[name].items()})
+            # the library puts schema and channel records into its open chunk: with its chunk
+            # builder set aside they go outside chunks
+            builder, w._Writer__chunk_builder = w._Writer__chunk_builder, None
             for r in registered:
                 if hasattr(r, "topic"):
                     w.register_channel(topic=r.topic, message_encoding=r.message_encoding, schema_id=r.schema_id)
                 else:
                     w.register_schema(name=r.name, encoding=r.encoding, data=r.data)
-            if encoded:
-                t_all = np.concatenate([t for t, _ in encoded])
-                c_all = np.concatenate([np.full(len(t), i) for i, (t, _) in enumerate(encoded)])
-                r_all = np.concatenate([np.arange(len(t)) for t, _ in encoded])
-                order = np.lexsort((r_all, c_all, t_all))
-                for t_i, c_i, r_i in zip(t_all[order].tolist(), c_all[order].tolist(), r_all[order].tolist()):
-                    w.add_message(channel_id=c_i + 1, log_time=t_i, data=encoded[c_i][1][r_i],
-                                  publish_time=t_i, sequence=r_i)
+            w._Writer__chunk_builder = builder
+            for _t, cid, chunk in sorted(closed, key=lambda c: c[:2]) + sorted(last, key=lambda c: c[:2]):
+                for t_i, r_i, data in chunk:
+                    w.add_message(channel_id=cid, log_time=t_i, data=data, publish_time=t_i, sequence=r_i)
+                w.flush()
             w.finish()
 
 

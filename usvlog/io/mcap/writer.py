@@ -27,10 +27,11 @@ from . import kernels as K
 from .codec import Codec, writer_codec
 from .format import (
     _REC,
+    _U64,
     MAGIC,
     crc32,
 )
-from .reader import ChunkStream, chunk_spans
+from .reader import ChunkStream, channel_ids
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
     import pandas as pd
@@ -77,36 +78,41 @@ def write_log(log: FieldLog, path, *, force: bool = False, chunk_size: int = 1 <
     """Write ``log`` as a canonical MCAP file, atomically, through :class:`McapWriter`.
 
     The log goes through the writer in time slices of about ``slice_messages``
-    messages, so the encoding's memory is bounded by a slice, not by the log. The file
-    is the one the mcap library's ``Writer`` writes for the same messages (byte for
-    byte at the library's ``zstd_level=3``; ``_write_log_reference`` does it that way
-    and the tests compare). Metadata records come first (a truncated file keeps them),
-    then every channel, then the messages of all channels in (time, channel, row) order.
+    messages, so the encoding's memory is bounded by a slice, not by the log.
+    Metadata records come first (a truncated file keeps them), then every channel's
+    schema and channel records, then chunks each holding one channel's messages in
+    (time, row) order (:class:`McapWriter`); the message records are the mcap library's
+    ``Writer``'s for the same messages (``_write_log_reference``, the tests compare).
 
     A channel still deferred (``log.deferred``: read from a file and never touched) is
-    copied from that file's message payloads without decoding them when the file
-    stores it with the schema record and message encoding this writer uses for it: the
-    same file as after decoding it, byte for byte. It is decoded instead when the file
-    stores it otherwise, when the log was read with damage recovered, or when its messages
-    are not in the time and sequence order a usvlog file has; a file changed since it was
-    read (size or modification time) is refused (:class:`InputError`).
+    copied from that file without decoding it when the file stores it with the schema
+    record and message encoding this writer uses for it, keeping its channel id: a chunk
+    of the file holding that channel alone, in the order and with the sequence numbers a
+    usvlog file has and the writer's compression, is copied whole (its compressed bytes
+    and CRC as they are, after its CRC was checked), other messages payload by payload;
+    the same messages as after decoding it. It is decoded instead when the file stores it
+    otherwise, when the log was read with damage recovered, or when its messages are not
+    in the time and sequence order a usvlog file has; a file changed or damaged since it
+    was read (size or modification time, a chunk's CRC) is refused (:class:`InputError`).
     """
     _compression(compression)
+    ids = _channel_ids(log, log.deferred)
     copy = _copied_channels(log)
     with atomic_path(path, force=force) as tmp:
         if copy:
             try:
-                _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, copy)
+                _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, copy, ids)
                 return
             except _OutOfOrder:   # the source's messages are not in time/row order: decode them
                 assert isinstance(log.channels, Channels)
                 log.channels.load_deferred(copy)
-        _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, [])
+        _write(log, tmp, chunk_size, compression, zstd_level, slice_messages, [], ids)
 
 
 def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: int, slice_messages: int,
-           copy: list[str]) -> None:
-    """:func:`write_log` to ``tmp``, the channels ``copy`` from the log's source file."""
+           copy: list[str], ids: dict[str, int]) -> None:
+    """:func:`write_log` to ``tmp``, the channels ``copy`` from the log's source file, the
+    channels under the ids ``ids`` (:func:`_channel_ids`)."""
     decoded = log.channels.decoded() if isinstance(log.channels, Channels) else log.channels
     frames = {topic: decoded[topic] for topic in log.topics if topic not in copy}
     with open(tmp, "wb", buffering=1 << 20) as fh:
@@ -115,26 +121,41 @@ def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: in
         try:
             for name in sorted(log.meta):
                 w.add_metadata(name, log.meta[name])
-            for topic in log.topics:
-                w.add_channel(topic, log.schemas.get(topic), frames.get(topic))
+            src = log.deferred
+            for topic, cid in sorted(ids.items(), key=lambda kv: kv[1]):   # records in id order
+                w.add_channel(topic, log.schemas.get(topic), frames.get(topic), channel_id=cid)
             if not copy:
                 for batch in time_slices(frames, slice_messages):
                     w.add_frames(batch, log.schemas)
             else:
-                src = log.deferred
                 assert src is not None
-                feed = _RawFeed(src, copy)
+                feed = _RawFeed(src, copy, {t: w.add_channel(t) for t in copy})
                 cuts = _slice_cuts(_times(frames), slice_messages)
-                # frames whose times do not rise: one slice (the copied payloads held whole)
-                cuts = np.zeros(0, dtype=np.int64) if cuts is None else feed.cuts(cuts)
+                # frames whose times do not rise: one slice
+                cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
                 for k, batch in enumerate(_cut(frames, cuts)):
-                    w.add_frames(batch, log.schemas, feed.take(int(cuts[k]) if k < len(cuts) else None))
+                    # the slice and the source's chunks ending in it (the read-ahead thread
+                    # reads the next ones while the slice is encoded)
+                    w.add_frames(batch, log.schemas, *feed.take(int(cuts[k]) if k < len(cuts) else None))
                 feed.finish()
             w.finish()
         finally:
             w.close()
             if feed is not None:
                 feed.close()
+
+
+def _channel_ids(log: FieldLog, src: DeferredSource | None) -> dict[str, int]:
+    """Topic -> channel id in the file written: the channels of ``src`` (the file the log's
+    deferred channels are in) keep their ids there (its chunks are copied whole), the others
+    take the lowest ids left in the log's channel order (a log read from a file lists its
+    channels in their order there, so a log read and written again keeps the file's ids)."""
+    ids = {t: c for t, c in channel_ids(src.path).items() if t in log.channels} if src is not None else {}
+    free = (c for c in range(1, 1 << 16) if c not in ids.values())
+    for topic in log.channels:
+        if topic not in ids:
+            ids[topic] = next(free)
+    return ids
 
 
 def _copied_channels(log: FieldLog) -> list[str]:
@@ -223,7 +244,6 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
             yield batch
 
 
-_FEED_CHUNKS = 16   # a copied file's chunks per extra slice boundary
 _READ_AHEAD = 2     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
 
 
@@ -281,52 +301,87 @@ class _ReadAhead:
         self._thread.join()
 
 
-class _RawFeed:
-    """The message payloads of channels of a canonical file, by time slice, as they are
-    stored (for :func:`write_log` to copy without decoding).
+_MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, length, channel, sequence, times
 
-    Memory: the decompressed chunks read ahead of the slice being written, whose payloads
-    are copied straight into the message records (a file usvlog wrote is in time order, so
-    about one slice plus one chunk; one slice holding everything when the log's frames do
-    not rise in time).
+
+def _only_messages(records: np.ndarray, ps: np.ndarray, pe: np.ndarray) -> bool:
+    """Whether a chunk's records are exactly these message records, back to back, each with
+    its publish time equal to its log time (as this writer writes them)."""
+    starts = ps - _MSG_HEAD
+    if not len(ps) or starts[0] != 0 or pe[-1] != len(records) or np.any(starts[1:] != pe[:-1]):
+        return False
+    times = records[(starts + 9 + 6)[:, None] + np.arange(16)].view("<u8")   # log, publish time
+    return bool(np.all(times[:, 0] == times[:, 1]))
+
+
+class _RawFeed:
+    """The messages of channels of a canonical file, as they are stored, handed to a
+    :class:`McapWriter` for :func:`write_log` to copy without decoding.
+
+    The file is walked in its order (every chunk decompressed and its CRC checked, on a
+    read-ahead thread; chunks holding none of the channels skipped). A chunk holding
+    messages of one copied channel only, nothing else, in the order and with the
+    sequence numbers the writer gives them, under the same channel id, is copied whole:
+    its record's bytes as they are (compressed data, CRC), its message index rebuilt
+    (:meth:`McapWriter.add_chunk`). Other messages of the channels (chunks holding
+    several channels, messages outside chunks) are copied payload by payload into the
+    writer's own chunks. Memory: the chunks read ahead.
     """
 
-    def __init__(self, src: DeferredSource, topics: list[str]):
+    def __init__(self, src: DeferredSource, topics: list[str], ids: dict[str, int]):
         self._src = src
         # the reader's walk: CRC checks, chunks without these channels skipped (chunk index)
         self._stream = ChunkStream(src.path, topics=topics)
         self._topics = set(topics)
+        self._ids = ids          # topic -> its channel id in the file written
         self._it = None
+        self._next = None        # the batch read and not yet handed on
         self._done = False
-        self._seen = np.iinfo(np.int64).min        # latest time read so far (ns)
-        self._emitted = np.iinfo(np.int64).min     # every message before this time was handed out
         self._last: dict[str, tuple[int, int]] = {}  # topic -> (time, sequence) of its last message read
-        self._held: list = []   # per batch read: (its bytes, {topic: (times, payload starts, ends)})
 
-    def cuts(self, cuts: np.ndarray) -> np.ndarray:
-        """``cuts`` plus the start time of every :data:`_FEED_CHUNKS`-th chunk of the file
-        (so the copied payloads are sliced too)."""
-        spans = chunk_spans(self._src.path)
-        if spans is None:
-            return cuts
-        t0 = sorted(a for a, _b, _topics in spans)[::_FEED_CHUNKS][1:]
-        return np.union1d(cuts, np.asarray(t0, dtype=np.int64))
+    def _batches(self):
+        """The walk's batches, each with the bytes of its chunk record when it may be copied
+        whole (one channel; runs on the read-ahead thread)."""
+        m = self._stream._map
+        for b in self._stream._batches():
+            at, cid = b[1], b[4]
+            rec = None
+            if at >= 0 and cid[0] == cid[-1] and np.all(cid == cid[0]):
+                rec = bytes(m[at:at + _REC.size + _U64.unpack_from(m, at + 1)[0]])
+            yield b, rec
 
-    def _pull(self) -> bool:
-        """Read the next batch of messages; False at the end of the file."""
-        if self._it is None:
-            self._it = _ReadAhead(self._stream._batches())
-        try:
-            records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = next(self._it)
-        except StopIteration:
-            self._done = True
-            return False
-        if len(t):
-            if int(t.min()) < self._emitted:
-                raise _OutOfOrder
-            self._seen = max(self._seen, int(t.max()))
+    def _peek(self):
+        if self._next is None and not self._done:
+            if self._it is None:
+                self._it = _ReadAhead(self._batches())
+            try:
+                self._next = next(self._it)
+            except StopIteration:
+                self._done = True
+        return self._next
+
+    def take(self, upto: int | None) -> tuple[dict[str, list], list[tuple]]:
+        """The batches of the file, in its order, up to the first whose last message is at
+        ``upto`` (ns) or later (None: all the rest), for :meth:`McapWriter.add_frames`:
+        (topic -> payload pieces, chunks to copy whole). Raises :class:`_OutOfOrder` when a
+        channel's messages are not in time and sequence order."""
+        raw: dict[str, list] = {}
+        chunks: list[tuple] = []
+        while True:
+            item = self._peek()
+            if item is None:
+                break
+            b, rec = item
+            t = b[6]
+            if upto is not None and len(t) and int(t.max()) >= upto:
+                break
+            self._next = None
+            self._hand(b, rec, raw, chunks)
+        return raw, chunks
+
+    def _hand(self, b, rec, raw: dict[str, list], chunks: list[tuple]) -> None:
+        records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = b
         chans = self._stream._scan.channels
-        held = {}
         for c in np.unique(cid).tolist():
             topic = chans[c].topic
             if topic not in self._topics:
@@ -338,43 +393,22 @@ class _RawFeed:
                     (prev is not None and (int(tc[0]) < prev[0] or int(sc[0]) < prev[1])):
                 raise _OutOfOrder
             self._last[topic] = (int(tc[-1]), int(sc[-1]))
-            held[topic] = (tc, ps[sel], pe[sel])
-        if held:
             if at < 0:   # messages outside chunks: spans in the file's bytes, copied out
-                lo = min(int(v[1].min()) for v in held.values())
-                hi = max(int(v[2].max()) for v in held.values())
+                lo, hi = int(ps[sel].min()), int(pe[sel].max())
                 buf = np.frombuffer(bytes(records[lo:hi]), dtype=np.uint8)
-                held = {k: (v[0], v[1] - lo, v[2] - lo) for k, v in held.items()}
-            else:        # a chunk's records: the payloads are copied from it when written
-                buf = np.frombuffer(records, dtype=np.uint8) if not isinstance(records, np.ndarray) else records
-            self._held.append((buf, held))
-        return True
-
-    def take(self, upto: int | None) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]]:
-        """The payloads of every message before ``upto`` (ns; None: all the rest), topic ->
-        pieces (times, buffer, payload starts, payload ends), in row order."""
-        while not self._done and (upto is None or self._seen < upto):
-            self._pull()
-        out: dict[str, list] = {}
-        keep = []
-        for buf, held in self._held:
-            rest = {}
-            for topic, (t, ps, pe) in held.items():
-                n = len(t) if upto is None else int(np.searchsorted(t, upto, side="left"))
-                if n:
-                    out.setdefault(topic, []).append((t[:n], buf, ps[:n], pe[:n]))
-                if n < len(t):
-                    rest[topic] = (t[n:], ps[n:], pe[n:])
-            if rest:
-                keep.append((buf, rest))
-        self._held = keep
-        if upto is not None:
-            self._emitted = max(self._emitted, upto)
-        return out
+                raw.setdefault(topic, []).append((tc, buf, ps[sel] - lo, pe[sel] - lo))
+                continue
+            buf = np.frombuffer(records, dtype=np.uint8) if not isinstance(records, np.ndarray) else records
+            if rec is not None and c == self._ids.get(topic) and _only_messages(buf, ps, pe):
+                chunks.append((topic, rec, tc, sc, buf, ps, pe))
+            elif chunks and any(ch[0] == topic for ch in chunks):   # keep the channel's order
+                chunks.append((topic, None, tc, sc, buf, ps[sel], pe[sel]))
+            else:
+                raw.setdefault(topic, []).append((tc, buf, ps[sel], pe[sel]))
 
     def finish(self) -> None:
-        """After the last slice: the file must have read intact and be unchanged."""
-        assert self._done and not self._held
+        """After the last batch: the file must have read intact and be unchanged."""
+        assert self._done and self._next is None
         rep = self._stream.recovery()
         why = self._src.changed()
         if rep is not None or why is not None:
@@ -412,25 +446,29 @@ class McapWriter:
     """Canonical MCAP file written incrementally on an open binary file ``fh``.
 
     The one MCAP writing path of usvlog: :func:`write_log` writes a whole log through
-    it, the importer streams batches of frames into it. Records and chunks are those
-    the mcap library's ``Writer`` writes for the same calls (byte for byte:
-    ``_write_log_reference`` does it that way and the tests compare): schema and
-    channel records open the chunk that follows their registration; a chunk is
-    closed after the message that takes it past ``chunk_size``; then message
-    indexes, and at :meth:`finish` the Data End record with the data section's CRC
-    (metadata records have no CRC of their own: this one lets a reader tell that one
-    was damaged) and the summary (schemas, channels, statistics, chunk and metadata
-    indexes). Message records are built by compiled loops from the
-    packed output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`.
+    it, the importer streams batches of frames into it. Schema and channel records are
+    written (outside chunks) when a channel is registered. Each channel's messages go
+    into chunks of their own (a reader wanting some channels skips the others' chunks
+    by the chunk index, and a copy takes a chunk whole): a channel's chunk is closed
+    after the message that takes it past ``chunk_size`` (as the mcap library's
+    ``Writer`` closes its one chunk), then its message index follows it; chunks closed
+    by one batch are written in order of their last message's time (then channel id),
+    so the file is in about time order and its bytes do not depend on how the messages
+    were cut into batches. At :meth:`finish` come the Data End record with the data
+    section's CRC (metadata records have no CRC of their own: this one lets a reader
+    tell that one was damaged) and the summary (schemas, channels, statistics, chunk and
+    metadata indexes). Message records are built by compiled loops from the packed
+    output of :meth:`usvlog.io.mcap.codec.Codec.encode_packed`; their bytes are the
+    mcap library's for the same messages.
 
-    Memory stays flat when streaming: only the open chunk (at most ``chunk_size``
-    plus one batch: a chunk is a view of the batch's records, not a copy) and the chunks
-    being compressed (at most ``_PENDING_BYTES`` uncompressed) are held. Chunks are
-    compressed on ``threads`` worker threads (default: one fewer than the CPUs, 1 to 4; 0
-    compresses in the calling thread) while the caller encodes the next batch, and
-    written in order; :meth:`flush` and :meth:`finish` wait for them. Each message's
-    ``sequence`` is its row number in its channel over all batches, as :func:`read_log` expects; within a batch messages
-    are ordered by (time, channel, row).
+    Memory stays flat when streaming: only the open chunks (at most ``chunk_size`` per
+    channel plus one batch: a chunk is a view of the batch's records, not a copy) and
+    the chunks being compressed (at most ``_PENDING_BYTES`` uncompressed) are held.
+    Chunks are compressed on ``threads`` worker threads (default: one fewer than the
+    CPUs, 1 to 4; 0 compresses in the calling thread) while the caller encodes the next
+    batch, and written in order; :meth:`flush` and :meth:`finish` wait for them. Each
+    message's ``sequence`` is its row number in its channel over all batches, as
+    :func:`read_log` expects; within a chunk messages are in (time, row) order.
     """
 
     def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = ZSTD_LEVEL,
@@ -449,17 +487,19 @@ class McapWriter:
         self._channels: list = []
         self._topics: dict[str, tuple[int, Codec]] = {}
         self._seq: dict[int, int] = {}
-        self._counts: dict[int, int] = {}         # channel id -> messages, in order of the first message
+        self._counts: dict[int, int] = {}         # channel id -> messages
+        self._order: dict[int, None] = {}         # channel ids in order of their first chunk in the file
         self._chunk_indexes: list = []
         self._meta_index: list = []
         self._t_min: int | None = None
         self._t_max: int | None = None
         self._n = 0
-        # the open chunk: its bytes (pieces: records, views of a batch's records), their
-        # total length, and its messages' times, channels, offsets in it
-        self._open: list = []
-        self._open_len = 0
-        self._open_msgs: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        # the open chunk of each channel: its bytes (pieces: views of a batch's records),
+        # their total length, and its messages' times and offsets in it
+        self._open: dict[int, list] = {}
+        self._open_len: dict[int, int] = {}
+        self._open_msgs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        self._open_copy: dict[int, tuple] = {}   # channel id -> its last chunk, copied, not yet written
         # chunks being compressed on worker threads, written in order as they are done
         self._threads = _WORKERS if threads is None else int(threads)
         self._pool = None
@@ -487,33 +527,34 @@ class McapWriter:
         return rb.end()
 
     # -- channels and metadata -----------------------------------------------------------
-    def add_channel(self, topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None) -> int:
+    def add_channel(self, topic: str, schema: dict | None = None, frame: pd.DataFrame | None = None,
+                    channel_id: int | None = None) -> int:
         """Register ``topic`` (once; its schema: the registered one, else ``schema``, else one
-        generated from ``frame``); returns the channel id."""
+        generated from ``frame``) and write its schema and channel records; returns the
+        channel id: ``channel_id`` when given (it must be free), else the lowest free one."""
         # start-up: the mcap library loads on first write, not on read
         from mcap.records import Channel, Schema
 
         known = self._topics.get(topic)
         if known is not None:
             return known[0]
+        used = {c.id for c in self._channels}
+        if channel_id is not None and (channel_id in used or not 0 < channel_id < 1 << 16):
+            raise ValueError(f"channel {topic}: id {channel_id} is taken or out of range")
+        cid = channel_id if channel_id is not None else min(set(range(1, len(used) + 2)) - used)
         schema, codec = _codec_for(topic, schema, frame)
         sname, senc, sdata = _schema_record(topic, schema, codec)
         sid = self._schema_ids.get((sname, sdata))
         if sid is None:
             sid = self._schema_ids[(sname, sdata)] = len(self._schemas) + 1
             self._schemas.append(Schema(id=sid, name=sname, encoding=senc, data=sdata))
-            self._add_open(self._record(self._schemas[-1]))
-        cid = len(self._channels) + 1
+            self._write(self._record(self._schemas[-1]))
         self._channels.append(Channel(id=cid, topic=topic, message_encoding=codec.message_encoding, schema_id=sid,
                                       metadata={}))
-        self._add_open(self._record(self._channels[-1]))
+        self._write(self._record(self._channels[-1]))
         self._topics[topic] = (cid, codec)
         self._seq[cid] = 0
         return cid
-
-    def _add_open(self, b) -> None:
-        self._open.append(b)
-        self._open_len += len(b)
 
     def add_metadata(self, name: str, record: dict) -> None:
         """A metadata record (values stored as strings), after the messages written so far."""
@@ -526,7 +567,8 @@ class McapWriter:
 
     # -- messages ------------------------------------------------------------------------
     def add_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None = None,
-                   raw: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None = None) -> None:
+                   raw: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] | None = None,
+                   chunks: list[tuple] | None = None) -> None:
         """Append one batch: every row of every frame (index: int64 log time ns) as a message.
 
         ``raw`` adds messages already encoded, topic -> pieces (int64 log times in ns, a
@@ -534,116 +576,191 @@ class McapWriter:
         order (pieces may share a buffer): their channel must be registered
         (:meth:`add_channel`) and the payloads be what its codec writes (e.g. copied from
         a file whose channel has the same schema record).
+
+        ``chunks`` adds chunk records of another file to copy as they are (their compressed
+        bytes and CRC), ``(topic, record, times, sequences, buffer, starts, ends)``: the
+        whole Chunk record (opcode and length included), holding message records of
+        ``topic`` only, back to back, under this file's channel id for it, with publish
+        time = log time (the caller checks, e.g. from the walk that verified the chunk's
+        CRC), and its messages' int64 log times (ns), sequence numbers and payload spans in
+        ``buffer`` (the decompressed records). A chunk is copied when its compression is
+        this writer's, its times rise and its sequence numbers are the next rows of the
+        channel (those this writer gives them); else its payloads are added as ``raw``
+        ones. A channel's raw pieces come before its chunks in the batch.
         """
-        pieces: list[tuple[str, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        per: dict[int, list] = {}
         for topic, frame in frames.items():
             if not len(frame):
                 continue
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
             data, offs = self._topics[topic][1].encode_packed(frame, topic)
-            pieces.append((topic, cid, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+            per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
         for topic, parts in (raw or {}).items():
-            pieces += [(topic, self._topics[topic][0], *p) for p in parts if len(p[0])]
-        # by channel id (stable: a channel's pieces stay in row order), so that the messages
-        # in (time, channel, row) order are a stable sort by time of the concatenation
-        pieces.sort(key=lambda p: p[1])
-        bufs, ts, cids, seqs, starts, ends = [], [], [], [], [], []
+            per.setdefault(self._topics[topic][0], []).extend((topic, *p) for p in parts if len(p[0]))
+        for c in chunks or ():
+            per.setdefault(self._topics[c[0]][0], []).append(c)
+        closed: list = []
+        for cid in sorted(per):
+            pieces: list = []
+            for item in per[cid]:
+                if len(item) == 5:
+                    pieces.append(item)
+                    continue
+                topic, record, t, seq, buf, ps, pe = item
+                if record is None or not self._copyable(cid, record, t, seq):
+                    pieces.append((topic, t, buf, ps, pe))
+                    continue
+                self._add_messages(cid, pieces, closed)
+                pieces = []
+                if cid in self._open_msgs:   # the channel's earlier messages first
+                    closed.append(self._take_open(cid))
+                self._seq[cid] += len(t)
+                self._count(cid, len(t), int(t[0]), int(t[-1]))
+                done = ("copy", record, t, np.full(len(t), cid, dtype=np.int64), ps - _MSG_HEAD)
+                if _CHUNK_HEAD.unpack_from(record, _REC.size)[2] > self._chunk_size:
+                    closed.append(done)           # closed after the message taking it past the size
+                else:
+                    self._open_copy[cid] = done   # the channel's last chunk: closed by flush()
+            self._add_messages(cid, pieces, closed)
+        self._submit(closed)
+
+    def _copyable(self, cid: int, record: bytes, t: np.ndarray, seq: np.ndarray) -> bool:
+        """Whether a chunk record of another file can be copied whole (see :meth:`add_frames`)."""
+        n = len(t)
+        if not n or not np.array_equal(seq, np.arange(self._seq[cid], self._seq[cid] + n)) or \
+                (n > 1 and not bool(np.all(t[1:] >= t[:-1]))):
+            return False
+        p = _REC.size + _CHUNK_HEAD.size
+        cn_len = _CHUNK_HEAD.unpack_from(record, _REC.size)[4]
+        return bytes(record[p:p + cn_len]).decode("ascii", "replace") == {"none": ""}.get(self._comp, self._comp)
+
+    def _add_messages(self, cid: int, pieces: list, closed: list) -> None:
+        """One channel's messages of a batch into its open chunk; the chunks they fill go to
+        ``closed``."""
+        bufs, ts, starts, ends = [], [], [], []
         bases: dict[int, int] = {}   # id of a buffer -> where it starts in the batch's bytes
         base = 0
-        for topic, cid, t, data, ps, pe in pieces:
+        for topic, t, data, ps, pe in pieces:
             if t.min() < 0:
                 raise InputError(f"channel {topic}: negative time stamp at row {int(np.argmin(t))}")
-            s0 = self._seq[cid]
-            self._seq[cid] = s0 + len(t)
             at = bases.get(id(data))
             if at is None:
                 at = bases[id(data)] = base
                 bufs.append(data)
                 base += len(data)
             ts.append(t)
-            cids.append(np.full(len(t), cid, dtype=np.int64))
-            seqs.append(np.arange(s0, s0 + len(t), dtype=np.int64))
             starts.append(ps + at)
             ends.append(pe + at)
         if not ts:
             return
-        t_all, c_all, s_all = np.concatenate(ts), np.concatenate(cids), np.concatenate(seqs)
-        order = np.argsort(t_all, kind="stable")   # = np.lexsort((s_all, c_all, t_all)): see above
-        t_all, c_all, s_all = t_all[order], c_all[order], s_all[order]
-        recs, rec_offs = K.message_records(np.concatenate(bufs), np.concatenate(starts)[order],
-                                           np.concatenate(ends)[order], c_all, s_all, t_all)
-        _, first = np.unique(c_all, return_index=True)
-        for cid in c_all[np.sort(first)].tolist():
-            self._counts.setdefault(cid, 0)
-        counts = np.bincount(c_all)
-        for cid in self._counts:
-            if cid < len(counts):
-                self._counts[cid] += int(counts[cid])
-        self._n += len(t_all)
-        self._t_min = int(t_all[0]) if self._t_min is None else min(self._t_min, int(t_all[0]))
-        self._t_max = int(t_all[-1]) if self._t_max is None else max(self._t_max, int(t_all[-1]))
-        bounds = K.chunk_bounds(rec_offs, self._chunk_size, self._open_len).tolist()
+        if cid in self._open_copy:   # a copied chunk the channel's messages follow: closed now
+            closed.append(self._open_copy.pop(cid))
+        t_all = np.concatenate(ts) if len(ts) > 1 else ts[0]
+        n = len(t_all)
+        s0 = self._seq[cid]
+        self._seq[cid] = s0 + n
+        s_all = np.arange(s0, s0 + n, dtype=np.int64)   # row numbers
+        ps_all = np.concatenate(starts) if len(starts) > 1 else starts[0]
+        pe_all = np.concatenate(ends) if len(ends) > 1 else ends[0]
+        if n > 1 and not bool(np.all(t_all[1:] >= t_all[:-1])):   # rows out of time order: by (time, row)
+            order = np.argsort(t_all, kind="stable")
+            t_all, s_all, ps_all, pe_all = t_all[order], s_all[order], ps_all[order], pe_all[order]
+        recs, rec_offs = K.message_records(np.concatenate(bufs) if len(bufs) > 1 else bufs[0], ps_all, pe_all,
+                                           np.full(n, cid, dtype=np.int64), s_all, t_all)
+        self._count(cid, n, int(t_all.min()), int(t_all.max()))
+        open_len = self._open_len.get(cid, 0)
+        bounds = K.chunk_bounds(rec_offs, self._chunk_size, open_len).tolist()
         view = memoryview(recs)   # the chunks hold views of the batch's records (no copy)
         a = 0
         for k, b in enumerate(bounds):
-            at = self._open_len
-            self._add_open(view[rec_offs[a]:rec_offs[b]])
-            self._open_msgs.append((t_all[a:b], c_all[a:b], rec_offs[a:b] - rec_offs[a] + at))
-            if k < len(bounds) - 1 or self._open_len > self._chunk_size:
-                self._close_chunk()
+            at = self._open_len.get(cid, 0)
+            self._open.setdefault(cid, []).append(view[rec_offs[a]:rec_offs[b]])
+            self._open_len[cid] = at + int(rec_offs[b] - rec_offs[a])
+            self._open_msgs.setdefault(cid, []).append((t_all[a:b], rec_offs[a:b] - rec_offs[a] + at))
+            if k < len(bounds) - 1 or self._open_len[cid] > self._chunk_size:
+                closed.append(self._take_open(cid))
             a = b
 
+    def _count(self, cid: int, n: int, t0: int, t1: int) -> None:
+        self._counts[cid] = self._counts.get(cid, 0) + n
+        self._n += n
+        self._t_min = t0 if self._t_min is None else min(self._t_min, t0)
+        self._t_max = t1 if self._t_max is None else max(self._t_max, t1)
+
+    def _take_open(self, cid: int) -> tuple:
+        """The open chunk of channel ``cid``, closed: ("new", its records, times, channel ids,
+        offsets)."""
+        pieces, msgs = self._open.pop(cid), self._open_msgs.pop(cid)
+        del self._open_len[cid]
+        data = pieces[0] if len(pieces) == 1 else b"".join(pieces)   # one piece: compressed as it is
+        tc = msgs[0][0] if len(msgs) == 1 else np.concatenate([m[0] for m in msgs])
+        in_chunk = msgs[0][1] if len(msgs) == 1 else np.concatenate([m[1] for m in msgs])
+        return "new", data, tc, np.full(len(tc), cid, dtype=np.int64), in_chunk
+
     def flush(self) -> None:
-        """Close the open chunk now (if it holds messages): what was added so far is on ``fh``."""
-        if self._open_msgs:
-            self._close_chunk()
+        """Close the open chunks now: what was added so far is on ``fh``."""
+        closed = [self._take_open(cid) for cid in list(self._open_msgs)] + list(self._open_copy.values())
+        self._open_copy = {}
+        self._submit(closed)
         while self._pending:
             self._emit(*self._pending.popleft())
 
-    def _close_chunk(self) -> None:
-        # one piece (most chunks: a run of one batch's records) is compressed as it is
-        data = self._open[0] if len(self._open) == 1 else b"".join(self._open)
-        tc = np.concatenate([m[0] for m in self._open_msgs])
-        cc = np.concatenate([m[1] for m in self._open_msgs])
-        in_chunk = np.concatenate([m[2] for m in self._open_msgs])
-        self._open = []
-        self._open_len = 0
-        self._open_msgs = []
-        if self._threads <= 0 or self._comp == "none":
-            self._emit(_pack_chunk(self._comp, self._zstd_level, data), data, tc, cc, in_chunk)
-            return
-        if self._pool is None:
-            from concurrent.futures import ThreadPoolExecutor  # only when a chunk is compressed
+    def _submit(self, closed: list) -> None:
+        """Compress the chunks ``closed`` ((kind, data, times, channel ids, offsets)) and write
+        them, in order of their last message's time, then channel id (a copied chunk's
+        record is written as it is)."""
+        closed.sort(key=lambda c: (int(c[2].max()), int(c[3][0])))
+        for kind, data, tc, cc, in_chunk in closed:
+            if kind == "copy":
+                self._pending.append((data, 0, tc, cc, in_chunk))
+            elif self._threads <= 0 or self._comp == "none":
+                self._pending.append((_pack_chunk(self._comp, self._zstd_level, data), len(data), tc, cc, in_chunk))
+            else:
+                if self._pool is None:
+                    from concurrent.futures import ThreadPoolExecutor  # only when a chunk is compressed
 
-            self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="usvlog-mcap-zstd")
-        self._pending.append((self._pool.submit(_pack_chunk, self._comp, self._zstd_level, data),
-                              data, tc, cc, in_chunk))
-        self._pending_bytes += len(data)
-        # at most _PENDING_BYTES in flight (the threads compress while the caller encodes the
-        # next batch): memory stays bounded by them
-        while self._pending_bytes > _PENDING_BYTES or (self._pending and self._pending[0][0].done()):
-            self._emit(*self._pending.popleft())
+                    self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="usvlog-mcap-zstd")
+                self._pending.append((self._pool.submit(_pack_chunk, self._comp, self._zstd_level, data),
+                                      len(data), tc, cc, in_chunk))
+                self._pending_bytes += len(data)
+            # at most _PENDING_BYTES in flight (the threads compress while the caller encodes the
+            # next batch): memory stays bounded by them
+            while self._pending and (self._pending_bytes > _PENDING_BYTES or not hasattr(self._pending[0][0], "done")
+                                     or self._pending[0][0].done()):
+                self._emit(*self._pending.popleft())
 
-    def _emit(self, packed, data: bytes, tc: np.ndarray, cc: np.ndarray, in_chunk: np.ndarray) -> None:
-        """Write one chunk record (``packed``: (bytes, compression, CRC) or its future) and
-        its message indexes."""
+    def _emit(self, packed, size: int, tc: np.ndarray, cc: np.ndarray, in_chunk: np.ndarray) -> None:
+        """Write one chunk record (``packed``: (bytes, compression, CRC) of ``size``
+        uncompressed bytes, or its future, or a whole chunk record copied) and its
+        message indexes."""
         # start-up: the mcap library loads on first write, not on read
         from mcap.opcode import Opcode
         from mcap.records import ChunkIndex
 
-        if not isinstance(packed, tuple):
-            packed = packed.result()
-            self._pending_bytes -= len(data)
-        packed, cname, crc = packed
-        t0, t1 = int(tc.min()), int(tc.max())
-        # the Chunk record (mcap.records.Chunk's bytes), its compressed records written as they are
-        cn = cname.encode()
-        head = _CHUNK_HEAD.pack(t0, t1, len(data), crc, len(cn)) + cn + struct.pack("<Q", len(packed))
-        chunk_at = self._write(_REC.pack(Opcode.CHUNK, len(head) + len(packed)) + head)
-        self._write(packed)
-        rec_len = _REC.size + len(head) + len(packed)
+        if isinstance(packed, (bytes, bytearray, memoryview)):   # a chunk record copied as it is
+            t0, t1, size, _crc, cn_len = _CHUNK_HEAD.unpack_from(packed, _REC.size)
+            p = _REC.size + _CHUNK_HEAD.size
+            cname = bytes(packed[p:p + cn_len]).decode()
+            csize = struct.unpack_from("<Q", packed, p + cn_len)[0]
+            chunk_at = self._write(packed)
+            rec_len = len(packed)
+        else:
+            if not isinstance(packed, tuple):
+                packed = packed.result()
+                self._pending_bytes -= size
+            packed, cname, crc = packed
+            t0, t1 = int(tc.min()), int(tc.max())
+            # the Chunk record (mcap.records.Chunk's bytes), its compressed records written as they are
+            cn = cname.encode()
+            head = _CHUNK_HEAD.pack(t0, t1, size, crc, len(cn)) + cn + struct.pack("<Q", len(packed))
+            chunk_at = self._write(_REC.pack(Opcode.CHUNK, len(head) + len(packed)) + head)
+            self._write(packed)
+            rec_len = _REC.size + len(head) + len(packed)
+            csize = len(packed)
         # one Message Index record per channel, in order of the channel's first message in the chunk
         ids, counts, entries = K.message_index(cc, tc, in_chunk)
+        for cid in ids.tolist():
+            self._order.setdefault(cid)
         index_at = self._pos
         offsets = {}
         parts = []
@@ -660,7 +777,7 @@ class McapWriter:
             message_start_time=t0, message_end_time=t1, chunk_start_offset=chunk_at,
             chunk_length=rec_len, message_index_offsets=offsets,
             message_index_length=self._pos - index_at, compression=cname,
-            compressed_size=len(packed), uncompressed_size=len(data)))
+            compressed_size=csize, uncompressed_size=size))
 
     def close(self) -> None:
         """Stop the compression threads (after :meth:`finish`, or to give up a file half
@@ -695,8 +812,9 @@ class McapWriter:
             groups.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + g0,
                                         group_length=sb.count - g0))
 
+        counts = {c: self._counts[c] for c in self._order}   # in order of their first chunk, as the library
         stats = Statistics(attachment_count=0, channel_count=len(self._channels),
-                           channel_message_counts=dict(self._counts), chunk_count=len(self._chunk_indexes),
+                           channel_message_counts=counts, chunk_count=len(self._chunk_indexes),
                            message_count=self._n, metadata_count=len(self._meta_index),
                            message_start_time=self._t_min or 0, message_end_time=self._t_max or 0,
                            schema_count=len(self._schemas))
