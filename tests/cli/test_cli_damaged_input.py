@@ -4,6 +4,7 @@ note in its output's provenance; regress fails on a damaged dataset."""
 import json
 
 import pytest
+from mcap.reader import make_reader
 
 from usvlog.cli import main
 from usvlog.io.mcap import read_log, write_log
@@ -18,13 +19,11 @@ def damaged(tmp_path_factory):
     good = d / "good.mcap"
     write_log(simulate("excitation", SimSettings(duration_s=60.0), seed=5), good, chunk_size=32 * 1024)
     data = bytearray(good.read_bytes())
-    # the chunk records, walked from the header by their lengths
-    offs, off = [], 8 + 9 + int.from_bytes(data[9:17], "little")
-    while data[off] != 0x0F:   # up to Data End
-        if data[off] == OP_CHUNK:
-            offs.append(off)
-        off += 9 + int.from_bytes(data[off + 1:off + 9], "little")
-    assert len(offs) > 5
+    with open(good, "rb") as fh:   # the chunks holding /gnss/fix (a channel's messages have chunks of their own)
+        summary = make_reader(fh).get_summary()
+    fix = next(c.id for c in summary.channels.values() if c.topic == "/gnss/fix")
+    offs = sorted(c.chunk_start_offset for c in summary.chunk_indexes if fix in c.message_index_offsets)
+    assert len(offs) > 2 and all(data[o] == OP_CHUNK for o in offs)
     mid = offs[len(offs) // 2]
     data[mid + 9 + 24] ^= 0xFF            # the chunk's uncompressed CRC field
     bad = d / "bad.mcap"
