@@ -122,6 +122,21 @@ def peak_rss_mb(path, load: bool) -> float:
     return int(out.split()[-1]) / 1024
 
 
+def topics_read(path, log) -> None:
+    """``read_log(path, topics=[one channel])`` per channel: time (best of 3) and the chunks
+    it decompresses (a chunk holding none of the channel is skipped by the chunk index)."""
+    from usvlog.io.mcap import read_log
+    from usvlog.io.mcap.reader import chunk_spans, chunks_decompressed
+
+    n_chunks = len(chunk_spans(path) or [])
+    for topic in log.topics:
+        before = chunks_decompressed()
+        read_log(path, topics=[topic])
+        used = chunks_decompressed() - before
+        t, _ = best_of(lambda topic=topic: read_log(path, topics=[topic]))
+        print(f"read_log(topics=[{topic}]): {t:7.3f} s, {used} of {n_chunks} chunks decompressed")
+
+
 def main() -> None:
     from usvlog.io.mcap import read_log
 
@@ -142,6 +157,7 @@ def main() -> None:
           f"in CPU time {c_lib:.3f} / {c_ours:.3f} s = {c_lib / c_ours:.1f}x")
     t_crc = crc_seconds(path)
     print(f"of which CRC checks (every chunk + data section): {t_crc:.3f} s ({100 * t_crc / t_ours:.1f} % of read_log)")
+    topics_read(path, log)
     print(f"load average during the run: {os.getloadavg()[0]:.2f} (1 min), {os.cpu_count()} CPUs")
     print(f"peak RSS (VmHWM/ru_maxrss) of a fresh process loading the log: {peak:.0f} MB "
           f"({base:.0f} MB after imports alone, so {peak - base:.0f} MB for the load)")
