@@ -12,6 +12,7 @@ standard errors come from it scaled by the residual variance).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -209,9 +210,9 @@ class Problem:
         self.v_k = tuple(np.searchsorted(vmeas, self.r_meas[rr]) for rr in self.v_rows)
         self._set_weights(1.0 / self.r_sig0)
         self._rows: np.ndarray | None = None
-        self.threads: bool | None = None
+        self.threads: bool | Callable[[], bool] | None = None
         """Integrate the segments in two threads (the same numbers; default: with more than one
-        CPU and segment)."""
+        CPU and segment); a callable is asked at each :meth:`simulate` (True: with a spare CPU)."""
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
@@ -267,8 +268,8 @@ class Problem:
                   seg_cur[a:b], self.meas_t, self.meas_ptr[a:b + 1], dt, sens, out_x, *args)
 
         threads = self.threads
-        if threads is None:
-            threads = spare_cpu() and self.n_seg > 1
+        if threads is None or callable(threads):
+            threads = (threads is None or threads()) and spare_cpu() and self.n_seg > 1
         if not threads:
             run(0, self.n_seg)
             return out_x, rows
@@ -559,7 +560,8 @@ def velocity_samples(t, vn, ve, r, step_s: float = VEL_STEP_S):
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
                      currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
                      max_nfev=60, verbose=0, warm_span_s=None, velocities=None, vel_weight=0.0,
-                     max_current_mps=np.inf) -> OutputErrorResult:
+                     max_current_mps=np.inf, threads: bool | Callable[[], bool] | None = None
+                     ) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -600,6 +602,10 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Total weight of the velocity rows relative to the GPS and compass rows (0: not fitted).
     max_current_mps : float, default inf
         Bound on each current component, m/s.
+    threads : bool or callable, optional
+        :attr:`Problem.threads` of its problems: integrate the segments in two threads
+        (default: when a second CPU is spare; a callable is asked before each integration,
+        e.g. by fits running in parallel: True once the others are done).
 
     Returns
     -------
@@ -618,7 +624,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     x0_kin = x0_fn
 
     def problem(rr, seg_s):
-        return Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+        out = Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+        out.threads = threads
+        return out
 
     for si, seg_s in enumerate(stages):
         last = si == len(stages) - 1
