@@ -186,6 +186,8 @@ class Problem:
         self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
                                                                          self.sig[self.r_meas]))
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
+        # each run's residual rows, r_run_start[i]:r_run_start[i + 1] (segments are in run order)
+        self.r_run_start = np.searchsorted(self.seg_run[self.r_seg], np.arange(self.n_runs + 1))
         self.n_res = len(self.r_meas)
         self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # its state in out_x.reshape(-1)
         self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
@@ -364,7 +366,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     step = np.zeros_like(x0s)
     for it in range(max_iter + 1):
         out_x, rows = prob.simulate(theta, currents, x0s)
-        out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
+        if not np.abs(out_x[:, 3:]).max(initial=0.0) <= DIVERGED:   # one pass when none diverged (or NaN)
+            out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
         if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
             r[~np.isfinite(r)] = 1e6
@@ -444,16 +447,17 @@ class _VP:
         if np.all(np.isfinite(r)):
             self.x0s = x0s
         prob = self.prob
-        # global Jacobian columns
-        cols = [J[:, 6:12][:, self.free]]
+        # global Jacobian columns, written into one array: the free parameters', then each
+        # run's current (its rows, contiguous, from the current's columns; zero elsewhere)
+        nf = int(self.free.sum())
+        G = np.empty((prob.n_res, len(p)))
+        G[:, :nf] = J[:, 6:12] if nf == 6 else J[:, 6:12][:, self.free]
         if self.fit_current:
-            C = np.zeros((prob.n_res, 2 * prob.n_runs))
-            run = prob.seg_run[prob.r_seg]
             for ri in range(prob.n_runs):
-                k = run == ri
-                C[k, 2 * ri:2 * ri + 2] = J[k, 12:14]
-            cols.append(C)
-        G = np.concatenate(cols, 1)
+                c, a, b = nf + 2 * ri, prob.r_run_start[ri], prob.r_run_start[ri + 1]
+                G[:a, c:c + 2] = 0.0
+                G[a:b, c:c + 2] = J[a:b, 12:14]
+                G[b:, c:c + 2] = 0.0
         # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
         JtG = prob.seg_gram(Jx, G)
