@@ -412,6 +412,7 @@ class _VP:
         self._key = None
         self._ckey: bytes | None = None
         self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of _J, _r
+        self._A = np.zeros((0, 1))   # [_J r]: _J is its view
         self.nfev = 0
         self.diverged = False
 
@@ -437,7 +438,8 @@ class _VP:
                 or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]
                 or stiffness(theta) > MAX_STIFFNESS):   # outside the model's domain
             self._key, self._r = key, np.full(self.prob.n_res, 1e3)
-            self._J = np.zeros((self.prob.n_res, len(p)))
+            self._A = np.zeros((self.prob.n_res, len(p) + 1))
+            self._J = self._A[:, :-1]
             self.diverged = True
             return
         with np.errstate(over="ignore", invalid="ignore"):
@@ -448,9 +450,11 @@ class _VP:
             self.x0s = x0s
         prob = self.prob
         # global Jacobian columns, written into one array: the free parameters', then each
-        # run's current (its rows, contiguous, from the current's columns; zero elsewhere)
+        # run's current (its rows, contiguous, from the current's columns; zero elsewhere);
+        # one more column for the residuals, written by _compress (compress_lsq's [J r])
         nf = int(self.free.sum())
-        G = np.empty((prob.n_res, len(p)))
+        A = np.empty((prob.n_res, len(p) + 1))
+        G = A[:, :-1]
         G[:, :nf] = J[:, 6:12] if nf == 6 else J[:, 6:12][:, self.free]
         if self.fit_current:
             for ri in range(prob.n_runs):
@@ -465,7 +469,7 @@ class _VP:
         for k in range(prob.n_seg):
             a, b = prob.r_start[k], prob.r_start[k + 1]
             G[a:b] -= Jx[a:b] @ coef[k]
-        self._key, self._r, self._J = key, r, G
+        self._key, self._r, self._J, self._A = key, r, G, A
 
     def fun(self, p):
         self._eval(p)
@@ -480,7 +484,9 @@ class _VP:
         self._eval(p)
         if self._ckey != self._key:
             self._ckey = self._key
-            self._c = compress_lsq(self._J, self.fun(p))
+            A = self._A           # [J r] in one array without copying J
+            A[:, -1] = self.fun(p)
+            self._c = _compress_stacked(A)
 
     def fun_small(self, p):
         """:meth:`fun` compressed to P + 1 rows (:func:`compress_lsq`): the same cost, gradient
@@ -513,7 +519,11 @@ def compress_lsq(J, r):
         ``rc^T rc = r^T r``. From the Cholesky factor of the column-scaled Gram matrix when
         it is well conditioned, else from a QR decomposition.
     """
-    A = np.column_stack([J, r])
+    return _compress_stacked(np.column_stack([J, r]))
+
+
+def _compress_stacked(A):
+    """:func:`compress_lsq` of ``A`` = [J r] (N, P + 1), C-contiguous."""
     gram = A.T @ A
     d = np.sqrt(np.diag(gram))
     d[d == 0] = 1.0
