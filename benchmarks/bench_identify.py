@@ -7,7 +7,10 @@ compare, wall seconds grow with the load). BLAS runs in one thread, as the verb 
 ``OPENBLAS_NUM_THREADS`` to choose otherwise). The numba kernels are compiled (or loaded from
 their cache) by a warm-up fit on a 2-minute log first, not counted.
 Output error includes everything it does by default: its candidates fitted on the first 70 %,
-their validation on the last 30 %, and the refit of the chosen one on all the data.
+their validation on the last 30 %, and the refit of the chosen one on all the data; it is timed
+twice, on one core (``USVLOG_THREADS=1``) and as the verb runs by default (with a spare CPU the
+candidates are fitted two at a time in threads): the same numbers, wall time falls only where
+the second core is idle.
 Before them, the shooting kernel alone (:func:`usvlog.identify.shoot.shoot` through
 ``Problem.simulate``) on the whole log in 300 s segments from the true states: one model
 evaluation with the Jacobian rows (``simulate`` + ``jac_rows``, as each Gauss-Newton step of
@@ -95,13 +98,19 @@ def main() -> None:
     true = VesselParams().as_array()
     tmpdir = tempfile.TemporaryDirectory(prefix="bench-identify-")
     tmp = Path(tmpdir.name)
-    for method in ("equation-error", "output-error"):
+    saved = os.environ.get("USVLOG_THREADS")
+    for method, threads in (("equation-error", saved), ("output-error", "1"), ("output-error", saved)):
+        if threads is None:
+            os.environ.pop("USVLOG_THREADS", None)
+        else:
+            os.environ["USVLOG_THREADS"] = threads
         load = os.getloadavg()[0]
         t, c = time.perf_counter(), time.process_time()
         idf = api.identify([log], tmp / f"{method}.toml", method=method, model=args.model, force=True)
         dt, dc = time.perf_counter() - t, time.process_time() - c
         err = 100 * (idf.theta_ / true - 1)
-        print(f"{method:15s} {dt:6.2f} s wall, {dc:6.2f} s CPU (load {load:.1f})   errors %: "
+        how = "" if method == "equation-error" else f", USVLOG_THREADS={threads or 'unset'}"
+        print(f"{method:15s} {dt:6.2f} s wall, {dc:6.2f} s CPU (load {load:.1f}{how})   errors %: "
               + ", ".join(f"{k} {e:+.2f}" for k, e in zip(PARAM_NAMES, err)))
         fp = idf.validation_fit_percent_()
         print(f"{'':15s} candidates: {len(idf.candidates_)}, chosen: {idf.chosen_.start.name}; validation "
@@ -109,6 +118,10 @@ def main() -> None:
         if idf.model_comparison_:
             mc = idf.model_comparison_
             print(f"{'':15s} better model: {mc['winner']} by {mc['margin']} points; returned: {mc.get('returned')}")
+    if saved is None:
+        os.environ.pop("USVLOG_THREADS", None)
+    else:
+        os.environ["USVLOG_THREADS"] = saved
     tmpdir.cleanup()
     print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
 

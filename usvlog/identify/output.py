@@ -12,6 +12,7 @@ standard errors come from it scaled by the residual variance).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
@@ -185,6 +186,8 @@ class Problem:
         self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
                                                                          self.sig[self.r_meas]))
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
+        # each run's residual rows, r_run_start[i]:r_run_start[i + 1] (segments are in run order)
+        self.r_run_start = np.searchsorted(self.seg_run[self.r_seg], np.arange(self.n_runs + 1))
         self.n_res = len(self.r_meas)
         self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # its state in out_x.reshape(-1)
         self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
@@ -209,9 +212,9 @@ class Problem:
         self.v_k = tuple(np.searchsorted(vmeas, self.r_meas[rr]) for rr in self.v_rows)
         self._set_weights(1.0 / self.r_sig0)
         self._rows: np.ndarray | None = None
-        self.threads: bool | None = None
+        self.threads: bool | Callable[[], bool] | None = None
         """Integrate the segments in two threads (the same numbers; default: with more than one
-        CPU and segment)."""
+        CPU and segment); a callable is asked at each :meth:`simulate` (True: with a spare CPU)."""
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
@@ -267,8 +270,8 @@ class Problem:
                   seg_cur[a:b], self.meas_t, self.meas_ptr[a:b + 1], dt, sens, out_x, *args)
 
         threads = self.threads
-        if threads is None:
-            threads = spare_cpu() and self.n_seg > 1
+        if threads is None or callable(threads):
+            threads = (threads is None or threads()) and spare_cpu() and self.n_seg > 1
         if not threads:
             run(0, self.n_seg)
             return out_x, rows
@@ -363,7 +366,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
     step = np.zeros_like(x0s)
     for it in range(max_iter + 1):
         out_x, rows = prob.simulate(theta, currents, x0s)
-        out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
+        if not np.abs(out_x[:, 3:]).max(initial=0.0) <= DIVERGED:   # one pass when none diverged (or NaN)
+            out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
         if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
             r[~np.isfinite(r)] = 1e6
@@ -408,6 +412,7 @@ class _VP:
         self._key = None
         self._ckey: bytes | None = None
         self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of _J, _r
+        self._A = np.zeros((0, 1))   # [_J r]: _J is its view
         self.nfev = 0
         self.diverged = False
 
@@ -433,7 +438,8 @@ class _VP:
                 or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]
                 or stiffness(theta) > MAX_STIFFNESS):   # outside the model's domain
             self._key, self._r = key, np.full(self.prob.n_res, 1e3)
-            self._J = np.zeros((self.prob.n_res, len(p)))
+            self._A = np.zeros((self.prob.n_res, len(p) + 1))
+            self._J = self._A[:, :-1]
             self.diverged = True
             return
         with np.errstate(over="ignore", invalid="ignore"):
@@ -443,16 +449,19 @@ class _VP:
         if np.all(np.isfinite(r)):
             self.x0s = x0s
         prob = self.prob
-        # global Jacobian columns
-        cols = [J[:, 6:12][:, self.free]]
+        # global Jacobian columns, written into one array: the free parameters', then each
+        # run's current (its rows, contiguous, from the current's columns; zero elsewhere);
+        # one more column for the residuals, written by _compress (compress_lsq's [J r])
+        nf = int(self.free.sum())
+        A = np.empty((prob.n_res, len(p) + 1))
+        G = A[:, :-1]
+        G[:, :nf] = J[:, 6:12] if nf == 6 else J[:, 6:12][:, self.free]
         if self.fit_current:
-            C = np.zeros((prob.n_res, 2 * prob.n_runs))
-            run = prob.seg_run[prob.r_seg]
             for ri in range(prob.n_runs):
-                k = run == ri
-                C[k, 2 * ri:2 * ri + 2] = J[k, 12:14]
-            cols.append(C)
-        G = np.concatenate(cols, 1)
+                c, a, b = nf + 2 * ri, prob.r_run_start[ri], prob.r_run_start[ri + 1]
+                G[:a, c:c + 2] = 0.0
+                G[a:b, c:c + 2] = J[a:b, 12:14]
+                G[b:, c:c + 2] = 0.0
         # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
         JtG = prob.seg_gram(Jx, G)
@@ -460,7 +469,7 @@ class _VP:
         for k in range(prob.n_seg):
             a, b = prob.r_start[k], prob.r_start[k + 1]
             G[a:b] -= Jx[a:b] @ coef[k]
-        self._key, self._r, self._J = key, r, G
+        self._key, self._r, self._J, self._A = key, r, G, A
 
     def fun(self, p):
         self._eval(p)
@@ -475,7 +484,9 @@ class _VP:
         self._eval(p)
         if self._ckey != self._key:
             self._ckey = self._key
-            self._c = compress_lsq(self._J, self.fun(p))
+            A = self._A           # [J r] in one array without copying J
+            A[:, -1] = self.fun(p)
+            self._c = _compress_stacked(A)
 
     def fun_small(self, p):
         """:meth:`fun` compressed to P + 1 rows (:func:`compress_lsq`): the same cost, gradient
@@ -508,7 +519,11 @@ def compress_lsq(J, r):
         ``rc^T rc = r^T r``. From the Cholesky factor of the column-scaled Gram matrix when
         it is well conditioned, else from a QR decomposition.
     """
-    A = np.column_stack([J, r])
+    return _compress_stacked(np.column_stack([J, r]))
+
+
+def _compress_stacked(A):
+    """:func:`compress_lsq` of ``A`` = [J r] (N, P + 1), C-contiguous."""
     gram = A.T @ A
     d = np.sqrt(np.diag(gram))
     d[d == 0] = 1.0
@@ -559,7 +574,8 @@ def velocity_samples(t, vn, ve, r, step_s: float = VEL_STEP_S):
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
                      currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
                      max_nfev=60, verbose=0, warm_span_s=None, velocities=None, vel_weight=0.0,
-                     max_current_mps=np.inf) -> OutputErrorResult:
+                     max_current_mps=np.inf, threads: bool | Callable[[], bool] | None = None
+                     ) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -600,6 +616,10 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Total weight of the velocity rows relative to the GPS and compass rows (0: not fitted).
     max_current_mps : float, default inf
         Bound on each current component, m/s.
+    threads : bool or callable, optional
+        :attr:`Problem.threads` of its problems: integrate the segments in two threads
+        (default: when a second CPU is spare; a callable is asked before each integration,
+        e.g. by fits running in parallel: True once the others are done).
 
     Returns
     -------
@@ -618,7 +638,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     x0_kin = x0_fn
 
     def problem(rr, seg_s):
-        return Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+        out = Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+        out.threads = threads
+        return out
 
     for si, seg_s in enumerate(stages):
         last = si == len(stages) - 1

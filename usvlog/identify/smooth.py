@@ -9,7 +9,7 @@ over-ground motion: positions, heading, ground velocity in NED and yaw rate.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lstsq
@@ -39,6 +39,9 @@ class KinStates:
     ve: np.ndarray
     r: np.ndarray
     source: str
+    # (current, the six columns :meth:`at` interpolates) of its last call: a fit asks for the
+    # states at every segment start with one current
+    _cols: tuple | None = field(default=None, init=False, repr=False, compare=False)
 
     def nu(self, current=(0.0, 0.0)):
         """Body velocities relative to the water for a constant current (N, 3).
@@ -72,9 +75,13 @@ class KinStates:
         numpy.ndarray, shape (..., 6)
             n (m), e (m), psi (rad, unwrapped), u (m/s), v (m/s), r (rad/s).
         """
-        nu = self.nu(current)
-        cols = [self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]]
-        return np.stack([np.interp(t, self.t, c) for c in cols], -1)
+        key = (float(current[0]), float(current[1]))
+        last = self._cols
+        if last is None or last[0] != key:
+            nu = self.nu(current)
+            last = (key, (self.n, self.e, self.psi, nu[:, 0], nu[:, 1], nu[:, 2]))
+            object.__setattr__(self, "_cols", last)   # a cache, not state (frozen dataclass)
+        return np.stack([np.interp(t, self.t, c) for c in last[1]], -1)
 
     def free_run_times(self, t0: float, t_thrust_end: float) -> np.ndarray:
         """Times (s) a free run is compared over: the states' from ``t0`` while there is thrust
