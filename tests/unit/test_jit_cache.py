@@ -39,7 +39,8 @@ run = closed_loop(path, vessel, ctl, duration_s=8.0, dt_s=0.05, integrator="rk4"
                   eta0=(-25.0, 3.0, 0.2), nu0=(0.5, 0.0, 0.0), schedule=np.array([[0.0, 1.0]]), rate_hz=20.0)
 print(json.dumps({"file": usvlog.__file__, "cache_dir": _jit.cache_dir(),
                   "states": run.states.tolist(), "tau": run.tau.tolist(),
-                  "compiler_set_up": "numba.np.linalg" in sys.modules}))
+                  "compiler_set_up": "numba.np.linalg" in sys.modules,
+                  "helpers_imported": "numba.np.arrayobj" in sys.modules}))
 """
 
 EDIT_FROM = "    return tau_u, tau_r\n"            # end of control_law in control/law.py
@@ -82,6 +83,8 @@ def test_edit_in_called_file_is_what_runs(tmp_path):
     np.testing.assert_array_equal(second["states"], first["states"])
     # ... without setting numba's compiler up (its registries, scipy.linalg): only compiling needs it
     assert first["compiler_set_up"] and not second["compiler_set_up"]
+    # ... nor importing the modules of numba's helpers compiled in (their environments rebuilt without them)
+    assert first["helpers_imported"] and not second["helpers_imported"]
 
     # edit the function the kernel calls, in the other file
     law = pkg / "usvlog" / "control" / "law.py"
