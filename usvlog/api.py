@@ -47,10 +47,6 @@ FIT_TOPIC = "/identify/fit"
 # the others stay in it (decoded if the verb touches one after all, e.g. /truth/state when there is
 # no estimate; copied undecoded to --out)
 _REPLAY_READS = ["/estimate/state", "/thrust/command", "/control/state"]
-# the channels estimate and identify read (usvlog.estimate.core.INPUT_TOPICS, usvlog.identify.data.INPUT_TOPICS,
-# in their order; a test checks they agree): named here so the read starts before those modules are imported
-_ESTIMATE_READS = ("/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity", "/imu/yaw_rate")
-_IDENTIFY_READS = ("/thrust/command", "/gnss/fix", "/compass/heading", "/gnss/velocity", "/imu/yaw_rate")
 
 
 def _is_path(x: Any) -> bool:
@@ -74,63 +70,19 @@ def _read(log, progress: Progress = None, topics=None, drawn=None, defer: bool =
     output made from it carries the note.
     """
     if _is_path(log):
-        log = _noted(_read_file(log, topics=topics, drawn=drawn, defer=defer), progress)
+        from .io.mcap import read_log  # heavy: imported only when a log is read
+
+        if drawn is not None:
+            from .view.source import read_drawn  # heavy: numpy (view and report import it anyway)
+
+            log = read_drawn(log, drawn, read_log)
+        else:
+            log = read_log(log, topics=topics, defer=defer)
+        if log.recovery is not None:
+            note = log.recovery.one_line()
+            _say(progress, f"{log.source}: {note}")
+            log.add_provenance(producer="usvlog load", source=str(log.source or ""), input_damage=note)
     return log
-
-
-def _read_file(path, topics=None, drawn=None, defer: bool = False):
-    """The canonical MCAP file at ``path`` loaded as :func:`_read` does, without a word."""
-    from .io.mcap import read_log  # heavy: imported only when a log is read
-
-    if drawn is not None:
-        from .view.source import read_drawn  # heavy: numpy (view and report import it anyway)
-
-        return read_drawn(path, drawn, read_log)
-    return read_log(path, topics=topics, defer=defer)
-
-
-def _noted(log, progress: Progress):
-    """``log`` read from a file, its damage report (if any) said and recorded (see :func:`_read`)."""
-    if log.recovery is not None:
-        note = log.recovery.one_line()
-        _say(progress, f"{log.source}: {note}")
-        log.add_provenance(producer="usvlog load", source=str(log.source or ""), input_damage=note)
-    return log
-
-
-def _read_ahead(reads: Sequence[tuple[Any, list[str] | None]], defer: bool = False) -> Callable[[Progress], list]:
-    """Start reading the logs of ``reads`` ((log, topics) pairs, as :func:`_read` takes them) on a
-    second thread while the caller imports its modules and checks its options.
-
-    Returns ``take(progress)``: the logs in order, as :func:`_read` gives them (damage reports
-    said then, on the caller's thread); a read's error is raised there, after the reports of
-    the logs before it. Without a spare CPU (:func:`usvlog._cpu.spare_cpu`), or when no log is
-    a path, the logs are read in ``take`` itself.
-    """
-    from ._cpu import run_ahead  # start-up: threading only when a verb reads a log
-    from .io.mcap import read_log  # noqa: F401  heavy: the reader's own imports, here before the thread starts
-
-    def load() -> list[tuple[bool, Any]]:
-        done: list[tuple[bool, Any]] = []
-        for x, topics in reads:
-            try:
-                done.append((True, _read_file(x, topics=topics, defer=defer) if _is_path(x) else x))
-            except Exception as err:  # noqa: BLE001 - raised by take(), in order
-                done.append((False, err))
-                break
-        return done
-
-    result = run_ahead(load) if any(_is_path(x) for x, _t in reads) else load
-
-    def take(progress: Progress) -> list:
-        out = []
-        for (x, _t), (ok, value) in zip(reads, result()):
-            if not ok:
-                raise value
-            out.append(_noted(value, progress) if _is_path(x) else value)
-        return out
-
-    return take
 
 
 def _vessel_file(vessel):
@@ -589,7 +541,10 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         grid), ``forward`` (the forward filter, made on first access), ``innovations``, ``report``
         (consistency, ``format()``, ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
     """
-    from .io.atomic import check_output  # heavy: numpy
+    from .estimate import EstimateSettings  # heavy: numpy, numba kernels
+    from .estimate import estimate as run_estimate
+    from .estimate.core import INPUT_TOPICS  # heavy: with the estimator
+    from .io.atomic import check_output
 
     if out is not None:
         check_output(out, force, parent=True)
@@ -598,17 +553,12 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     for k, v in delays.items():
         if v != "auto" and not isinstance(v, (int, float)):
             raise ConfigError(f"{k}_delay_s = {v!r} must be a number of seconds or 'auto'")
-    read_here = _is_path(log)
-    src = log if read_here else log.source
-    take = _read_ahead([(log, list(_ESTIMATE_READS))], defer=True)   # read while the estimator is imported
-    from .estimate import EstimateSettings  # heavy: numpy, pandas, numba kernels
-    from .estimate import estimate as run_estimate
-    from .estimate.core import INPUT_TOPICS  # heavy: with the estimator
-
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
                                 smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
                                 **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
-    [log] = take(progress)
+    read_here = _is_path(log)
+    src = log if read_here else log.source
+    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)
     ves = _vessel_file(vessel)
     _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
                    f"{''.join(f', estimating the {k} delay' for k in auto)})")
@@ -680,7 +630,9 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         ``identifier`` is the fitted Identifier (None when nothing could be fitted) and
         ``reasons`` the reasons.
     """
-    from .io.atomic import check_output, write_text_atomic  # heavy: numpy
+    from .identify import Identifier  # heavy: numpy, scipy, numba kernels
+    from .identify.data import INPUT_TOPICS  # heavy: with the Identifier
+    from .io.atomic import check_output, write_text_atomic
 
     if out is not None:
         check_output(out, force, parent=True)
@@ -690,18 +642,14 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         raise ConfigError("validate on a log or hold out a fraction, not both")
     if holdout is None and validate is not None:
         holdout = 0.0
-    # the channels the fit reads; every channel only for the first log when a copy of it is written
-    topics = list(_IDENTIFY_READS)
-    items = list(logs) if isinstance(logs, (list, tuple)) else [logs]
-    reads = [(x, None if out_log is not None and i == 0 else topics) for i, x in enumerate(items)]
-    take = _read_ahead(reads + ([(validate, topics)] if validate is not None else []))   # read while importing
-    from .identify import Identifier  # heavy: numpy, pandas, scipy, numba kernels
-
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
                      max_current_mps=max_current_mps, model=model)
     ves = _vessel_file(vessel)
-    runs = take(progress)
-    val_log = runs.pop() if validate is not None else None
+    # the channels the fit reads; every channel only for the first log when a copy of it is written
+    topics = list(INPUT_TOPICS)
+    runs = [_read(x, progress, None if out_log is not None and i == 0 else topics)
+            for i, x in enumerate(logs if isinstance(logs, (list, tuple)) else [logs])]
+    val_log = _read(validate, progress, topics) if validate is not None else None
     if gnss_delay_s is not None:
         from .estimate.latency import with_delays  # heavy: numpy
 
@@ -857,15 +805,13 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         ``log`` (input plus ``/replay/*``) and ``metrics`` (cross-track error in m, heading
         error in rad, surge error in m/s, time saturated in s, command differences).
     """
-    from .io.atomic import check_output  # heavy: numpy
-
-    if out is not None:
-        check_output(out, force, parent=True)
-    take = _read_ahead([(log, _REPLAY_READS)], defer=True)   # read while the controller's modules are imported
-    from .io.config import load_vessel_or_scenario_vessel, read_toml  # heavy: numpy, pandas, numba kernels
+    from .io.atomic import check_output  # heavy: numpy, numba kernels
+    from .io.config import load_vessel_or_scenario_vessel, read_toml
     from .replay import replay_log
     from .sim.scenario import load_gains, load_scenario
 
+    if out is not None:
+        check_output(out, force, parent=True)
     scen = load_scenario(scenario)
     if _is_path(gains):
         path = gains
@@ -877,7 +823,7 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
     read_here = _is_path(log)
     if read_here:
         _say(progress, f"reading {log}")
-    [log] = take(progress)
+    log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
     # memory: a log read here gives its channels back to the file once replay has used them
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
