@@ -3,7 +3,7 @@
     python benchmarks/bench_numba_load.py [--duration-s 600] [--runs 3]
 
 Each verb runs in a fresh interpreter (``usvlog.cli.main``) with numba's dispatcher
-instrumented: the figure per kernel is the CPU time of its first call (numba types the
+instrumented: the figure per kernel is the CPU time of its first call (of the thread calling it) (numba types the
 arguments and loads the machine code from usvlog's cache; nothing is compiled when the cache
 is warm, which a first untimed run of every verb ensures). Also printed: ``import numba``
 (paid by every verb that imports the numeric stack) and the first kernel's extra cost (numba
@@ -34,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CHILD = textwrap.dedent("""
     import json, os, sys, time
     C = time.process_time
+    T = time.thread_time   # a kernel's first call: the calling thread's CPU (a verb may read on a second thread)
     if os.environ.get("BENCH_NUMBA_OWN_LOAD"):
         import usvlog._jit
         usvlog._jit._light_loads = lambda d: d   # numba's own Cache.load_overload
@@ -44,11 +45,11 @@ CHILD = textwrap.dedent("""
     calls = []
     orig = dispatcher.Dispatcher._compile_for_args
     def timed(self, *a, **k):
-        c = C()
+        c = T()
         try:
             return orig(self, *a, **k)
         finally:
-            calls.append((self.py_func.__module__ + "." + self.py_func.__qualname__, C() - c))
+            calls.append((self.py_func.__module__ + "." + self.py_func.__qualname__, T() - c))
     dispatcher.Dispatcher._compile_for_args = timed
     from usvlog.cli import main
     try:

@@ -170,15 +170,48 @@ def _cache_load_overload(self, sig, target_context):
     """numba's ``Cache.load_overload`` without the full target refresh (see the module doc).
 
     The runtime and the hash-secret symbols are what cached machine code links against
-    beyond the symbols numba registers when its target context is made.
+    beyond the symbols numba registers when its target context is made. The environments of
+    numba's own helpers compiled into a kernel are rebuilt without importing their modules
+    (:func:`_rebuild_env`).
     """
-    from numba.core.runtime import nrt  # heavy: numba internals, loaded with numba already
+    from numba.core import environment  # heavy: numba internals, loaded with numba already
+    from numba.core.runtime import nrt
 
     nrt.rtsys.initialize(target_context)
     import numba.cpython.hashing  # noqa: F401  (registers the _numba_hashsecret_* symbols)
 
-    with self._guard_against_spurious_io_errors():
-        return self._load_overload(sig, target_context)
+    # the cached entry's pickle names numba.core.environment._rebuild_env: ours while it loads
+    # (numba's compiler lock is held here, so no other load sees it)
+    rebuild = environment._rebuild_env
+    environment._rebuild_env = functools.partial(_rebuild_env, rebuild)
+    try:
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+    finally:
+        environment._rebuild_env = rebuild
+
+
+def _rebuild_env(numba_rebuild, modname, consts, env_name):
+    """numba's ``environment._rebuild_env`` (``numba_rebuild``), but a numba module not imported
+    yet is not imported.
+
+    An environment holds the globals of the function's module, which only object-mode code
+    reads (``pylowering``); usvlog's kernels and the numba helpers compiled into them are
+    nopython code, which reads only the environment's constants. Importing the helpers' modules
+    (``numba.np.arrayobj`` registers ~360 overloads: ~0.1 s) is what a cached kernel's first
+    load spent most on; such an environment gets its module's name alone as globals.
+    """
+    from numba.core import environment  # heavy: numba internals, loaded with numba already
+
+    if modname in sys.modules or not (modname or "").startswith("numba."):
+        return numba_rebuild(modname, consts, env_name)
+    env = environment.lookup_environment(env_name)
+    if env is None:
+        env = environment.Environment({"__name__": modname})
+        env.consts[:] = consts
+        env.env_name = env_name
+        environment.Environment._memo[env_name] = env
+    return env
 
 
 def _light_loads(dispatcher):
@@ -292,11 +325,15 @@ _registered = [False]        # numba loaded and the pending functions registered
 
 
 def _register_pending() -> None:
-    from numba.extending import register_jitable  # heavy: numba, only when a kernel is first called
+    from numba.core.compiler_lock import global_compiler_lock  # heavy: numba, only when a kernel is first called
+    from numba.extending import register_jitable
 
-    _registered[0] = True
-    while _pending:
-        register_jitable(_pending.pop(0))
+    # one thread at a time: a log read on a second thread calls its first kernel while the main thread
+    # imports modules that mark functions jitable
+    with global_compiler_lock:
+        _registered[0] = True
+        while _pending:
+            register_jitable(_pending.pop(0))
 
 
 def jitable(fn):

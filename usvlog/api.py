@@ -861,7 +861,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
         The recording written (open it with ``rerun FILE``).
     """
     from .io.atomic import check_output  # heavy: numpy
-    from .view.source import VIEW_TOPICS, import_ahead  # heavy: numpy (with the recording's imports below)
+    from .view.source import VIEW_TOPICS  # heavy: numpy (with the recording's imports below)
 
     items = list(logs) if isinstance(logs, (list, tuple)) else [logs]
     if not items:
@@ -876,13 +876,11 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
     check_output(out, force, parent=True)  # fail before the work, not after
     if names is not None and len(names) != len(items):
         raise InputError(f"{len(names)} names for {len(items)} logs (one name per log)")
-    imported = import_ahead("pandas", "usvlog.view.rrd")   # rerun imported while the logs are read
     read = []
     for x in items:
         if _is_path(x):
             _say(progress, f"reading {x}")
         read.append(_read(x, progress, drawn=VIEW_TOPICS))
-    imported()
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy
     from .view.rrd import to_rrd as write_rrd  # heavy: rerun is imported only when a recording is made
 
@@ -921,14 +919,12 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
     pathlib.Path
         The page ``out/report.html``.
     """
-    from .view.report import check_report_outputs, load_matplotlib, write_report  # heavy: matplotlib, numpy
-    from .view.source import REPORT_TOPICS, import_ahead  # heavy: numpy (with the report's imports above)
+    from .view.report import check_report_outputs, write_report  # heavy: matplotlib, numpy
+    from .view.source import REPORT_TOPICS  # heavy: numpy (with the report's imports above)
 
     check_report_outputs(out, force)  # fail before the work, not after
-    imported = import_ahead("pandas", then=load_matplotlib)   # matplotlib imported while the logs are read
     log = _read(log, progress, drawn=REPORT_TOPICS)
     base = _read(baseline, progress, drawn=REPORT_TOPICS) if baseline is not None else None
-    imported()
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy (with the report's imports above)
 
     for lg in (log, base):

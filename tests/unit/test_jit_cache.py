@@ -39,7 +39,8 @@ run = closed_loop(path, vessel, ctl, duration_s=8.0, dt_s=0.05, integrator="rk4"
                   eta0=(-25.0, 3.0, 0.2), nu0=(0.5, 0.0, 0.0), schedule=np.array([[0.0, 1.0]]), rate_hz=20.0)
 print(json.dumps({"file": usvlog.__file__, "cache_dir": _jit.cache_dir(),
                   "states": run.states.tolist(), "tau": run.tau.tolist(),
-                  "compiler_set_up": "numba.np.linalg" in sys.modules}))
+                  "compiler_set_up": "numba.np.linalg" in sys.modules,
+                  "helpers_imported": "numba.np.arrayobj" in sys.modules}))
 """
 
 EDIT_FROM = "    return tau_u, tau_r\n"            # end of control_law in control/law.py
@@ -82,6 +83,8 @@ def test_edit_in_called_file_is_what_runs(tmp_path):
     np.testing.assert_array_equal(second["states"], first["states"])
     # ... without setting numba's compiler up (its registries, scipy.linalg): only compiling needs it
     assert first["compiler_set_up"] and not second["compiler_set_up"]
+    # ... nor importing the modules of numba's helpers compiled in (their environments rebuilt without them)
+    assert first["helpers_imported"] and not second["helpers_imported"]
 
     # edit the function the kernel calls, in the other file
     law = pkg / "usvlog" / "control" / "law.py"
@@ -178,3 +181,48 @@ def test_prune_never_deletes_a_directory_used_within_the_hour(tmp_path, monkeypa
     monkeypatch.setattr(_jit, "KEEP_DIRS", 1)
     _jit._prune(str(tmp_path), _hash_dirs(tmp_path, AGES_H))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["current", "h00", "h01"]
+
+
+KERNELS = '''
+import numpy as np
+from usvlog._jit import njit
+
+
+@njit
+def sized(n):
+    return np.empty(n).size + np.zeros((n, 2)).size   # numba's array helpers, and their ValueError for n < 0
+
+
+@njit
+def checked(x):
+    if x < 0:
+        raise ValueError("negative x", x)
+    return x
+'''
+
+ERRORS = """
+import json, sys
+import probe_kernels as k
+out = [k.sized(3)]
+for f, a in ((k.sized, -1), (k.checked, -2.0)):
+    try:
+        f(a)
+    except Exception as e:
+        out.append([type(e).__name__, str(e)])
+print(json.dumps({"out": out, "helpers_imported": "numba.np.arrayobj" in sys.modules}))
+"""
+
+
+def test_errors_raised_in_cached_kernels_are_the_compiled_ones(tmp_path):
+    """A kernel loaded from the cache, its helpers' modules not imported, raises what it raised compiled."""
+    (tmp_path / "probe_kernels.py").write_text(KERNELS)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env.update(PYTHONPATH=os.pathsep.join([str(REPO), str(tmp_path)]), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    compiled, cached = (json.loads(subprocess.run([sys.executable, "-c", ERRORS], env=env, capture_output=True,
+                                                  text=True, check=True).stdout.strip().splitlines()[-1])
+                        for _ in range(2))
+    sized, negative_size, negative_x = compiled["out"]
+    assert sized == 3 + 3 * 2 and negative_size[0] == "ValueError"
+    assert negative_x == ["ValueError", str(ValueError("negative x", -2.0))]   # as Python raises it
+    assert cached["out"] == compiled["out"]
+    assert compiled["helpers_imported"] and not cached["helpers_imported"]

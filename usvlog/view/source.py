@@ -11,11 +11,8 @@ has no usable summary or is damaged.
 
 from __future__ import annotations
 
-import importlib
-import threading
 from collections.abc import Callable
 
-from .._cpu import spare_cpu
 from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
@@ -71,43 +68,3 @@ def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> 
             log.channels[t] = frame
             if t in rest.schemas:
                 log.schemas[t] = rest.schemas[t]
-
-
-def import_ahead(*modules: str, then: Callable[[], object] | None = None) -> Callable[[], None]:
-    """Import ``modules`` (then call ``then``) on a second thread while the caller reads a log.
-
-    A verb's heavy imports (rerun, matplotlib, pandas: ~1 s of start-up) hold the GIL, but
-    the read's decompression (zstd) and its compiled kernels (``nogil``) do not: on a second
-    core the two overlap. The modules are imported in the order given; list the ones the read
-    also imports (pandas) first, so both threads take the module locks in the same order.
-
-    Parameters
-    ----------
-    *modules : str
-        Module names, e.g. ``"pandas"``, ``"usvlog.view.rrd"``.
-    then : callable, optional
-        Called after the imports (e.g. choosing matplotlib's backend).
-
-    Returns
-    -------
-    callable
-        ``done()`` waits for the thread. Errors are not raised there: the caller imports the
-        same modules after ``done()`` and meets any error itself, as without the thread.
-        Without a spare CPU (:func:`usvlog._cpu.spare_cpu`) nothing is started and ``done()``
-        does nothing: the caller's own imports do the work.
-    """
-    if not spare_cpu():
-        return lambda: None
-
-    def run() -> None:
-        try:
-            for m in modules:
-                importlib.import_module(m)
-            if then is not None:
-                then()
-        except Exception:  # noqa: BLE001, S110 - the caller's own import raises it again
-            pass
-
-    th = threading.Thread(target=run, name="usvlog-import-ahead", daemon=True)
-    th.start()
-    return th.join
