@@ -12,8 +12,8 @@ benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
 
 ``--cli LOG`` instead runs ``usvlog view LOG`` and ``usvlog report LOG`` as a user would
 (separate processes, ``--repeat`` times each) and prints per run the wall time, the CPU of
-the main thread, of the import-ahead thread (rerun/matplotlib imported while the log is read),
-of the rest of the process (rerun's threads) and of the report's forked figure drawer, the
+the main thread, of the rest of the process (rerun's threads) and of the report's forked
+figure drawer, the
 peak RSS of the process and of the drawer, and the load average: what the two cores do.
 """
 
@@ -93,15 +93,7 @@ def per_row(series, path: Path, fraction: int) -> tuple[float, int]:
 
 
 PER_THREAD = """
-import os, resource, runpy, sys, threading, time
-ended = {}
-run = threading.Thread.run
-def timed(self):
-    try:
-        run(self)
-    finally:
-        ended[self.name] = time.thread_time()
-threading.Thread.run = timed
+import os, resource, runpy, sys, time
 t0 = time.perf_counter()
 sys.argv = ["usvlog", *sys.argv[1:]]
 try:
@@ -109,8 +101,8 @@ try:
 except SystemExit:
     pass
 s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-main, ahead = time.thread_time(), ended.get("usvlog-import-ahead", 0.0)
-print(f"{time.perf_counter() - t0:.2f} {s.ru_utime + s.ru_stime:.2f} {main:.2f} {ahead:.2f} "
+main = time.thread_time()
+print(f"{time.perf_counter() - t0:.2f} {s.ru_utime + s.ru_stime:.2f} {main:.2f} "
       f"{c.ru_utime + c.ru_stime:.2f} {s.ru_maxrss / 1024:.0f} {c.ru_maxrss / 1024:.0f}", file=sys.stderr)
 """
 
@@ -130,10 +122,10 @@ def cli(log: Path, repeat: int) -> None:
                 load = os.getloadavg()[0]
                 p = subprocess.run([sys.executable, "-c", PER_THREAD, *args], env=env, capture_output=True,
                                    text=True, check=True)
-                wall, cpu, main, ahead, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
-                rest = float(cpu) - float(main) - float(ahead)
+                wall, cpu, main, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
+                rest = float(cpu) - float(main)
                 print(f"{name:6s} {float(wall):5.2f} s wall; CPU {cpu} s in the process (main thread {main}, "
-                      f"import-ahead {ahead}, other threads {rest:.2f}) + {kids} s forked drawer; "
+                      f"other threads {rest:.2f}) + {kids} s forked drawer; "
                       f"peak RSS {rss} MB (drawer {kid_rss} MB); load {load:.2f}", flush=True)
 
 

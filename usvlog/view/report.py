@@ -97,11 +97,6 @@ def _plt():
     return plt
 
 
-def load_matplotlib() -> None:
-    """Import matplotlib with the report's settings (the Agg backend), e.g. while a log is read."""
-    _plt()
-
-
 # -----------------------------------------------------------------------------
 # what the stages said: one small function each
 # -----------------------------------------------------------------------------
