@@ -454,3 +454,23 @@ def test_nmea_epoch_with_a_bad_gga_keeps_the_rmc_fix(tmp_path, gga_first):
     np.testing.assert_allclose(g["lon_deg"], tr["lon"], atol=1e-8, rtol=0)
     np.testing.assert_allclose(g["alt_m"].to_numpy()[~from_rmc], 25.0)   # GGA: 5 m MSL + 20 m geoid
     assert res.report.skipped == {"nmea_bad_checksum": 1, "gnss_no_fix": 1}
+
+
+def test_binary_file_is_an_unknown_format_and_names_stay_printable(tmp_path):
+    """Random bytes that happen to read as CSV (a separator and a letter in the first line) are
+    refused as binary, not parsed as CSV; a forced CSV import's error lists the "columns" it
+    found printable and short."""
+    rng = np.random.default_rng(3)
+    data = b"a,b" + bytes(rng.integers(0, 256, 5000, dtype=np.uint8)).replace(b"\n", b" ") + b"\n"
+    p = tmp_path / "noise.bin"
+    p.write_bytes(data)
+    with pytest.raises(FormatError, match="noise.bin: unknown format .binary content"):
+        import_file(p)
+    with pytest.raises(UsvlogError, match="noise.bin") as err:
+        import_file(p, "csv")
+    msg = str(err.value)
+    assert msg.isprintable() and "\ufffd" not in msg and len(msg) < 2000
+    nmea = tmp_path / "mixed.nmea"   # a capture with a binary message among its sentences is still NMEA
+    nmea.write_bytes(("\n".join(nmea_lines()[:30]) + "\n").encode() + bytes(range(256)) + b"\n")
+    from usvlog.io.importers import detect_format
+    assert detect_format(nmea) == "nmea"

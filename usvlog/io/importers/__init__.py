@@ -236,12 +236,33 @@ def detect_format(path) -> str:
     if head.startswith(DATAFLASH_MAGIC):
         return "dataflash"
     text = head.decode("utf-8", errors="replace")
-    if looks_like_nmea(text):
+    if looks_like_nmea(text):   # before the binary check: a receiver's capture may mix binary messages in
         return "nmea"
+    if looks_binary(text):
+        raise FormatError(f"{p}: unknown format (binary content that is not a ROS bag, DataFlash or ULog; "
+                          "CSV and NMEA are text); give --format if it is one of them")
     if looks_like_csv(text):
         return "csv"
     raise FormatError(f"{p}: unknown format (not CSV, NMEA, ROS bag, DataFlash or ULog); "
                       "give --format if it is one of them")
+
+
+def looks_binary(text: str) -> bool:
+    """Whether the start of a file, decoded as UTF-8 with replacement characters, is binary
+    rather than text: a NUL, or more than 5 % of its characters undecodable or control
+    characters other than tab, CR, LF and form feed.
+
+    Parameters
+    ----------
+    text : str
+        The file's first bytes, decoded.
+    """
+    if not text:
+        return False
+    if "\0" in text:
+        return True
+    bad = sum(1 for c in text if c == "\ufffd" or (c < " " and c not in "\t\r\n\f"))
+    return bad > 0.05 * len(text)
 
 
 def file_identity(path) -> dict:

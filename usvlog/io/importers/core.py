@@ -184,10 +184,17 @@ def text_column(n: int, value: str) -> np.ndarray:
     return a
 
 
-def listing(names, limit: int = 30) -> str:
-    """``a, b, c`` of names read from a file, on one line (whitespace inside a name collapsed)."""
+def listing(names, limit: int = 30, width: int = 40) -> str:
+    """``a, b, c`` of names read from a file, on one line and printable (whitespace inside a
+    name collapsed, unprintable and undecodable characters shown as ``?``, a name cut to ``width``
+    characters)."""
     names = list(names)
-    text = ", ".join(" ".join(str(x).split()) for x in names[:limit])
+
+    def show(x) -> str:
+        s = "".join(c if c.isprintable() and c != "\ufffd" else "?" for c in " ".join(str(x).split()))
+        return s if len(s) <= width else s[:width - 3] + "..."
+
+    text = ", ".join(show(x) for x in names[:limit])
     return text + (f", ... ({len(names)} in all)" if len(names) > limit else "")
 
 
