@@ -55,6 +55,7 @@ import sys
 import tempfile
 import time
 import types
+from collections.abc import MutableMapping
 
 _PACKAGE_DIR = os.path.dirname(os.path.abspath(__file__))
 KEEP_DIRS = 8             # hash directories kept (most recently used first)
@@ -180,9 +181,14 @@ def _cache_load_overload(self, sig, target_context):
     nrt.rtsys.initialize(target_context)
     import numba.cpython.hashing  # noqa: F401  (registers the _numba_hashsecret_* symbols)
 
+    rebuild = getattr(environment, "_rebuild_env", None)
+    if rebuild is None or not hasattr(environment, "lookup_environment") or \
+            not isinstance(getattr(environment.Environment, "_memo", None), MutableMapping):
+        # a numba whose environments work otherwise: its own load
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
     # the cached entry's pickle names numba.core.environment._rebuild_env: ours while it loads
     # (numba's compiler lock is held here, so no other load sees it)
-    rebuild = environment._rebuild_env
     environment._rebuild_env = functools.partial(_rebuild_env, rebuild)
     try:
         with self._guard_against_spurious_io_errors():
