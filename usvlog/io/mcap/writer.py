@@ -24,6 +24,7 @@ from ...log.channels import (
 from ...log.fieldlog import Channels, DeferredSource, FieldLog
 from ..atomic import atomic_path
 from . import kernels as K
+from .ahead import ReadAhead
 from .codec import Codec, writer_codec
 from .format import (
     _REC,
@@ -244,63 +245,6 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
             yield batch
 
 
-_READ_AHEAD = 2     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
-
-
-class _ReadAhead:
-    """The items of iterator ``it``, produced by a thread up to ``depth`` ahead of the
-    caller (zstd decompression and the CRC release the GIL: the copied file's chunks are
-    unpacked on another core while the caller encodes). An exception of ``it`` is raised
-    by the :func:`next` that would have returned its item; :meth:`close` stops the thread
-    (it must be called before the source ``it`` reads is closed)."""
-
-    _END = object()
-
-    def __init__(self, it, depth: int = _READ_AHEAD):
-        import queue
-        import threading
-
-        self._q: queue.Queue = queue.Queue(depth)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(it,), name="usvlog-mcap-read", daemon=True)
-        self._thread.start()
-
-    def _run(self, it) -> None:
-        try:
-            for item in it:
-                self._q.put((item, None))
-                if self._stop.is_set():
-                    return
-            self._q.put((self._END, None))
-        except BaseException as err:  # noqa: BLE001 - handed to the caller's next()
-            self._q.put((None, err))
-
-    def __iter__(self):
-        return self
-
-    def __next__(self):
-        item, err = self._q.get()
-        if err is not None:
-            self._stop.set()
-            raise err
-        if item is self._END:
-            self._stop.set()
-            raise StopIteration
-        return item
-
-    def close(self) -> None:
-        """Stop the thread (waits for the item it is producing) and drop what it read."""
-        import queue
-
-        self._stop.set()
-        while self._thread.is_alive():
-            try:   # make room: the thread may be waiting to put an item
-                self._q.get(timeout=0.05)
-            except queue.Empty:
-                pass
-        self._thread.join()
-
-
 _MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, length, channel, sequence, times
 
 
@@ -353,7 +297,7 @@ class _RawFeed:
     def _peek(self):
         if self._next is None and not self._done:
             if self._it is None:
-                self._it = _ReadAhead(self._batches())
+                self._it = ReadAhead(self._batches())
             try:
                 self._next = next(self._it)
             except StopIteration:
