@@ -23,8 +23,7 @@ from scipy.optimize import least_squares
 from .._cpu import spare_cpu
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
-from .data import RunData
-from .extended_oe import coarse_thrust
+from .data import RunData, coarse_thrust
 from .shoot import NS, SENS_CUR_E, SENS_CUR_N, no_rows, shoot
 
 MAX_DT = 0.05
