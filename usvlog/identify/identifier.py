@@ -595,8 +595,11 @@ class Identifier:
         ee = self._equation_error(runs, kin)
         self.equation_error_ = ee
         self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
-        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held)
-        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
+        # the surge equation's own fit needs only equation error's start: made while the candidates are fitted
+        surge = _Once(lambda: self._surge(runs, kin, self._start(ee, vessel))) if self._surge_wanted() else None
+        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held,
+                                     meanwhile=surge)
+        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held, surge)
         if sc is not None:   # preferred in a tie: its m also agrees with the surge's own evidence
             cands.insert(0, sc)
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
@@ -743,7 +746,13 @@ class Identifier:
         return fit_surge(runs, kin, float(theta[0]), float(theta[2]), float(theta[5]), fit_current=self.current,
                          max_current_mps=self.max_current_mps)
 
-    def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held) -> Candidate | None:
+    def _surge_wanted(self) -> bool:
+        """Whether :meth:`_surge_candidate` fits the surge equation (not for the extended model
+        alone, equation or filter error, a fixed m)."""
+        return not (self.model == "extended" or self.method != "output-error" or "m" in self.fix)
+
+    def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held, surge: _Once | None = None
+                         ) -> Candidate | None:
         """Output error with m held at the surge equation's own fit, when that m is more than
         SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
         extended model alone, equation or filter error, a fixed m). It is the most preferred
@@ -754,13 +763,14 @@ class Identifier:
         The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
         whose sway and yaw are of another form the full fit can move m far from the surge's to
         absorb that mismatch (the track barely sees the surge time constant), and its surge
-        speed is then wrong. The validation judges the two."""
-        if self.model == "extended" or self.method != "output-error" or "m" in self.fix:
+        speed is then wrong. The validation judges the two. ``surge``: the surge fit from
+        equation error's start, when made already (:meth:`_fit_candidates`' ``meanwhile``)."""
+        if not self._surge_wanted():
             return None
         full = [c for c in cands if c.start.model == "paper" and c.start.kind == "output-error"
                 and c.start.vel_weight == 0]
         th = self._start(self.equation_error_, vessel)
-        sf = self._surge(runs, kin, th)
+        sf = surge.get() if surge is not None else self._surge(runs, kin, th)
         if full and not full[0].failed and 1 / SURGE_MASS_RATIO < sf.m / full[0].theta[0] < SURGE_MASS_RATIO:
             return None
         th[0] = sf.m
@@ -768,12 +778,14 @@ class Identifier:
                    surge_mass=True)
         return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, held_stderr={"m": sf.stderr["m"]})
 
-    def _fit_candidates(self, starts: list[Start], runs, kin, fit_logs, vessel, held) -> list[Candidate]:
+    def _fit_candidates(self, starts: list[Start], runs, kin, fit_logs, vessel, held,
+                        meanwhile: _Once | None = None) -> list[Candidate]:
         """:meth:`_fit_candidate` of each start, in their order. With a spare CPU the paper
         model's output-error candidates are fitted two at a time in threads (the shooting
         kernel runs without the GIL, and so does much of the arithmetic around it), each
         integrating its segments in one thread while another fit runs and in two once it is the
-        last; the others here meanwhile. The same numbers as one by one."""
+        last; the others here meanwhile, and then ``meanwhile`` (a computation the caller needs
+        next, made here while the threads run). The same numbers as one by one."""
         par = [i for i, st in enumerate(starts) if st.kind == "output-error" and st.model == "paper"]
         if len(par) < 2 or not spare_cpu():
             return [self._fit_candidate(st, runs, kin, fit_logs, vessel, held) for st in starts]
@@ -793,6 +805,8 @@ class Identifier:
             for i, st in enumerate(starts):
                 if i not in futures:
                     out[i] = self._fit_candidate(st, runs, kin, fit_logs, vessel, held)
+            if meanwhile is not None:
+                meanwhile.run()
             for i, f in futures.items():
                 out[i] = f.result()
         return [c for c in out if c is not None]
@@ -1572,6 +1586,32 @@ class Identifier:
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"
+
+
+class _Once:
+    """A computation made at most once, when first run or asked for: :meth:`get` returns its
+    result or raises its exception (at the place that needs it, wherever it was made)."""
+
+    def __init__(self, fn: Callable[[], object]):
+        self._fn = fn
+        self._out: tuple | None = None
+
+    def run(self) -> None:
+        """Make it now (once); an exception is kept for :meth:`get`."""
+        if self._out is None:
+            try:
+                self._out = (True, self._fn())
+            except Exception as err:   # raised where the result is needed
+                self._out = (False, err)
+
+    def get(self):
+        """The result (made now if it was not), or its exception raised."""
+        self.run()
+        assert self._out is not None
+        ok, val = self._out
+        if not ok:
+            raise val
+        return val
 
 
 def _validation(t, meas, sim, cur, t0: float, t_init: float) -> Validation:
