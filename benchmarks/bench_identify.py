@@ -21,13 +21,24 @@ the same numbers: wall time falls only where the second core is idle).
 the extended equation-error fit, and that fit), the errors those of its paper terms;
 ``--model both``: the paper's and the extended candidates together.
 
+``--verb LOG.mcap``: instead, the verb as a user runs it, ``usvlog identify LOG.mcap --json
+--out fit.json`` in a fresh process each time (start-up, read, fit, output): wall and CPU
+seconds (user + sys) and peak RSS per run, best of ``--runs``, and the CPU of ``import
+usvlog.identify`` alone (best of ``--runs``); with ``--against TREE`` (another checkout, e.g.
+main's) the same for its code, the two alternated run by run (a shared machine's load hits
+both alike), and whether their fit.json and stdout are byte-identical. One untimed run of
+each first (numba's cache; give ``--against-cache DIR`` as that tree's NUMBA_CACHE_DIR when it
+must differ from this one's).
+
     python benchmarks/bench_identify.py [--duration-s 3600] [--model paper|extended|both]
+    python benchmarks/bench_identify.py --verb e.mcap [--runs 3] [--against TREE [--against-cache DIR]]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys  # noqa: E402
 import tempfile
 import time
@@ -82,12 +93,77 @@ def bench_shoot(log, current) -> None:
               f"{out[1]} states only (load {os.getloadavg()[0]:.1f})")
 
 
+def _run_child(cmd: list[str], env: dict, cwd: Path) -> tuple[float, float, float, bytes]:
+    """(wall s, CPU s user + sys, peak RSS MB, stdout) of one child process."""
+    t = time.perf_counter()
+    proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    assert proc.stdout is not None
+    out = proc.stdout.read()
+    proc.stdout.close()
+    _, status, ru = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)}: exit {proc.returncode} (cwd {cwd})")
+    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024, out
+
+
+def bench_verb(log: Path, runs: int, against: Path | None, against_cache: str | None) -> None:
+    """Print the identify verb's wall, CPU and peak RSS (best of ``runs``, fresh processes),
+    this checkout's and ``against``'s alternated, and whether their outputs are identical."""
+    here = Path(__file__).resolve().parents[1]
+    trees = [("this", here, os.environ.get("NUMBA_CACHE_DIR"))]
+    if against is not None:
+        trees.append(("against", against.resolve(), against_cache or os.environ.get("NUMBA_CACHE_DIR")))
+    tmp = tempfile.TemporaryDirectory(prefix="bench-identify-verb-")
+    res: dict[str, dict] = {}
+    for name, tree, cache in trees:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        env["PYTHONPATH"] = str(tree)
+        if cache:
+            env["NUMBA_CACHE_DIR"] = cache
+        cwd = Path(tmp.name) / name
+        cwd.mkdir()
+        res[name] = {"env": env, "cwd": cwd, "verb": [], "import": []}
+    cmd = [sys.executable, "-m", "usvlog", "identify", str(log.resolve()), "--json", "--out", "fit.json", "--force"]
+    imp = [sys.executable, "-c", "import time; c = time.process_time(); import usvlog.identify; "
+           "print(time.process_time() - c)"]
+    for r in res.values():   # numba's cache loaded (or compiled) and the bytecode written, not timed
+        r["out"] = _run_child(cmd, r["env"], r["cwd"])[3]
+    print(f"usvlog identify {log.name} --json --out fit.json, fresh processes, {runs} runs alternated:")
+    for i in range(runs):
+        for name, r in res.items():
+            wall, cpu, rss, _ = _run_child(cmd, r["env"], r["cwd"])
+            r["verb"].append((wall, cpu, rss))
+            r["import"].append(float(_run_child(imp, r["env"], r["cwd"])[3]))
+            print(f"  {name:7s} run {i + 1}: {wall:5.2f} s wall, {cpu:5.2f} s CPU, {rss:4.0f} MB peak RSS, "
+                  f"import usvlog.identify {r['import'][-1]:.3f} s CPU (load {os.getloadavg()[0]:.2f})")
+    for name, r in res.items():
+        v = r["verb"]
+        print(f"{name:7s} best: {min(x[0] for x in v):5.2f} s wall, {min(x[1] for x in v):5.2f} s CPU, "
+              f"{min(x[2] for x in v):4.0f} MB; import usvlog.identify {min(r['import']):.3f} s CPU "
+              f"({r['env']['PYTHONPATH']})")
+    if against is not None:
+        a, b = res["this"], res["against"]
+        same = (a["out"] == b["out"] and (a["cwd"] / "fit.json").read_bytes() == (b["cwd"] / "fit.json").read_bytes())
+        print(f"fit.json and stdout byte-identical: {'yes' if same else 'NO'}")
+    tmp.cleanup()
+    print(f"load average: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--duration-s", type=float, default=3600.0)
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--model", choices=("paper", "extended", "both"), default="paper")
+    ap.add_argument("--verb", type=Path, help="time the verb on this canonical MCAP log instead")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--against", type=Path, help="with --verb: another checkout, alternated with this one")
+    ap.add_argument("--against-cache", help="with --against: its NUMBA_CACHE_DIR")
     args = ap.parse_args()
+    if args.verb is not None:
+        bench_verb(args.verb, args.runs, args.against, args.against_cache)
+        return
     t = time.perf_counter()
     log = simulate("excitation", SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0),
                    seed=args.seed)

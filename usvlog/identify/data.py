@@ -22,6 +22,7 @@ from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
+COARSE_STEP_S = 0.05      # default step of coarse_thrust (s): the model fits' integration step
 
 INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
 """The channels an identification reads: the thrust, and the sensors the kinematic smoother
@@ -201,3 +202,36 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
                    sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
                    sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src,
                    gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))
+
+
+def coarse_thrust(t, tau_u, tau_r, step_s: float = COARSE_STEP_S):
+    """Thrust held over steps of about ``step_s`` s: the mean of the held thrust over each
+    (the same impulse), so a fit integrates one RK4 step per step instead of per record.
+
+    Parameters
+    ----------
+    t : numpy.ndarray, shape (N,)
+        Thrust times, s (each value held until the next).
+    tau_u, tau_r : numpy.ndarray, shape (N,)
+        Surge force (N) and yaw moment (N m).
+    step_s : float
+        Target step, s.
+
+    Returns
+    -------
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        Coarse times (a subset of ``t`` with its first and last) and the mean forces held from each.
+    """
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else step_s
+    k = max(1, int(step_s / max(dt, 1e-9) + 1e-9))
+    if k == 1:
+        return t, tau_u, tau_r
+    idx = np.arange(0, len(t), k)
+    if idx[-1] != len(t) - 1:
+        idx = np.append(idx, len(t) - 1)
+    out = [t[idx]]
+    for tau in (tau_u, tau_r):
+        cum = np.concatenate([[0.0], np.cumsum(tau[:-1] * np.diff(t))])[idx]
+        mean = np.diff(cum) / np.maximum(np.diff(t[idx]), 1e-12)
+        out.append(np.ascontiguousarray(np.append(mean, tau[-1])))
+    return out[0], out[1], out[2]

@@ -25,7 +25,7 @@ from .._jit import njit
 from ..choices import EXTENDED_PARAM_NAMES
 from ..model.frames import ssa, wrap_angle
 from ..model.vessel import ExtendedParams, nu_dot_ext_terms
-from .data import RunData
+from .data import RunData, coarse_thrust
 from .extended import MAX_DT, NE
 from .smooth import KinStates
 
@@ -176,39 +176,6 @@ def free_run_full(run: RunData, theta, current, x0, t0: float, times) -> np.ndar
                   np.asarray(x0, float)[None, :], np.asarray(theta, float), float(current[0]), float(current[1]),
                   times, np.array([0, len(times)], np.int64), MAX_DT, out)
     return out
-
-
-def coarse_thrust(t, tau_u, tau_r, step_s: float = MAX_DT):
-    """Thrust held over steps of about ``step_s`` s: the mean of the held thrust over each
-    (the same impulse), so a fit integrates one RK4 step per step instead of per record.
-
-    Parameters
-    ----------
-    t : numpy.ndarray, shape (N,)
-        Thrust times, s (each value held until the next).
-    tau_u, tau_r : numpy.ndarray, shape (N,)
-        Surge force (N) and yaw moment (N m).
-    step_s : float
-        Target step, s.
-
-    Returns
-    -------
-    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
-        Coarse times (a subset of ``t`` with its first and last) and the mean forces held from each.
-    """
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else step_s
-    k = max(1, int(step_s / max(dt, 1e-9) + 1e-9))
-    if k == 1:
-        return t, tau_u, tau_r
-    idx = np.arange(0, len(t), k)
-    if idx[-1] != len(t) - 1:
-        idx = np.append(idx, len(t) - 1)
-    out = [t[idx]]
-    for tau in (tau_u, tau_r):
-        cum = np.concatenate([[0.0], np.cumsum(tau[:-1] * np.diff(t))])[idx]
-        mean = np.diff(cum) / np.maximum(np.diff(t[idx]), 1e-12)
-        out.append(np.ascontiguousarray(np.append(mean, tau[-1])))
-    return out[0], out[1], out[2]
 
 
 class _RunProblem:

@@ -7,6 +7,7 @@ import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -23,15 +24,6 @@ from ..model.stats import fit_percent
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
-from .extended import ExtendedFit, fit_extended_equation_error
-from .extended_oe import (
-    ExtendedOEResult,
-    ext_physical_problem,
-    fit_extended_output_error,
-    fit_initial_state_ext,
-    free_run_full,
-)
-from .filter import FilterErrorResult, fit_filter_error
 from .output import (
     OutputErrorResult,
     fit_initial_state,
@@ -43,6 +35,9 @@ from .output import (
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S, ThrustScale, fit_in_command_units, thrust_scale_known
+
+if TYPE_CHECKING:   # the extended model and filter error are imported where used (start-up of the default fit)
+    from .extended import ExtendedFit
 
 METHODS = IDENTIFY_METHODS
 Z95 = 1.959963984540054
@@ -591,7 +586,8 @@ class Identifier:
                 t_cut = run.t_thrust[0] + (1 - holdout) * run.duration_s
                 held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf)))
                 run, ks = run.window(-np.inf, t_cut), ks.window(-np.inf, t_cut)
-                log = _log_before(log, run.t0_ns + int(t_cut * 1e9))
+                if self.method == "filter-error":   # the only fit that reads the logs themselves
+                    log = _log_before(log, run.t0_ns + int(t_cut * 1e9))
             fit_logs.append(log)
             runs.append(run)
             kin.append(ks)
@@ -599,8 +595,11 @@ class Identifier:
         ee = self._equation_error(runs, kin)
         self.equation_error_ = ee
         self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
-        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held)
-        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
+        # the surge equation's own fit needs only equation error's start: made while the candidates are fitted
+        surge = _Once(lambda: self._surge(runs, kin, self._start(ee, vessel))) if self._surge_wanted() else None
+        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held,
+                                     meanwhile=surge)
+        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held, surge)
         if sc is not None:   # preferred in a tie: its m also agrees with the surge's own evidence
             cands.insert(0, sc)
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
@@ -695,6 +694,8 @@ class Identifier:
         extended form (preferred: the extended equation-error fit is biased by the noise of its
         regressors, m11 a third of the truth on a noisy run) and from the extended
         equation-error fit, then that fit itself."""
+        from .extended_oe import ext_physical_problem  # lazy: the extended model only
+
         ext_ee = getattr(self, "_ext_ee", None)
         assert ext_ee is not None
         paper = ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, th_paper))))).as_array()
@@ -745,7 +746,13 @@ class Identifier:
         return fit_surge(runs, kin, float(theta[0]), float(theta[2]), float(theta[5]), fit_current=self.current,
                          max_current_mps=self.max_current_mps)
 
-    def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held) -> Candidate | None:
+    def _surge_wanted(self) -> bool:
+        """Whether :meth:`_surge_candidate` fits the surge equation (not for the extended model
+        alone, equation or filter error, a fixed m)."""
+        return not (self.model == "extended" or self.method != "output-error" or "m" in self.fix)
+
+    def _surge_candidate(self, cands, runs, kin, fit_logs, vessel, held, surge: _Once | None = None
+                         ) -> Candidate | None:
         """Output error with m held at the surge equation's own fit, when that m is more than
         SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
         extended model alone, equation or filter error, a fixed m). It is the most preferred
@@ -756,13 +763,14 @@ class Identifier:
         The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
         whose sway and yaw are of another form the full fit can move m far from the surge's to
         absorb that mismatch (the track barely sees the surge time constant), and its surge
-        speed is then wrong. The validation judges the two."""
-        if self.model == "extended" or self.method != "output-error" or "m" in self.fix:
+        speed is then wrong. The validation judges the two. ``surge``: the surge fit from
+        equation error's start, when made already (:meth:`_fit_candidates`' ``meanwhile``)."""
+        if not self._surge_wanted():
             return None
         full = [c for c in cands if c.start.model == "paper" and c.start.kind == "output-error"
                 and c.start.vel_weight == 0]
         th = self._start(self.equation_error_, vessel)
-        sf = self._surge(runs, kin, th)
+        sf = surge.get() if surge is not None else self._surge(runs, kin, th)
         if full and not full[0].failed and 1 / SURGE_MASS_RATIO < sf.m / full[0].theta[0] < SURGE_MASS_RATIO:
             return None
         th[0] = sf.m
@@ -770,12 +778,14 @@ class Identifier:
                    surge_mass=True)
         return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, held_stderr={"m": sf.stderr["m"]})
 
-    def _fit_candidates(self, starts: list[Start], runs, kin, fit_logs, vessel, held) -> list[Candidate]:
+    def _fit_candidates(self, starts: list[Start], runs, kin, fit_logs, vessel, held,
+                        meanwhile: _Once | None = None) -> list[Candidate]:
         """:meth:`_fit_candidate` of each start, in their order. With a spare CPU the paper
         model's output-error candidates are fitted two at a time in threads (the shooting
         kernel runs without the GIL, and so does much of the arithmetic around it), each
         integrating its segments in one thread while another fit runs and in two once it is the
-        last; the others here meanwhile. The same numbers as one by one."""
+        last; the others here meanwhile, and then ``meanwhile`` (a computation the caller needs
+        next, made here while the threads run). The same numbers as one by one."""
         par = [i for i, st in enumerate(starts) if st.kind == "output-error" and st.model == "paper"]
         if len(par) < 2 or not spare_cpu():
             return [self._fit_candidate(st, runs, kin, fit_logs, vessel, held) for st in starts]
@@ -795,6 +805,8 @@ class Identifier:
             for i, st in enumerate(starts):
                 if i not in futures:
                     out[i] = self._fit_candidate(st, runs, kin, fit_logs, vessel, held)
+            if meanwhile is not None:
+                meanwhile.run()
             for i, f in futures.items():
                 out[i] = f.result()
         return [c for c in out if c is not None]
@@ -811,6 +823,8 @@ class Identifier:
         if st.kind == "equation-error":
             theta, cur, fitted = st.theta, zeros, self.equation_error_
         elif st.kind == "filter-error":
+            from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
             fitted = fit_filter_error(fit_logs, vessel, st.theta, free_mask=free, current=self.current)
             theta = fitted.theta
             cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in fit_logs])
@@ -839,6 +853,9 @@ class Identifier:
 
     def _fit_ext_candidate(self, st: Start, runs, kin, held, currents0=None) -> Candidate:
         """An extended-model candidate fitted (output error) or taken (equation error) and validated."""
+        # lazy: the extended model only
+        from .extended_oe import ExtendedOEResult, ext_physical_problem, fit_extended_output_error
+
         fitted: object
         if st.kind == "equation-error":
             theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
@@ -900,6 +917,9 @@ class Identifier:
         fitted: object
         held_se = chosen.held_stderr
         if st.model == "extended":
+            # lazy: the extended model only
+            from .extended_oe import ext_physical_problem, fit_extended_output_error
+
             if st.kind == "equation-error":
                 ext_ee = self._ext_equation_error(runs, kin)
                 theta, cur, fitted = ext_ee.theta, np.zeros((len(runs), 2)), ext_ee
@@ -913,6 +933,8 @@ class Identifier:
             if ext_physical_problem(theta):
                 return chosen
         elif st.kind == "filter-error":
+            from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
             fe = fit_filter_error(logs, vessel, chosen.theta, current=self.current,
                                   free_mask=np.array([k not in self.fix for k in PARAM_NAMES]))
             theta, fitted = fe.theta, fe
@@ -953,6 +975,9 @@ class Identifier:
             r_, k_ = [runs[j] for j in rest], [kin[j] for j in rest]
             st = chosen.start
             if st.model == "extended":
+                # lazy: the extended model only
+                from .extended_oe import ext_physical_problem, fit_extended_output_error
+
                 th_ee = self._ext_equation_error(r_, k_).theta
                 ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not ext_physical_problem(th_ee)
                               else None)
@@ -974,6 +999,8 @@ class Identifier:
                 out.append(ee_out[-1])
                 continue
             if st.kind == "filter-error":
+                from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
                 fe = fit_filter_error([logs[j] for j in rest], vessel, chosen.theta,
                                       free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
                                       current=self.current)
@@ -1007,12 +1034,17 @@ class Identifier:
                                   fix=self.fix)
 
     def _ext_equation_error(self, runs, kin) -> ExtendedFit:
+        from .extended import fit_extended_equation_error  # lazy: the extended model only
+
         parts = [_ee_inputs(r, k) for r, k in zip(runs, kin)]
         return fit_extended_equation_error(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
 
     def _set_ext_result(self, cand: Candidate, runs) -> None:
         """The fitted attributes from an extended-model candidate: ``extended_`` and its paper
         terms as ``params_`` (standard errors by the delta method)."""
+        from .extended import ExtendedFit  # lazy: the extended model only
+        from .extended_oe import ExtendedOEResult
+
         fitted = cand.fitted
         ext = ExtendedParams(**dict(zip(EXTENDED_PARAM_NAMES, map(float, cand.theta))))
         self.extended_ = ext
@@ -1094,6 +1126,8 @@ class Identifier:
             self.cond_ = fitted.cond
             self.residual_rms_ = dict(fitted.rms)
         else:   # filter error
+            from .filter import FilterErrorResult  # lazy: filter error only (scipy's minimize)
+
             assert isinstance(fitted, FilterErrorResult)
             self.fe_ = fitted
             names, cov = list(fitted.free), fitted.cov
@@ -1408,6 +1442,8 @@ class Identifier:
     def _validate_ext(self, run: RunData, ks: KinStates, theta, current, t0: float, t_init: float) -> Validation:
         """:meth:`_validate_run` for the extended model: the initial state fitted on [t0, t_init]
         with the current held (None: the equation-error model's zero current)."""
+        from .extended_oe import fit_initial_state_ext, free_run_full  # lazy: the extended model only
+
         cur = np.zeros(2) if current is None else np.clip(np.asarray(current, float), -self.max_current_mps,
                                                           self.max_current_mps)
         x0 = fit_initial_state_ext(run, theta, ks.at(t0, tuple(cur)), t0, t_init, cur)
@@ -1430,6 +1466,8 @@ class Identifier:
         cur = self.current_[run_index]
         t = ks.t
         if self.extended_ is not None:
+            from .extended_oe import free_run_full  # lazy: the extended model only
+
             sim = free_run_full(run, self.extended_.as_array(), cur, ks.at(t[0], cur), t[0], t)
         elif self.oe_ is not None:
             sim = predict_segments(self.runs_, self.segment_s, self.oe_.x0s, self.theta_,
@@ -1548,6 +1586,32 @@ class Identifier:
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"
+
+
+class _Once:
+    """A computation made at most once, when first run or asked for: :meth:`get` returns its
+    result or raises its exception (at the place that needs it, wherever it was made)."""
+
+    def __init__(self, fn: Callable[[], object]):
+        self._fn = fn
+        self._out: tuple | None = None
+
+    def run(self) -> None:
+        """Make it now (once); an exception is kept for :meth:`get`."""
+        if self._out is None:
+            try:
+                self._out = (True, self._fn())
+            except Exception as err:   # raised where the result is needed
+                self._out = (False, err)
+
+    def get(self):
+        """The result (made now if it was not), or its exception raised."""
+        self.run()
+        assert self._out is not None
+        ok, val = self._out
+        if not ok:
+            raise val
+        return val
 
 
 def _validation(t, meas, sim, cur, t0: float, t_init: float) -> Validation:

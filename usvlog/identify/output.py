@@ -23,8 +23,7 @@ from scipy.optimize import least_squares
 from .._cpu import spare_cpu
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
-from .data import RunData
-from .extended_oe import coarse_thrust
+from .data import RunData, coarse_thrust
 from .shoot import NS, SENS_CUR_E, SENS_CUR_N, no_rows, shoot
 
 MAX_DT = 0.05
@@ -115,6 +114,8 @@ class Problem:
         for ri, run in enumerate(runs):
             t = run.t_thrust
             n = len(t)
+            vel = velocities[ri] if velocities is not None else None
+            within = _Within(run.t_gps), _Within(run.t_compass), _Within(vel[0] if vel is not None else np.zeros(0))
             edges = [0]
             tcut = t[0] + segment_s
             while tcut < t[-1] - 0.5 * segment_s:
@@ -124,8 +125,7 @@ class Problem:
             edges = sorted(set(edges))
             for a, b in zip(edges[:-1], edges[1:]):
                 ta, tb = t[a], t[b]
-                g = (run.t_gps >= ta) & ((run.t_gps < tb) | ((b == n - 1) & (run.t_gps <= tb)))
-                c = (run.t_compass >= ta) & ((run.t_compass < tb) | ((b == n - 1) & (run.t_compass <= tb)))
+                g, c, sv = (w.select(ta, tb, b == n - 1) for w in within)
                 k = len(seg_i0)
                 seg_i0.append(off + a)
                 seg_i1.append(off + b)
@@ -135,12 +135,9 @@ class Problem:
                             run.sigma_gps[g]),
                            (1, run.t_compass[c], np.stack([run.psi_compass[c], 0 * run.psi_compass[c],
                                                            0 * run.psi_compass[c]], 1), run.sigma_compass[c])]
-                vel = velocities[ri] if velocities is not None else None
                 if vel is not None:
-                    tv = vel[0]
-                    sv = (tv >= ta) & ((tv < tb) | ((b == n - 1) & (tv <= tb)))
-                    sensors.append((2, tv[sv], np.stack([vel[1][sv], vel[2][sv], vel[3][sv]], 1),
-                                    np.ones(int(sv.sum()))))
+                    tv = vel[0][sv]
+                    sensors.append((2, tv, np.stack([vel[1][sv], vel[2][sv], vel[3][sv]], 1), np.ones(len(tv))))
                 for sensor, tt, val, sig in sensors:
                     m_t.append(tt)
                     m_kind.append(np.full(len(tt), sensor))
@@ -343,6 +340,22 @@ class Problem:
             i0 = self.seg_i0[k] - sum(len(r.t_thrust) for r in self.runs[:run])
             x0[k] = states_fn(run, self.runs[run].t_thrust[i0])
         return x0
+
+
+class _Within:
+    """The samples of a time series inside a segment [ta, tb) ([ta, tb] for the last one):
+    a slice when the times are sorted (two binary searches), else a mask; the same samples in
+    the same order either way."""
+
+    def __init__(self, t: np.ndarray):
+        self.t = t
+        self.sorted = bool(np.all(t[1:] >= t[:-1]))
+
+    def select(self, ta: float, tb: float, last: bool):
+        t = self.t
+        if self.sorted:
+            return slice(int(np.searchsorted(t, ta, "left")), int(np.searchsorted(t, tb, "right" if last else "left")))
+        return (t >= ta) & ((t < tb) | (last & (t <= tb)))
 
 
 def stiffness(theta) -> float:

@@ -37,7 +37,6 @@ from ..log.summary import health_from_provenance
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
 from .data import run_data
 from .equation import regressors
-from .extended import ext_regressors
 from .smooth import derivative, kinematic_states, smooth_like, thrust_on_grid
 
 SCALE_FREE = ("xg",)
@@ -227,6 +226,8 @@ def reverse_ratio(logs: list[FieldLog], vessel: Vessel, model: str = "paper") ->
         if model == "paper":
             rows_A.append(regressors(nu_s, nu_d)[[0, 2]][:, :, [0, 1, 2, 3, 5]])
         else:   # the sway damping d22, d22q has no surge or yaw column
+            from .extended import ext_regressors  # lazy: the extended model only
+
             rows_A.append(ext_regressors(nu_s, nu_d)[[0, 2]][:, :, [0, 1, 2, 3, 4, 5, 8, 9]])
         rows_p.append(np.stack(pos))
         rows_n.append(np.stack(neg))
