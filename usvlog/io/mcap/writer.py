@@ -133,10 +133,12 @@ def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: in
                 cuts = _slice_cuts(_times(frames), slice_messages)
                 # frames whose times do not rise: one slice
                 cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
+                feed.start()
                 for k, batch in enumerate(_cut(frames, cuts)):
-                    # the slice and the source's chunks ending in it (the read-ahead thread
-                    # reads the next ones while the slice is encoded)
-                    w.add_frames(batch, log.schemas, *feed.take(int(cuts[k]) if k < len(cuts) else None))
+                    # the slice encoded while the read-ahead thread reads the source's chunks
+                    # ending in it, then both into chunks
+                    per = w._encode_frames(batch, log.schemas)
+                    w._add_encoded(per, *feed.take(int(cuts[k]) if k < len(cuts) else None))
                 feed.finish()
             w.finish()
         finally:
@@ -244,7 +246,8 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
             yield batch
 
 
-_READ_AHEAD = 2     # batches of a copied file read (decompressed, CRC-checked) ahead by a thread
+_READ_AHEAD = 16    # batches (chunks) of a copied file read (decompressed, CRC-checked) ahead by a thread:
+                    # a slice's worth (~1.5 MB each), read while the slice is encoded
 
 
 class _ReadAhead:
@@ -350,10 +353,14 @@ class _RawFeed:
                 rec = bytes(m[at:at + _REC.size + _U64.unpack_from(m, at + 1)[0]])
             yield b, rec
 
+    def start(self) -> None:
+        """Start reading ahead (else the first :meth:`take` does)."""
+        if self._it is None:
+            self._it = _ReadAhead(self._batches())
+
     def _peek(self):
         if self._next is None and not self._done:
-            if self._it is None:
-                self._it = _ReadAhead(self._batches())
+            self.start()
             try:
                 self._next = next(self._it)
             except StopIteration:
@@ -588,6 +595,12 @@ class McapWriter:
         channel (those this writer gives them); else its payloads are added as ``raw``
         ones. A channel's raw pieces come before its chunks in the batch.
         """
+        self._add_encoded(self._encode_frames(frames, schemas), raw, chunks)
+
+    def _encode_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None) -> dict[int, list]:
+        """The first half of :meth:`add_frames`: the frames' channels registered and their rows
+        encoded, channel id -> [(topic, times, buffer, starts, ends)] (pure: nothing written, so
+        a caller may encode a batch while another thread reads what goes with it)."""
         per: dict[int, list] = {}
         for topic, frame in frames.items():
             if not len(frame):
@@ -595,6 +608,11 @@ class McapWriter:
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
             data, offs = self._topics[topic][1].encode_packed(frame, topic)
             per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+        return per
+
+    def _add_encoded(self, per: dict[int, list], raw: dict[str, list] | None, chunks: list[tuple] | None) -> None:
+        """The second half of :meth:`add_frames`: the encoded rows ``per``
+        (:meth:`_encode_frames`), then ``raw`` and ``chunks``, into chunks."""
         for topic, parts in (raw or {}).items():
             per.setdefault(self._topics[topic][0], []).extend((topic, *p) for p in parts if len(p[0]))
         for c in chunks or ():
