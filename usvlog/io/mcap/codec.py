@@ -204,6 +204,14 @@ class Codec:
         lit_buf, lit_off = _pack(lits)
         return K.assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve)
 
+    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it): those of
+        :meth:`encode_packed`, back to back (a JSON message leaves no ``gap``: the fixed-size
+        :class:`CdrCodec` does)."""
+        data, offs = self.encode_packed(frame, topic)
+        return data, offs[:-1], offs[1:]
+
     def _check_columns(self, frame: pd.DataFrame, topic: str) -> None:
         missing = [c for c in self.columns if c not in frame.columns]
         if missing:
@@ -649,6 +657,7 @@ def codec_for_schema(schema: dict) -> Codec:
 
 CDR_LE = b"\x00\x01\x00\x00"
 """Encapsulation header of a little-endian plain CDR message (ROS 2's)."""
+_HEAD = np.frombuffer(CDR_LE, dtype=np.uint8).copy()
 
 ROS2MSG_PACKAGE = "usvlog/msg/"
 """Prefix of the ros2msg type names usvlog writes; only such CDR channels are loaded."""
@@ -735,15 +744,30 @@ class CdrCodec(Codec):
     def encode_packed(self, frame: pd.DataFrame, topic: str = "") -> tuple[np.ndarray, np.ndarray]:
         """Frame -> (all messages' bytes as uint8, int64 offsets of the n+1 message bounds);
         the bytes of :meth:`encode_reference`."""
+        data, _starts, _ends = self.encode_spans(frame, topic)
+        return data, np.arange(len(frame) + 1, dtype=np.int64) * self.size
+
+    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it), each message
+        after ``gap`` zero bytes (room for what goes before it, e.g. a Message record's header:
+        the writer fills it in place); the messages of :meth:`encode_packed`.
+
+        One compiled pass writes the messages from the columns' bits (:func:`.kernels.scatter_fields`).
+        """
         self._check_columns(frame, topic)
         n = len(frame)
-        out = np.zeros((n, self.size), dtype=np.uint8)
-        out[:, :4] = np.frombuffer(CDR_LE, dtype=np.uint8)
-        rec = out.view(self._dtype).reshape(n)
+        offs, wide = self._fields
+        bits = np.empty((len(offs), n), dtype=np.uint64)
+        k = 0
         for f in self.fields:
             for c in f.columns:
-                rec[c] = np.asarray(frame[c].to_numpy(), dtype=_CDR_KINDS[f.kind][2])
-        return out.reshape(-1), np.arange(n + 1, dtype=np.int64) * self.size
+                bits[k] = np.asarray(frame[c].to_numpy(), dtype=_CDR_KINDS[f.kind][2]).view(
+                    np.uint8 if f.kind == "bool" else np.uint64)
+                k += 1
+        step = gap + self.size
+        starts = np.arange(n, dtype=np.int64) * step + gap
+        return K.scatter_fields(bits, offs, wide, _HEAD, self.size, gap), starts, starts + self.size
 
     def encode_row(self, row, topic: str = "") -> bytes:
         """One row ``{column: value}`` -> one CDR message (``struct``: the reference of

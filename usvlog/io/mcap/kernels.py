@@ -543,6 +543,25 @@ def assemble(lits, lit_off, data, vs, ve):
     return out, offs
 
 
+@njit(inline="always")
+def _message_header(out, p, size, c, s, tt):
+    """The 31 bytes before a Message record's payload of ``size`` bytes at ``out[p]``:
+    opcode, length, channel ``c``, sequence ``s``, log and publish time ``tt`` (all uint64)."""
+    out[p + REC_OPCODE] = OP_MESSAGE
+    length = np.uint64(MSG_HEADER) + size
+    for k in range(8):
+        out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
+    body = p + REC_HEADER
+    out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
+    out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
+    for k in range(4):
+        out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
+    for k in range(8):
+        b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
+        out[body + MSG_LOG_TIME + k] = b
+        out[body + MSG_PUBLISH_TIME + k] = b
+
+
 @njit
 def message_records(data, ps, pe, cid, seq, t):
     """MCAP Message records (publish time = log time) for payloads data[ps[i]:pe[i]].
@@ -556,25 +575,47 @@ def message_records(data, ps, pe, cid, seq, t):
     out = np.empty(offs[n], np.uint8)
     for i in range(n):
         p = offs[i]
-        out[p + REC_OPCODE] = OP_MESSAGE
-        length = np.uint64(MSG_HEADER + pe[i] - ps[i])
-        for k in range(8):
-            out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
-        body = p + REC_HEADER
-        c = np.uint64(cid[i])
-        out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
-        out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
-        s = np.uint64(seq[i])
-        for k in range(4):
-            out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
-        tt = np.uint64(t[i])
-        for k in range(8):
-            b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
-            out[body + MSG_LOG_TIME + k] = b
-            out[body + MSG_PUBLISH_TIME + k] = b
-        q = body + MSG_HEADER
+        _message_header(out, p, np.uint64(pe[i] - ps[i]), np.uint64(cid[i]), np.uint64(seq[i]), np.uint64(t[i]))
+        q = p + REC_HEADER + MSG_HEADER
         out[q:q + (pe[i] - ps[i])] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
     return out, offs
+
+
+@njit
+def message_headers(buf, ps, pe, cid, seq, t):
+    """:func:`message_records` in place: when the payloads buf[ps[i]:pe[i]] are in order,
+    each after a gap of exactly a Message record's 31 header bytes, the first at 31 and the
+    last ending the buffer, the headers are written into the gaps (buf becomes the records).
+
+    Returns (whether it was done, int64 offsets of the n+1 record bounds); nothing is
+    written when not (then the caller copies with :func:`message_records`)."""
+    n = len(ps)
+    head = REC_HEADER + MSG_HEADER
+    offs = np.empty(n + 1, np.int64)
+    ok = n > 0 and ps[0] == head and pe[n - 1] == len(buf)
+    for i in range(n):
+        if not ok:
+            break
+        offs[i] = ps[i] - head
+        ok = pe[i] >= ps[i] and (i == n - 1 or ps[i + 1] == pe[i] + head)
+    if not ok:
+        return False, offs
+    offs[n] = len(buf)
+    for i in range(n):
+        _message_header(buf, offs[i], np.uint64(pe[i] - ps[i]), np.uint64(cid[i]), np.uint64(seq[i]),
+                        np.uint64(t[i]))
+    return True, offs
+
+
+@njit(nogil=True)
+def publish_is_log(buf, offs):
+    """Whether every Message record at buf[offs[i]:] has its publish time equal to its log time."""
+    for i in range(len(offs)):
+        b = offs[i] + REC_HEADER
+        for k in range(8):
+            if buf[b + MSG_LOG_TIME + k] != buf[b + MSG_PUBLISH_TIME + k]:
+                return False
+    return True
 
 
 @njit
@@ -638,6 +679,32 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
 # -----------------------------------------------------------------------------
 # fixed-size (CDR) messages
 # -----------------------------------------------------------------------------
+
+@njit(nogil=True)
+def scatter_fields(bits, offs, wide, head, size, gap):
+    """Fixed-size messages from their fields (the inverse of :func:`gather_fields`): message
+    i of ``size`` bytes at ``gap + i * (gap + size)`` (each after ``gap`` zero bytes) is
+    ``head`` then field k of ``bits[k, i]`` (an (F, n) uint64 array) at ``offs[k]``: 8 bytes
+    little-endian when ``wide[k]``, else one; the bytes no field covers are zero.
+
+    Returns the uint8 buffer of n * (gap + size) bytes."""
+    nf, n = bits.shape
+    step = gap + size
+    out = np.zeros(n * step, np.uint8)
+    for i in range(n):
+        p = i * step + gap
+        for j in range(len(head)):
+            out[p + j] = head[j]
+        for k in range(nf):
+            v = bits[k, i]
+            q = p + offs[k]
+            if wide[k]:
+                for b in range(8):
+                    out[q + b] = np.uint8((v >> np.uint64(8 * b)) & np.uint64(255))
+            else:
+                out[q] = np.uint8(v & np.uint64(255))
+    return out
+
 
 @njit(nogil=True)
 def gather_fields(buf, starts, offs, wide):

@@ -313,8 +313,7 @@ def _only_messages(records: np.ndarray, ps: np.ndarray, pe: np.ndarray) -> bool:
     starts = ps - _MSG_HEAD
     if not len(ps) or starts[0] != 0 or pe[-1] != len(records) or np.any(starts[1:] != pe[:-1]):
         return False
-    times = records[(starts + 9 + 6)[:, None] + np.arange(16)].view("<u8")   # log, publish time
-    return bool(np.all(times[:, 0] == times[:, 1]))
+    return bool(K.publish_is_log(records, starts))
 
 
 class _RawFeed:
@@ -507,6 +506,7 @@ class McapWriter:
         self._open_len: dict[int, int] = {}
         self._open_msgs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._open_copy: dict[int, tuple] = {}   # channel id -> its last chunk, copied, not yet written
+        self._mine: set[int] = set()   # ids of the buffers of the batch being added this writer encoded
         # chunks being compressed on worker threads, written in order as they are done
         self._threads = _WORKERS if threads is None else int(threads)
         self._pool = None
@@ -606,13 +606,22 @@ class McapWriter:
             if not len(frame):
                 continue
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-            data, offs = self._topics[topic][1].encode_packed(frame, topic)
-            per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+            # room for the Message records' headers before the payloads (a fixed-size codec
+            # leaves it: the records are then made in place, not copied)
+            data, starts, ends = self._topics[topic][1].encode_spans(frame, topic, _MSG_HEAD)
+            self._mine.add(id(data))
+            per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, starts, ends))
         return per
 
     def _add_encoded(self, per: dict[int, list], raw: dict[str, list] | None, chunks: list[tuple] | None) -> None:
         """The second half of :meth:`add_frames`: the encoded rows ``per``
         (:meth:`_encode_frames`), then ``raw`` and ``chunks``, into chunks."""
+        try:
+            self._add_all(per, raw, chunks)
+        finally:
+            self._mine.clear()
+
+    def _add_all(self, per: dict[int, list], raw: dict[str, list] | None, chunks: list[tuple] | None) -> None:
         for topic, parts in (raw or {}).items():
             per.setdefault(self._topics[topic][0], []).extend((topic, *p) for p in parts if len(p[0]))
         for c in chunks or ():
@@ -683,8 +692,13 @@ class McapWriter:
         if n > 1 and not bool(np.all(t_all[1:] >= t_all[:-1])):   # rows out of time order: by (time, row)
             order = np.argsort(t_all, kind="stable")
             t_all, s_all, ps_all, pe_all = t_all[order], s_all[order], ps_all[order], pe_all[order]
-        recs, rec_offs = K.message_records(np.concatenate(bufs) if len(bufs) > 1 else bufs[0], ps_all, pe_all,
-                                           np.full(n, cid, dtype=np.int64), s_all, t_all)
+        cids = np.full(n, cid, dtype=np.int64)
+        recs = np.concatenate(bufs) if len(bufs) > 1 else bufs[0]
+        done = False
+        if len(bufs) == 1 and id(recs) in self._mine:   # the records written around the payloads
+            done, rec_offs = K.message_headers(recs, ps_all, pe_all, cids, s_all, t_all)
+        if not done:
+            recs, rec_offs = K.message_records(recs, ps_all, pe_all, cids, s_all, t_all)
         self._count(cid, n, int(t_all.min()), int(t_all.max()))
         open_len = self._open_len.get(cid, 0)
         bounds = K.chunk_bounds(rec_offs, self._chunk_size, open_len).tolist()
