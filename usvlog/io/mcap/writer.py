@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import struct
+import threading
 from collections import deque
 from typing import TYPE_CHECKING
 
@@ -261,7 +262,6 @@ class _ReadAhead:
 
     def __init__(self, it, depth: int = _READ_AHEAD):
         import queue
-        import threading
 
         self._q: queue.Queue = queue.Queue(depth)
         self._stop = threading.Event()
@@ -427,13 +427,28 @@ class _RawFeed:
         self._stream.close()
 
 
+_TLS = threading.local()
+
+
+def _zstd(level: int):
+    """This thread's zstd compressor of ``level``, made once (a compressor's context is
+    reused chunk after chunk: the same bytes, without allocating it again each time)."""
+    zs = getattr(_TLS, "zstd", None)
+    if zs is None:
+        zs = _TLS.zstd = {}
+    z = zs.get(level)
+    if z is None:
+        import zstandard  # only the compressor the file uses is loaded
+
+        z = zs[level] = zstandard.ZstdCompressor(level=level)
+    return z
+
+
 def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     """(compressed bytes, compression name, CRC-32 of ``data``) of one chunk's records;
     runs on a worker thread (zstd and lz4 release the GIL; the CRC is ~0.1 ms a megabyte)."""
     if comp == "zstd":
-        import zstandard  # only the compressor the file uses is loaded
-
-        packed, cname = zstandard.ZstdCompressor(level=level).compress(data), "zstd"
+        packed, cname = _zstd(level).compress(data), "zstd"
     elif comp == "lz4":
         import lz4.frame  # only the compressor the file uses is loaded
 
