@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import re
 import struct
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -767,7 +767,16 @@ class CdrCodec(Codec):
                 k += 1
         step = gap + self.size
         starts = np.arange(n, dtype=np.int64) * step + gap
-        return K.scatter_fields(bits, offs, wide, _HEAD, self.size, gap), starts, starts + self.size
+        return K.scatter_fields(bits, offs, wide, _HEAD, self._pad, self.size, gap), starts, starts + self.size
+
+    @cached_property
+    def _pad(self) -> np.ndarray:
+        """The offsets of a message's padding bytes (after a bool, before an aligned field)."""
+        used = np.zeros(self.size, dtype=bool)
+        used[:len(CDR_LE)] = True
+        for dt, o in (self._dtype.fields[c] for c in self._dtype.names):
+            used[o:o + dt.itemsize] = True
+        return np.flatnonzero(~used).astype(np.int64)
 
     def encode_row(self, row, topic: str = "") -> bytes:
         """One row ``{column: value}`` -> one CDR message (``struct``: the reference of
@@ -815,7 +824,7 @@ class CdrCodec(Codec):
                 k += 1
         return out
 
-    @property
+    @cached_property
     def _fields(self) -> tuple[np.ndarray, np.ndarray]:
         """(byte offset of each column in a message, whether it is 8 bytes wide, else one)."""
         cols = [self._dtype.fields[c] for c in self._dtype.names]

@@ -608,10 +608,17 @@ def message_headers(buf, ps, pe, cid, seq, t):
 
 
 @njit(nogil=True)
-def publish_is_log(buf, offs):
-    """Whether every Message record at buf[offs[i]:] has its publish time equal to its log time."""
-    for i in range(len(offs)):
-        b = offs[i] + REC_HEADER
+def bare_messages(buf, ps, pe):
+    """Whether ``buf`` is exactly Message records with the payloads buf[ps[i]:pe[i]], back to
+    back in this order, each with its publish time equal to its log time."""
+    n = len(ps)
+    head = REC_HEADER + MSG_HEADER
+    if n == 0 or ps[0] != head or pe[n - 1] != len(buf):
+        return False
+    for i in range(n):
+        if i + 1 < n and ps[i + 1] - head != pe[i]:
+            return False
+        b = ps[i] - MSG_HEADER
         for k in range(8):
             if buf[b + MSG_LOG_TIME + k] != buf[b + MSG_PUBLISH_TIME + k]:
                 return False
@@ -681,20 +688,23 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
 # -----------------------------------------------------------------------------
 
 @njit(nogil=True)
-def scatter_fields(bits, offs, wide, head, size, gap):
+def scatter_fields(bits, offs, wide, head, pad, size, gap):
     """Fixed-size messages from their fields (the inverse of :func:`gather_fields`): message
-    i of ``size`` bytes at ``gap + i * (gap + size)`` (each after ``gap`` zero bytes) is
-    ``head`` then field k of ``bits[k, i]`` (an (F, n) uint64 array) at ``offs[k]``: 8 bytes
-    little-endian when ``wide[k]``, else one; the bytes no field covers are zero.
+    i of ``size`` bytes at ``gap + i * (gap + size)`` is ``head``, then field k of
+    ``bits[k, i]`` (an (F, n) uint64 array) at ``offs[k]``: 8 bytes little-endian when
+    ``wide[k]``, else one; the bytes at ``pad`` (those no field covers) are zero. The
+    ``gap`` bytes before each message are left unset (for the caller to fill).
 
     Returns the uint8 buffer of n * (gap + size) bytes."""
     nf, n = bits.shape
     step = gap + size
-    out = np.zeros(n * step, np.uint8)
+    out = np.empty(n * step, np.uint8)
     for i in range(n):
         p = i * step + gap
         for j in range(len(head)):
             out[p + j] = head[j]
+        for j in range(len(pad)):
+            out[p + pad[j]] = 0
         for k in range(nf):
             v = bits[k, i]
             q = p + offs[k]

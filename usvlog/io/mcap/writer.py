@@ -310,10 +310,7 @@ _MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, leng
 def _only_messages(records: np.ndarray, ps: np.ndarray, pe: np.ndarray) -> bool:
     """Whether a chunk's records are exactly these message records, back to back, each with
     its publish time equal to its log time (as this writer writes them)."""
-    starts = ps - _MSG_HEAD
-    if not len(ps) or starts[0] != 0 or pe[-1] != len(records) or np.any(starts[1:] != pe[:-1]):
-        return False
-    return bool(K.publish_is_log(records, starts))
+    return bool(K.bare_messages(records, ps, pe))
 
 
 class _RawFeed:
@@ -388,11 +385,12 @@ class _RawFeed:
     def _hand(self, b, rec, raw: dict[str, list], chunks: list[tuple]) -> None:
         records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = b
         chans = self._stream._scan.channels
-        for c in np.unique(cid).tolist():
+        one = rec is not None   # a chunk of one channel (_batches checked): its messages as they are
+        for c in [int(cid[0])] if one else np.unique(cid).tolist():
             topic = chans[c].topic
             if topic not in self._topics:
                 continue
-            sel = np.flatnonzero(cid == c)
+            sel = slice(None) if one else np.flatnonzero(cid == c)
             tc, sc = t[sel], seq[sel]
             prev = self._last.get(topic)
             if (len(tc) > 1 and (np.any(tc[1:] < tc[:-1]) or np.any(sc[1:] < sc[:-1]))) or \
