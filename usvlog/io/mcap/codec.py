@@ -126,6 +126,18 @@ class Codec:
         The same bytes as :meth:`encode_reference`: each column is formatted by one
         ``orjson.dumps`` call and the messages are assembled around a fixed layout.
         """
+        return self._encode(frame, topic, 0)
+
+    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it), each message
+        after ``gap`` bytes left unset (room for what goes before it, e.g. a Message record's
+        header: the writer fills it in place); the messages of :meth:`encode_packed`."""
+        data, offs = self._encode(frame, topic, gap)
+        return data, offs[:-1] + gap, offs[1:]
+
+    def _encode(self, frame: pd.DataFrame, topic: str, gap: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`encode_packed` with ``gap`` bytes before each message (in the offsets' spans)."""
         import pandas as pd  # (loaded already: a frame is given)
 
         self._check_columns(frame, topic)
@@ -193,8 +205,8 @@ class Codec:
                 slot(strings=[str(x) for x in col.tolist()])
         lits[-1] += b"}"
         if not blobs:
-            return (np.frombuffer(b"{}" * n, dtype=np.uint8).copy(),
-                    np.arange(n + 1, dtype=np.int64) * 2)
+            return (np.frombuffer((b"\0" * gap + b"{}") * n, dtype=np.uint8).copy(),
+                    np.arange(n + 1, dtype=np.int64) * (gap + 2))
         base = np.cumsum([0] + [len(b) for b in blobs])
         vs = np.empty((n, len(spans)), dtype=np.int64)
         ve = np.empty((n, len(spans)), dtype=np.int64)
@@ -202,15 +214,7 @@ class Codec:
             vs[:, k] = st + base[bi]
             ve[:, k] = en + base[bi]
         lit_buf, lit_off = _pack(lits)
-        return K.assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve)
-
-    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
-                                                                                         np.ndarray]:
-        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it): those of
-        :meth:`encode_packed`, back to back (a JSON message leaves no ``gap``: the fixed-size
-        :class:`CdrCodec` does)."""
-        data, offs = self.encode_packed(frame, topic)
-        return data, offs[:-1], offs[1:]
+        return K.assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve, gap)
 
     def _check_columns(self, frame: pd.DataFrame, topic: str) -> None:
         missing = [c for c in self.columns if c not in frame.columns]
@@ -750,7 +754,7 @@ class CdrCodec(Codec):
     def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
                                                                                          np.ndarray]:
         """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it), each message
-        after ``gap`` zero bytes (room for what goes before it, e.g. a Message record's header:
+        after ``gap`` bytes left unset (room for what goes before it, e.g. a Message record's header:
         the writer fills it in place); the messages of :meth:`encode_packed`.
 
         One compiled pass writes the messages from the columns' bits (:func:`.kernels.scatter_fields`).

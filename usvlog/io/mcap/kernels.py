@@ -514,23 +514,25 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
 
 
 @njit
-def assemble(lits, lit_off, data, vs, ve):
+def assemble(lits, lit_off, data, vs, ve, gap):
     """Build messages ``lit_0 v_0 lit_1 ... v_{S-1} lit_S`` where value k of row i is
-    data[vs[i, k]:ve[i, k]]. Returns (bytes uint8, int64 offsets of the n messages)."""
+    data[vs[i, k]:ve[i, k]], each after ``gap`` bytes left unset (for the caller to fill).
+    Returns (bytes uint8, int64 offsets of the n+1 bounds: message i is
+    out[offs[i] + gap:offs[i + 1]])."""
     n, nslots = vs.shape
     offs = np.empty(n + 1, np.int64)
     offs[0] = 0
     litlen = lit_off[nslots + 1] - lit_off[0]
     tot = 0
     for i in range(n):
-        s = litlen
+        s = gap + litlen
         for k in range(nslots):
             s += ve[i, k] - vs[i, k]
         tot += s
         offs[i + 1] = tot
     out = np.empty(tot, np.uint8)
-    p = 0
     for i in range(n):
+        p = offs[i] + gap
         for k in range(nslots + 1):
             for j in range(lit_off[k], lit_off[k + 1]):
                 out[p] = lits[j]
