@@ -456,7 +456,9 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     return packed, cname, crc32(data)
 
 
-_WORKERS = max(1, min(4, (os.cpu_count() or 1) - 1))   # chunk compression threads
+# chunk compression threads: as many as CPUs (1 to 4): compression is the write's largest
+# work, and when the caller waits for it (chunks pending, or the last ones) every core compresses
+_WORKERS = max(1, min(4, os.cpu_count() or 1))
 _PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
 _CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
@@ -483,8 +485,8 @@ class McapWriter:
     Memory stays flat when streaming: only the open chunks (at most ``chunk_size`` per
     channel plus one batch: a chunk is a view of the batch's records, not a copy) and
     the chunks being compressed (at most ``_PENDING_BYTES`` uncompressed) are held.
-    Chunks are compressed on ``threads`` worker threads (default: one fewer than the
-    CPUs, 1 to 4; 0 compresses in the calling thread) while the caller encodes the next
+    Chunks are compressed on ``threads`` worker threads (default: one per CPU, 1 to 4;
+    0 compresses in the calling thread) while the caller encodes the next
     batch, and written in order; :meth:`flush` and :meth:`finish` wait for them. Each
     message's ``sequence`` is its row number in its channel over all batches, as
     :func:`read_log` expects; within a chunk messages are in (time, row) order.
