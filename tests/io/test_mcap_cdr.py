@@ -83,6 +83,9 @@ def test_bulk_channels_round_trip_bit_for_bit(tmp_path):
         data, offs = codec.encode_packed(log[topic], topic)
         ref = codec.encode_reference(log[topic], topic)
         assert data.tobytes() == b"".join(ref) and np.all(np.diff(offs) == codec.size)
+        # with room for the record headers (the writer's path): the same messages, spaced
+        buf, starts, ends = codec.encode_spans(log[topic], topic, 31)
+        assert [buf[a:b].tobytes() for a, b in zip(starts.tolist(), ends.tolist())] == ref
         fast = codec.decode_spans(data, offs[:-1], offs[1:], topic)
         slow = codec.decode_reference(ref, topic)
         for c in codec.columns:

@@ -442,7 +442,10 @@ def test_encode_packed_equals_reference():
     for topic in log.topics:
         frame = log[topic]
         codec = codec_for_topic(topic) or Codec(auto_schema(topic, frame))
-        assert codec.encode(frame, topic) == codec.encode_reference(frame, topic)
+        ref = codec.encode_reference(frame, topic)
+        assert codec.encode(frame, topic) == ref
+        buf, starts, ends = codec.encode_spans(frame, topic, 31)   # spaced for the record headers
+        assert [buf[a:b].tobytes() for a, b in zip(starts.tolist(), ends.tolist())] == ref
     codec = Codec(SCHEMA)
     frame = pd.DataFrame({"stamp_ns": [T0 + 3, T0 - 1], "x": [np.inf, -1e-300], "n": [0, -5],
                           "flag": [True, False], "s": ["", "ü"], "v_0": [np.nan, 1.0], "v_1": [2.0, 3.0],

@@ -6,16 +6,16 @@ the GIL) run ahead of the code that decodes or copies what they yield.
 
 from __future__ import annotations
 
-
 READ_AHEAD = 2     # batches (a chunk each: decompressed, CRC-checked, walked) read ahead by default
 
 
 class ReadAhead:
     """The items of iterator ``it``, produced by a thread up to ``depth`` ahead of the
     caller (zstd decompression, the CRC and the compiled walks release the GIL: a file's
-    chunks are unpacked on another core while the caller decodes, encodes or copies them). An exception of ``it`` is raised
-    by the :func:`next` that would have returned its item; :meth:`close` stops the thread
-    (it must be called before the source ``it`` reads is closed)."""
+    chunks are unpacked on another core while the caller decodes, encodes or copies them).
+    An exception of ``it`` is raised by the :func:`next` that would have returned its item;
+    :meth:`close` stops the thread (it must be called before the source ``it`` reads is
+    closed)."""
 
     _END = object()
 

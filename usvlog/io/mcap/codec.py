@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import re
 import struct
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -126,6 +126,18 @@ class Codec:
         The same bytes as :meth:`encode_reference`: each column is formatted by one
         ``orjson.dumps`` call and the messages are assembled around a fixed layout.
         """
+        return self._encode(frame, topic, 0)
+
+    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it), each message
+        after ``gap`` bytes left unset (room for what goes before it, e.g. a Message record's
+        header: the writer fills it in place); the messages of :meth:`encode_packed`."""
+        data, offs = self._encode(frame, topic, gap)
+        return data, offs[:-1] + gap, offs[1:]
+
+    def _encode(self, frame: pd.DataFrame, topic: str, gap: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`encode_packed` with ``gap`` bytes before each message (in the offsets' spans)."""
         import pandas as pd  # (loaded already: a frame is given)
 
         self._check_columns(frame, topic)
@@ -193,8 +205,8 @@ class Codec:
                 slot(strings=[str(x) for x in col.tolist()])
         lits[-1] += b"}"
         if not blobs:
-            return (np.frombuffer(b"{}" * n, dtype=np.uint8).copy(),
-                    np.arange(n + 1, dtype=np.int64) * 2)
+            return (np.frombuffer((b"\0" * gap + b"{}") * n, dtype=np.uint8).copy(),
+                    np.arange(n + 1, dtype=np.int64) * (gap + 2))
         base = np.cumsum([0] + [len(b) for b in blobs])
         vs = np.empty((n, len(spans)), dtype=np.int64)
         ve = np.empty((n, len(spans)), dtype=np.int64)
@@ -202,7 +214,7 @@ class Codec:
             vs[:, k] = st + base[bi]
             ve[:, k] = en + base[bi]
         lit_buf, lit_off = _pack(lits)
-        return K.assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve)
+        return K.assemble(lit_buf, lit_off, np.frombuffer(b"".join(blobs), dtype=np.uint8), vs, ve, gap)
 
     def _check_columns(self, frame: pd.DataFrame, topic: str) -> None:
         missing = [c for c in self.columns if c not in frame.columns]
@@ -649,6 +661,7 @@ def codec_for_schema(schema: dict) -> Codec:
 
 CDR_LE = b"\x00\x01\x00\x00"
 """Encapsulation header of a little-endian plain CDR message (ROS 2's)."""
+_HEAD = np.frombuffer(CDR_LE, dtype=np.uint8).copy()
 
 ROS2MSG_PACKAGE = "usvlog/msg/"
 """Prefix of the ros2msg type names usvlog writes; only such CDR channels are loaded."""
@@ -735,15 +748,39 @@ class CdrCodec(Codec):
     def encode_packed(self, frame: pd.DataFrame, topic: str = "") -> tuple[np.ndarray, np.ndarray]:
         """Frame -> (all messages' bytes as uint8, int64 offsets of the n+1 message bounds);
         the bytes of :meth:`encode_reference`."""
+        data, _starts, _ends = self.encode_spans(frame, topic)
+        return data, np.arange(len(frame) + 1, dtype=np.int64) * self.size
+
+    def encode_spans(self, frame: pd.DataFrame, topic: str = "", gap: int = 0) -> tuple[np.ndarray, np.ndarray,
+                                                                                         np.ndarray]:
+        """Frame -> (uint8 buffer, int64 starts, int64 ends of the messages in it), each message
+        after ``gap`` bytes left unset (room for what goes before it, e.g. a Message record's header:
+        the writer fills it in place); the messages of :meth:`encode_packed`.
+
+        One compiled pass writes the messages from the columns' bits (:func:`.kernels.scatter_fields`).
+        """
         self._check_columns(frame, topic)
         n = len(frame)
-        out = np.zeros((n, self.size), dtype=np.uint8)
-        out[:, :4] = np.frombuffer(CDR_LE, dtype=np.uint8)
-        rec = out.view(self._dtype).reshape(n)
+        offs, wide = self._fields
+        bits = np.empty((len(offs), n), dtype=np.uint64)
+        k = 0
         for f in self.fields:
             for c in f.columns:
-                rec[c] = np.asarray(frame[c].to_numpy(), dtype=_CDR_KINDS[f.kind][2])
-        return out.reshape(-1), np.arange(n + 1, dtype=np.int64) * self.size
+                bits[k] = np.asarray(frame[c].to_numpy(), dtype=_CDR_KINDS[f.kind][2]).view(
+                    np.uint8 if f.kind == "bool" else np.uint64)
+                k += 1
+        step = gap + self.size
+        starts = np.arange(n, dtype=np.int64) * step + gap
+        return K.scatter_fields(bits, offs, wide, _HEAD, self._pad, self.size, gap), starts, starts + self.size
+
+    @cached_property
+    def _pad(self) -> np.ndarray:
+        """The offsets of a message's padding bytes (after a bool, before an aligned field)."""
+        used = np.zeros(self.size, dtype=bool)
+        used[:len(CDR_LE)] = True
+        for dt, o in (self._dtype.fields[c] for c in self._dtype.names):
+            used[o:o + dt.itemsize] = True
+        return np.flatnonzero(~used).astype(np.int64)
 
     def encode_row(self, row, topic: str = "") -> bytes:
         """One row ``{column: value}`` -> one CDR message (``struct``: the reference of
@@ -791,7 +828,7 @@ class CdrCodec(Codec):
                 k += 1
         return out
 
-    @property
+    @cached_property
     def _fields(self) -> tuple[np.ndarray, np.ndarray]:
         """(byte offset of each column in a message, whether it is 8 bytes wide, else one)."""
         cols = [self._dtype.fields[c] for c in self._dtype.names]

@@ -514,23 +514,25 @@ def match_template(buf, starts, ends, lits, lit_off, w_true, w_false, w_null, fc
 
 
 @njit
-def assemble(lits, lit_off, data, vs, ve):
+def assemble(lits, lit_off, data, vs, ve, gap):
     """Build messages ``lit_0 v_0 lit_1 ... v_{S-1} lit_S`` where value k of row i is
-    data[vs[i, k]:ve[i, k]]. Returns (bytes uint8, int64 offsets of the n messages)."""
+    data[vs[i, k]:ve[i, k]], each after ``gap`` bytes left unset (for the caller to fill).
+    Returns (bytes uint8, int64 offsets of the n+1 bounds: message i is
+    out[offs[i] + gap:offs[i + 1]])."""
     n, nslots = vs.shape
     offs = np.empty(n + 1, np.int64)
     offs[0] = 0
     litlen = lit_off[nslots + 1] - lit_off[0]
     tot = 0
     for i in range(n):
-        s = litlen
+        s = gap + litlen
         for k in range(nslots):
             s += ve[i, k] - vs[i, k]
         tot += s
         offs[i + 1] = tot
     out = np.empty(tot, np.uint8)
-    p = 0
     for i in range(n):
+        p = offs[i] + gap
         for k in range(nslots + 1):
             for j in range(lit_off[k], lit_off[k + 1]):
                 out[p] = lits[j]
@@ -541,6 +543,25 @@ def assemble(lits, lit_off, data, vs, ve):
                 out[p] = data[j]
                 p += 1
     return out, offs
+
+
+@njit(inline="always")
+def _message_header(out, p, size, c, s, tt):
+    """The 31 bytes before a Message record's payload of ``size`` bytes at ``out[p]``:
+    opcode, length, channel ``c``, sequence ``s``, log and publish time ``tt`` (all uint64)."""
+    out[p + REC_OPCODE] = OP_MESSAGE
+    length = np.uint64(MSG_HEADER) + size
+    for k in range(8):
+        out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
+    body = p + REC_HEADER
+    out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
+    out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
+    for k in range(4):
+        out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
+    for k in range(8):
+        b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
+        out[body + MSG_LOG_TIME + k] = b
+        out[body + MSG_PUBLISH_TIME + k] = b
 
 
 @njit
@@ -556,25 +577,54 @@ def message_records(data, ps, pe, cid, seq, t):
     out = np.empty(offs[n], np.uint8)
     for i in range(n):
         p = offs[i]
-        out[p + REC_OPCODE] = OP_MESSAGE
-        length = np.uint64(MSG_HEADER + pe[i] - ps[i])
-        for k in range(8):
-            out[p + REC_LENGTH + k] = np.uint8((length >> np.uint64(8 * k)) & np.uint64(255))
-        body = p + REC_HEADER
-        c = np.uint64(cid[i])
-        out[body + MSG_CHANNEL] = np.uint8(c & np.uint64(255))
-        out[body + MSG_CHANNEL + 1] = np.uint8((c >> np.uint64(8)) & np.uint64(255))
-        s = np.uint64(seq[i])
-        for k in range(4):
-            out[body + MSG_SEQUENCE + k] = np.uint8((s >> np.uint64(8 * k)) & np.uint64(255))
-        tt = np.uint64(t[i])
-        for k in range(8):
-            b = np.uint8((tt >> np.uint64(8 * k)) & np.uint64(255))
-            out[body + MSG_LOG_TIME + k] = b
-            out[body + MSG_PUBLISH_TIME + k] = b
-        q = body + MSG_HEADER
+        _message_header(out, p, np.uint64(pe[i] - ps[i]), np.uint64(cid[i]), np.uint64(seq[i]), np.uint64(t[i]))
+        q = p + REC_HEADER + MSG_HEADER
         out[q:q + (pe[i] - ps[i])] = data[ps[i]:pe[i]]   # a slice copy: 2-3x a byte loop
     return out, offs
+
+
+@njit
+def message_headers(buf, ps, pe, cid, seq, t):
+    """:func:`message_records` in place: when the payloads buf[ps[i]:pe[i]] are in order,
+    each after a gap of exactly a Message record's 31 header bytes, the first at 31 and the
+    last ending the buffer, the headers are written into the gaps (buf becomes the records).
+
+    Returns (whether it was done, int64 offsets of the n+1 record bounds); nothing is
+    written when not (then the caller copies with :func:`message_records`)."""
+    n = len(ps)
+    head = REC_HEADER + MSG_HEADER
+    offs = np.empty(n + 1, np.int64)
+    ok = n > 0 and ps[0] == head and pe[n - 1] == len(buf)
+    for i in range(n):
+        if not ok:
+            break
+        offs[i] = ps[i] - head
+        ok = pe[i] >= ps[i] and (i == n - 1 or ps[i + 1] == pe[i] + head)
+    if not ok:
+        return False, offs
+    offs[n] = len(buf)
+    for i in range(n):
+        _message_header(buf, offs[i], np.uint64(pe[i] - ps[i]), np.uint64(cid[i]), np.uint64(seq[i]),
+                        np.uint64(t[i]))
+    return True, offs
+
+
+@njit(nogil=True)
+def bare_messages(buf, ps, pe):
+    """Whether ``buf`` is exactly Message records with the payloads buf[ps[i]:pe[i]], back to
+    back in this order, each with its publish time equal to its log time."""
+    n = len(ps)
+    head = REC_HEADER + MSG_HEADER
+    if n == 0 or ps[0] != head or pe[n - 1] != len(buf):
+        return False
+    for i in range(n):
+        if i + 1 < n and ps[i + 1] - head != pe[i]:
+            return False
+        b = ps[i] - MSG_HEADER
+        for k in range(8):
+            if buf[b + MSG_LOG_TIME + k] != buf[b + MSG_PUBLISH_TIME + k]:
+                return False
+    return True
 
 
 @njit
@@ -638,6 +688,35 @@ def chunk_bounds(rec_offs, chunk_size, first_extra):
 # -----------------------------------------------------------------------------
 # fixed-size (CDR) messages
 # -----------------------------------------------------------------------------
+
+@njit(nogil=True)
+def scatter_fields(bits, offs, wide, head, pad, size, gap):
+    """Fixed-size messages from their fields (the inverse of :func:`gather_fields`): message
+    i of ``size`` bytes at ``gap + i * (gap + size)`` is ``head``, then field k of
+    ``bits[k, i]`` (an (F, n) uint64 array) at ``offs[k]``: 8 bytes little-endian when
+    ``wide[k]``, else one; the bytes at ``pad`` (those no field covers) are zero. The
+    ``gap`` bytes before each message are left unset (for the caller to fill).
+
+    Returns the uint8 buffer of n * (gap + size) bytes."""
+    nf, n = bits.shape
+    step = gap + size
+    out = np.empty(n * step, np.uint8)
+    for i in range(n):
+        p = i * step + gap
+        for j in range(len(head)):
+            out[p + j] = head[j]
+        for j in range(len(pad)):
+            out[p + pad[j]] = 0
+        for k in range(nf):
+            v = bits[k, i]
+            q = p + offs[k]
+            if wide[k]:
+                for b in range(8):
+                    out[q + b] = np.uint8((v >> np.uint64(8 * b)) & np.uint64(255))
+            else:
+                out[q] = np.uint8(v & np.uint64(255))
+    return out
+
 
 @njit(nogil=True)
 def gather_fields(buf, starts, offs, wide):

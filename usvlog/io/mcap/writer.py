@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import os
 import struct
+import threading
 from collections import deque
 from typing import TYPE_CHECKING
 
@@ -134,10 +135,12 @@ def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: in
                 cuts = _slice_cuts(_times(frames), slice_messages)
                 # frames whose times do not rise: one slice
                 cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
+                feed.start()
                 for k, batch in enumerate(_cut(frames, cuts)):
-                    # the slice and the source's chunks ending in it (the read-ahead thread
-                    # reads the next ones while the slice is encoded)
-                    w.add_frames(batch, log.schemas, *feed.take(int(cuts[k]) if k < len(cuts) else None))
+                    # the slice encoded while the read-ahead thread reads the source's chunks
+                    # ending in it, then both into chunks
+                    per = w._encode_frames(batch, log.schemas)
+                    w._add_encoded(per, *feed.take(int(cuts[k]) if k < len(cuts) else None))
                 feed.finish()
             w.finish()
         finally:
@@ -245,17 +248,17 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
             yield batch
 
 
+_READ_AHEAD = 16    # batches (chunks) of a copied file read (decompressed, CRC-checked) ahead by a thread:
+                    # a slice's worth (~1.5 MB each), read while the slice is encoded
+
+
 _MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, length, channel, sequence, times
 
 
 def _only_messages(records: np.ndarray, ps: np.ndarray, pe: np.ndarray) -> bool:
     """Whether a chunk's records are exactly these message records, back to back, each with
     its publish time equal to its log time (as this writer writes them)."""
-    starts = ps - _MSG_HEAD
-    if not len(ps) or starts[0] != 0 or pe[-1] != len(records) or np.any(starts[1:] != pe[:-1]):
-        return False
-    times = records[(starts + 9 + 6)[:, None] + np.arange(16)].view("<u8")   # log, publish time
-    return bool(np.all(times[:, 0] == times[:, 1]))
+    return bool(K.bare_messages(records, ps, pe))
 
 
 class _RawFeed:
@@ -294,10 +297,14 @@ class _RawFeed:
                 rec = bytes(m[at:at + _REC.size + _U64.unpack_from(m, at + 1)[0]])
             yield b, rec
 
+    def start(self) -> None:
+        """Start reading ahead (else the first :meth:`take` does)."""
+        if self._it is None:
+            self._it = ReadAhead(self._batches(), _READ_AHEAD)
+
     def _peek(self):
         if self._next is None and not self._done:
-            if self._it is None:
-                self._it = ReadAhead(self._batches())
+            self.start()
             try:
                 self._next = next(self._it)
             except StopIteration:
@@ -326,11 +333,12 @@ class _RawFeed:
     def _hand(self, b, rec, raw: dict[str, list], chunks: list[tuple]) -> None:
         records, at, _t0, _t1, cid, seq, t, ps, pe, _ordinal = b
         chans = self._stream._scan.channels
-        for c in np.unique(cid).tolist():
+        one = rec is not None   # a chunk of one channel (_batches checked): its messages as they are
+        for c in [int(cid[0])] if one else np.unique(cid).tolist():
             topic = chans[c].topic
             if topic not in self._topics:
                 continue
-            sel = np.flatnonzero(cid == c)
+            sel = slice(None) if one else np.flatnonzero(cid == c)
             tc, sc = t[sel], seq[sel]
             prev = self._last.get(topic)
             if (len(tc) > 1 and (np.any(tc[1:] < tc[:-1]) or np.any(sc[1:] < sc[:-1]))) or \
@@ -365,13 +373,28 @@ class _RawFeed:
         self._stream.close()
 
 
+_TLS = threading.local()
+
+
+def _zstd(level: int):
+    """This thread's zstd compressor of ``level``, made once (a compressor's context is
+    reused chunk after chunk: the same bytes, without allocating it again each time)."""
+    zs = getattr(_TLS, "zstd", None)
+    if zs is None:
+        zs = _TLS.zstd = {}
+    z = zs.get(level)
+    if z is None:
+        import zstandard  # only the compressor the file uses is loaded
+
+        z = zs[level] = zstandard.ZstdCompressor(level=level)
+    return z
+
+
 def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     """(compressed bytes, compression name, CRC-32 of ``data``) of one chunk's records;
     runs on a worker thread (zstd and lz4 release the GIL; the CRC is ~0.1 ms a megabyte)."""
     if comp == "zstd":
-        import zstandard  # only the compressor the file uses is loaded
-
-        packed, cname = zstandard.ZstdCompressor(level=level).compress(data), "zstd"
+        packed, cname = _zstd(level).compress(data), "zstd"
     elif comp == "lz4":
         import lz4.frame  # only the compressor the file uses is loaded
 
@@ -381,7 +404,9 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     return packed, cname, crc32(data)
 
 
-_WORKERS = max(1, min(4, (os.cpu_count() or 1) - 1))   # chunk compression threads
+# chunk compression threads: as many as CPUs (1 to 4): compression is the write's largest
+# work, and when the caller waits for it (chunks pending, or the last ones) every core compresses
+_WORKERS = max(1, min(4, os.cpu_count() or 1))
 _PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
 _CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
@@ -408,8 +433,8 @@ class McapWriter:
     Memory stays flat when streaming: only the open chunks (at most ``chunk_size`` per
     channel plus one batch: a chunk is a view of the batch's records, not a copy) and
     the chunks being compressed (at most ``_PENDING_BYTES`` uncompressed) are held.
-    Chunks are compressed on ``threads`` worker threads (default: one fewer than the
-    CPUs, 1 to 4; 0 compresses in the calling thread) while the caller encodes the next
+    Chunks are compressed on ``threads`` worker threads (default: one per CPU, 1 to 4;
+    0 compresses in the calling thread) while the caller encodes the next
     batch, and written in order; :meth:`flush` and :meth:`finish` wait for them. Each
     message's ``sequence`` is its row number in its channel over all batches, as
     :func:`read_log` expects; within a chunk messages are in (time, row) order.
@@ -444,6 +469,7 @@ class McapWriter:
         self._open_len: dict[int, int] = {}
         self._open_msgs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._open_copy: dict[int, tuple] = {}   # channel id -> its last chunk, copied, not yet written
+        self._mine: set[int] = set()   # ids of the buffers of the batch being added this writer encoded
         # chunks being compressed on worker threads, written in order as they are done
         self._threads = _WORKERS if threads is None else int(threads)
         self._pool = None
@@ -532,13 +558,33 @@ class McapWriter:
         channel (those this writer gives them); else its payloads are added as ``raw``
         ones. A channel's raw pieces come before its chunks in the batch.
         """
+        self._add_encoded(self._encode_frames(frames, schemas), raw, chunks)
+
+    def _encode_frames(self, frames: dict[str, pd.DataFrame], schemas: dict[str, dict] | None) -> dict[int, list]:
+        """The first half of :meth:`add_frames`: the frames' channels registered and their rows
+        encoded, channel id -> [(topic, times, buffer, starts, ends)] (pure: nothing written, so
+        a caller may encode a batch while another thread reads what goes with it)."""
         per: dict[int, list] = {}
         for topic, frame in frames.items():
             if not len(frame):
                 continue
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-            data, offs = self._topics[topic][1].encode_packed(frame, topic)
-            per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, offs[:-1], offs[1:]))
+            # room for the Message records' headers before the payloads (a fixed-size codec
+            # leaves it: the records are then made in place, not copied)
+            data, starts, ends = self._topics[topic][1].encode_spans(frame, topic, _MSG_HEAD)
+            self._mine.add(id(data))
+            per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, starts, ends))
+        return per
+
+    def _add_encoded(self, per: dict[int, list], raw: dict[str, list] | None, chunks: list[tuple] | None) -> None:
+        """The second half of :meth:`add_frames`: the encoded rows ``per``
+        (:meth:`_encode_frames`), then ``raw`` and ``chunks``, into chunks."""
+        try:
+            self._add_all(per, raw, chunks)
+        finally:
+            self._mine.clear()
+
+    def _add_all(self, per: dict[int, list], raw: dict[str, list] | None, chunks: list[tuple] | None) -> None:
         for topic, parts in (raw or {}).items():
             per.setdefault(self._topics[topic][0], []).extend((topic, *p) for p in parts if len(p[0]))
         for c in chunks or ():
@@ -609,8 +655,13 @@ class McapWriter:
         if n > 1 and not bool(np.all(t_all[1:] >= t_all[:-1])):   # rows out of time order: by (time, row)
             order = np.argsort(t_all, kind="stable")
             t_all, s_all, ps_all, pe_all = t_all[order], s_all[order], ps_all[order], pe_all[order]
-        recs, rec_offs = K.message_records(np.concatenate(bufs) if len(bufs) > 1 else bufs[0], ps_all, pe_all,
-                                           np.full(n, cid, dtype=np.int64), s_all, t_all)
+        cids = np.full(n, cid, dtype=np.int64)
+        recs = np.concatenate(bufs) if len(bufs) > 1 else bufs[0]
+        done = False
+        if len(bufs) == 1 and id(recs) in self._mine:   # the records written around the payloads
+            done, rec_offs = K.message_headers(recs, ps_all, pe_all, cids, s_all, t_all)
+        if not done:
+            recs, rec_offs = K.message_records(recs, ps_all, pe_all, cids, s_all, t_all)
         self._count(cid, n, int(t_all.min()), int(t_all.max()))
         open_len = self._open_len.get(cid, 0)
         bounds = K.chunk_bounds(rec_offs, self._chunk_size, open_len).tolist()
