@@ -24,16 +24,11 @@ import html
 import io
 import json
 import math
-import os
-import pickle
-import sys
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._cpu import spare_cpu
 from ..choices import PARAM_NAMES
 from ..errors import ConfigError, OutputExistsError, StorageError
 from ..io.atomic import atomic_dir, atomic_path, deferred_signals
@@ -42,6 +37,8 @@ from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
 from . import data as vd
+from .forked import Forked as _Forked
+from .forked import two_cores as _two_cores
 
 if TYPE_CHECKING:
     from ..replay import TrackingMetrics
@@ -696,52 +693,6 @@ def _drawn(title: str, make) -> tuple[str, bytes] | None:
     if fig is None:
         return None
     return f"{title}: " + "; ".join(_labels(fig)), _render(fig)
-
-
-class _Forked:
-    """``fn()`` run in a forked copy of this process; :meth:`result` waits for its (picklable) value."""
-
-    def __init__(self, fn):
-        self._file = tempfile.TemporaryFile()   # noqa: SIM115 - closed by result() or stop()
-        self.pid = os.fork()
-        if self.pid == 0:   # the copy: the value into the file, then out without the parent's exit handlers
-            code = 1
-            try:
-                pickle.dump(fn(), self._file)
-                self._file.flush()
-                code = 0
-            finally:
-                os._exit(code)
-
-    def result(self):
-        """``fn()``'s value, or None when the copy failed (the caller then does the work itself)."""
-        try:
-            _pid, status = os.waitpid(self.pid, 0)
-            if os.waitstatus_to_exitcode(status) != 0:
-                return None
-            self._file.seek(0)
-            return pickle.load(self._file)   # noqa: S301 - written by this process's own copy
-        finally:
-            self._file.close()
-
-    def stop(self) -> None:
-        """End the copy (the caller failed) and reap it."""
-        import signal  # stdlib: only when a report fails
-
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(self.pid, signal.SIGKILL)
-        with contextlib.suppress(ChildProcessError):
-            os.waitpid(self.pid, 0)
-        self._file.close()
-
-
-def _two_cores() -> bool:
-    """A second CPU to draw on, and a fork that copies matplotlib's state safely: Linux, and no
-    other thread running (one could hold a lock, e.g. an import's, the copy would wait on forever)."""
-    import threading  # stdlib: only when a report draws
-
-    return (sys.platform.startswith("linux") and hasattr(os, "fork") and spare_cpu()
-            and threading.active_count() == 1)
 
 
 def draw_all(figs) -> list[tuple[str, bytes] | None]:
