@@ -113,3 +113,19 @@ def test_channel_read_by_a_forked_copy_gives_the_same_log(tmp_path, sim_log):
         assert got[case] == {"same": True, "meanwhile once": True, "thrust": True}, got
     if not got["fork"]:
         pytest.skip("no forked copy here (one CPU, USVLOG_THREADS=1 or not Linux): compared in-process only")
+
+
+def test_compass_read_only_for_a_log_without_a_state(tmp_path, sim_log):
+    """The view draws the compass only when no state channel is there: a log holding one is read
+    without it (its time range still the whole file's), one without a state reads it."""
+    from usvlog.view.source import VIEW_READ, Drawn
+
+    drawn = Drawn(VIEW_TOPICS, unless=VIEW_READ.unless)   # no forked copy, no rerun import
+    raw = sim_log.copy()
+    del raw.channels["/truth/state"]
+    for log, name, compass in ((sim_log, "a.mcap", False), (raw, "b.mcap", True)):
+        path = tmp_path / name
+        write_log(log, path, chunk_size=1 << 14)
+        got = read_drawn(path, drawn, read_log)
+        assert ("/compass/heading" in got.channels) == compass
+        assert got.time_range() == read_log(path).time_range()

@@ -17,7 +17,7 @@ no second CPU is free (``USVLOG_THREADS=1``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
@@ -46,11 +46,15 @@ class Drawn:
         ``meanwhile``, once the others are read (here when no copy can run).
     meanwhile : callable, optional
         Work for this process while the copy reads (e.g. importing what draws the log).
+    unless : dict, optional
+        Channel of ``topics`` -> channels that, when the file holds any of them, keep it from
+        being drawn (it is then left like a channel never drawn).
     """
 
     topics: tuple[str, ...]
     late: tuple[str, ...] = ()
     meanwhile: Callable[[], object] | None = None
+    unless: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldLog]) -> FieldLog:
@@ -96,6 +100,7 @@ def _read_drawn(path, drawn: Drawn, meanwhile: Callable[[], None], read: Callabl
     if spans is None:
         return read(path, topics=None)
     present = {t for _a, _b, ts in spans for t in ts}
+    topics = tuple(t for t in topics if not present.intersection(drawn.unless.get(t, ())))
     others = sorted(present - set(topics))
     late = [t for t in drawn.late if t in present][:1]
     if not others and not late:
@@ -150,5 +155,7 @@ def _import_matplotlib() -> None:
 
 # what the view and the report read (a forked copy reads the channel that costs about as much
 # as importing rerun or matplotlib, while this process imports them; 1-hour log: ~0.5 s each)
-VIEW_READ = Drawn(VIEW_TOPICS, late=("/thrust/command", "/truth/state", "/estimate/state"), meanwhile=_import_rerun)
+# the view draws the compass only for a log without a state channel (rrd._Writer.draw_series)
+VIEW_READ = Drawn(VIEW_TOPICS, late=("/thrust/command", "/truth/state", "/estimate/state"), meanwhile=_import_rerun,
+                  unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)})
 REPORT_READ = Drawn(REPORT_TOPICS, late=("/truth/state", "/estimate/state"), meanwhile=_import_matplotlib)
