@@ -12,9 +12,9 @@ benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
 
 ``--cli LOG`` instead runs ``usvlog view LOG`` and ``usvlog report LOG`` as a user would
 (separate processes, ``--repeat`` times each) and prints per run the wall time, the CPU of
-the main thread, of the rest of the process (rerun's threads) and of the report's forked
-figure drawer, the
-peak RSS of the process and of the drawer, and the load average: what the two cores do.
+the main thread, of the rest of the process (rerun's threads) and of its forked copies (the one
+reading a channel while the process imports rerun or matplotlib, the report's figure drawer),
+the peak RSS of the process and of the largest copy, and the load average: what the two cores do.
 
 ``--figures LOG`` prints the CPU seconds each report figure of LOG takes to draw (best of
 ``--repeat``) and the page's text, which ``usvlog.view.report.FIGURE_COST`` holds for a 1-hour
@@ -130,8 +130,8 @@ def cli(log: Path, repeat: int) -> None:
                 wall, cpu, main, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
                 rest = float(cpu) - float(main)
                 print(f"{name:6s} {float(wall):5.2f} s wall; CPU {cpu} s in the process (main thread {main}, "
-                      f"other threads {rest:.2f}) + {kids} s forked drawer; "
-                      f"peak RSS {rss} MB (drawer {kid_rss} MB); load {load:.2f}", flush=True)
+                      f"other threads {rest:.2f}) + {kids} s forked copies (reader, figure drawer); "
+                      f"peak RSS {rss} MB (copies {kid_rss} MB); load {load:.2f}", flush=True)
 
 
 def figure_costs(log_path: Path, repeat: int) -> None:
