@@ -1,5 +1,6 @@
-"""The report's figures drawn on two CPUs (a forked copy draws every second one) are the bytes
-drawn one after another in this process, and a copy that fails leaves its figures to this one.
+"""The report's figures drawn on two CPUs (a forked copy draws its share, by expected cost) are
+the bytes drawn one after another in this process, and a copy that fails leaves its figures to
+this one; the share is near the best split.
 
 Run in a fresh interpreter: the report forks only when no other thread runs, and a test
 worker (pytest-xdist) has threads of its own.
