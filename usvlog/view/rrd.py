@@ -513,18 +513,25 @@ def _frame_of(t_ns, x):
 
 
 def _extent(log: FieldLog) -> float:
-    pts = []
+    """The larger side (m) of the box around the boat's positions and the path (10 without either)."""
+    ns, es = [], []
     b = vd.boat_state(log)
     if b is not None:
-        pts.append(np.column_stack([b[1]["n_m"].to_numpy(), b[1]["e_m"].to_numpy()]))
+        ns.append(np.asarray(b[1]["n_m"].to_numpy(), float))
+        es.append(np.asarray(b[1]["e_m"].to_numpy(), float))
     p = vd.path_polyline(log)
     if p is not None:
-        pts.append(p)
-    if not pts:
+        ns.append(p[:, 0])
+        es.append(p[:, 1])
+    if not ns:
         return 10.0
-    a = np.concatenate(pts).astype(float)
-    a = a[np.isfinite(a).all(1)]
-    return float(np.ptp(a, axis=0).max()) if len(a) else 10.0
+    n, e = (x[0] if len(x) == 1 else np.concatenate(x) for x in (ns, es))
+    ok = np.isfinite(n) & np.isfinite(e)
+    if not ok.any():
+        return 10.0
+    if not ok.all():
+        n, e = n[ok], e[ok]
+    return float(max(n.max() - n.min(), e.max() - e.min()))
 
 
 # -----------------------------------------------------------------------------
