@@ -12,14 +12,19 @@ benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
 
 ``--cli LOG`` instead runs ``usvlog view LOG`` and ``usvlog report LOG`` as a user would
 (separate processes, ``--repeat`` times each) and prints per run the wall time, the CPU of
-the main thread, of the rest of the process (rerun's threads) and of the report's forked
-figure drawer, the
-peak RSS of the process and of the drawer, and the load average: what the two cores do.
+the main thread, of the rest of the process (rerun's threads) and of its forked copies (the one
+reading a channel while the process imports rerun or matplotlib, the report's figure drawer),
+the peak RSS of the process and of the largest copy, and the load average: what the two cores do.
+
+``--figures LOG`` prints the CPU seconds each report figure of LOG takes to draw (best of
+``--repeat``) and the page's text, which ``usvlog.view.report.FIGURE_COST`` holds for a 1-hour
+log (the report shares the figures between two processes by these), and how it shares them.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
@@ -125,8 +130,35 @@ def cli(log: Path, repeat: int) -> None:
                 wall, cpu, main, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
                 rest = float(cpu) - float(main)
                 print(f"{name:6s} {float(wall):5.2f} s wall; CPU {cpu} s in the process (main thread {main}, "
-                      f"other threads {rest:.2f}) + {kids} s forked drawer; "
-                      f"peak RSS {rss} MB (drawer {kid_rss} MB); load {load:.2f}", flush=True)
+                      f"other threads {rest:.2f}) + {kids} s forked copies (reader, figure drawer); "
+                      f"peak RSS {rss} MB (copies {kid_rss} MB); load {load:.2f}", flush=True)
+
+
+def figure_costs(log_path: Path, repeat: int) -> None:
+    """CPU seconds of each report figure of ``log_path`` and of the page's text, best of ``repeat``."""
+    from usvlog.io.mcap import read_log
+    from usvlog.view import report as rp
+    from usvlog.view.source import REPORT_TOPICS, read_drawn
+
+    log = read_drawn(log_path, REPORT_TOPICS, read_log)
+    figs = rp.figures(log)
+    rp._drawn(figs[0][1], figs[0][2])   # matplotlib's first-figure set-up (fonts) apart
+    best: dict[str, float] = {}
+    for _ in range(repeat):
+        for name, title, make, _needs in figs:
+            t = time.process_time()
+            drawn = rp._drawn(title, make)
+            if drawn is not None:
+                best[name] = min(best.get(name, math.inf), time.process_time() - t)
+        t = time.process_time()
+        rp._page_head(log, None)
+        best["(page)"] = min(best.get("(page)", math.inf), time.process_time() - t)
+    for name, s in best.items():
+        print(f"{name:24s} {s:6.3f} CPU s   (table: {rp.FIGURE_COST.get(name, rp.PAGE_COST):.2f})")
+    costs = rp.figure_costs(figs, log)
+    theirs = rp.share(costs, rp.PAGE_COST)
+    mine = [figs[i][0] for i in range(len(figs)) if costs[i] > 0 and i not in theirs]
+    print(f"this process: {mine} + the page; the forked copy: {[figs[i][0] for i in theirs]}")
 
 
 def main() -> None:
@@ -135,10 +167,14 @@ def main() -> None:
     ap.add_argument("--fraction", type=int, default=20, help="per-row logging is timed on 1/fraction of the rows")
     ap.add_argument("--cli", type=Path, metavar="LOG",
                     help="time `usvlog view LOG` and `usvlog report LOG` as processes, CPU per thread")
-    ap.add_argument("--repeat", type=int, default=3, help="runs of each verb with --cli")
+    ap.add_argument("--figures", type=Path, metavar="LOG", help="CPU seconds of each report figure of LOG")
+    ap.add_argument("--repeat", type=int, default=3, help="runs of each verb (--cli), of each figure (--figures)")
     args = ap.parse_args()
     if args.cli is not None:
         cli(args.cli, args.repeat)
+        return
+    if args.figures is not None:
+        figure_costs(args.figures, args.repeat)
         return
     t = time.perf_counter()
     log = hour_log(args.duration_s)

@@ -861,7 +861,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
         The recording written (open it with ``rerun FILE``).
     """
     from .io.atomic import check_output  # heavy: numpy
-    from .view.source import VIEW_TOPICS  # heavy: numpy (with the recording's imports below)
+    from .view.source import VIEW_READ  # heavy: numpy (with the recording's imports below)
 
     items = list(logs) if isinstance(logs, (list, tuple)) else [logs]
     if not items:
@@ -880,7 +880,7 @@ def to_rrd(logs, out: PathLike | None = None, *, names: Sequence[str] | None = N
     for x in items:
         if _is_path(x):
             _say(progress, f"reading {x}")
-        read.append(_read(x, progress, drawn=VIEW_TOPICS))
+        read.append(_read(x, progress, drawn=VIEW_READ))
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy
     from .view.rrd import to_rrd as write_rrd  # heavy: rerun is imported only when a recording is made
 
@@ -920,11 +920,11 @@ def report(log, out: PathLike, baseline=None, *, axes: str = "paper", force: boo
         The page ``out/report.html``.
     """
     from .view.report import check_report_outputs, write_report  # heavy: matplotlib, numpy
-    from .view.source import REPORT_TOPICS  # heavy: numpy (with the report's imports above)
+    from .view.source import REPORT_READ  # heavy: numpy (with the report's imports above)
 
     check_report_outputs(out, force)  # fail before the work, not after
-    log = _read(log, progress, drawn=REPORT_TOPICS)
-    base = _read(baseline, progress, drawn=REPORT_TOPICS) if baseline is not None else None
+    log = _read(log, progress, drawn=REPORT_READ)
+    base = _read(baseline, progress, drawn=REPORT_READ) if baseline is not None else None
     from .view.data import refuse_failed_estimate, warnings  # heavy: numpy (with the report's imports above)
 
     for lg in (log, base):

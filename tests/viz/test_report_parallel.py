@@ -1,5 +1,6 @@
-"""The report's figures drawn on two CPUs (a forked copy draws every second one) are the bytes
-drawn one after another in this process, and a copy that fails leaves its figures to this one.
+"""The report's figures drawn on two CPUs (a forked copy draws its share, by expected cost) are
+the bytes drawn one after another in this process, and a copy that fails leaves its figures to
+this one; the share is near the best split.
 
 Run in a fresh interpreter: the report forks only when no other thread runs, and a test
 worker (pytest-xdist) has threads of its own.
@@ -85,3 +86,28 @@ def test_two_cpus_draw_the_same_bytes(fail_in_copy):
             assert a[0] == b[0]                        # caption
             assert a[1] == b[1]                        # the very same PNG bytes
             assert bytes.fromhex(a[2]) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_figures_shared_by_cost_near_the_best_split():
+    """The copy's share (:func:`share`, costliest first to the process with less to do) against every
+    split: its longer side within 7/6 of the best split's (that rule's bound for two processes, held
+    here with this process's own work too); figures that cost nothing (not drawn) never forked off."""
+    import itertools
+
+    import numpy as np
+
+    from usvlog.view.report import FIGURE_COST, figure_costs, share
+
+    rng = np.random.default_rng(7)
+    cases = [list(FIGURE_COST.values()), [0.33, 0.83, 0.0, 0.0, 0.0, 0.0, 0.0]]
+    cases += [list(np.round(rng.uniform(0.0, 1.0, rng.integers(2, 8)), 2)) for _ in range(40)]
+    for costs in cases:
+        for own in (0.0, 0.08, 0.5):
+            theirs = share(costs, own)
+            assert all(costs[i] > 0 for i in theirs)
+            longest = max(own + sum(c for i, c in enumerate(costs) if i not in theirs), sum(costs[i] for i in theirs))
+            best = min(max(own + sum(c for i, c in enumerate(costs) if i not in s), sum(costs[i] for i in s))
+                       for k in range(len(costs) + 1) for s in itertools.combinations(range(len(costs)), k))
+            assert longest <= 7 / 6 * best + 1e-12, (costs, own, theirs)
+    figs = [(name, "", None, "") for name in FIGURE_COST]
+    assert figure_costs(figs) == list(FIGURE_COST.values())

@@ -255,3 +255,19 @@ def test_map_zoom_fits_the_extent():
     # at 60 deg latitude a pixel of a given zoom covers half the metres: one level less
     box60 = np.array([[60.0, 0.0, 60.0, 1000.0 / (111_320.0 * 0.5)]])
     assert map_zoom(box60) == pytest.approx(np.log2(156_543.03 / 2.0) - 1.0, abs=1e-3)
+
+
+def test_scalar_column_is_rerun_s_own():
+    """The time series' column built with its offsets at once holds what ``rr.Scalars.columns`` gives."""
+    import rerun as rr
+
+    from usvlog.view.rrd import scalar_column
+
+    y = np.r_[np.random.default_rng(3).normal(size=1000), np.nan, 1e300, -0.0]
+    for n in (0, 1, len(y)):
+        ref, got = list(rr.Scalars.columns(scalars=y[:n])), list(scalar_column(y[:n]))
+        assert len(ref) == len(got) == 1
+        assert ref[0].component_descriptor() == got[0].component_descriptor()
+        a, b = ref[0].as_arrow_array(), got[0].as_arrow_array()
+        assert a.type == b.type and a.null_count == b.null_count == 0 and a.offsets.equals(b.offsets)
+        assert a.values.to_numpy().tobytes() == b.values.to_numpy().tobytes()   # NaN (a break in the line) too

@@ -24,16 +24,11 @@ import html
 import io
 import json
 import math
-import os
-import pickle
-import sys
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._cpu import spare_cpu
 from ..choices import PARAM_NAMES
 from ..errors import ConfigError, OutputExistsError, StorageError
 from ..io.atomic import atomic_dir, atomic_path, deferred_signals
@@ -42,6 +37,8 @@ from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
 from . import data as vd
+from .forked import Forked as _Forked
+from .forked import two_cores as _two_cores
 
 if TYPE_CHECKING:
     from ..replay import TrackingMetrics
@@ -698,69 +695,83 @@ def _drawn(title: str, make) -> tuple[str, bytes] | None:
     return f"{title}: " + "; ".join(_labels(fig)), _render(fig)
 
 
-class _Forked:
-    """``fn()`` run in a forked copy of this process; :meth:`result` waits for its (picklable) value."""
-
-    def __init__(self, fn):
-        self._file = tempfile.TemporaryFile()   # noqa: SIM115 - closed by result() or stop()
-        self.pid = os.fork()
-        if self.pid == 0:   # the copy: the value into the file, then out without the parent's exit handlers
-            code = 1
-            try:
-                pickle.dump(fn(), self._file)
-                self._file.flush()
-                code = 0
-            finally:
-                os._exit(code)
-
-    def result(self):
-        """``fn()``'s value, or None when the copy failed (the caller then does the work itself)."""
-        try:
-            _pid, status = os.waitpid(self.pid, 0)
-            if os.waitstatus_to_exitcode(status) != 0:
-                return None
-            self._file.seek(0)
-            return pickle.load(self._file)   # noqa: S301 - written by this process's own copy
-        finally:
-            self._file.close()
-
-    def stop(self) -> None:
-        """End the copy (the caller failed) and reap it."""
-        import signal  # stdlib: only when a report fails
-
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(self.pid, signal.SIGKILL)
-        with contextlib.suppress(ChildProcessError):
-            os.waitpid(self.pid, 0)
-        self._file.close()
+# CPU seconds to draw each figure of a 1-hour log (benchmarks/bench_view.py --figures LOG, best of 3, on an
+# estimated, a replayed and an identified run) and the channels it draws from (none: not drawn, costs nothing)
+FIGURE_COST = {"fig4_path.png": 0.33, "estimate_series.png": 0.83, "fit_velocities.png": 0.52,
+               "fit_track.png": 0.19, "fig1_track.png": 0.20, "fig2_errors.png": 0.56, "fig5_speed_heading.png": 0.40}
+_CONTROLLED = tuple(t for t, _label, _state, _desc in vd.CONTROLLERS)
+FIGURE_CHANNELS = {"fig4_path.png": ("/estimate/state", "/gnss/fix"), "estimate_series.png": ("/estimate/state",),
+                   "fit_velocities.png": ("/identify/fit",), "fit_track.png": ("/identify/fit",),
+                   "fig1_track.png": _CONTROLLED, "fig2_errors.png": _CONTROLLED,
+                   "fig5_speed_heading.png": _CONTROLLED}
+PAGE_COST = 0.08   # the page's text (metrics, events), built while the copy draws
 
 
-def _two_cores() -> bool:
-    """A second CPU to draw on, and a fork that copies matplotlib's state safely: Linux, and no
-    other thread running (one could hold a lock, e.g. an import's, the copy would wait on forever)."""
-    import threading  # stdlib: only when a report draws
+def figure_costs(figs, log: FieldLog | None = None) -> list[float]:
+    """The expected cost of each figure of ``figs`` (relative; :data:`FIGURE_COST`), 0 for one
+    whose channels ``log`` lacks; a figure not in the table costs the table's mean."""
+    mean = sum(FIGURE_COST.values()) / len(FIGURE_COST)
+    out = []
+    for name, *_rest in figs:
+        needs = FIGURE_CHANNELS.get(name)
+        if log is not None and needs is not None and not any(vd.nonempty(log, t) is not None for t in needs):
+            out.append(0.0)
+        else:
+            out.append(FIGURE_COST.get(name, mean))
+    return out
 
-    return (sys.platform.startswith("linux") and hasattr(os, "fork") and spare_cpu()
-            and threading.active_count() == 1)
+
+def share(costs: list[float], own: float = 0.0) -> list[int]:
+    """Indices of the figures a second process draws: the costliest first, each to the process
+    with less to do (this one starts with ``own``, e.g. the page), ties to the second.
+
+    Parameters
+    ----------
+    costs : list of float
+        Expected cost of each figure (any unit, e.g. CPU s).
+    own : float, default 0.0
+        Work this process has besides its figures (same unit).
+
+    Returns
+    -------
+    list of int
+        Increasing indices into ``costs``; empty when a second process would get nothing.
+    """
+    mine, theirs = own, 0.0
+    out = []
+    for i in sorted(range(len(costs)), key=lambda i: (-costs[i], i)):
+        if costs[i] <= 0.0:
+            continue
+        if theirs <= mine:
+            out.append(i)
+            theirs += costs[i]
+        else:
+            mine += costs[i]
+    return sorted(out)
 
 
-def draw_all(figs) -> list[tuple[str, bytes] | None]:
+def draw_all(figs, *, log: FieldLog | None = None, meanwhile=None) -> list[tuple[str, bytes] | None]:
     """Every figure of ``figs`` (as :func:`figures` lists them) drawn: (caption, PNG bytes), or
     None for one the log cannot give, in order.
 
     matplotlib's drawing holds the GIL, so on a machine with a second CPU (Linux) a forked
-    copy of the process draws every second figure while this one draws the others. A figure
-    depends only on the log and matplotlib's settings, both the same in the copy, so the
-    bytes are those drawn here; when the copy fails, its figures are drawn here after all.
+    copy of the process draws some of the figures while this one draws the others and then
+    runs ``meanwhile()`` (e.g. the page's text): shared by their expected cost
+    (:func:`figure_costs` of ``log``, :func:`share`). A figure depends only on the log and
+    matplotlib's settings, both the same in the copy, so the bytes are those drawn here; when
+    the copy fails, its figures are drawn here after all.
     """
     n = len(figs)
     out: list[tuple[str, bytes] | None] = [None] * n
-    theirs = list(range(1, n, 2)) if n > 1 and _two_cores() else []
+    theirs = share(figure_costs(figs, log), PAGE_COST if meanwhile is not None else 0.0) \
+        if n > 1 and _two_cores() else []
     child = _Forked(lambda: [_drawn(figs[i][1], figs[i][2]) for i in theirs]) if theirs else None
     try:
         for i in range(n):
             if i not in theirs:
                 out[i] = _drawn(figs[i][1], figs[i][2])
+        if meanwhile is not None:
+            meanwhile()
     except BaseException:
         if child is not None:
             child.stop()
@@ -856,14 +867,16 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
     out = check_report_outputs(out_dir, force)
     shown, missing, pngs = [], [], []
     figs = figures(log, baseline=baseline, axes=axes)
-    for (name, title, _make, needs), drawn in zip(figs, draw_all(figs)):
+    head: list[str] = []
+    drawn_all = draw_all(figs, log=log, meanwhile=lambda: head.extend(_page_head(log, baseline, links)))
+    for (name, title, _make, needs), drawn in zip(figs, drawn_all):
         if drawn is None:
             missing.append((title, needs))
             continue
         caption, png = drawn
         pngs.append((name, png))
         shown.append((name, caption))
-    page_text = _html(log, baseline, shown, missing, AXES_NOTE[axes], links)
+    page_text = "\n".join(head + _page_figures(shown, missing, AXES_NOTE[axes]))   # _html, its head built above
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as err:
@@ -1041,6 +1054,11 @@ def _identification_section(log) -> list[str]:
 
 
 def _html(log, baseline, shown, missing, axes_note: str, links=()) -> str:
+    return "\n".join(_page_head(log, baseline, links) + _page_figures(shown, missing, axes_note))
+
+
+def _page_head(log, baseline, links=()) -> list[str]:
+    """The page's parts before its figures (status, warnings, metrics, sections, events)."""
     e = html.escape
     title = f"usvlog report: {Path(log.source).name if log.source else 'log'}"
     short, status = _status_line(log)
@@ -1078,8 +1096,13 @@ def _html(log, baseline, shown, missing, axes_note: str, links=()) -> str:
         if len(ev) > 200:
             parts.append(f"<li>... {len(ev) - 200} more</li>")
         parts.append("</ul>")
-    parts.append("<h2>Figures</h2>")
-    parts.append(f"<p>{e(axes_note)}</p>")
+    return parts
+
+
+def _page_figures(shown, missing, axes_note: str) -> list[str]:
+    """The page's parts from its figures on: each figure with its caption, those not drawn."""
+    e = html.escape
+    parts = ["<h2>Figures</h2>", f"<p>{e(axes_note)}</p>"]
     for name, caption in shown:
         parts.append(f"<figure><img src='{e(name)}' alt='{e(caption)}'><figcaption>{e(caption)}</figcaption></figure>")
     if missing:
@@ -1088,4 +1111,4 @@ def _html(log, baseline, shown, missing, axes_note: str, links=()) -> str:
             parts.append(f"<li>{e(caption)}: needs {e(needs)}</li>")
         parts.append("</ul>")
     parts.append("</body></html>\n")
-    return "\n".join(parts)
+    return parts

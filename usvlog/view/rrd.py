@@ -121,9 +121,9 @@ class _Writer:
 
     def index_cols(self, t_ns: np.ndarray):
         t_ns = np.asarray(t_ns, dtype=np.int64)
-        cols = [rr.TimeColumn("time", timestamp=t_ns.astype("datetime64[ns]"))]
+        cols = [rr.TimeColumn("time", timestamp=t_ns.view("datetime64[ns]"))]   # a view: rerun copies it once
         if self.multi:  # runs recorded at different times overlay on the time since each one's start
-            cols.append(rr.TimeColumn("elapsed", duration=(t_ns - self.t0).astype("timedelta64[ns]")))
+            cols.append(rr.TimeColumn("elapsed", duration=(t_ns - self.t0).view("timedelta64[ns]")))
         return cols
 
     def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color=None, width: float = 1.5,
@@ -144,7 +144,9 @@ class _Writer:
             color = free[0] if free else SERIES_PALETTE[len(used) % len(SERIES_PALETTE)]
         path = f"{self.prefix}/ts/{sub}"
         kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
-        index, column = self.index_cols(t_ns[ok]), rr.Scalars.columns(scalars=y[ok])
+        if not ok.all():
+            t_ns, y = t_ns[ok], y[ok]
+        index, column = self.index_cols(t_ns), scalar_column(y)
         # the series before written out now, not sooner: rerun encodes it on its own thread while this one
         # was built; every sample of the log is a series sample, and rerun's pipeline would otherwise hold
         # them all until the end (1-hour log: 80 MB less at the peak)
@@ -449,6 +451,25 @@ def _col(frame, name) -> np.ndarray:
     return np.asarray(frame[name].to_numpy(), dtype=float)
 
 
+def scalar_column(y: np.ndarray) -> rr.ComponentColumnList:
+    """``rr.Scalars.columns(scalars=y)``, one scalar per row, without its per-row partition sizes
+    (a float array of ones summed into the offsets: 9 of its 9.4 ms for 360k samples).
+
+    Parameters
+    ----------
+    y : numpy.ndarray
+        The samples (float64), one per row.
+
+    Returns
+    -------
+    rerun.ComponentColumnList
+        The column for ``send_columns``: the same arrow data as ``rr.Scalars.columns``.
+    """
+    batch = rr.Scalars.from_fields(scalars=y).as_component_batches()[0]
+    return rr.ComponentColumnList([rr.ComponentColumn(batch.component_descriptor(), batch,
+                                                      offsets=np.arange(len(y) + 1, dtype=np.int32))])
+
+
 def heading_deg(psi_rad) -> np.ndarray:
     """Heading in degrees wrapped to [-180, 180) (what the heading plots show by default).
 
@@ -492,18 +513,25 @@ def _frame_of(t_ns, x):
 
 
 def _extent(log: FieldLog) -> float:
-    pts = []
+    """The larger side (m) of the box around the boat's positions and the path (10 without either)."""
+    ns, es = [], []
     b = vd.boat_state(log)
     if b is not None:
-        pts.append(np.column_stack([b[1]["n_m"].to_numpy(), b[1]["e_m"].to_numpy()]))
+        ns.append(np.asarray(b[1]["n_m"].to_numpy(), float))
+        es.append(np.asarray(b[1]["e_m"].to_numpy(), float))
     p = vd.path_polyline(log)
     if p is not None:
-        pts.append(p)
-    if not pts:
+        ns.append(p[:, 0])
+        es.append(p[:, 1])
+    if not ns:
         return 10.0
-    a = np.concatenate(pts).astype(float)
-    a = a[np.isfinite(a).all(1)]
-    return float(np.ptp(a, axis=0).max()) if len(a) else 10.0
+    n, e = (x[0] if len(x) == 1 else np.concatenate(x) for x in (ns, es))
+    ok = np.isfinite(n) & np.isfinite(e)
+    if not ok.any():
+        return 10.0
+    if not ok.all():
+        n, e = n[ok], e[ok]
+    return float(max(n.max() - n.min(), e.max() - e.min()))
 
 
 # -----------------------------------------------------------------------------

@@ -7,15 +7,22 @@ they lie within the time range of the channels read: every chunk that holds one 
 starts and ends inside it (a chunk's start and end are its messages' first and last log
 times). The ones in a chunk past that range are read as well, and the file whole when it
 has no usable summary or is damaged.
+
+While this process imports what draws the log (rerun for the view, matplotlib for the report:
+~0.5 s each, holding the GIL), a forked copy of it reads one more channel (:class:`Drawn`), one
+that costs about as much to read; the log is the same as read in one go, and read in one go when
+no second CPU is free (``USVLOG_THREADS=1``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
+from .forked import Forked, two_cores
 
 # what view/rrd.py draws; the report draws the same but the recorded thrust commands
 REPORT_TOPICS = tuple(dict.fromkeys([
@@ -25,7 +32,32 @@ REPORT_TOPICS = tuple(dict.fromkeys([
 VIEW_TOPICS = (*REPORT_TOPICS, "/thrust/command")
 
 
-def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> FieldLog:
+@dataclass(frozen=True)
+class Drawn:
+    """What :func:`read_drawn` reads and what this process does meanwhile.
+
+    Parameters
+    ----------
+    topics : tuple of str
+        The channels drawn.
+    late : tuple of str, default ()
+        Channels of ``topics`` in order of preference: the first the file holds is read by a
+        forked copy of the process (:class:`usvlog.view.forked.Forked`) while this one runs
+        ``meanwhile``, once the others are read (here when no copy can run).
+    meanwhile : callable, optional
+        Work for this process while the copy reads (e.g. importing what draws the log).
+    unless : dict, optional
+        Channel of ``topics`` -> channels that, when the file holds any of them, keep it from
+        being drawn (it is then left like a channel never drawn).
+    """
+
+    topics: tuple[str, ...]
+    late: tuple[str, ...] = ()
+    meanwhile: Callable[[], object] | None = None
+    unless: dict[str, tuple[str, ...]] = field(default_factory=dict)
+
+
+def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldLog]) -> FieldLog:
     """The log at ``path`` with the channels ``topics`` (and any other only when needed for
     the time range, see the module's description).
 
@@ -33,8 +65,9 @@ def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> 
     ----------
     path : str or os.PathLike
         A canonical MCAP file.
-    topics : tuple of str
-        The channels drawn.
+    topics : tuple of str or Drawn
+        The channels drawn; a :class:`Drawn` also names those a forked copy reads while this
+        process runs its ``meanwhile`` (the log is the same either way).
     read : callable
         ``read(path, topics=None | list)`` loads the file (:func:`usvlog.io.mcap.read_log`).
 
@@ -44,15 +77,55 @@ def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> 
         Its ``time_range()`` is the one of the whole log; a damaged file is read whole (its
         ``recovery`` report is the whole file's).
     """
+    drawn = topics if isinstance(topics, Drawn) else Drawn(tuple(topics))
+    ran: list[bool] = []
+
+    def meanwhile() -> None:   # once: while the copy reads, or after the read
+        if not ran and drawn.meanwhile is not None:
+            ran.append(True)
+            drawn.meanwhile()
+    log = _read_drawn(path, drawn, meanwhile, read)
+    meanwhile()
+    return log
+
+
+def _frames(log: FieldLog) -> tuple[dict, dict, bool]:
+    """(frames, schemas, damaged) of a log read in a forked copy: what pickles back."""
+    return dict(log.channels), {t: log.schemas[t] for t in log.channels if t in log.schemas}, log.recovery is not None
+
+
+def _read_drawn(path, drawn: Drawn, meanwhile: Callable[[], None], read: Callable[..., FieldLog]) -> FieldLog:
+    topics = drawn.topics
     spans = chunk_spans(path)
     if spans is None:
         return read(path, topics=None)
-    others = sorted({t for _a, _b, ts in spans for t in ts} - set(topics))
-    if not others:
+    present = {t for _a, _b, ts in spans for t in ts}
+    topics = tuple(t for t in topics if not present.intersection(drawn.unless.get(t, ())))
+    others = sorted(present - set(topics))
+    late = [t for t in drawn.late if t in present][:1]
+    if not others and not late:
         return read(path, topics=None)
-    log = read(path, topics=list(topics))
+    log = read(path, topics=[t for t in topics if t not in late])
+    if log.recovery is not None:   # a damaged file: as it reads whole
+        return read(path, topics=None)
+    if late:
+        copy = Forked(lambda: _frames(read(path, topics=late))) if two_cores() else None
+        try:
+            meanwhile()   # the caller's work now, not after the read
+        except BaseException:
+            if copy is not None:
+                copy.stop()
+            raise
+        got = copy.result() if copy is not None else None
+        frames, schemas, damaged = got if got is not None else _frames(read(path, topics=late))
+        if damaged:
+            return read(path, topics=None)
+        for t, frame in frames.items():
+            log.channels[t] = frame
+            if t in schemas:
+                log.schemas[t] = schemas[t]
     tr = log.time_range()
-    if log.recovery is not None or tr is None:   # a damaged file: as it reads whole
+    if tr is None:
         return read(path, topics=None)
     skipped = set(others)
     while True:   # read what a chunk past the range holds (it widens the range), until none is past it
@@ -68,3 +141,21 @@ def read_drawn(path, topics: tuple[str, ...], read: Callable[..., FieldLog]) -> 
             log.channels[t] = frame
             if t in rest.schemas:
                 log.schemas[t] = rest.schemas[t]
+
+
+def _import_rerun() -> None:
+    from . import rrd  # noqa: F401  heavy: rerun, imported while a forked copy reads a channel
+
+
+def _import_matplotlib() -> None:
+    from .report import _plt  # heavy: numpy (matplotlib itself is imported by the call)
+
+    _plt()
+
+
+# what the view and the report read (a forked copy reads the channel that costs about as much
+# as importing rerun or matplotlib, while this process imports them; 1-hour log: ~0.5 s each)
+# the view draws the compass only for a log without a state channel (rrd._Writer.draw_series)
+VIEW_READ = Drawn(VIEW_TOPICS, late=("/thrust/command", "/truth/state", "/estimate/state"), meanwhile=_import_rerun,
+                  unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)})
+REPORT_READ = Drawn(REPORT_TOPICS, late=("/truth/state", "/estimate/state"), meanwhile=_import_matplotlib)
