@@ -673,8 +673,8 @@ def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
         while b + 4 <= nx:
             tmp[b, a], tmp[b + 1, a], tmp[b + 2, a], tmp[b + 3, a] = _col_dots4(Ct, a, Pn, b)
             b += 4
-        for b in range(b, nx):
-            tmp[b, a] = _col_dot(Ct, a, Pn, b)
+        for e in range(b, nx):
+            tmp[e, a] = _col_dot(Ct, a, Pn, e)
     for a in range(nx):
         b = a
         while b + 4 <= nx:
@@ -684,7 +684,7 @@ def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
             for i in range(b, b + 4):
                 Ps[i, a] = Ps[a, i]
             b += 4
-        for b in range(b, nx):
-            v = Pk[a, b] + _col_dot(tmp, a, Ct, b)
-            Ps[a, b] = v
-            Ps[b, a] = v
+        for e in range(b, nx):
+            v = Pk[a, e] + _col_dot(tmp, a, Ct, e)
+            Ps[a, e] = v
+            Ps[e, a] = v
