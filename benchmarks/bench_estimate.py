@@ -128,6 +128,58 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
     else:  # compare the forward pass on the common head
         d = float(np.max(np.abs(fast.X[:k] - ref.X)))
     print(f"max |fast - filterpy|     : {d:.2e}")
+    smoother_parts(pb, q, s)
+
+
+def smoother_parts(pb, q: np.ndarray, s: EstimateSettings, repeat: int = 3) -> None:
+    """The kernels' parts in one thread, best of ``repeat`` (CPU time of the thread, then
+    wall): the forward pass, the smoother's block re-runs and its backward steps, each over
+    the whole run (a block's buffers refilled, then smoothed), output rows every step."""
+    from usvlog.estimate import kernels  # (the kernels module, for its parts)
+    from usvlog.estimate.core import POSITION_STD_LIMIT_M, reinit_nis
+
+    N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
+    C = -(-N // kernels.SMOOTH_BLOCK)
+    args = (pb.x0, pb.P0, pb.dts, pb.taus, pb.qjump, pb.mstep, pb.mkind, pb.mz, pb.mR, pb.prm, pb.model, q,
+            pb.gates, s.max_consecutive_rejects, POSITION_STD_LIMIT_M ** 2, reinit_nis(pb))
+    run = (np.zeros((M, 4)), np.zeros(M, np.int8), np.zeros(N, np.int8), np.empty((C, nx)),
+           np.empty((C, nx, nx)), np.empty((C, kernels.N_IST), np.int64), np.empty((C, kernels.NFS)))
+    row = np.arange(N, dtype=np.int64)
+    XS, SD, PB, bad = np.empty((N, nx)), np.empty((N, nx)), np.empty((0, 3, 3)), np.full(1, -1, np.int64)
+    b = kernels.SmoothBuffers(nx)
+    carry = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
+
+    def forward():
+        kernels.forward(*args, np.empty(0, np.int64), XS[:0], SD[:0], PB, *run, bad)
+
+    def rerun(c):
+        kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
+
+    def back(c):
+        kernels.smooth_back(c, N, run[2], b.BX, b.BP, b.BXp, b.BPp, b.BC, *carry, args[14], row, XS, SD, PB, bad)
+
+    def best(parts):
+        cpu, wall = [], []
+        for _ in range(repeat):
+            tr = tb = 0.0
+            w = time.perf_counter()
+            for c in range(C - 1, -1, -1):
+                for part, f in enumerate(parts):
+                    t = time.thread_time()
+                    f(c)
+                    if part:
+                        tb += time.thread_time() - t
+                    else:
+                        tr += time.thread_time() - t
+            cpu.append((tr, tb))
+            wall.append(time.perf_counter() - w)
+        return min(x[0] for x in cpu), min(x[1] for x in cpu), min(wall)
+
+    forward()
+    f_cpu, _, f_wall = best([lambda c: forward() if c == 0 else None])
+    r_cpu, b_cpu, rb_wall = best([rerun, back])
+    print(f"kernel parts, one thread  : forward {f_cpu:.3f} s, re-runs {r_cpu:.3f} s, backward steps {b_cpu:.3f} s "
+          f"of CPU ({C} blocks; wall {f_wall:.3f} s, re-runs + backward {rb_wall:.3f} s; {_load()})")
 
 
 def _load() -> str:

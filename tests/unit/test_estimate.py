@@ -557,3 +557,49 @@ def test_output_rows_are_the_all_step_run_bit_for_bit():
             np.testing.assert_array_equal(frame[c + "_std"].to_numpy(), SD[g, i])
     assert res.forward is res.forward   # made once
     pd.testing.assert_frame_equal(copied.forward, res.forward, check_exact=True)
+
+
+@pytest.mark.parametrize("slow", ["rerun", "back"])
+def test_two_thread_smoother_schedule_keeps_the_order_and_the_buffers(slow):
+    """The two threads' schedule of the blocks (core._shared_blocks): every block re-run once
+    and smoothed once, from the last down, each after its re-run, and no re-run into a buffer
+    whose block is not smoothed yet; with slow re-runs the smoothing thread takes some itself.
+    A re-run that fails is raised in the calling thread."""
+    import threading
+    import time
+
+    from usvlog.estimate.core import _shared_blocks
+
+    blocks, nbuf = 23, 4
+    lock = threading.Lock()
+    events, holder, who = [], {}, {}
+
+    def rerun(c):
+        with lock:
+            assert c not in who and holder.get(c % nbuf) is None, (c, holder)
+            holder[c % nbuf] = c
+            who[c] = threading.current_thread() is threading.main_thread()
+        time.sleep(0.004 if slow == "rerun" else 0.0005)
+        with lock:
+            events.append(("rerun", c))
+
+    def back(c):
+        with lock:
+            assert ("rerun", c) in events and holder[c % nbuf] == c
+        time.sleep(0.004 if slow == "back" else 0.0005)
+        with lock:
+            events.append(("back", c))
+            holder[c % nbuf] = None
+
+    _shared_blocks(blocks, nbuf, rerun, back)
+    assert [c for e, c in events if e == "back"] == list(range(blocks - 1, -1, -1))
+    assert sorted(who) == list(range(blocks))
+    if slow == "rerun":
+        assert any(who.values())   # the smoothing thread re-ran blocks while waiting
+
+    def failing(c):
+        if c == blocks - 3:
+            raise RuntimeError("re-run failed")
+
+    with pytest.raises(RuntimeError, match="re-run failed"):
+        _shared_blocks(blocks, nbuf, failing, lambda c: None)

@@ -620,14 +620,37 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_va
             Cn[a, b] = BC[0, a, b]
 
 
+@njit(inline="always")
+def _col_dots4(U, a, V, b):
+    """sum_c U[c, a] V[c, b + i] for i = 0..3, each summed over c from 0 up (from 0.0)."""
+    s0 = s1 = s2 = s3 = 0.0
+    for c in range(U.shape[0]):
+        w = U[c, a]
+        s0 += w * V[c, b]
+        s1 += w * V[c, b + 1]
+        s2 += w * V[c, b + 2]
+        s3 += w * V[c, b + 3]
+    return s0, s1, s2, s3
+
+
+@njit(inline="always")
+def _col_dot(U, a, V, b):
+    """sum_c U[c, a] V[c, b], summed over c from 0 up (from 0.0)."""
+    s = 0.0
+    for c in range(U.shape[0]):
+        s += U[c, a] * V[c, b]
+    return s
+
+
 @njit
 def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
     """One RTS step: from the forward posterior xk, Pk of step k, the prior xp, Pp of step
     k + 1, the transposed gain Ct (C = Pk Phi^T Pp^-1, Phi of step k + 1) and the smoothed
     xs, Ps of step k + 1, the smoothed state of step k into xs, Ps.
 
-    The products run row-wise (contiguous, vectorised) with every entry's sum taken in
-    the same order as the textbook loops (the sum over c from 0 up)."""
+    Every entry's sum is taken in the same order as the textbook loops (over c from 0 up,
+    from 0.0, Pk added last), in scalar accumulators four entries at a time (no stores in
+    the inner loops); ``tmp`` holds (C (Ps - Pp))^T."""
     nx = xk.shape[0]
     for a in range(nx):
         d[a] = xs[a] - xp[a]
@@ -641,26 +664,27 @@ def _smooth_step(xk, Pk, xs, Ps, xp, Pp, Ct, tmp, Pn, d, acc):
     for a in range(nx):
         xs[a] = xk[a] + acc[a]
     xs[X_PSI] = wrap_angle(xs[X_PSI])
-    # Ps_k = Pk + C (Ps - Pp) C^T
+    # Ps_k = Pk + C (Ps - Pp) C^T, C = Ct^T: tmp^T = Ct^T Pn, then Ps = Pk + tmp^T Ct (upper triangle, mirrored)
     for a in range(nx):
         for b in range(nx):
             Pn[a, b] = Ps[a, b] - Pp[a, b]
     for a in range(nx):
-        for b in range(nx):
-            tmp[a, b] = 0.0
-        for c in range(nx):
-            w = Ct[c, a]
-            for b in range(nx):
-                tmp[a, b] += w * Pn[c, b]
+        b = 0
+        while b + 4 <= nx:
+            tmp[b, a], tmp[b + 1, a], tmp[b + 2, a], tmp[b + 3, a] = _col_dots4(Ct, a, Pn, b)
+            b += 4
+        for e in range(b, nx):
+            tmp[e, a] = _col_dot(Ct, a, Pn, e)
     for a in range(nx):
-        for b in range(a, nx):
-            acc[b] = 0.0
-        for c in range(nx):
-            w = tmp[a, c]
-            for b in range(a, nx):
-                acc[b] += w * Ct[c, b]
-        for b in range(a, nx):
-            v = Pk[a, b] + acc[b]
-            Ps[a, b] = v
-            Ps[b, a] = v
-
+        b = a
+        while b + 4 <= nx:
+            s0, s1, s2, s3 = _col_dots4(tmp, a, Ct, b)
+            Ps[a, b], Ps[a, b + 1], Ps[a, b + 2], Ps[a, b + 3] = (
+                Pk[a, b] + s0, Pk[a, b + 1] + s1, Pk[a, b + 2] + s2, Pk[a, b + 3] + s3)
+            for i in range(b, b + 4):
+                Ps[i, a] = Ps[a, i]
+            b += 4
+        for e in range(b, nx):
+            v = Pk[a, e] + _col_dot(tmp, a, Ct, e)
+            Ps[a, e] = v
+            Ps[e, a] = v

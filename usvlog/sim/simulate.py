@@ -656,6 +656,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     log.datum = st.datum
     log.vessel = st.vessel
 
+    # every column below is a fresh array of its own: the frames take them as they are (copy=False)
     # truth at every step (or thinned to truth_rate_hz)
     si = np.arange(len(t)) if sn.truth_rate_hz is None else _every(t, sn.truth_rate_hz, st.dt_s)
     truth = {"n_m": states[si, 0], "e_m": states[si, 1], "psi_rad": ssa(states[si, 2]),
@@ -664,7 +665,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
              "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
     if tau_applied is not None:
         truth["tau_u_n"], truth["tau_r_nm"] = tau_applied[si, 0], tau_applied[si, 1]
-    log.set("/truth/state", frame_from_columns(truth, t_ns[si], channel_spec("/truth/state")))
+    log.set("/truth/state", frame_from_columns(truth, t_ns[si], channel_spec("/truth/state"), copy=False))
 
     # thrust commands as recorded
     thr = st.vessel.thrusters
@@ -677,7 +678,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
               "right": np.round(np.asarray(cmd_r, float), q), "unit": np.array([unit] * len(ti), dtype=object),
               "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
-    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command")))
+    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command"), copy=False))
 
     # GPS
     if noise is None:
@@ -700,17 +701,17 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
     gps = {k: np.asarray(v)[keep] for k, v in gps.items()}
-    log.set("/gnss/fix", frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix")))
+    log.set("/gnss/fix", frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix"), copy=False))
 
     # compass
     ci = noise["compass_index"]
     std = math.radians(sn.compass_noise_deg)
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
     tc_ns = t_ns[ci] + int(round(sn.compass_delay_s * 1e9))
-    comp = {"stamp_ns": tc_ns, "heading_rad": np.round(hd, _QUANTUM["heading"]),
+    comp = {"stamp_ns": tc_ns.copy(), "heading_rad": np.round(hd, _QUANTUM["heading"]),
             "reference": np.array(["true"] * len(ci), dtype=object),
             "std_rad": np.full(len(ci), std)}
-    log.set("/compass/heading", frame_from_columns(comp, tc_ns, channel_spec("/compass/heading")))
+    log.set("/compass/heading", frame_from_columns(comp, tc_ns, channel_spec("/compass/heading"), copy=False))
 
     settings = {"scenario": scenario, "seed": seed, "duration_s": st.duration_s, "dt_s": st.dt_s,
                 "integrator": st.integrator, "current_mps": st.current_mps,
