@@ -98,3 +98,28 @@ def test_a_copy_refuses_a_source_chunk_damaged_since_reading(tmp_path, small_fil
     with pytest.raises(InputError, match="damaged"):
         write_log(_with_result(lazy), tmp_path / "out.mcap", **SMALL)
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_without_a_spare_cpu_reading_and_writing_start_no_thread(tmp_path, small_file, monkeypatch):
+    """USVLOG_THREADS=1 (a campaign's worker, a process pinned to one CPU): the read's walk,
+    the copy's read-ahead and the chunks' compression run in the calling thread; the file
+    is byte for byte the one written with threads."""
+    import threading
+
+    outs = {}
+    for threads in ("2", "1"):
+        monkeypatch.setenv("USVLOG_THREADS", threads)
+        started: list[str] = []
+        threading.settrace(lambda *_a, started=started: started.append(threading.current_thread().name))
+        try:
+            lazy = read_log(small_file, topics=["/gnss/fix"], defer=True)
+            outs[threads] = tmp_path / f"out{threads}.mcap"
+            write_log(_with_result(lazy), outs[threads], **SMALL)
+        finally:
+            threading.settrace(None)
+        names = {n.split("_")[0] for n in started}
+        if threads == "1":
+            assert names == set(), names
+        else:   # the check can fail: with threads allowed, the walk and compression use them
+            assert any(n.startswith("usvlog-mcap") for n in names), names
+    assert outs["1"].read_bytes() == outs["2"].read_bytes()

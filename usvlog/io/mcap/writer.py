@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..._cpu import spare_cpu
 from ..._version import __version__
 from ...errors import InputError
 from ...log.channels import (
@@ -299,8 +300,8 @@ class _RawFeed:
 
     def start(self) -> None:
         """Start reading ahead (else the first :meth:`take` does)."""
-        if self._it is None:
-            self._it = ReadAhead(self._batches(), _READ_AHEAD)
+        if self._it is None:   # on a second thread when a CPU is spare, else here as it is taken
+            self._it = ReadAhead(self._batches(), _READ_AHEAD) if spare_cpu() else self._batches()
 
     def _peek(self):
         if self._next is None and not self._done:
@@ -404,9 +405,20 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     return packed, cname, crc32(data)
 
 
-# chunk compression threads: as many as CPUs (1 to 4): compression is the write's largest
-# work, and when the caller waits for it (chunks pending, or the last ones) every core compresses
-_WORKERS = max(1, min(4, os.cpu_count() or 1))
+def _workers() -> int:
+    """Chunk compression threads: as many as the CPUs this process may use (1 to 4), since
+    compression is the write's largest work and when the caller waits for it (chunks pending,
+    or the last ones) every core compresses; none (compression in the calling thread) without a
+    spare CPU (``USVLOG_THREADS=1``, a process pinned to one CPU)."""
+    if not spare_cpu():
+        return 0
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):   # no affinity mask on this system
+        n = os.cpu_count() or 1
+    return max(1, min(4, n))
+
+
 _PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
 _CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
@@ -433,8 +445,9 @@ class McapWriter:
     Memory stays flat when streaming: only the open chunks (at most ``chunk_size`` per
     channel plus one batch: a chunk is a view of the batch's records, not a copy) and
     the chunks being compressed (at most ``_PENDING_BYTES`` uncompressed) are held.
-    Chunks are compressed on ``threads`` worker threads (default: one per CPU, 1 to 4;
-    0 compresses in the calling thread) while the caller encodes the next
+    Chunks are compressed on ``threads`` worker threads (default: one per CPU this process
+    may use, 1 to 4, none without a spare CPU (``USVLOG_THREADS=1``); 0 compresses in the
+    calling thread) while the caller encodes the next
     batch, and written in order; :meth:`flush` and :meth:`finish` wait for them. Each
     message's ``sequence`` is its row number in its channel over all batches, as
     :func:`read_log` expects; within a chunk messages are in (time, row) order.
@@ -471,7 +484,7 @@ class McapWriter:
         self._open_copy: dict[int, tuple] = {}   # channel id -> its last chunk, copied, not yet written
         self._mine: set[int] = set()   # ids of the buffers of the batch being added this writer encoded
         # chunks being compressed on worker threads, written in order as they are done
-        self._threads = _WORKERS if threads is None else int(threads)
+        self._threads = _workers() if threads is None else int(threads)
         self._pool = None
         self._pending: deque = deque()
         self._pending_bytes = 0   # uncompressed bytes of the chunks in self._pending
