@@ -298,39 +298,3 @@ def test_channels_defined_in_a_lost_first_chunk_come_from_the_summary(tmp_path, 
         w, rows = wrong_rows(got[t], log[t])
         want = np.setdiff1d(np.arange(len(log[t])), chunks[0][2].get(t, []))
         assert w == 0 and np.array_equal(np.sort(rows), want)
-
-
-def test_the_walk_read_ahead_on_a_second_core_reads_what_one_thread_reads(tmp_path, clean, monkeypatch):
-    """read_log walks the file (decompression, CRCs) on a second thread when a CPU is spare:
-    intact, damaged (a chunk's CRC, a cut-off end, garbage after the footer, the summary
-    gone) and topic-restricted reads give the same frames, metadata and recovery report as
-    one thread, and an unreadable file the same error."""
-    _log, data, chunks, _path = clean
-    s5 = chunks[5][0]
-    flipped = bytearray(data)
-    flipped[s5 + 500] ^= 0x10
-    cases = {"intact": data, "crc": bytes(flipped), "cut": data[:chunks[-3][0] + 77],
-             "garbage": data + b"\x00garbage", "no summary": bytes(flipped[:chunks[-1][1]])}
-    p = tmp_path / "x.mcap"
-    for name, blob in cases.items():
-        p.write_bytes(blob)
-        for topics in (None, ["/gnss/fix", "/thrust/command"]):
-            got = {}
-            for threads in ("1", "2"):
-                monkeypatch.setenv("USVLOG_THREADS", threads)
-                log = read_log(p, topics=topics)
-                got[threads] = (log, None if log.recovery is None else log.recovery.to_dict())
-            (one, rec1), (two, rec2) = got["1"], got["2"]
-            assert rec1 == rec2, name
-            assert (rec1 is None) == (name == "intact"), name
-            assert one.meta == two.meta and list(one.channels) == list(two.channels), name
-            for t in one.channels:
-                pd.testing.assert_frame_equal(one.channels[t], two.channels[t], check_exact=True)
-    p.write_bytes(b"not an mcap file at all" * 10)
-    errs = []
-    for threads in ("1", "2"):
-        monkeypatch.setenv("USVLOG_THREADS", threads)
-        with pytest.raises(Exception) as err:   # noqa: PT011 - compared between the two runs
-            read_log(p)
-        errs.append((type(err.value), str(err.value)))
-    assert errs[0] == errs[1]

@@ -27,13 +27,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..._cpu import spare_cpu
 from ...errors import FormatError, InputError
 from ...log.channels import frame_from_columns
 from ...log.fieldlog import Channels, DeferredSource, FieldLog, LostChunk, RecoveryReport
 from ..atomic import reading
 from . import kernels as K
-from .ahead import ReadAhead
 from .codec import channel_codec, loadable
 from .format import (
     _CHUNK,
@@ -1025,7 +1023,6 @@ def _report(scan: _Scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict) -> R
 
 
 _DECODE_BYTES = 16 << 20   # decompressed chunk bytes decoded at a time by read_log
-_READ_AHEAD = 4            # chunks read_log's walk runs ahead of the decoding (on a second core)
 
 
 class _ChannelParts:
@@ -1124,21 +1121,15 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                 if part is not None and not part.mismatch:
                     part.add(buf, sel, t, seq, ordinal, ps, pe)
 
-        # the walk (decompression, CRC, record scans: GIL-free) on a second core, ahead of the decoding
-        batches = ReadAhead(stream._batches(), _READ_AHEAD) if spare_cpu() else stream._batches()
-        try:
-            for records, at, _t0, _t1, cid, seq, t, ps, pe, ordinal in batches:
-                if at < 0 and group:   # messages outside chunks: their spans in the file's bytes, alone
-                    decode_group()
-                    held = 0
-                group.append((records, (cid, seq, t, ps, pe, ordinal)))
-                held += len(records)
-                if at < 0 or held >= _DECODE_BYTES:
-                    decode_group()
-                    held = 0
-        finally:
-            if isinstance(batches, ReadAhead):
-                batches.close()   # before the stream's map closes
+        for records, at, _t0, _t1, cid, seq, t, ps, pe, ordinal in stream._batches():
+            if at < 0 and group:   # messages outside chunks: their spans in the file's bytes, alone
+                decode_group()
+                held = 0
+            group.append((records, (cid, seq, t, ps, pe, ordinal)))
+            held += len(records)
+            if at < 0 or held >= _DECODE_BYTES:
+                decode_group()
+                held = 0
         if group:
             decode_group()
         size = len(stream._map)

@@ -26,7 +26,6 @@ from ...log.channels import (
 from ...log.fieldlog import Channels, DeferredSource, FieldLog
 from ..atomic import atomic_path
 from . import kernels as K
-from .ahead import ReadAhead
 from .codec import Codec, writer_codec
 from .format import (
     _REC,
@@ -253,6 +252,59 @@ _READ_AHEAD = 16    # batches (chunks) of a copied file read (decompressed, CRC-
                     # a slice's worth (~1.5 MB each), read while the slice is encoded
 
 
+class _ReadAhead:
+    """The items of iterator ``it``, produced by a thread up to ``depth`` ahead of the
+    caller (zstd decompression and the CRC release the GIL: the copied file's chunks are
+    unpacked on another core while the caller encodes). An exception of ``it`` is raised
+    by the :func:`next` that would have returned its item; :meth:`close` stops the thread
+    (it must be called before the source ``it`` reads is closed)."""
+
+    _END = object()
+
+    def __init__(self, it, depth: int = _READ_AHEAD):
+        import queue
+
+        self._q: queue.Queue = queue.Queue(depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(it,), name="usvlog-mcap-read", daemon=True)
+        self._thread.start()
+
+    def _run(self, it) -> None:
+        try:
+            for item in it:
+                self._q.put((item, None))
+                if self._stop.is_set():
+                    return
+            self._q.put((self._END, None))
+        except BaseException as err:  # noqa: BLE001 - handed to the caller's next()
+            self._q.put((None, err))
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        item, err = self._q.get()
+        if err is not None:
+            self._stop.set()
+            raise err
+        if item is self._END:
+            self._stop.set()
+            raise StopIteration
+        return item
+
+    def close(self) -> None:
+        """Stop the thread (waits for the item it is producing) and drop what it read."""
+        import queue
+
+        self._stop.set()
+        while self._thread.is_alive():
+            try:   # make room: the thread may be waiting to put an item
+                self._q.get(timeout=0.05)
+            except queue.Empty:
+                pass
+        self._thread.join()
+
+
 _MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, length, channel, sequence, times
 
 
@@ -301,7 +353,7 @@ class _RawFeed:
     def start(self) -> None:
         """Start reading ahead (else the first :meth:`take` does)."""
         if self._it is None:   # on a second thread when a CPU is spare, else here as it is taken
-            self._it = ReadAhead(self._batches(), _READ_AHEAD) if spare_cpu() else self._batches()
+            self._it = _ReadAhead(self._batches()) if spare_cpu() else self._batches()
 
     def _peek(self):
         if self._next is None and not self._done:
