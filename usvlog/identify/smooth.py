@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lstsq
+from scipy.ndimage import convolve1d
 
 from ..estimate import EstimateSettings, estimate
 from ..model.frames import ssa
@@ -108,48 +109,6 @@ def _savgol_coeffs(window: int, polyorder: int, deriv: int, delta: float) -> np.
     return lstsq(A, y, cond=np.finfo(np.float64).eps * max(A.shape))[0]
 
 
-def _convolve_zero_padded(x: np.ndarray, weights: np.ndarray, axis: int) -> np.ndarray:
-    """``scipy.ndimage.convolve1d(x, weights, axis=axis, mode="constant")`` (zeros beyond the
-    ends) computed the same way, operation for operation (the same values, bit for bit), in
-    numpy: its import costs identification's start-up about 50 ms for this one call.
-
-    As ndimage: the weights reversed (an even length shifted by one), then a correlation in
-    float64, whose terms are paired, ``(x[i - j] + x[i + j]) w[-j]``, when the weights are
-    symmetric within DBL_EPSILON (``-`` when antisymmetric), and summed in ndimage's order;
-    the result in ``x``'s dtype."""
-    w = np.ascontiguousarray(np.asarray(weights, dtype=np.float64)[::-1])
-    size = len(w)
-    size1 = size // 2
-    size2 = size - size1 - 1
-    origin = 0 if size & 1 else -1
-    eps = np.finfo(np.float64).eps
-    sym = 0
-    if size & 1:
-        half = np.arange(1, size1 + 1)
-        if not np.any(np.abs(w[size1 + half] - w[size1 - half]) > eps):
-            sym = 1
-        elif not np.any(np.abs(w[size1 + half] + w[size1 - half]) > eps):
-            sym = -1
-    xa = np.moveaxis(x, axis, -1)
-    n = xa.shape[-1]
-    # the line extended by zeros: sample i of x at i + size1 + origin; output ll reads ll + size1 + jj
-    buf = np.zeros(xa.shape[:-1] + (n + size - 1,))
-    buf[..., size1 + origin:size1 + origin + n] = xa
-
-    def line(jj: int) -> np.ndarray:
-        return buf[..., size1 + jj:size1 + jj + n]
-
-    if sym:
-        out = line(0) * w[size1]
-        for jj in range(-size1, 0):
-            out += (line(jj) + line(-jj) if sym > 0 else line(jj) - line(-jj)) * w[size1 + jj]
-    else:
-        out = line(size2) * w[size1 + size2]
-        for jj in range(-size1, size2):
-            out += line(jj) * w[size1 + jj]
-    return np.ascontiguousarray(np.moveaxis(out.astype(x.dtype, copy=False), -1, axis))   # C order, as ndimage's
-
-
 def _polyfit(x: np.ndarray, y: np.ndarray, deg: int) -> np.ndarray:
     """Least-squares polynomial coefficients, highest power first, one column per column of y."""
     lhs = x[:, None] ** np.arange(deg + 1, dtype=x.dtype)[::-1][None, :]
@@ -213,7 +172,7 @@ def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: 
     n = x.shape[axis]
     if window_length > n:
         raise ValueError("If mode is 'interp', window_length must be less than or equal to the size of x.")
-    y = _convolve_zero_padded(x, _savgol_coeffs(window_length, polyorder, deriv, delta), axis)
+    y = convolve1d(x, _savgol_coeffs(window_length, polyorder, deriv, delta), axis=axis, mode="constant")
     half = window_length // 2
     _fit_edge(x, 0, window_length, 0, half, axis, polyorder, deriv, delta, y)
     _fit_edge(x, n - window_length, n, n - half, n, axis, polyorder, deriv, delta, y)
