@@ -634,8 +634,8 @@ class McapWriter:
             if not len(frame):
                 continue
             cid = self.add_channel(topic, (schemas or {}).get(topic), frame)
-            # room for the Message records' headers before the payloads (a fixed-size codec
-            # leaves it: the records are then made in place, not copied)
+            # room for the Message records' headers before the payloads (JSON and CDR codecs
+            # leave it: the records are then made in place, not copied)
             data, starts, ends = self._topics[topic][1].encode_spans(frame, topic, _MSG_HEAD)
             self._mine.add(id(data))
             per.setdefault(cid, []).append((topic, np.asarray(frame.index, dtype=np.int64), data, starts, ends))
