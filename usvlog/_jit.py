@@ -326,6 +326,33 @@ def njit(fn=None, **kw):
     return _LazyKernel(fn, kw)
 
 
+def readonly(a):
+    """``a`` as a read-only view (no copy), for a kernel argument the kernel only reads.
+
+    numba compiles, caches and loads a kernel once per argument signature, and a writable and
+    a read-only array are different types to it. A buffer of bytes decoded by a kernel is
+    read-only when it comes from ``np.frombuffer`` of ``bytes`` (one decompressed chunk) and
+    writable when it was assembled (an arena, a concatenation), which depends on the file's size
+    and layout; passed through here, the kernel has one signature whatever the caller holds, so a
+    first short log does not compile the kernel again (~1.5 s each).
+
+    Parameters
+    ----------
+    a : numpy.ndarray
+        Any array.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``a`` itself when it is read-only, else a read-only view of it.
+    """
+    if not a.flags.writeable:
+        return a
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 _pending: list = []          # jitable functions not registered with numba yet
 _registered = [False]        # numba loaded and the pending functions registered
 
@@ -364,4 +391,4 @@ def jitable(fn):
     return fn
 
 
-__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "source_hash"]
+__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "readonly", "source_hash"]

@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..._jit import readonly
 from ...errors import InputError
 from ...log.fieldlog import parse_time
 from ..atomic import reading
@@ -635,7 +636,7 @@ def _block_columns(nf, buf: np.ndarray, line0: int, sc: _Scan, mode, use_prefix:
     """The parsed sentences of one block: columns (:data:`_COLUMNS`), their line indices, the
     block's line count and its non-blank line count; skipped lines into ``skips``."""
     (status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog,
-     cog) = nf.scan_lines(buf, kernel_prefix, sc.kind == "utc", int(offset))
+     cog) = nf.scan_lines(readonly(buf), kernel_prefix, sc.kind == "utc", int(offset))
     ref = np.zeros(len(status), np.int8)                  # heading reference: 0 true, 1 magnetic
     no_sentence = np.flatnonzero(status == nf.NO_SENTENCE)
     if len(no_sentence):

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import orjson
 
+from ..._jit import readonly
 from ...errors import InputError
 from ...log.channels import (
     BULK_TOPICS,
@@ -527,7 +528,7 @@ def _decode_template(codec: Codec, tpl, buf: np.ndarray, starts: np.ndarray, end
     int_slots, icol = columns(("int", "time"))
     str_slots, scol = columns(("str",))
     def match(s, e, want_text):
-        return K.match_template(buf, s, e, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol,
+        return K.match_template(readonly(buf), s, e, lit_buf, lit_off, K._TRUE, K._FALSE, K._NULL, fcol, icol, scol,
                                 K._POW10, want_text)
 
     kinds, bad, fbits, fund, iv, svs, sve, same, _, _ = match(starts, ends, False)
@@ -820,7 +821,7 @@ class CdrCodec(Codec):
         # every field's bits gathered in one pass, a contiguous row per column (no copy of the
         # messages nor a structured view: ~2x faster); NaN and inf kept bit for bit
         offs, wide = self._fields
-        bits = K.gather_fields(buf, starts, offs, wide)
+        bits = K.gather_fields(readonly(buf), starts, offs, wide)
         out, k = {}, 0
         for f in self.fields:
             for c in f.columns:
