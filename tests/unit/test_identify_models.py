@@ -6,6 +6,7 @@ import pytest
 from usvlog.identify.data import run_data
 from usvlog.identify.equation import LIN_NAMES, fit_equation_error, regressors
 from usvlog.identify.output import Problem, simulate_run, velocity_samples
+from usvlog.identify.shoot import shoot
 from usvlog.model.vessel import VesselParams, nu_dot
 from usvlog.sim.simulate import SimSettings, simulate
 
@@ -63,11 +64,21 @@ def test_shooting_reproduces_the_simulator_exactly():
     t = (tr.index.to_numpy() - run.t0_ns) / 1e9
     cur = np.array([0.2 * np.cos(np.radians(40.0)), 0.2 * np.sin(np.radians(40.0))])
     sim = simulate_run(run, VesselParams().as_array(), cur, X[0], 0.0, t[::7])
+    sim_raw = sim.copy()
     sim[:, 2] = (sim[:, 2] + np.pi) % (2 * np.pi) - np.pi
     # the log records thrust to 1 mN, the only difference from the simulator's own thrust
     np.testing.assert_allclose(sim, X[::7], atol=5e-3)
     wrong = simulate_run(run, VesselParams(m=34.0).as_array(), cur, X[0], 0.0, t[::7])
     assert np.abs(wrong[:, :2] - X[::7, :2]).max() > 0.1
+    # X[0] is a strided row (X is in column order) and a parameter vector may be strided too: the
+    # kernel is still called with C-ordered arrays, so numba has one signature for it, not one per
+    # layout (each compiled and cached apart)
+    assert not X[0].flags.c_contiguous
+    theta = np.stack([VesselParams().as_array()] * 2, axis=1)[:, 0]
+    assert not theta.flags.c_contiguous
+    np.testing.assert_array_equal(simulate_run(run, theta, cur, X[0], 0.0, t[::7]), sim_raw)
+    layouts = {str(sig[k]) for sig in shoot.signatures for k in (5, 6, 7)}
+    assert layouts <= {"array(float64, 2d, C)", "array(float64, 1d, C)"}, layouts
 
 
 def test_sensitivities_match_finite_differences():

@@ -803,8 +803,9 @@ def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarr
     ok = (times >= run.t_thrust[i0] - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
     tt = np.ascontiguousarray(times[ok])
     ox = np.zeros((len(tt), 6))
+    # C-ordered arrays whatever the caller's (a row of a column-ordered array): numba compiles one signature
     shoot(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
-          np.asarray(x0, float)[None, :], np.asarray(theta, float), np.asarray(current, float)[None, :],
+          np.array(x0, float, ndmin=2), np.ascontiguousarray(theta, float), np.array(current, float, ndmin=2),
           tt, np.array([0, len(tt)], np.int64), max_step(theta), False, ox, *no_rows())
     out_x[ok] = ox
     return out_x
