@@ -23,7 +23,7 @@ from usvlog.errors import InputError
 from usvlog.io.mcap import read_log, write_log
 from usvlog.io.mcap.codec import Codec, _decode_layout, codec_for_topic, writer_codec
 from usvlog.io.mcap.reference import _write_log_reference, read_log_reference
-from usvlog.log.channels import auto_schema
+from usvlog.log.channels import StrCodes, auto_schema, concat_columns, frame_from_columns
 from usvlog.log.fieldlog import FieldLog
 
 T0 = 1_780_000_000 * 10**9
@@ -336,6 +336,33 @@ def test_decode_in_blocks_with_the_cached_layout_equals_reference(monkeypatch):
         got = codec.decode_spans(buf, s, e)
         assert all(len(col) == len(msgs) for col in got.values())   # every message decoded, in blocks of 8
         assert _same_columns(got, codec.decode_reference(msgs))
+        # coded (as a reader asks): string columns as distinct values + codes, the same strings
+        coded = codec.decode_spans(buf, s, e, coded=True)
+        assert _same_columns({k: v.objects() if isinstance(v, StrCodes) else v for k, v in coded.items()}, got)
+        if msgs is plain:   # one layout throughout: the fast path in every block, so the string column is coded
+            assert isinstance(coded["s"], StrCodes) and len(coded["s"].uniques) <= 3 * 3
+
+
+def test_coded_strings_build_the_frame_the_strings_build():
+    """A str column from StrCodes (Arrow strings gathered from the distinct values) is the column
+    built from one Python string per row: values, dtype, missing rows none; its parts concatenate
+    and reorder as arrays do."""
+    rng = np.random.default_rng(3)
+    values = ["newton", "normalized", "é✓", "", "a" * 200]
+    parts = [StrCodes.of(values, rng.integers(0, len(values), n)) for n in (0, 1, 500, 37)]
+    whole = concat_columns(parts)
+    objects = np.concatenate([p.objects() for p in parts])
+    assert isinstance(whole, StrCodes) and whole.objects().tolist() == objects.tolist()
+    order = rng.permutation(len(objects))
+    mixed = concat_columns([parts[2], parts[3].objects()])   # an object array among them: objects
+    assert not isinstance(mixed, StrCodes) and mixed.tolist() == objects[1:].tolist()
+    t = np.arange(len(objects), dtype=np.int64)
+    for col, ref in ((whole, objects), (whole[order], objects[order]), (StrCodes.repeat("gnss", 7), ["gnss"] * 7)):
+        n = len(ref)
+        got = frame_from_columns({"s": col, "x": np.zeros(n)}, t[:n])
+        want = frame_from_columns({"s": np.array(ref, dtype=object), "x": np.zeros(n)}, t[:n])
+        pd.testing.assert_frame_equal(got, want, check_exact=True)
+        assert got["s"].tolist() == list(ref)
 
 
 @pytest.mark.parametrize("case", [

@@ -17,7 +17,7 @@ import pandas as pd
 
 from .._cpu import spare_cpu
 from ..errors import ConfigError, InputError, UnusableResultError
-from ..log.channels import channel_spec, frame_from_columns
+from ..log.channels import StrCodes, channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
 from ..log.status import EstimateStatus, set_estimate_status
 from ..log.summary import health_from_provenance
@@ -1517,7 +1517,7 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     # the forward frame when first asked for: the forward pass made again, or (no smoother) the state's
     make_forward = _ForwardFrame(pb, q, settings) if settings.smoother else state.copy
     innov = frame_from_columns(
-        {"sensor": np.array(SENSORS, dtype=object)[pb.mkind],
+        {"sensor": StrCodes.of(SENSORS, pb.mkind),
          "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
          "accepted": raw.accepted > 0},
         pb.m_t_ns, channel_spec(INNOVATION_TOPIC), copy=False)   # (fresh arrays: taken as they are)

@@ -19,6 +19,7 @@ reads its column layout from here.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING
@@ -203,14 +204,70 @@ def empty_frame(topic: str) -> pd.DataFrame:
     return frame_from_columns(spec.empty_columns(), np.zeros(0, dtype=np.int64), spec)
 
 
-def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
+class StrCodes:
+    """A column of strings as its distinct values and one code per row (``uniques[codes]``).
+
+    A reader decodes each distinct string of a channel once; built into a frame from here, the
+    column's Arrow strings are gathered from the distinct ones (``take``) instead of being made
+    one Python object per row (a 1-hour ``/thrust/command``'s ``unit``: 17 -> 3.4 ms).
+
+    Parameters
+    ----------
+    uniques : numpy.ndarray
+        The distinct strings (object array of ``str``).
+    codes : numpy.ndarray
+        Index into ``uniques`` of each row (integers).
+    """
+
+    __slots__ = ("codes", "uniques")
+
+    def __init__(self, uniques: np.ndarray, codes: np.ndarray):
+        self.uniques, self.codes = uniques, codes
+
+    def __len__(self) -> int:
+        return len(self.codes)
+
+    def __getitem__(self, ix) -> StrCodes:
+        """The rows ``ix`` (an index array, slice or boolean mask), still coded."""
+        return StrCodes(self.uniques, self.codes[ix])
+
+    def objects(self) -> np.ndarray:
+        """The column as an object array of ``str`` (one object per row)."""
+        return self.uniques[self.codes]
+
+    @classmethod
+    def of(cls, values, codes: np.ndarray) -> StrCodes:
+        """``values[codes]`` coded: ``values`` a sequence of ``str``, ``codes`` indices into it."""
+        uniques = np.empty(len(values), dtype=object)
+        uniques[:] = list(values)
+        return cls(uniques, np.asarray(codes, dtype=np.intp))
+
+    @classmethod
+    def repeat(cls, value: str, n: int) -> StrCodes:
+        """``value`` on each of ``n`` rows."""
+        return cls.of([value], np.zeros(n, dtype=np.intp))
+
+
+def concat_columns(parts: list) -> np.ndarray | StrCodes:
+    """One column from its parts in order: arrays concatenated, coded strings (:class:`StrCodes`)
+    kept coded (an object array among them makes the whole an object array)."""
+    if len(parts) == 1:
+        return parts[0]
+    if all(isinstance(p, StrCodes) for p in parts):
+        offsets = np.cumsum([0] + [len(p.uniques) for p in parts[:-1]])
+        return StrCodes(np.concatenate([p.uniques for p in parts]),
+                        np.concatenate([p.codes + o for p, o in zip(parts, offsets.tolist(), strict=True)]))
+    return np.concatenate([p.objects() if isinstance(p, StrCodes) else p for p in parts])
+
+
+def frame_from_columns(cols: Mapping[str, np.ndarray | StrCodes], t_ns: np.ndarray,
                        spec: ChannelSpec | None = None, *, copy: bool = True) -> pd.DataFrame:
     """Build a canonical frame.
 
     Parameters
     ----------
     cols : dict of str to ndarray
-        {column: values}; object arrays become ``str`` columns.
+        {column: values}; object arrays and :class:`StrCodes` become ``str`` columns.
     t_ns : ndarray
         Log times, int64 ns since the Unix epoch: the frame's index ``t_ns``.
     spec : ChannelSpec, optional
@@ -231,7 +288,12 @@ def frame_from_columns(cols: dict[str, np.ndarray], t_ns: np.ndarray,
     order = spec.columns if spec is not None else list(cols)
     for c in order:
         a = cols[c]
-        if a.dtype == object:
+        if isinstance(a, StrCodes):   # Arrow strings gathered from the distinct ones
+            import pyarrow as pa  # (loaded with pandas)
+
+            strings = pa.array(a.uniques.tolist(), type=pa.large_string())
+            data[c] = pd.array(strings.take(pa.array(a.codes)), dtype="str")
+        elif a.dtype == object:
             data[c] = pd.array(a, dtype="str")
         else:
             data[c] = a

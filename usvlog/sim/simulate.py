@@ -18,7 +18,7 @@ import pandas as pd
 
 from .._jit import jitable, njit
 from ..errors import ConfigError
-from ..log.channels import channel_spec, frame_from_columns
+from ..log.channels import StrCodes, channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, parse_time
 from ..model.frames import Datum, ned_to_geodetic, ssa
 from ..model.vessel import Vessel, default_vessel, nu_dot_ext_terms, nu_dot_terms
@@ -676,7 +676,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     cmd_r = thr.force_to_command(fr, unit)
     q = _QUANTUM["thrust"] if unit == "newton" else _QUANTUM["normalized"]
     thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
-              "right": np.round(np.asarray(cmd_r, float), q), "unit": np.array([unit] * len(ti), dtype=object),
+              "right": np.round(np.asarray(cmd_r, float), q), "unit": StrCodes.repeat(unit, len(ti)),
               "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
     log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command"), copy=False))
 
@@ -694,13 +694,13 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
     tg_ns = t_ns[gi] + int(round(sn.gps_delay_s * 1e9))   # stamped late by the latency
-    gps = {"stamp_ns": tg_ns, "frame_id": np.array(["gnss"] * len(gi), dtype=object),
+    gps = {"stamp_ns": tg_ns, "frame_id": StrCodes.repeat("gnss", len(gi)),
            "lat_deg": np.round(lat, _QUANTUM["latlon"]), "lon_deg": np.round(lon, _QUANTUM["latlon"]),
            "alt_m": np.round(alt, _QUANTUM["alt"]),
            "cov_ee_m2": z + var, "cov_en_m2": z, "cov_eu_m2": z, "cov_ne_m2": z, "cov_nn_m2": z + var,
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
-    gps = {k: np.asarray(v)[keep] for k, v in gps.items()}
+    gps = {k: v[keep] for k, v in gps.items()}
     log.set("/gnss/fix", frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix"), copy=False))
 
     # compass
@@ -709,7 +709,7 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
     tc_ns = t_ns[ci] + int(round(sn.compass_delay_s * 1e9))
     comp = {"stamp_ns": tc_ns.copy(), "heading_rad": np.round(hd, _QUANTUM["heading"]),
-            "reference": np.array(["true"] * len(ci), dtype=object),
+            "reference": StrCodes.repeat("true", len(ci)),
             "std_rad": np.full(len(ci), std)}
     log.set("/compass/heading", frame_from_columns(comp, tc_ns, channel_spec("/compass/heading"), copy=False))
 

@@ -38,6 +38,8 @@ from ...log.channels import (
     SCHEMA_ENCODING,
     ChannelSpec,
     FieldSpec,
+    StrCodes,
+    concat_columns,
     schema_for_topic,
     spec_for_schema,
 )
@@ -283,13 +285,15 @@ class Codec:
         return self.decode_spans(buf, ends - lens, ends, topic)
 
     def decode_spans(self, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                     topic: str = "") -> dict[str, np.ndarray]:
+                     topic: str = "", coded: bool = False) -> dict[str, np.ndarray]:
         """Messages buf[starts[i]:ends[i]] (uint8 array) -> {column: array}.
 
         Fast path: when every message has the first message's layout (same keys in
         the same order, values differing only), the values are located by one
         compiled scan and converted column by column. Anything else goes through
-        :meth:`decode_reference`, which gives the same result.
+        :meth:`decode_reference`, which gives the same result. With ``coded``, a string
+        column of the fast path is a :class:`usvlog.log.channels.StrCodes` (its distinct
+        values and a code per row) instead of an object array, for a frame to be built from.
         """
         if len(starts) == 0:
             return self.empty_columns()
@@ -297,14 +301,14 @@ class Codec:
         # a block of messages at a time: the scan's temporaries stay small whatever the count
         parts = []
         for a in range(0, len(starts), _DECODE_BLOCK):
-            out = _decode_layout(self, buf, starts[a:a + _DECODE_BLOCK], ends[a:a + _DECODE_BLOCK])
+            out = _decode_layout(self, buf, starts[a:a + _DECODE_BLOCK], ends[a:a + _DECODE_BLOCK], coded)
             if out is None:
                 break
             parts.append(out)
         else:
             if len(parts) == 1:
                 return parts[0]
-            return {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}
+            return {c: concat_columns([p[c] for p in parts]) for c in parts[0]}
         b = buf.tobytes() if isinstance(buf, np.ndarray) else bytes(buf)
         return self.decode_reference([b[s:e] for s, e in zip(starts.tolist(), ends.tolist())], topic)
 
@@ -492,7 +496,7 @@ def _template(codec: Codec, msg: bytes):
     return lit_buf, lit_off, paths, plan
 
 
-def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
+def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, coded: bool = False
                    ) -> dict[str, np.ndarray] | None:
     """The fast path of :meth:`Codec.decode_spans`; None when it does not apply.
 
@@ -501,7 +505,7 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
     when they do not match it, against the first message's own layout."""
     cached = codec._template
     if cached is not None:
-        out = _decode_template(codec, cached, buf, starts, ends)
+        out = _decode_template(codec, cached, buf, starts, ends, coded)
         if out is not None:
             return out
     tpl = _template(codec, buf[starts[0]:ends[0]].tobytes())
@@ -509,10 +513,10 @@ def _decode_layout(codec: Codec, buf: np.ndarray, starts: np.ndarray, ends: np.n
                        and np.array_equal(tpl[1], cached[1])):
         return None
     codec._template = tpl
-    return _decode_template(codec, tpl, buf, starts, ends)
+    return _decode_template(codec, tpl, buf, starts, ends, coded)
 
 
-def _decode_template(codec: Codec, tpl, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray
+def _decode_template(codec: Codec, tpl, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray, coded: bool = False
                      ) -> dict[str, np.ndarray] | None:
     """Messages decoded against one template (see :func:`_template`); None when one
     does not match it."""
@@ -566,7 +570,7 @@ def _decode_template(codec: Codec, tpl, buf: np.ndarray, starts: np.ndarray, end
                 out[f.columns[0]] = kk == K.K_TRUE
             else:
                 j = str_slots.index(ks[0])
-                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], svs[:, j], sve[:, j], same[:, j])
+                out[f.columns[0]] = _strings(buf, kinds[:, ks[0]], svs[:, j], sve[:, j], same[:, j], coded)
     except _Mismatch:
         return None
     return out
@@ -607,8 +611,9 @@ def _floats(kinds, fbits, undecided, slots: list[int]) -> dict[int, np.ndarray]:
 _SHORT_STRING = 64   # spans up to this long (bytes) are grouped by content before decoding
 
 
-def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
-    """String values (spans with quotes); each distinct string is decoded once."""
+def _strings(buf, kinds, vs, ve, same, coded: bool = False):
+    """String values (spans with quotes); each distinct string is decoded once. An object
+    array, or with ``coded`` the distinct strings and a code per row (:class:`StrCodes`)."""
     if not np.all((kinds == K.K_STR) | (kinds == K.K_STR_ESC)):
         raise _Mismatch
     firsts = np.flatnonzero(~same)
@@ -632,7 +637,7 @@ def _strings(buf, kinds, vs, ve, same) -> np.ndarray:
         raise _Mismatch from err
     uniq = np.empty(len(vals), dtype=object)
     uniq[:] = vals
-    return uniq[labels]
+    return StrCodes(uniq, labels) if coded else uniq[labels]
 
 
 
@@ -804,9 +809,10 @@ class CdrCodec(Codec):
                              f"a {self.schema_name} CDR message is {self.size}")
 
     def decode_spans(self, buf: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-                     topic: str = "") -> dict[str, np.ndarray]:
+                     topic: str = "", coded: bool = False) -> dict[str, np.ndarray]:
         """Messages buf[starts[i]:ends[i]] (uint8 array) -> {column: array}, a column at a
-        time through the structured dtype (bit for bit: NaN and inf kept)."""
+        time through the structured dtype (bit for bit: NaN and inf kept). ``coded``: as for
+        JSON (:meth:`Codec.decode_spans`); CDR channels hold numbers and booleans only."""
         n = len(starts)
         if n == 0:
             return self.empty_columns()

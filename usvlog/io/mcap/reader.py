@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...errors import FormatError, InputError
-from ...log.channels import frame_from_columns
+from ...log.channels import concat_columns, frame_from_columns
 from ...log.fieldlog import Channels, DeferredSource, FieldLog, LostChunk, RecoveryReport
 from ..atomic import reading
 from . import kernels as K
@@ -1043,8 +1043,8 @@ class _ChannelParts:
         codec, topic = self.codec, self.topic
         starts, ends = ps[sel], pe[sel]
 
-        def decode(ix):
-            return codec.decode_spans(buf, starts[ix], ends[ix], topic)
+        def decode(ix):   # string columns coded (StrCodes): the frame gathers them from the distinct values
+            return codec.decode_spans(buf, starts[ix], ends[ix], topic, coded=True)
         cols, bad, err = _decode_bad(decode, len(sel))
         self.first = self.first or err
         if cols is None:
@@ -1075,7 +1075,7 @@ class _ChannelParts:
             order = np.lexsort((ordinal, seq))   # by sequence, file order among equal ones
         cols = {}
         for c in self.codec.spec.columns:
-            a = cat([p[c] for p in self.cols])
+            a = concat_columns([p[c] for p in self.cols])
             cols[c] = a if order is None else a[order]
         self.cols = []
         own = len({id(a) for a in cols.values()}) == len(cols)   # fresh arrays, one per column
