@@ -22,7 +22,6 @@ from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
-COARSE_STEP_S = 0.05      # default step of coarse_thrust (s): the model fits' integration step
 
 INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
 """The channels an identification reads: the thrust, and the sensors the kinematic smoother
@@ -204,7 +203,7 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
                    gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))
 
 
-def coarse_thrust(t, tau_u, tau_r, step_s: float = COARSE_STEP_S):
+def coarse_thrust(t, tau_u, tau_r, step_s: float):
     """Thrust held over steps of about ``step_s`` s: the mean of the held thrust over each
     (the same impulse), so a fit integrates one RK4 step per step instead of per record.
 
@@ -215,7 +214,7 @@ def coarse_thrust(t, tau_u, tau_r, step_s: float = COARSE_STEP_S):
     tau_u, tau_r : numpy.ndarray, shape (N,)
         Surge force (N) and yaw moment (N m).
     step_s : float
-        Target step, s.
+        Target step, s (the fit's integration step, its ``MAX_DT``).
 
     Returns
     -------

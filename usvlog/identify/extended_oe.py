@@ -183,7 +183,7 @@ class _RunProblem:
 
     def __init__(self, run: RunData, ks: KinStates, segment_s: float):
         self.run, self.ks = run, ks
-        self.tg, self.tau_u, self.tau_r = coarse_thrust(run.t_thrust, run.tau_u, run.tau_r)
+        self.tg, self.tau_u, self.tau_r = coarse_thrust(run.t_thrust, run.tau_u, run.tau_r, MAX_DT)
         tg = self.tg
         t_lo = max(tg[0], ks.t[0])
         t_hi = min(tg[-1], ks.t[-1])
