@@ -38,6 +38,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _proc import timed_run  # noqa: E402
+
 from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
 from usvlog.estimate.core import (  # noqa: E402
     gps_only_settings,
@@ -203,16 +205,12 @@ def bench_verb(duration_s: float, runs: int) -> None:
         print(f"{duration_s:.0f} s excitation log: {os.path.getsize(raw) / 1e6:.1f} MB")
         print("usvlog estimate raw.mcap --out e.mcap   (wall, CPU = user + sys, peak RSS)")
         for i in range(runs + 1):   # the first run fills the kernels' cache, not counted
-            t = time.perf_counter()
-            p = subprocess.Popen([*cmd, "estimate", raw, "--out", out, "--force"], env=env,
-                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            _, status, ru = os.wait4(p.pid, 0)
-            wall = time.perf_counter() - t
-            if status:
-                raise SystemExit(f"usvlog estimate failed (status {status})")
+            r = timed_run([*cmd, "estimate", raw, "--out", out, "--force"], env)
+            if r.returncode:
+                raise SystemExit(f"usvlog estimate failed (exit {r.returncode})")
             if i:
-                print(f"  run {i}: wall {wall:6.2f} s  CPU {ru.ru_utime + ru.ru_stime:6.2f} s "
-                      f"(user {ru.ru_utime:.2f}, sys {ru.ru_stime:.2f})  peak RSS {ru.ru_maxrss / 1024:6.0f} MB  "
+                print(f"  run {i}: wall {r.wall_s:6.2f} s  CPU {r.cpu_s:6.2f} s "
+                      f"(user {r.user_s:.2f}, sys {r.sys_s:.2f})  peak RSS {r.peak_rss_mb:6.0f} MB  "
                       f"[{_load()}]")
         print(f"output {os.path.getsize(out) / 1e6:.1f} MB")
 

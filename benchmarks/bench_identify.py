@@ -38,13 +38,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys  # noqa: E402
 import tempfile
 import time
 from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout
+
+from _proc import timed_run  # noqa: E402
 
 from usvlog.cli.common import one_blas_thread  # noqa: E402  (standard library only)
 
@@ -95,17 +96,10 @@ def bench_shoot(log, current) -> None:
 
 def _run_child(cmd: list[str], env: dict, cwd: Path) -> tuple[float, float, float, bytes]:
     """(wall s, CPU s user + sys, peak RSS MB, stdout) of one child process."""
-    t = time.perf_counter()
-    proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
-    assert proc.stdout is not None
-    out = proc.stdout.read()
-    proc.stdout.close()
-    _, status, ru = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)}: exit {proc.returncode} (cwd {cwd})")
-    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024, out
+    r = timed_run(cmd, env, cwd)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)}: exit {r.returncode} (cwd {cwd})")
+    return r.wall_s, r.cpu_s, r.peak_rss_mb, r.stdout
 
 
 def bench_verb(log: Path, runs: int, against: Path | None, against_cache: str | None) -> None:

@@ -48,10 +48,10 @@ import subprocess
 import sys
 import tempfile
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
+from _proc import timed_run  # noqa: E402  (benchmarks/ is the script's directory)
 
 ROOT = Path(__file__).resolve().parents[1]
 T0_S = 1_714_557_600.0
@@ -220,21 +220,12 @@ def measure(src: Path, mode: str, out: Path) -> dict:
 def measure_cli(src: Path, out: Path) -> dict:
     """``usvlog import`` as a user runs it: wall from spawn to exit, the child's CPU and peak RSS."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    t0 = time.perf_counter()
-    with tempfile.TemporaryFile("w+") as so, tempfile.TemporaryFile("w+") as se:
-        p = subprocess.Popen([sys.executable, "-m", "usvlog", "import", str(src), "--out", str(out), "--force",
-                              "--json"], stdout=so, stderr=se, text=True, env=env)
-        _, status, ru = os.wait4(p.pid, 0)
-        p.returncode = os.waitstatus_to_exitcode(status)
-        dt = time.perf_counter() - t0
-        so.seek(0)
-        se.seek(0)
-        stdout, stderr = so.read(), se.read()
-    if p.returncode != 0:
-        raise SystemExit(stderr)
-    rep = json.loads(stdout)
-    return {"records": rep["records"], "samples": sum(rep["channels"].values()), "seconds": dt,
-            "cpu_seconds": ru.ru_utime + ru.ru_stime, "peak_rss_mb": ru.ru_maxrss / 1024}
+    r = timed_run([sys.executable, "-m", "usvlog", "import", str(src), "--out", str(out), "--force", "--json"], env)
+    if r.returncode != 0:
+        raise SystemExit(r.stderr.decode(errors="replace"))
+    rep = json.loads(r.stdout)
+    return {"records": rep["records"], "samples": sum(rep["channels"].values()), "seconds": r.wall_s,
+            "cpu_seconds": r.cpu_s, "peak_rss_mb": r.peak_rss_mb}
 
 
 def bytecode_status() -> tuple[int, int]:

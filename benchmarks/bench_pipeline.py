@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+from _proc import timed_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -74,15 +74,11 @@ print(n, time.perf_counter() - t)
 def run(cmd: list[str], cwd: Path) -> tuple[float, float, float, str]:
     """(wall s, CPU s, peak RSS MB, stderr) of one process, started and waited for here."""
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    t = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-    _pid, status, ru = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode not in (0, 1):   # identify may exit 1 on a fit it flags; anything else is a failure
-        raise SystemExit(f"{' '.join(cmd)} failed ({proc.returncode}):\n{err}")
-    return wall, ru.ru_utime + ru.ru_stime, ru.ru_maxrss / 1024, err
+    r = timed_run(cmd, env, cwd)
+    err = r.stderr.decode(errors="replace")
+    if r.returncode not in (0, 1):   # identify may exit 1 on a fit it flags; anything else is a failure
+        raise SystemExit(f"{' '.join(cmd)} failed ({r.returncode}):\n{err}")
+    return r.wall_s, r.cpu_s, r.peak_rss_mb, err
 
 
 def pipeline(hours: float, work: Path) -> dict[str, tuple[float, float, float]]:
