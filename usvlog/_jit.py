@@ -48,11 +48,8 @@ is the same either way.
 from __future__ import annotations
 
 import functools
-import hashlib
 import os
-import shutil
 import sys
-import tempfile
 import time
 import types
 from collections.abc import MutableMapping
@@ -93,6 +90,8 @@ def source_hash(package_dir: str = _PACKAGE_DIR, skip: frozenset[str] = UNREACHA
             if n.endswith(".py") and not (rel == "." and n in skip):
                 files.append((n if rel == "." else f"{rel}/{n}".replace(os.sep, "/"), os.path.join(root, n)))
     files.sort()
+    import hashlib  # only when the first kernel is made (the command line imports this module at start)
+
     h = hashlib.sha256()
     for rel, full in files:
         with open(full, "rb") as f:
@@ -135,6 +134,8 @@ def _prune(parent: str, current: str) -> None:
     entries.sort(reverse=True)
     for mtime, path in entries[KEEP_DIRS - 1:]:
         if now - mtime > KEEP_RECENT_S:
+            import shutil  # only when pruning
+
             shutil.rmtree(path, ignore_errors=True)
 
 
@@ -153,6 +154,8 @@ def cache_dir() -> str:
         try:
             new = not os.path.isdir(path)
             os.makedirs(path, exist_ok=True)
+            import tempfile  # only when the first kernel is made
+
             tempfile.TemporaryFile(dir=path).close()   # writable (numba checks the same)
             os.utime(path)                              # "used now", for pruning
         except OSError:
@@ -227,6 +230,48 @@ def _light_loads(dispatcher):
     if all(hasattr(cache, a) for a in ("_load_overload", "_guard_against_spurious_io_errors")):
         cache.load_overload = types.MethodType(_cache_load_overload, cache)
     return dispatcher
+
+
+_PACKAGE = __name__.split(".")[0]
+_on_compile: list = []       # the callback of on_first_compile, while it has not fired
+
+
+def on_first_compile(callback) -> None:
+    """Call ``callback(kernel, cache)`` once, when this process first compiles a usvlog kernel
+    (a cache miss: the first run after an install or an upgrade, or a new argument type).
+
+    Loading a kernel from the cache does not call it. The library itself says nothing; the
+    command line uses this to say why a first run waits (compiling takes up to a minute).
+
+    Parameters
+    ----------
+    callback : callable
+        Receives the kernel's qualified name (``module.function``) and the cache directory it
+        is compiled into ("" when the cache cannot be written: every run compiles again).
+        None: no callback.
+    """
+    _on_compile[:] = [callback] if callback is not None else []
+
+
+def _compile_listener():
+    """A numba event listener that calls the :func:`on_first_compile` callback at the first
+    compile of a usvlog kernel (numba fires ``numba:compile`` only on a cache miss)."""
+    from numba.core import event  # heavy: numba, loaded with the first kernel
+
+    class FirstCompile(event.Listener):
+        def on_start(self, ev):
+            if not _on_compile:
+                return
+            fn = getattr(ev.data.get("dispatcher"), "py_func", None)
+            module = getattr(fn, "__module__", "") or ""
+            if module.split(".")[0] == _PACKAGE:
+                callback = _on_compile.pop()
+                callback(f"{module}.{getattr(fn, '__qualname__', '?')}", cache_dir())
+
+        def on_end(self, ev):
+            pass
+
+    return FirstCompile()
 
 
 def _compile(fn, kw: dict):
@@ -364,6 +409,10 @@ def _register_pending() -> None:
     # one thread at a time: a log read on a second thread calls its first kernel while the main thread
     # imports modules that mark functions jitable
     with global_compiler_lock:
+        if not _registered[0]:
+            from numba.core import event
+
+            event.register("numba:compile", _compile_listener())
         _registered[0] = True
         while _pending:
             register_jitable(_pending.pop(0))
@@ -391,4 +440,4 @@ def jitable(fn):
     return fn
 
 
-__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "readonly", "source_hash"]
+__all__ = ["cache_dir", "cache_parent", "jitable", "njit", "on_first_compile", "readonly", "source_hash"]

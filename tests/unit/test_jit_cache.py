@@ -226,3 +226,51 @@ def test_errors_raised_in_cached_kernels_are_the_compiled_ones(tmp_path):
     assert negative_x == ["ValueError", str(ValueError("negative x", -2.0))]   # as Python raises it
     assert cached["out"] == compiled["out"]
     assert compiled["helpers_imported"] and not cached["helpers_imported"]
+
+
+ANNOUNCE = "compiling the numerical kernels for this machine"
+
+
+def test_a_first_run_says_it_compiles_and_a_cached_run_does_not(tmp_path):
+    """The command line says once why a first run waits (kernels compiled into the cache named), and
+    nothing when every kernel comes from the cache."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
+    env.update(PYTHONPATH=str(REPO), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    log = REPO / "tests" / "data" / "paper-sine.mcap"
+    runs = [subprocess.run([sys.executable, "-m", "usvlog", "inspect", str(log)], env=env, capture_output=True,
+                           text=True, check=True) for _ in range(2)]
+    said = [ln for ln in runs[0].stderr.splitlines() if ANNOUNCE in ln]
+    assert len(said) == 1, runs[0].stderr
+    kept = list((tmp_path / "cache" / "usvlog").iterdir())
+    assert len(kept) == 1 and f"kept in {kept[0]} for later runs" in said[0]
+    assert any(kept[0].rglob("*.nbi"))
+    assert ANNOUNCE not in runs[1].stderr and runs[1].stdout == runs[0].stdout
+
+
+def test_the_first_compile_callback_fires_once_and_only_for_usvlog_kernels(tmp_path, monkeypatch):
+    """on_first_compile: a kernel of another package compiled first does not fire it; the first usvlog
+    kernel compiled does, once (a run whose kernels come from the cache: the test above)."""
+    from usvlog import _jit
+
+    monkeypatch.setattr(_jit, "_cache_dir", str(tmp_path))   # a fresh, empty cache directory for this test
+
+    def outside(x):
+        return x + 1.0
+
+    def inside(x):
+        return x * 2.0
+
+    def also_inside(x):
+        return x * 3.0
+
+    inside.__module__ = also_inside.__module__ = "usvlog.probe"
+    heard = []
+    _jit.on_first_compile(lambda kernel, cache: heard.append((kernel, cache)))
+    try:
+        assert _jit.njit(outside)(1.0) == 2.0 and heard == []
+        assert _jit.njit(inside)(1.0) == 2.0
+        assert heard == [("usvlog.probe.test_the_first_compile_callback_fires_once_and_only_for_usvlog_kernels."
+                          "<locals>.inside", str(tmp_path))]
+        assert _jit.njit(also_inside)(1.0) == 3.0 and len(heard) == 1
+    finally:
+        _jit.on_first_compile(None)

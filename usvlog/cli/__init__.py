@@ -14,9 +14,10 @@ import signal
 import sys
 import threading
 
+from .._jit import on_first_compile
 from .._version import __version__
 from ..errors import UsvlogError
-from .common import one_blas_thread
+from .common import one_blas_thread, stage
 
 VERBS = [
     "simulate",
@@ -135,6 +136,13 @@ def _json_error(args, err: BaseException) -> None:
                           "internal": not isinstance(err, UsvlogError)}), flush=True)
 
 
+def _say_compiling(kernel: str, cache: str) -> None:
+    """Say why a first run waits: a kernel is being compiled (see :func:`usvlog._jit.on_first_compile`)."""
+    where = f"kept in {cache} for later runs" if cache else "not kept: the cache directory cannot be written"
+    stage(f"compiling the numerical kernels for this machine (once after an install or upgrade, up to a minute; "
+          f"{where})")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit code.
 
@@ -149,6 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 0
     one_blas_thread()   # before numpy loads: every verb's linear algebra is small products
+    on_first_compile(_say_compiling)
     old = _install_signal_handlers()
     try:
         rc = args.func(args)
