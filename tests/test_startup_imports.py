@@ -78,3 +78,45 @@ def test_inspect_of_an_mcap_log_needs_no_pandas(tmp_path):
     usvlog.simulate("turns", path, duration_s=20)
     heavy = heavy_after(f"import usvlog; s = usvlog.inspect({str(path)!r}); assert s.channels, s")
     assert "pandas" not in heavy and "numpy" in heavy
+
+
+_MISSING, _EXISTS, _NODIR = "missing.mcap: no such file", "existing.mcap: output exists", "no does not exist"
+_BAD_PATHS = {   # case: (argv, what the error says)
+    "estimate a missing log": (["estimate", "{missing}", "--out", "{new}"], _MISSING),
+    "estimate onto an existing output": (["estimate", "{log}", "--out", "{existing}"], _EXISTS),
+    "estimate into a missing directory": (["estimate", "{log}", "--out", "{nodir}"], _NODIR),
+    "identify a missing log": (["identify", "{log}", "{missing}", "--out", "{new}"], _MISSING),
+    "identify onto an existing --out-log": (["identify", "{log}", "--out", "{new}", "--out-log", "{existing}"],
+                                            _EXISTS),
+    "replay a missing log": (["replay", "{missing}", "--scenario", "paper-sine", "--out", "{new}"], _MISSING),
+    "replay onto an existing output": (["replay", "{log}", "--scenario", "paper-sine", "--out", "{existing}"],
+                                       _EXISTS),
+    "import a missing file": (["import", "{missing}", "--out", "{new}"], _MISSING),
+    "import onto an existing output": (["import", "{log}", "--out", "{existing}"], _EXISTS),
+    "simulate onto an existing output": (["simulate", "excitation", "--out", "{existing}"], _EXISTS),
+}
+
+
+@pytest.mark.parametrize("case", sorted(_BAD_PATHS))
+def test_a_bad_path_is_refused_before_the_heavy_imports(case, tmp_path):
+    """A missing input or an output in the way fails at once (exit 2, the one-line error the reader or
+    writer gives), before the verb imports numpy, pandas or numba."""
+    (tmp_path / "log.mcap").write_bytes(b"not read")
+    (tmp_path / "existing.mcap").write_bytes(b"in the way")
+    names = {"missing": tmp_path / "missing.mcap", "new": tmp_path / "new.mcap", "log": tmp_path / "log.mcap",
+             "existing": tmp_path / "existing.mcap", "nodir": tmp_path / "no" / "new.mcap"}
+    argv, expect = _BAD_PATHS[case]
+    argv = [a.format(**names) for a in argv]
+    code = f"""
+from usvlog.cli import main
+rc = main({argv!r})
+print("RC=%d" % rc)
+"""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    r = subprocess.run([sys.executable, "-c", _PROBE.format(code=code, heavy=HEAVY)], capture_output=True, text=True,
+                       env=env, cwd=tmp_path)
+    assert "RC=2" in r.stdout, r.stdout + r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "error:" in lines[0] and expect in lines[0], r.stderr
+    heavy = json.loads(next(x for x in r.stdout.splitlines() if x.startswith("HEAVY="))[len("HEAVY="):])
+    assert heavy == [], heavy

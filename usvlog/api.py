@@ -94,6 +94,23 @@ def _vessel_file(vessel):
     return vessel
 
 
+def _check_paths(inputs, out, force: bool, *more_out, parent: bool = True) -> None:
+    """Refuse missing input logs and outputs that exist without ``force``, before a verb's heavy
+    imports, with the same one-line errors the readers and writers would give later.
+
+    ``inputs``: the paths among them are checked (logs given as objects are skipped; vessels are
+    not passed: a bare name is a shipped vessel). ``out`` and ``more_out``: those not None.
+    ``parent``: also require an output's directory to exist."""
+    from .io.atomic import check_input, check_output  # light: os and pathlib
+
+    for p in inputs:
+        if _is_path(p):
+            check_input(p)
+    for o in (out, *more_out):
+        if o is not None:
+            check_output(o, force, parent=parent)
+
+
 # -----------------------------------------------------------------------------
 # logs: load, save, import, inspect, export
 # -----------------------------------------------------------------------------
@@ -205,6 +222,7 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         ``log`` (None when streamed to ``out``), ``report`` (mapping, guesses, counts, skipped
         records) and ``out``.
     """
+    _check_paths([src], out, force, parent=False)   # the importer's own checks, before its imports
     from .io.importers import import_file  # heavy: the importers (numpy, pandas)
 
     return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
@@ -414,14 +432,12 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
         GNSS, compass, thrust and truth channels (closed loop also ``/control/state`` and the
         path), with the vessel, datum and provenance.
     """
-    from .io.atomic import check_output  # heavy: the sim/io stack pulls numpy, pandas, numba
-    from .resources import replay_dir
+    _check_paths([], out, force)   # fail before the work (and the imports), not after
+    from .resources import replay_dir  # heavy: the sim/io stack pulls numpy, pandas, numba
     from .sim.scenario import closed_loop_scenarios
     from .sim.simulate import SCENARIOS
     from .sim.simulate import simulate as simulate_open_loop
 
-    if out is not None:
-        check_output(out, force, parent=True)  # fail before the work, not after
     name = str(scenario)
     if name not in SCENARIOS:
         p = Path(scenario)
@@ -541,13 +557,11 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         grid), ``forward`` (the forward filter, made on first access), ``innovations``, ``report``
         (consistency, ``format()``, ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
     """
+    _check_paths([log], out, force)   # before the heavy imports: a mistyped path fails at once
     from .estimate import EstimateSettings  # heavy: numpy, numba kernels
     from .estimate import estimate as run_estimate
     from .estimate.core import INPUT_TOPICS  # heavy: with the estimator
-    from .io.atomic import check_output
 
-    if out is not None:
-        check_output(out, force, parent=True)
     delays = {"gnss": gnss_delay_s, "compass": compass_delay_s}
     auto = tuple(k for k, v in delays.items() if v == "auto")
     for k, v in delays.items():
@@ -630,14 +644,11 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         ``identifier`` is the fitted Identifier (None when nothing could be fitted) and
         ``reasons`` the reasons.
     """
+    _check_paths([*(logs if isinstance(logs, (list, tuple)) else [logs]), validate], out, force, out_log)
     from .identify import Identifier  # heavy: numpy, scipy, numba kernels
     from .identify.data import INPUT_TOPICS  # heavy: with the Identifier
-    from .io.atomic import check_output, write_text_atomic
+    from .io.atomic import write_text_atomic
 
-    if out is not None:
-        check_output(out, force, parent=True)
-    if out_log is not None:
-        check_output(out_log, force, parent=True)
     if validate is not None and holdout:
         raise ConfigError("validate on a log or hold out a fraction, not both")
     if holdout is None and validate is not None:
@@ -805,13 +816,11 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         ``log`` (input plus ``/replay/*``) and ``metrics`` (cross-track error in m, heading
         error in rad, surge error in m/s, time saturated in s, command differences).
     """
-    from .io.atomic import check_output  # heavy: numpy, numba kernels
-    from .io.config import load_vessel_or_scenario_vessel, read_toml
+    _check_paths([log], out, force)
+    from .io.config import load_vessel_or_scenario_vessel, read_toml  # heavy: numpy, numba kernels
     from .replay import replay_log
     from .sim.scenario import load_gains, load_scenario
 
-    if out is not None:
-        check_output(out, force, parent=True)
     scen = load_scenario(scenario)
     if _is_path(gains):
         path = gains

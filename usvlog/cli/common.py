@@ -1,9 +1,12 @@
-"""Helpers shared by the verbs: JSON output, progress (standard library only: the parser is built fast)."""
+"""Helpers shared by the verbs: JSON output, progress, ROLE=VALUE options (standard library and usvlog's
+errors only: the parser is built fast)."""
 
 from __future__ import annotations
 
 import json
 import sys
+
+from ..errors import ConfigError
 
 
 def _default(o):
@@ -13,6 +16,17 @@ def _default(o):
     if hasattr(o, "tolist"):  # numpy integer/floating scalars -> int/float, arrays -> lists
         return o.tolist()
     return str(o)
+
+
+def parse_pairs(items, what: str) -> dict:
+    """``["ROLE=VALUE", ...]`` -> {role: value} (for --column / --topic)."""
+    out = {}
+    for it in items or []:
+        role, sep, val = str(it).partition("=")
+        if not sep or not role.strip() or not val.strip():
+            raise ConfigError(f"{what} {it!r} is not ROLE=VALUE")
+        out[role.strip()] = val.strip()
+    return out
 
 
 def print_json(obj) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..choices import IMPORT_FORMATS, THRUST_UNITS
-from .common import print_json, stage
+from .common import parse_pairs, print_json, stage
 
 
 def register(sub) -> None:
@@ -52,8 +52,7 @@ def _print_mapping(report) -> None:
 
 
 def run(args) -> int:
-    from .. import api  # heavy: imported only when the verb runs
-    from ..io.importers import parse_pairs
+    from .. import api  # light: the library's calls import what they use
 
     res = api.import_log(args.src, args.out, fmt=args.format, vessel=args.vessel or None,
                          columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),

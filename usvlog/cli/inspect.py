@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .common import print_json, stage
+from .common import parse_pairs, print_json, stage
 
 
 def register(sub) -> None:
@@ -26,11 +26,7 @@ def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
     from ..log.summary import LogSummary, format_summary
 
-    topics: dict[str, str] = {}
-    if args.topic:   # the importers (their import costs an MCAP log's inspect ~0.1-0.4 s) only when needed
-        from ..io.importers import parse_pairs  # heavy: the importers
-
-        topics = parse_pairs(args.topic, "--topic")
+    topics = parse_pairs(args.topic, "--topic")
     s = api.inspect(args.log, fmt=args.format, topics=topics)
     if not isinstance(s, LogSummary):   # a foreign source's catalog
         from ..io.importers.catalog import format_catalog  # heavy: the importers

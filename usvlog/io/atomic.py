@@ -28,6 +28,32 @@ def reading(path):
         raise StorageError(f"{path}: cannot read ({err.strerror})") from err
 
 
+def check_input(path) -> Path:
+    """Refuse an input that does not exist, with the one-line error every reader gives.
+
+    Verbs call it before their heavy imports, so a mistyped path fails at once; a file that
+    exists but cannot be read is left to the reader (:func:`reading`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A file (or a directory: a ROS 2 bag) to be read.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    usvlog.errors.StorageError
+        If nothing exists at ``path``.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise StorageError(f"{p}: no such file")
+    return p
+
+
 def check_output(path, force: bool, *, parent: bool = False) -> Path:
     """Refuse an existing output without ``force``; with ``parent``, also a missing directory.
 

@@ -21,11 +21,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...choices import IMPORT_FORMATS
-from ...errors import ConfigError, FormatError, InputError, StorageError
+from ...errors import ConfigError, FormatError, InputError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
 from ...model.vessel import THRUST_UNITS, Vessel
-from ..atomic import atomic_path, check_output
+from ..atomic import atomic_path, check_input, check_output
 from .catalog import Catalog
 from .core import Assembler, ImportReport
 from .csvlog import looks_like_csv
@@ -143,17 +143,6 @@ class ImportResult:
         d = self.report.to_dict()
         d["out"] = str(self.out) if self.out else None
         return d
-
-
-def parse_pairs(items, what: str) -> dict:
-    """``["ROLE=VALUE", ...]`` -> {role: value} (for --column / --topic)."""
-    out = {}
-    for it in items or []:
-        role, sep, val = str(it).partition("=")
-        if not sep or not role.strip() or not val.strip():
-            raise ConfigError(f"{what} {it!r} is not ROLE=VALUE")
-        out[role.strip()] = val.strip()
-    return out
 
 
 def parse_thrust_range(text: str | None) -> tuple[float, float] | None:
@@ -305,9 +294,7 @@ def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catal
         cannot be read (``FormatError``), a ``--topic`` mapping names what does not exist
         (``InputError``), or the format has no listing yet (``FormatError``).
     """
-    p = Path(src)
-    if not p.exists():
-        raise StorageError(f"{p}: no such file")
+    p = check_input(src)
     if fmt not in ("auto",) + FORMATS:
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
     opts = ImportOptions(topics=dict(topics or {}))
@@ -386,9 +373,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
         / ``ConfigError`` for paths and settings. Any other exception is a bug in usvlog
         and propagates as it is.
     """
-    p = Path(src)
-    if not p.exists():
-        raise StorageError(f"{p}: no such file")
+    p = check_input(src)
     if fmt not in ("auto",) + FORMATS:
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
     start_ns = start_utc if isinstance(start_utc, int) or start_utc is None else parse_start_utc(start_utc)
@@ -447,5 +432,5 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
 
 
 __all__ = ["FORMATS", "Catalog", "catalog_file", "CSV_ROLES", "TOPIC_ROLES", "ImportOptions", "ImportReport",
-           "ImportResult", "detect_format", "file_identity", "import_file", "parse_pairs", "parse_start_utc",
+           "ImportResult", "detect_format", "file_identity", "import_file", "parse_start_utc",
            "parse_thrust_range"]
