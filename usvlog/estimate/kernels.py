@@ -481,8 +481,12 @@ def forward(x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, q, gates
                 CX[c, a] = x[a]
                 for b in range(nx):
                     CP[c, a, b] = P[a, b]
-            CI[c, :] = ist
-            CF[c, :] = fst
+            # element loops: an array slice assignment compiles numba's shape-mismatch error (its message
+            # formatting: 2.4 s of the kernel's first compile)
+            for a in range(N_IST):
+                CI[c, a] = ist[a]
+            for a in range(NFS):
+                CF[c, a] = fst[a]
         _forward_steps(c * SMOOTH_BLOCK, min(N, (c + 1) * SMOOTH_BLOCK), x, P, ist, fst, x0, P0, dts, taus, qjump,
                        mstep, mkind, mz, mR, prm, model, q, gates, max_rej, pos_var_limit, reinit_nis, innov,
                        accepted, resets, row, X, SD, PB, none, none_tri, none, none_sq, none_sq, bad)
