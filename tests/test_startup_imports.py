@@ -25,15 +25,21 @@ print("\\nHEAVY=" + json.dumps(sorted({{m.split(".")[0] for m in sys.modules}} &
 """
 
 
-def heavy_after(code: str) -> list[str]:
-    """Heavy top-level packages in sys.modules after running ``code`` in a fresh interpreter."""
+def probe(code: str, cwd: Path = ROOT) -> tuple[list[str], subprocess.CompletedProcess]:
+    """Heavy top-level packages in sys.modules after running ``code`` in a fresh interpreter, and
+    the finished process (its output and stderr)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
     r = subprocess.run([sys.executable, "-c", _PROBE.format(code=code, heavy=HEAVY)], capture_output=True,
-                       text=True, env=env, cwd=ROOT)
+                       text=True, env=env, cwd=cwd)
     assert r.returncode == 0, r.stderr
     line = [x for x in r.stdout.splitlines() if x.startswith("HEAVY=")][-1]
-    return json.loads(line[len("HEAVY="):])
+    return json.loads(line[len("HEAVY="):]), r
+
+
+def heavy_after(code: str) -> list[str]:
+    """Heavy top-level packages in sys.modules after running ``code`` in a fresh interpreter."""
+    return probe(code)[0]
 
 
 def _cli(*argv: str) -> str:
@@ -112,11 +118,8 @@ from usvlog.cli import main
 rc = main({argv!r})
 print("RC=%d" % rc)
 """
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]))
-    r = subprocess.run([sys.executable, "-c", _PROBE.format(code=code, heavy=HEAVY)], capture_output=True, text=True,
-                       env=env, cwd=tmp_path)
+    heavy, r = probe(code, cwd=tmp_path)
     assert "RC=2" in r.stdout, r.stdout + r.stderr
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "error:" in lines[0] and expect in lines[0], r.stderr
-    heavy = json.loads(next(x for x in r.stdout.splitlines() if x.startswith("HEAVY="))[len("HEAVY="):])
     assert heavy == [], heavy

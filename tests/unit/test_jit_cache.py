@@ -47,9 +47,15 @@ EDIT_FROM = "    return tau_u, tau_r\n"            # end of control_law in contr
 EDIT_TO = "    return 0.5 * tau_u, tau_r\n"        # half the surge force demand
 
 
-def _run(pkg_root: Path, cache: Path, *, disable_jit: bool = False) -> dict:
+def _env(cache: Path, *paths: Path) -> dict:
+    """This environment without numba's settings, with ``paths`` as PYTHONPATH and its own kernel cache."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env.update(PYTHONPATH=str(pkg_root), NUMBA_CACHE_DIR=str(cache))
+    env.update(PYTHONPATH=os.pathsep.join(str(p) for p in paths), NUMBA_CACHE_DIR=str(cache))
+    return env
+
+
+def _run(pkg_root: Path, cache: Path, *, disable_jit: bool = False) -> dict:
+    env = _env(cache, pkg_root)
     if disable_jit:
         env["NUMBA_DISABLE_JIT"] = "1"
     out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, cwd=pkg_root, capture_output=True, text=True,
@@ -216,8 +222,7 @@ print(json.dumps({"out": out, "helpers_imported": "numba.np.arrayobj" in sys.mod
 def test_errors_raised_in_cached_kernels_are_the_compiled_ones(tmp_path):
     """A kernel loaded from the cache, its helpers' modules not imported, raises what it raised compiled."""
     (tmp_path / "probe_kernels.py").write_text(KERNELS)
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env.update(PYTHONPATH=os.pathsep.join([str(REPO), str(tmp_path)]), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env = _env(tmp_path / "cache", REPO, tmp_path)
     compiled, cached = (json.loads(subprocess.run([sys.executable, "-c", ERRORS], env=env, capture_output=True,
                                                   text=True, check=True).stdout.strip().splitlines()[-1])
                         for _ in range(2))
@@ -234,8 +239,7 @@ ANNOUNCE = "compiling the numerical kernels for this machine"
 def test_a_first_run_says_it_compiles_and_a_cached_run_does_not(tmp_path):
     """The command line says once why a first run waits (kernels compiled into the cache named), and
     nothing when every kernel comes from the cache."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
-    env.update(PYTHONPATH=str(REPO), NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env = _env(tmp_path / "cache", REPO)
     log = REPO / "tests" / "data" / "paper-sine.mcap"
     runs = [subprocess.run([sys.executable, "-m", "usvlog", "inspect", str(log)], env=env, capture_output=True,
                            text=True, check=True) for _ in range(2)]
