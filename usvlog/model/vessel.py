@@ -33,6 +33,7 @@ import numpy as np
 from .._jit import jitable
 from ..choices import EXTENDED_PARAM_NAMES, PARAM_NAMES, THRUST_UNITS
 from ..errors import ConfigError, InputError
+from . import thruster_curves
 
 
 def _full_scale(full_scale) -> float:
@@ -65,7 +66,15 @@ def require_finite(obj, names, kind: str) -> None:
             raise ConfigError(f"{kind} {f} = {v!r} is not a finite number")
 
 
-THRUSTER_MAPS = ("identity", "linear", "quadratic")
+CATALOGUE_MAPS = thruster_curves.CATALOGUE_MAPS
+"""Thruster maps built from a manufacturer's published curves (``t200``), see
+:mod:`usvlog.model.thruster_curves`."""
+
+THRUSTER_MAPS = ("identity", "linear", "quadratic") + CATALOGUE_MAPS
+"""Every thruster map a vessel's ``[thrusters] map`` may name."""
+
+THRUSTER_SIDES = ("left", "right")
+"""Names of the two thrusters (port, starboard), for :meth:`Thrusters.command_to_force`."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -254,16 +263,30 @@ class Thrusters:
     ``pwm_neutral_us`` and ``pwm_span_us`` (full command at neutral +- span).
     ``forward_n``/``reverse_n`` are also the force limits used for saturation.
 
+    A catalogue map (``t200``, :data:`CATALOGUE_MAPS`) is a manufacturer's published curve
+    (:mod:`usvlog.model.thruster_curves`) at the supply voltage ``supply_v``: the command
+    c is read as the pulse width 1500 + 400 c us of that curve (with the default PWM
+    settings, a logged pulse width is used as it is), with its deadband about 1500 us,
+    its forward/reverse asymmetry and its non-linear shape; ``forward_n``/``reverse_n``
+    are then the curve's own maxima at that voltage (any values given are replaced).
+
+    A reversed channel (``reversed_left``/``reversed_right``: ESC or propeller reversed)
+    has the sign of its command about neutral flipped before the map, so that 1100 us
+    drives it forward; the methods converting commands then need to know which thruster
+    a command is for (``side``).
+
     Parameters
     ----------
     arm_m : float, default 0.3
         Lateral distance of each thruster from the centre line in m, > 0.
-    map : {"identity", "linear", "quadratic"}, default "identity"
+    map : {"identity", "linear", "quadratic", "t200"}, default "identity"
         Command-to-force map (see above).
     forward_n : float, default 20.0
-        Largest forward force of one thruster in N (full positive command), > 0.
+        Largest forward force of one thruster in N (full positive command), > 0; for a
+        catalogue map, the map's maximum at ``supply_v``.
     reverse_n : float, default 12.0
-        Largest reverse force of one thruster in N, as a positive number, > 0.
+        Largest reverse force of one thruster in N, as a positive number, > 0; for a
+        catalogue map, the map's maximum reverse force at ``supply_v``.
     pwm_neutral_us : float, default 1500.0
         PWM pulse width giving zero thrust, in microseconds.
     pwm_span_us : float, default 400.0
@@ -277,11 +300,19 @@ class Thrusters:
         ``command`` when the forces are in command units (an identification without a
         known thrust scale: ``forward_n = 1`` is the full forward command, and the model
         parameters are per unit of its force); ``known``: newtons.
+    supply_v : float or None, default None
+        Supply voltage of the thrusters in V; required by a catalogue map and within its
+        published range (T200: 10..20 V), unused by the other maps.
+    reversed_left, reversed_right : bool, default False
+        The port / starboard channel is reversed (its command's sign about neutral is
+        flipped before the map).
 
     Raises
     ------
     usvlog.errors.ConfigError
-        If ``map`` is unknown or a length, force or span is not positive.
+        If ``map`` is unknown, a length, force or span is not positive, a catalogue map
+        has no ``supply_v`` or one outside its published range, or a reversed flag is not
+        a bool.
     """
 
     arm_m: float = 0.3
@@ -293,14 +324,30 @@ class Thrusters:
     known: bool = True  # False when the map is only a guess (reported by identification)
     lag_s: float = 0.0  # first-order force lag of the thrusters, s (simulated plant)
     scale: str = "known"  # "command": forces (and the model) in command units, thrust gain unknown
+    supply_v: float | None = None  # supply voltage, V (catalogue maps)
+    reversed_left: bool = False    # port channel reversed (ESC or propeller)
+    reversed_right: bool = False   # starboard channel reversed
 
     def __post_init__(self):
         if self.scale not in ("known", "command"):
             raise ConfigError(f"thruster scale {self.scale!r} is not known or command")
         if not (self.lag_s >= 0 and math.isfinite(self.lag_s)):
             raise ConfigError(f"thruster lag_s = {self.lag_s} must be a finite number >= 0")
+        if self.map in thruster_curves.UNAVAILABLE:
+            raise ConfigError(f"thruster map {self.map!r}: {thruster_curves.UNAVAILABLE[self.map]}")
         if self.map not in THRUSTER_MAPS:
             raise ConfigError(f"thruster map {self.map!r} is not one of {', '.join(THRUSTER_MAPS)}")
+        for f in ("reversed_left", "reversed_right"):
+            if not isinstance(getattr(self, f), bool):
+                raise ConfigError(f"thruster {f} = {getattr(self, f)!r} must be true or false")
+        if self.supply_v is not None:
+            require_finite(self, ("supply_v",), "thruster")
+            if self.supply_v <= 0:
+                raise ConfigError(f"thruster supply_v = {self.supply_v} must be > 0 (V)")
+        if self.map in CATALOGUE_MAPS:
+            _, f = thruster_curves.curve(self.map, self.supply_v)   # ConfigError naming the range
+            object.__setattr__(self, "forward_n", float(f[-1]))
+            object.__setattr__(self, "reverse_n", float(-f[0]))
         if not (self.arm_m > 0 and math.isfinite(self.arm_m)):
             raise ConfigError(f"thruster arm_m = {self.arm_m} must be a finite number > 0")
         if not (self.forward_n > 0 and self.reverse_n > 0):
@@ -309,7 +356,60 @@ class Thrusters:
             raise ConfigError(f"thruster pwm_span_us = {self.pwm_span_us} must be > 0")
 
     # -- command <-> force -------------------------------------------------------
-    def normalize(self, command, unit: str, full_scale: float | None = None):
+    @property
+    def catalogue(self) -> bool:
+        """True when ``map`` is a manufacturer's published curve (:data:`CATALOGUE_MAPS`)."""
+        return self.map in CATALOGUE_MAPS
+
+    def curve(self) -> tuple[np.ndarray, np.ndarray]:
+        """The catalogue map's force curve at ``supply_v`` (one thruster).
+
+        Returns
+        -------
+        pwm_us : numpy.ndarray
+            Pulse widths in us of the curve's own frame (neutral 1500, full 1100/1900).
+        force_n : numpy.ndarray
+            Force in N at each pulse width, non-decreasing.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If ``map`` is not a catalogue map.
+        """
+        if not self.catalogue:
+            raise ConfigError(f"thruster map {self.map!r} is not a catalogue map ({', '.join(CATALOGUE_MAPS)})")
+        return thruster_curves.curve(self.map, self.supply_v)
+
+    def direction(self, side: str | None) -> float:
+        """+1, or -1 for a reversed channel: the factor on a command's sign about neutral.
+
+        Parameters
+        ----------
+        side : {"left", "right"} or None
+            The thruster the command is for; None is accepted only when neither channel
+            is reversed.
+
+        Returns
+        -------
+        float
+            -1.0 when ``side``'s channel is reversed, else 1.0.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If ``side`` is not left/right/None, or is None while a channel is reversed.
+        """
+        if side is None:
+            if self.reversed_left or self.reversed_right:
+                rev = " and ".join(f"reversed_{k} = true" for k in THRUSTER_SIDES if getattr(self, f"reversed_{k}"))
+                raise ConfigError(f"thrusters have {rev}: say which thruster a command is for (side='left' or "
+                                  "'right') to convert it")
+            return 1.0
+        if side not in THRUSTER_SIDES:
+            raise ConfigError(f"thruster side {side!r} is not left or right")
+        return -1.0 if getattr(self, f"reversed_{side}") else 1.0
+
+    def normalize(self, command, unit: str, full_scale: float | None = None, side: str | None = None):
         """Recorded command -> normalized command in [-1, 1] (pwm_us, normalized or counts).
 
         Parameters
@@ -321,28 +421,35 @@ class Thrusters:
             integer counts (full command at +- ``full_scale``).
         full_scale : float, optional
             Counts of a full command (e.g. 255), > 0; required for ``counts``.
+        side : {"left", "right"}, optional
+            The thruster the command is for: a reversed channel's command has its sign
+            flipped (1100 us then reads as full forward). Required when a channel is
+            reversed.
 
         Returns
         -------
         numpy.ndarray
-            Normalized command, clipped to [-1, 1], of the input's shape.
+            Normalized command as the thruster sees it, clipped to [-1, 1], of the input's
+            shape.
 
         Raises
         ------
         usvlog.errors.ConfigError
-            For any other unit (``newton`` commands have no normalized form), or ``counts``
-            without a positive ``full_scale``.
+            For any other unit (``newton`` commands have no normalized form), ``counts``
+            without a positive ``full_scale``, or no ``side`` while a channel is reversed.
         """
         c = np.asarray(command, dtype=float)
         if unit == "normalized":
-            return np.clip(c, -1.0, 1.0)
-        if unit == "pwm_us":
-            return np.clip((c - self.pwm_neutral_us) / self.pwm_span_us, -1.0, 1.0)
-        if unit == "counts":
-            return np.clip(c / _full_scale(full_scale), -1.0, 1.0)
-        raise ConfigError(f"thrust unit {unit!r} cannot be normalized")
+            n = c
+        elif unit == "pwm_us":
+            n = (c - self.pwm_neutral_us) / self.pwm_span_us
+        elif unit == "counts":
+            n = c / _full_scale(full_scale)
+        else:
+            raise ConfigError(f"thrust unit {unit!r} cannot be normalized")
+        return np.clip(self.direction(side) * n, -1.0, 1.0)
 
-    def command_to_force(self, command, unit: str, full_scale: float | None = None):
+    def command_to_force(self, command, unit: str, full_scale: float | None = None, side: str | None = None):
         """Recorded thruster command in ``unit`` -> force in newtons.
 
         Parameters
@@ -354,36 +461,45 @@ class Thrusters:
             integer counts (full command at +- ``full_scale``).
         full_scale : float, optional
             Counts of a full command, > 0; required for ``counts``.
+        side : {"left", "right"}, optional
+            The thruster the command is for (a reversed channel's command is flipped);
+            required for a command that is not in newtons when a channel is reversed.
 
         Returns
         -------
         numpy.ndarray
             Force of one thruster in N, of the input's shape. Newton commands are returned
-            as given (copied, not saturated); the others go through the thruster map and so
-            stay within [-reverse_n, forward_n].
+            as given (copied, not saturated, never flipped); the others go through the
+            thruster map and so stay within [-reverse_n, forward_n].
 
         Raises
         ------
         usvlog.errors.ConfigError
-            If ``unit`` is unknown, or if a normalized or PWM command meets the
-            ``identity`` map.
+            If ``unit`` is unknown, if a normalized or PWM command meets the ``identity``
+            map, or if ``side`` is missing while a channel is reversed.
         """
         if unit not in THRUST_UNITS:
             raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
         c = np.asarray(command, dtype=float)
         if unit == "newton":
             return c.copy()
-        c = self.normalize(c, unit, full_scale)
+        c = self.normalize(c, unit, full_scale, side)
         if self.map == "identity":
             raise ConfigError(
-                f"thrust commands in {unit} need a thruster map (linear or quadratic), not identity")
+                f"thrust commands in {unit} need a thruster map (linear, quadratic or a catalogue map), not identity")
+        if self.catalogue:
+            pwm, f = self.curve()
+            pwm_c = thruster_curves.CURVE_NEUTRAL_US + thruster_curves.CURVE_SPAN_US * c
+            return np.asarray(thruster_curves.force_from_pwm(pwm_c, pwm, f), dtype=float)
         shape = c if self.map == "linear" else c * np.abs(c)
         return np.where(c >= 0, self.forward_n * shape, self.reverse_n * shape)
 
-    def force_to_command(self, force, unit: str, full_scale: float | None = None):
+    def force_to_command(self, force, unit: str, full_scale: float | None = None, side: str | None = None):
         """Force in newtons -> command in ``unit`` (saturated to the thruster limits).
 
-        Inverse of :meth:`command_to_force` within the limits.
+        Inverse of :meth:`command_to_force` within the limits. For a catalogue map, zero
+        force gives the neutral command (the middle of the deadband) and a non-zero force
+        the command at the deadband's edge or beyond.
 
         Parameters
         ----------
@@ -394,6 +510,9 @@ class Thrusters:
         full_scale : float, optional
             Counts of a full command, > 0; required for ``counts`` (the result is not
             rounded to whole counts).
+        side : {"left", "right"}, optional
+            The thruster the command is for (a reversed channel gets the flipped command);
+            required for a command that is not in newtons when a channel is reversed.
 
         Returns
         -------
@@ -404,25 +523,30 @@ class Thrusters:
         Raises
         ------
         usvlog.errors.ConfigError
-            If ``unit`` is unknown, or if a normalized or PWM command is asked of the
-            ``identity`` map.
+            If ``unit`` is unknown, if a normalized or PWM command is asked of the
+            ``identity`` map, or if ``side`` is missing while a channel is reversed.
         """
         f = self.saturate(force)
         if unit == "newton":
             return f
-        scale = np.where(f >= 0, self.forward_n, self.reverse_n)
-        x = f / scale
+        if unit not in THRUST_UNITS:
+            raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
         if self.map == "identity":
             raise ConfigError(
-                f"thrust commands in {unit} need a thruster map (linear or quadratic), not identity")
-        c = x if self.map == "linear" else np.sign(x) * np.sqrt(np.abs(x))
+                f"thrust commands in {unit} need a thruster map (linear, quadratic or a catalogue map), not identity")
+        if self.catalogue:
+            pwm, fc = self.curve()
+            c = (thruster_curves.pwm_from_force(f, pwm, fc) - thruster_curves.CURVE_NEUTRAL_US) \
+                / thruster_curves.CURVE_SPAN_US
+        else:
+            x = f / np.where(f >= 0, self.forward_n, self.reverse_n)
+            c = x if self.map == "linear" else np.sign(x) * np.sqrt(np.abs(x))
+        c = self.direction(side) * np.asarray(c, dtype=float)
         if unit == "normalized":
             return c
         if unit == "pwm_us":
             return self.pwm_neutral_us + self.pwm_span_us * c
-        if unit == "counts":
-            return _full_scale(full_scale) * c
-        raise ConfigError(f"thrust unit {unit!r} is not one of {', '.join(THRUST_UNITS)}")
+        return _full_scale(full_scale) * c
 
     def saturate(self, force):
         """Clip force(s) of one thruster to [-reverse_n, forward_n] N.
@@ -453,7 +577,8 @@ class Thrusters:
         Returns
         -------
         f_left, f_right : numpy.ndarray
-            Forces in N (:meth:`command_to_force` per unit).
+            Forces in N (:meth:`command_to_force` per unit, each channel's reversal
+            applied).
 
         Raises
         ------
@@ -464,8 +589,8 @@ class Thrusters:
         fl, fr = np.full(len(left), np.nan), np.full(len(right), np.nan)
         for unit in np.unique(units):
             k = units == unit
-            fl[k] = self.command_to_force(left[k], str(unit))
-            fr[k] = self.command_to_force(right[k], str(unit))
+            fl[k] = self.command_to_force(left[k], str(unit), side="left")
+            fr[k] = self.command_to_force(right[k], str(unit), side="right")
         return fl, fr
 
     def tau_from_forces(self, f_left, f_right):
@@ -559,7 +684,10 @@ class Vessel:
             ``name``, a ``[model]`` table (paper symbols, SI units) or, for the extended
             structure, ``structure = "extended"`` and an ``[extended]`` table, and a
             ``[thrusters]`` table; floats are written with ``repr`` (no rounding),
-            infinities as ``inf``.
+            infinities as ``inf``. Thruster fields at their defaults (``lag_s``,
+            ``scale``, ``supply_v``, the reversed flags) are left out, and so are a
+            catalogue map's ``forward_n``/``reverse_n`` (written as a comment: the map
+            sets them from ``supply_v``).
         """
         p, t = self.params, self.thrusters
         lines = [f'name = "{self.name}"']
@@ -571,8 +699,11 @@ class Vessel:
         lines += ["", "[thrusters]"]
         for f in fields(Thrusters):
             v = getattr(t, f.name)
-            if (f.name, v) in (("lag_s", 0.0), ("scale", "known")):
+            if _thruster_default(f.name, v):
                 continue  # the defaults: files of vessels without them stay as they were
+            if t.catalogue and f.name in ("forward_n", "reverse_n"):
+                lines.append(f"# {f.name} = {_toml_float(v)}  (the {t.map} map's own maximum at supply_v)")
+                continue
             if isinstance(v, bool):
                 lines.append(f"{f.name} = {'true' if v else 'false'}")
             elif isinstance(v, str):
@@ -588,8 +719,8 @@ class Vessel:
         -------
         dict of str to str
             ``name``, ``model.<symbol>`` (the paper terms), ``extended.<field>`` (extended
-            structure only) and ``thrusters.<field>`` entries (``lag_s`` and ``scale``
-            only when not the default);
+            structure only) and ``thrusters.<field>`` entries (``lag_s``, ``scale``,
+            ``supply_v`` and the reversed flags only when not the default);
             read back by :meth:`from_dict`.
         """
         d = {"name": self.name}
@@ -597,7 +728,7 @@ class Vessel:
         if self.extended is not None:
             d.update({f"extended.{k}": repr(v) for k, v in self.extended.to_dict().items()})
         d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()
-                  if (k, v) not in (("lag_s", 0.0), ("scale", "known"))})
+                  if not _thruster_default(k, v)})
         return d
 
     @classmethod
@@ -671,6 +802,18 @@ def extended_vessel(name: str, ext: ExtendedParams, thrusters: Thrusters | None 
         the estimator use), ``extended`` = ``ext``.
     """
     return Vessel(name=str(name), params=ext.paper_terms(), thrusters=thrusters or Thrusters(), extended=ext)
+
+
+_THRUSTER_DEFAULTS = (("lag_s", 0.0), ("scale", "known"), ("supply_v", None), ("reversed_left", False),
+                      ("reversed_right", False))
+
+
+def _thruster_default(name: str, value) -> bool:
+    """A thruster field a vessel file or metadata record leaves out when it has this value."""
+    for k, d in _THRUSTER_DEFAULTS:
+        if name == k:
+            return value is d if (d is None or isinstance(d, bool)) else value == d
+    return False
 
 
 def _toml_float(v: float) -> str:
@@ -755,9 +898,15 @@ def _thrusters_from_dict(thr: dict, source: str) -> Thrusters:
             raise ConfigError(f"{source}: [thrusters] has unknown key {k!r}")
     try:
         tvals: dict[str, Any] = {k: (v if isinstance(v, (str, bool)) else float(v)) for k, v in thr.items()}
-        return Thrusters(**tvals)
+        t = Thrusters(**tvals)
     except (ConfigError, TypeError, ValueError) as err:
         raise ConfigError(f"{source}: {err}") from err
+    if t.catalogue:   # a catalogue map sets its own limits: a file may omit them, not contradict them
+        for k in ("forward_n", "reverse_n"):
+            if k in tvals and not (isinstance(tvals[k], float) and math.isclose(tvals[k], getattr(t, k), rel_tol=1e-9)):
+                raise ConfigError(f"{source}: [thrusters] {k} = {tvals[k]!r} N contradicts the {t.map} map's "
+                                  f"{getattr(t, k):.4g} N at supply_v = {t.supply_v:g} V (leave {k} out)")
+    return t
 
 
 def _extended_from_dict(doc: dict, source: str) -> Vessel:
