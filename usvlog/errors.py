@@ -40,6 +40,21 @@ class UnusableResultError(UsvlogError, ArithmeticError):
     exit_code = 1
 
 
+class FitFailed(UnusableResultError):
+    """A numerical fit could not proceed on this data from this start: its simulation
+    diverged, its numbers left the finite range, or its equations were singular.
+
+    Raised by the identification's numerical functions (output error, the surge fit, the
+    extended model's output error, equation error, filter error, the smoothers) instead of a
+    raw numpy/scipy exception. An identification catches it per candidate (that candidate
+    failed, with this message as the reason); one that escapes is an unusable result
+    (exit 1). ``reasons`` holds the message, as the identifier's unusable errors do."""
+
+    def __init__(self, message: str):
+        super().__init__(message)
+        self.reasons = [message]
+
+
 def where(path: object = None, channel: str | None = None, at: str | None = None) -> str:
     """Format the 'file, channel, row/time' prefix used by every error message.
 

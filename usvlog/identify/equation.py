@@ -13,11 +13,12 @@ the smoother's noise and lag, so the inertia terms come out biased (errors-in-va
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, FitFailed
 from ..model.vessel import PARAM_NAMES
 
 LIN_NAMES = ("m", "mxg", "Iz", "d11", "d22", "d33")
@@ -115,15 +116,25 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
     ------
     usvlog.errors.ConfigError
         If ``fix`` names an unknown parameter.
+    usvlog.errors.FitFailed
+        If fewer samples than unknowns (plus one) are finite: nothing to fit.
+
+    Samples with a non-finite velocity, acceleration or force are left out.
     """
     fix = dict(fix or {})
     for k in fix:
         if k not in PARAM_NAMES:
             raise ConfigError(f"cannot fix {k!r}: not one of {', '.join(PARAM_NAMES)}")
     A = regressors(nu, nu_dot)                      # (3, N, 6)
-    n = A.shape[1]
     y = np.stack([np.asarray(tau_u, float) + 0 * A[0, :, 0], 0 * A[0, :, 0],
                   np.asarray(tau_r, float) + 0 * A[0, :, 0]], 0)
+    ok = np.isfinite(A).all(axis=(0, 2)) & np.isfinite(y).all(axis=0)
+    if not ok.all():   # a gap in the smoothed states (NaN): those samples say nothing
+        A, y = A[:, ok], y[:, ok]
+    n = A.shape[1]
+    if n < 2 * len(PARAM_NAMES):
+        raise FitFailed(f"equation error: {n} finite sample(s) of the smoothed states: too few to fit "
+                        f"{len(PARAM_NAMES)} parameters")
     # move fixed parameters to the right-hand side; (m, xg) enter as m and m xg
     cols = {name: A[..., i] for i, name in enumerate(LIN_NAMES)}
     known = {}
@@ -154,7 +165,9 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
         res = y13 - X @ sol
         rms13 = np.sqrt(np.mean(res ** 2, axis=1))
         if weights is None:
-            w = 1.0 / np.maximum(rms13, 1e-12 * max(rms13.max(), 1e-300))
+            # each equation by its scatter (both fitted exactly, no scatter at all: weights 1)
+            floor = 1e-12 * float(rms13.max())
+            w = 1.0 / np.maximum(rms13, floor) if math.isfinite(floor) and floor > 0 else np.ones(2)
     Xw = (X * w[:, None, None]).reshape(2 * n, -1)
     resw = (res * w[:, None]).reshape(-1)
     s2 = float(resw @ resw) / max(2 * n - len(free), 1)
@@ -176,20 +189,22 @@ def fit_equation_error(nu, nu_dot, tau_u, tau_r, *, fix: dict | None = None,
         se_d22 = float(np.sqrt((r2 @ r2) / max(n - 1, 1) / max(vv @ vv, 1e-300)))
     r2 = a2 - lin["d22"] * vv
     rms = (float(rms13[0]), float(np.sqrt(np.mean(r2 ** 2))), float(rms13[1]))
-    theta = lin_to_params([lin[k] for k in LIN_NAMES])
-    # standard errors (delta method for xg = mxg / m)
-    se_lin = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0))))
-    stderr = {k: float(se_lin.get(k, 0.0)) for k in ("m", "Iz", "d11", "d33")}
-    stderr["d22"] = se_d22
-    if "xg" in fix:
-        stderr["xg"] = 0.0
-    else:
-        i_m = free.index("m") if "m" in free else None
-        i_x = free.index("mxg")
-        g = np.zeros(len(free))
-        g[i_x] = 1.0 / theta[0]
-        if i_m is not None:
-            g[i_m] = -lin["mxg"] / theta[0] ** 2
-        stderr["xg"] = float(np.sqrt(max(float(g @ cov @ g), 0.0)))
+    # m = 0 (no surge information at all): xg and its error are NaN (``valid`` is False), not an exception
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        theta = lin_to_params([np.float64(lin[k]) for k in LIN_NAMES])
+        # standard errors (delta method for xg = mxg / m)
+        se_lin = dict(zip(free, np.sqrt(np.maximum(np.diag(cov), 0))))
+        stderr = {k: float(se_lin.get(k, 0.0)) for k in ("m", "Iz", "d11", "d33")}
+        stderr["d22"] = se_d22
+        if "xg" in fix:
+            stderr["xg"] = 0.0
+        else:
+            i_m = free.index("m") if "m" in free else None
+            i_x = free.index("mxg")
+            g = np.zeros(len(free))
+            g[i_x] = 1.0 / theta[0]
+            if i_m is not None:
+                g[i_m] = -lin["mxg"] / theta[0] ** 2
+            stderr["xg"] = float(np.sqrt(max(float(g @ cov @ g), 0.0)))
     stderr = {k: stderr[k] for k in PARAM_NAMES}
     return EquationErrorResult(theta=theta, stderr=stderr, rms=rms, n=n)

@@ -23,6 +23,7 @@ from scipy.optimize import least_squares
 
 from .._jit import njit
 from ..choices import EXTENDED_PARAM_NAMES
+from ..errors import FitFailed
 from ..model.frames import ssa, wrap_angle
 from ..model.vessel import ExtendedParams, nu_dot_ext_terms
 from .data import RunData, coarse_thrust
@@ -167,11 +168,16 @@ def free_run_full(run: RunData, theta, current, x0, t0: float, times) -> np.ndar
     Returns
     -------
     numpy.ndarray, shape (len(times), 6)
-        n, e, psi (unwrapped), u, v, r; NaN outside the thrust record or after a divergence.
+        n, e, psi (unwrapped), u, v, r; NaN outside the thrust record or after a divergence,
+        and everywhere when the parameters are not a boat (:func:`ext_physical_problem`) or
+        ``x0`` or the current is not finite.
     """
     times = np.ascontiguousarray(times, float)
-    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     out = np.full((len(times), 6), np.nan)
+    if (len(run.t_thrust) == 0 or np.shape(theta) != (NE,) or ext_physical_problem(theta)
+            or not np.all(np.isfinite(x0)) or not np.all(np.isfinite(current))):
+        return out
+    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     simulate_full(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
                   np.asarray(x0, float)[None, :], np.asarray(theta, float), float(current[0]), float(current[1]),
                   times, np.array([0, len(times)], np.int64), MAX_DT, out)
@@ -185,8 +191,12 @@ class _RunProblem:
         self.run, self.ks = run, ks
         self.tg, self.tau_u, self.tau_r = coarse_thrust(run.t_thrust, run.tau_u, run.tau_r, MAX_DT)
         tg = self.tg
+        if len(tg) < 2 or len(ks.t) == 0:
+            raise FitFailed(f"{run.source or 'run'}: no thrust or smoothed states to fit the extended model on")
         t_lo = max(tg[0], ks.t[0])
         t_hi = min(tg[-1], ks.t[-1])
+        if not t_hi > t_lo:
+            raise FitFailed(f"{run.source or 'run'}: the thrust and the smoothed states do not overlap in time")
         edges = np.arange(t_lo, t_hi, segment_s)
         if len(edges) > 1 and t_hi - edges[-1] < 0.5 * segment_s:
             edges = edges[:-1]          # no short last segment
@@ -370,11 +380,20 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
     Returns
     -------
     ExtendedOEResult
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        The start is not finite, a run has no thrust, smoothed states or measurements to fit.
     """
     fix = dict(fix or {})
     th0 = np.asarray(theta0, float).copy()
     for k, v in fix.items():
         th0[_IX[k]] = v
+    if th0.shape != (NE,) or not np.all(np.isfinite(th0)):
+        raise FitFailed(f"extended output error: the start values are not {NE} finite numbers")
+    if not segment_s > 0:
+        raise FitFailed(f"extended output error: segment length {segment_s} s is not positive")
     free = np.array([k not in fix for k in EXTENDED_PARAM_NAMES])
     n_free = int(free.sum())
     cur0 = np.zeros((len(runs), 2)) if currents0 is None else np.asarray(currents0, float).copy()
@@ -401,6 +420,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
     seg_off = np.cumsum([0] + [pr.n_seg for pr in probs])
     row_seg = np.concatenate([pr.row_seg + o for pr, o in zip(probs, seg_off)])
     n_rows = len(row_seg)
+    if n_rows == 0:
+        raise FitFailed("extended output error: no GNSS fix or compass heading inside the fitted time")
     nfev = 0
 
     def unpack(p):
@@ -473,11 +494,14 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
     th, cur, dx = unpack(p_opt)
     n_res, n_par = len(r), len(p_opt)
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
-    colnorm = np.sqrt(np.maximum(np.diag(H), 1e-300))
-    JtJ = H / np.outer(colnorm, colnorm)
-    ev = np.linalg.eigvalsh(JtJ)
-    cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
-    cov = (sigma2 * np.linalg.pinv(JtJ) / np.outer(colnorm, colnorm))[:n_glob, :n_glob]
+    if np.all(np.isfinite(H)) and math.isfinite(sigma2):
+        colnorm = np.sqrt(np.maximum(np.diag(H), 1e-300))
+        JtJ = H / np.outer(colnorm, colnorm)
+        ev = np.linalg.eigvalsh(JtJ)
+        cond = float(math.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else math.inf
+        cov = (sigma2 * np.linalg.pinv(JtJ) / np.outer(colnorm, colnorm))[:n_glob, :n_glob]
+    else:   # the Jacobian left the finite range: no curvature to read
+        cond, cov = math.inf, np.full((n_glob, n_glob), np.nan)
     se = np.zeros(NE)
     se[free] = np.sqrt(np.maximum(np.diag(cov)[:n_free], 0.0))
     names = names_free + [f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e")][:n_cur]
@@ -515,7 +539,18 @@ def fit_initial_state_ext(run: RunData, theta, x0_guess, t0: float, t1: float, c
     Returns
     -------
     numpy.ndarray, shape (6,)
+        ``x0_guess`` itself (non-finite entries as 0) with fewer than three GNSS fixes or
+        compass headings in the window.
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        If the parameters are not a boat (:func:`ext_physical_problem`) or the current is not finite.
     """
+    why = ext_physical_problem(theta) if np.shape(theta) == (NE,) else f"not {NE} parameters"
+    if why or not np.all(np.isfinite(current)):
+        raise FitFailed(f"extended model: no initial state to fit: {why or 'the current is not finite'}")
+    x0_guess = np.nan_to_num(np.asarray(x0_guess, float), nan=0.0, posinf=0.0, neginf=0.0)
     w = run.window(t0, t1)
     g = w.t_gps >= t0
     c = w.t_compass >= t0

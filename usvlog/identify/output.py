@@ -21,6 +21,7 @@ from scipy.linalg import qr as scipy_qr
 from scipy.optimize import least_squares
 
 from .._cpu import spare_cpu
+from ..errors import FitFailed
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData, coarse_thrust
@@ -37,6 +38,9 @@ VEL_SIGMA = (0.05, 0.02)
 VEL_STEP_S = 0.5        # spacing of the velocity measurements (s)
 MAX_STIFFNESS = 50.0    # 1/s: a velocity time constant under 20 ms is no boat's
 DIVERGED = 1e3          # |u|, |v| (m/s) or |r| (rad/s) beyond this: the simulation diverged
+JAC_MAX = 1e30          # |d(weighted residual)/d(x0, parameter)| beyond this: the sensitivities grew
+                        # exponentially (a diverging linearisation); its products would overflow
+BAD_RESIDUAL = 1e6      # weighted residual of a measurement whose simulation diverged (Jacobian row 0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -320,8 +324,20 @@ class Problem:
         return x, np.cos(x[:, 2]), np.sin(x[:, 2])
 
     def seg_sum(self, a):
-        """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...)."""
-        return np.add.reduceat(a, self.r_start[:-1], axis=0)
+        """Sum of per-residual-row values over each segment's rows (first axis), shape (n_seg, ...).
+
+        A segment without residual rows (no measurement inside it: a gap in the GNSS and
+        compass, a short window) sums to zero. (``np.add.reduceat`` alone would give it its
+        neighbour's first row, or fail on the last one's start past the end.)"""
+        a = np.asarray(a)
+        start, stop = self.r_start[:-1], self.r_start[1:]
+        if self.n_seg and start[-1] >= len(a):   # empty segments at the end: a zero row to start at
+            a = np.concatenate([a, np.zeros((1,) + a.shape[1:], a.dtype)])
+        out = np.add.reduceat(a, start, axis=0)
+        empty = stop <= start
+        if empty.any():
+            out[empty] = 0
+        return out
 
     def seg_gram(self, a, b):
         """Per segment a_k^T b_k over its residual rows: ``a`` (n_res, p), ``b`` (n_res, q) ->
@@ -383,7 +399,12 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
             out_x[np.any(np.abs(out_x[:, 3:]) > DIVERGED, axis=1)] = np.nan
         r = prob.residuals(out_x, currents)
         if not np.isfinite(r.sum()):   # a sum is finite only when every term is (one pass, no mask)
-            r[~np.isfinite(r)] = 1e6
+            r[~np.isfinite(r)] = BAD_RESIDUAL
+        # sensitivities beyond the finite range (or NaN): those rows count as diverged too
+        huge = None if (rows.max(initial=0.0) <= JAC_MAX and rows.min(initial=0.0) >= -JAC_MAX) else \
+            ~(np.abs(prob.jac_rows(rows, out_x)).max(axis=1, initial=0.0) <= JAC_MAX)
+        if huge is not None:
+            r[huge] = BAD_RESIDUAL
         seg_cost = prob.seg_sum(r * r)
         if seg_cost_prev is not None:
             worse = seg_cost > seg_cost_prev * (1 + 1e-12)
@@ -394,6 +415,8 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
                 if np.abs(step[worse]).max() > 1e-10:
                     continue
         J = prob.jac_rows(rows, out_x)
+        if huge is not None:
+            J[huge] = 0.0
         if not np.isfinite(J.sum()):
             J[~np.isfinite(J)] = 0.0
         Jx = J[:, :6]
@@ -457,7 +480,7 @@ class _VP:
             return
         with np.errstate(over="ignore", invalid="ignore"):
             r, J, x0s, JtJ = _inner(self.prob, theta, cur, self.x0s)
-        self.diverged = bool(np.any(np.abs(r) >= 1e6))
+        self.diverged = bool(np.any(np.abs(r) >= BAD_RESIDUAL))
         self.nfev += 1
         if np.all(np.isfinite(r)):
             self.x0s = x0s
@@ -477,11 +500,18 @@ class _VP:
                 G[b:, c:c + 2] = 0.0
         # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
-        JtG = prob.seg_gram(Jx, G)
-        coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P)
-        for k in range(prob.n_seg):
-            a, b = prob.r_start[k], prob.r_start[k + 1]
-            G[a:b] -= Jx[a:b] @ coef[k]
+        with np.errstate(over="ignore", invalid="ignore"):
+            JtG = prob.seg_gram(Jx, G)
+            coef = np.linalg.solve(JtJ, JtG)   # (nseg, 6, P); JtJ is regularised: positive definite
+            for k in range(prob.n_seg):
+                a, b = prob.r_start[k], prob.r_start[k + 1]
+                G[a:b] -= Jx[a:b] @ coef[k]
+        if not (np.isfinite(G.sum()) and np.isfinite(r.sum())):   # overflow: as outside the domain
+            self._key, self._r = key, np.full(prob.n_res, 1e3)
+            self._A = np.zeros((prob.n_res, len(p) + 1))
+            self._J = self._A[:, :-1]
+            self.diverged = True
+            return
         self._key, self._r, self._J, self._A = key, r, G, A
 
     def fun(self, p):
@@ -530,14 +560,32 @@ def compress_lsq(J, r):
     (numpy.ndarray, numpy.ndarray)
         ``Jc`` (P + 1, P) and ``rc`` (P + 1,); ``Jc^T Jc = J^T J``, ``Jc^T rc = J^T r``,
         ``rc^T rc = r^T r``. From the Cholesky factor of the column-scaled Gram matrix when
-        it is well conditioned, else from a QR decomposition.
+        it is well conditioned, else from a QR decomposition. Numbers so large that their
+        products overflow are scaled first (the same factor).
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        If ``J`` or ``r`` is not finite.
     """
     return _compress_stacked(np.column_stack([J, r]))
 
 
 def _compress_stacked(A):
-    """:func:`compress_lsq` of ``A`` = [J r] (N, P + 1), C-contiguous."""
-    gram = A.T @ A
+    """:func:`compress_lsq` of ``A`` = [J r] (N, P + 1), C-contiguous.
+
+    Raises :class:`~usvlog.errors.FitFailed` when ``A`` is not finite."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        gram = A.T @ A
+    if not np.isfinite(gram).all():
+        if not np.isfinite(A).all():
+            raise FitFailed("the fit's Jacobian or residuals are not finite (its simulation diverged)")
+        # finite but so large that the products overflow: the same factor of the column-scaled problem
+        s = np.abs(A).max(axis=0)
+        s[s == 0] = 1.0
+        Jc, rc = _compress_stacked(np.ascontiguousarray(A / s))
+        R = np.column_stack([Jc, rc]) * s
+        return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
     d = np.sqrt(np.diag(gram))
     d[d == 0] = 1.0
     gs = gram / np.outer(d, d)
@@ -555,9 +603,30 @@ def _compress_stacked(A):
     return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
 
 
+_PARAM_LO = np.array([1e-3, 1e-4, 1e-6, 1e-6, 1e-6, -np.inf])   # lower bounds of m, Iz, d11, d22, d33, xg
+
+
+def _check_fit_input(runs: list[RunData], theta, currents) -> None:
+    """FitFailed unless the start is finite and every run has thrust to integrate over."""
+    if len(theta) != 6 or not np.all(np.isfinite(theta)):
+        raise FitFailed(f"the start values {_fmt(theta)} are not six finite numbers")
+    if not np.all(np.isfinite(currents)):
+        raise FitFailed("the start currents are not finite")
+    if not runs:
+        raise FitFailed("no runs to fit")
+    for i, r in enumerate(runs):
+        if len(r.t_thrust) < 2 or not r.t_thrust[-1] > r.t_thrust[0]:
+            raise FitFailed(f"run {i} ({r.source or 'log'}): less than two thrust samples in the fitted time: "
+                            "nothing to integrate")
+
+
+def _fmt(theta) -> str:
+    return "(" + ", ".join(f"{x:.4g}" for x in np.ravel(np.asarray(theta, float))) + ")"
+
+
 def _bounds(free_mask, n_cur, max_current=np.inf):
     """Box of [free params, currents]: inertias and damping positive, |current| per axis bounded."""
-    lo = np.array([1e-3, 1e-4, 1e-6, 1e-6, 1e-6, -np.inf])[free_mask]
+    lo = _PARAM_LO[free_mask]
     hi = np.full(len(lo), np.inf)
     return (np.concatenate([lo, np.full(n_cur, -max_current)]), np.concatenate([hi, np.full(n_cur, max_current)]))
 
@@ -640,11 +709,23 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Standard errors come from the GPS and compass rows only (the velocities are
         derived from them: counting them again would overstate the information).
         ``diverged`` is True when the model's simulation left the finite range at the end.
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        The start is not finite, a run has less than two thrust samples, there is no GNSS
+        fix or compass heading to fit, or the fit's numbers left the finite range. (A
+        simulation that diverges at some trial parameters is not an error: the fit steps
+        back; at the solution it is ``diverged``.)
     """
     free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
     cur = np.zeros((len(runs), 2)) if currents0 is None else np.asarray(currents0, float)
     cur = np.clip(cur, -max_current_mps, max_current_mps)
     theta = np.asarray(theta0, float).copy()
+    _check_fit_input(runs, theta, cur)
+    # a free start below its bound (a near-zero mass or damping from a poor equation-error fit)
+    # starts at the bound: the warm-up's box about the start stays a box
+    theta = np.where(free, np.maximum(theta, _PARAM_LO * 1.01), theta)
     nfev = 0
     stages = [warm_segment_s, segment_s] if warm_segment_s and warm_segment_s < segment_s else [segment_s]
     robust = np.ones(4)
@@ -662,6 +743,8 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             # the warm-up only needs to get close: fit it on the first warm_span_s of each run
             runs_s = [r.window(r.t_thrust[0], r.t_thrust[0] + warm_span_s) for r in runs]
         prob = problem(runs_s, seg_s)
+        if prob.n_res == 0:
+            raise FitFailed("no GNSS fix or compass heading inside the fitted time: nothing to fit")
         prob.set_sensor_scale(_group_scales(prob, robust, vel_weight))
         x0s = prob.initial_states(x0_fn)
         vp = _VP(prob, theta, free, fit_current, x0s, cur)
@@ -723,12 +806,14 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
-    colnorm = np.linalg.norm(G, axis=0)
-    colnorm[colnorm == 0] = 1.0
-    Gs = G / colnorm
-    cond = float(np.linalg.cond(Gs)) if np.all(np.isfinite(Gs)) else float("inf")
-    cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm) if np.isfinite(cond) else \
-        np.full((G.shape[1], G.shape[1]), np.nan)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        colnorm = np.linalg.norm(G, axis=0)
+        colnorm[colnorm == 0] = 1.0
+        Gs = G / colnorm
+        ok = bool(np.all(np.isfinite(Gs)) and np.all(np.isfinite(colnorm)) and np.isfinite(sigma2) and len(Gs))
+        cond = float(np.linalg.cond(Gs)) if ok else float("inf")
+        cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm) if np.isfinite(cond) else \
+            np.full((G.shape[1], G.shape[1]), np.nan)
     names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
     if fit_current:
         names += tuple(f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e"))
@@ -796,10 +881,16 @@ def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarr
 
     ``theta``: m, Iz, d11, d22, d33, xg (SI); ``current``: north, east in m/s; ``x0``:
     [n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s)]. Rows for times outside the
-    thrust record are NaN."""
+    thrust record are NaN; so is every row when the parameters are not a model that can be
+    integrated (not finite, m or Iz - m xg^2 not positive) or ``x0`` is not finite, and every
+    row after the simulation left the finite range (NaN or inf: diverged)."""
     times = np.asarray(times, float)
-    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     out_x = np.full((len(times), 6), np.nan)
+    th = np.asarray(theta, float)
+    if (len(run.t_thrust) == 0 or th.shape != (6,) or not np.all(np.isfinite(th)) or not th[0] > 0
+            or not th[1] - th[0] * th[5] ** 2 > 0 or not np.all(np.isfinite(x0)) or not np.all(np.isfinite(current))):
+        return out_x
+    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
     ok = (times >= run.t_thrust[i0] - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
     tt = np.ascontiguousarray(times[ok])
     ox = np.zeros((len(tt), 6))
@@ -836,14 +927,28 @@ def fit_initial_state(run: RunData, theta, x0_guess, t0: float, t1: float, *, fi
 
     Times in s from the run's start; ``x0`` (6,) as [n (m), e (m), psi (rad), u (m/s),
     v (m/s), r (rad/s)], ``current`` (2,) north, east in m/s (``current0`` when
-    ``fit_current`` is False)."""
+    ``fit_current`` is False).
+
+    Raises :class:`~usvlog.errors.FitFailed` when the window has less than two thrust samples
+    or the parameters cannot be simulated (not finite, m or Iz - m xg^2 not positive). With
+    fewer than two measurements in the window the current is held at ``current0``."""
     w = run.window(t0, t1)
     free = np.zeros(6, bool)
+    theta = np.asarray(theta, float)
+    if len(w.t_thrust) < 2 or not w.t_thrust[-1] > w.t_thrust[0]:
+        raise FitFailed(f"{run.source or 'run'}: less than two thrust samples in {t0:.1f}..{t1:.1f} s: "
+                        "no initial state to fit")
+    if theta.shape != (6,) or not np.all(np.isfinite(theta)) or not theta[0] > 0 \
+            or not theta[1] - theta[0] * theta[5] ** 2 > 0:
+        raise FitFailed(f"the parameters {_fmt(theta)} are not a model that can be simulated "
+                        "(six finite numbers with m > 0 and Iz - m xg^2 > 0)")
     prob = Problem([w], 1e12)
     cur = np.asarray(current0, float)[None, :]
-    x0s = np.asarray(x0_guess, float)[None, :]
-    if not fit_current:
-        _, _, x0s, _ = _inner(prob, theta, cur, x0s)
+    # a state the smoother could not give (NaN) starts at rest at the origin: the fit moves it
+    x0s = np.nan_to_num(np.asarray(x0_guess, float), nan=0.0, posinf=0.0, neginf=0.0)[None, :]
+    if not fit_current or prob.n_res < 2:   # (too few measurements to tell a current)
+        with np.errstate(over="ignore", invalid="ignore"):
+            _, _, x0s, _ = _inner(prob, theta, cur, x0s)
         return x0s[0], cur[0]
     vp = _VP(prob, theta, free, True, x0s, cur)
     sol = least_squares(vp.fun, cur.ravel(), jac=vp.jac, method="lm", xtol=1e-8, ftol=1e-8, max_nfev=50)

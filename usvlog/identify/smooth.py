@@ -15,11 +15,13 @@ import numpy as np
 from scipy.linalg import lstsq
 from scipy.ndimage import convolve1d
 
+from ..errors import FitFailed
 from ..estimate import EstimateSettings, estimate
 from ..model.frames import ssa
 from .data import RunData
 
 GRID_DT = 0.1
+MIN_SAMPLES = 5   # a local cubic needs a window of at least five samples
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -75,6 +77,9 @@ class KinStates:
         numpy.ndarray, shape (..., 6)
             n (m), e (m), psi (rad, unwrapped), u (m/s), v (m/s), r (rad/s).
         """
+        if len(self.t) == 0:
+            raise FitFailed("no smoothed states in this part of the run (no GNSS fix and compass heading "
+                            "overlap there)")
         key = (float(current[0]), float(current[1]))
         last = self._cols
         if last is None or last[0] != key:
@@ -180,15 +185,35 @@ def savgol_filter(x, window_length: int, polyorder: int, deriv: int = 0, delta: 
 
 
 def _odd(n):
-    n = max(int(n), 5)
+    """The odd window length (samples) at or above ``n``, at least MIN_SAMPLES (a finite ``n``)."""
+    n = max(int(n), MIN_SAMPLES)
     return n if n % 2 else n + 1
+
+
+def _window(t, window_s: float, what: str) -> tuple[float, int]:
+    """(sample spacing (s), odd window length) of a local cubic over ``window_s`` on the grid ``t``,
+    at most the samples there are; FitFailed when they are too few or the grid is not increasing."""
+    t = np.asarray(t, float)
+    if len(t) < MIN_SAMPLES:
+        raise FitFailed(f"{what}: {len(t)} smoothed sample(s) (at least {MIN_SAMPLES} are needed): "
+                        "too short a stretch of data")
+    dt = float(np.median(np.diff(t)))
+    if not (math.isfinite(dt) and dt > 0):
+        raise FitFailed(f"{what}: the time grid of the smoothed samples is not increasing (median step {dt} s)")
+    return dt, min(_odd(min(window_s / dt, len(t))), _odd(len(t) - 2))
 
 
 def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinStates:
     """Local cubic fits to GNSS positions and unwrapped compass heading on a 10 Hz grid."""
+    if len(run.t_gps) < 2 or len(run.t_compass) < 2:
+        raise FitFailed(f"{run.source or 'run'}: {len(run.t_gps)} GNSS fix(es) and {len(run.t_compass)} compass "
+                        "heading(s): too few to smooth")
     t0 = max(run.t_gps[0], run.t_compass[0])
     t1 = min(run.t_gps[-1], run.t_compass[-1])
     t = np.arange(t0, t1 + 1e-9, GRID_DT)
+    if len(t) < MIN_SAMPLES:
+        raise FitFailed(f"{run.source or 'run'}: GNSS and compass overlap for {max(t1 - t0, 0.0):.2f} s only: "
+                        "too short to smooth")
     n = np.interp(t, run.t_gps, run.n_gps)
     e = np.interp(t, run.t_gps, run.e_gps)
     psi = np.interp(t, run.t_compass, np.unwrap(run.psi_compass))
@@ -208,7 +233,10 @@ def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
                                         gnss_delay_s=run.gnss_delay_s, compass_delay_s=run.compass_delay_s),
                   vessel).state
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
-    t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT)
+    t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT) if len(ts) else np.zeros(0)
+    if len(t) < MIN_SAMPLES:
+        raise FitFailed(f"{run.source or 'run'}: the smoothed states span {len(t) * GRID_DT:.1f} s after the "
+                        "first thrust sample: too short to identify from")
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))
     u = np.interp(t, ts, st["u_mps"].to_numpy(float))
     v = np.interp(t, ts, st["v_mps"].to_numpy(float))
@@ -224,21 +252,26 @@ def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
 
 
 def derivative(t, y, window_s=2.0):
-    """Smoothed time derivative on a uniform grid (Savitzky-Golay, cubic)."""
-    dt = float(np.median(np.diff(t)))
-    w = min(_odd(window_s / dt), _odd(len(t) - 2))
+    """Smoothed time derivative on a uniform grid (Savitzky-Golay, cubic).
+
+    Raises :class:`~usvlog.errors.FitFailed` with fewer than MIN_SAMPLES samples (or a grid
+    that is not increasing): there is no local cubic to fit."""
+    dt, w = _window(t, window_s, "derivative")
     return savgol_filter(y, w, polyorder=3, deriv=1, delta=dt, axis=0)
 
 
 def smooth_like(t, y, window_s=2.0):
-    """The same local cubic smoothing without the derivative (to treat thrust like the states)."""
-    dt = float(np.median(np.diff(t)))
-    w = min(_odd(window_s / dt), _odd(len(t) - 2))
+    """The same local cubic smoothing without the derivative (to treat thrust like the states).
+
+    Raises :class:`~usvlog.errors.FitFailed` as :func:`derivative`."""
+    dt, w = _window(t, window_s, "smoothing")
     return savgol_filter(y, w, polyorder=3, axis=0)
 
 
 def thrust_on_grid(run: RunData, t):
     """Thrust held over its samples, averaged over each grid interval centred on t."""
+    if len(run.t_thrust) == 0:
+        raise FitFailed(f"{run.source or 'run'}: no thrust samples in this part of the run")
     out = []
     for tau in (run.tau_u, run.tau_r):
         # cumulative integral of the zero-order-hold signal

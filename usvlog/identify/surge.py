@@ -17,16 +17,19 @@ error, whose regressors carry it, does: its m comes out low).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from .._jit import njit
+from ..errors import FitFailed
 from .data import RunData
-from .smooth import KinStates, thrust_on_grid
+from .smooth import MIN_SAMPLES, KinStates, thrust_on_grid
 
 SEGMENT_S = 20.0    # position segments of the surge fit (s): each starts where the GPS says
+BAD_RESIDUAL_M = 1e6  # position residual (m) of a sample whose surge simulation left the finite range
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -104,9 +107,20 @@ def fit_surge(runs: list[RunData], kin: list[KinStates], m0: float, d110: float,
     Returns
     -------
     SurgeFit
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        The start is not positive and finite, there are too few smoothed samples or GNSS
+        fixes to fit, or the fitted surge model is not finite (its simulation diverged).
     """
+    if not (math.isfinite(m0) and m0 > 0 and math.isfinite(d110) and d110 > 0 and math.isfinite(xg)):
+        raise FitFailed(f"surge fit: the start m = {m0:.4g}, d11 = {d110:.4g}, xg = {xg:.4g} is not positive "
+                        "and finite")
     data = []
     for run, ks in zip(runs, kin):
+        if len(ks.t) < MIN_SAMPLES:
+            raise FitFailed(f"surge fit: {run.source or 'run'} has {len(ks.t)} smoothed sample(s): too short")
         tau_u, _ = thrust_on_grid(run, ks.t)
         c, s = np.cos(ks.psi), np.sin(ks.psi)
         dt = float(np.median(np.diff(ks.t)))
@@ -116,8 +130,17 @@ def fit_surge(runs: list[RunData], kin: list[KinStates], m0: float, d110: float,
         counts = np.bincount(seg)
         data.append((ks, tau_u, c, s, dt, tg, run.n_gps[g], run.e_gps[g], seg, np.maximum(counts, 1)))
     n_cur = 2 * len(runs) if fit_current else 0
+    n_fix = sum(len(d[5]) for d in data)
+    if 2 * n_fix <= 2 + n_cur + 2 * len(data):
+        raise FitFailed(f"surge fit: {n_fix} GNSS fix(es) inside the smoothed time: too few to fit m and d11")
 
     def residuals(p):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            r = _residuals(p)
+        # a simulation that left the finite range (an absurd m or d11 tried): far off, not NaN
+        return r if np.isfinite(r.sum()) else np.where(np.isfinite(r), r, BAD_RESIDUAL_M)
+
+    def _residuals(p):
         m, d11 = np.exp(p[0]), np.exp(p[1])
         out = []
         for i, (ks, tau_u, c, s, dt, tg, ng, eg, seg, counts) in enumerate(data):
@@ -137,9 +160,14 @@ def fit_surge(runs: list[RunData], kin: list[KinStates], m0: float, d110: float,
     hi = np.concatenate([[np.inf, np.inf], np.full(n_cur, max_current_mps)])
     sol = least_squares(residuals, p0, bounds=(lo, hi), x_scale=np.concatenate([[0.3, 0.3], np.full(n_cur, 0.1)]))
     r, J = sol.fun, sol.jac
+    with np.errstate(over="ignore"):
+        m, d11 = float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
+    if not (math.isfinite(m) and math.isfinite(d11) and m > 0 and d11 > 0) or np.any(np.abs(r) >= BAD_RESIDUAL_M):
+        raise FitFailed(f"surge fit diverged (m = {m:.4g} kg, d11 = {d11:.4g} kg/s: its simulation left the "
+                        "finite range)")
     sigma2 = float(r @ r) / max(len(r) - len(p0), 1)
-    cov = sigma2 * np.linalg.pinv(J.T @ J)
-    m, d11 = float(np.exp(sol.x[0])), float(np.exp(sol.x[1]))
+    JtJ = J.T @ J
+    cov = sigma2 * np.linalg.pinv(JtJ) if np.all(np.isfinite(JtJ)) else np.full(JtJ.shape, np.nan)
     cur = sol.x[2:].reshape(-1, 2) if fit_current else np.zeros((len(runs), 2))
     se = np.sqrt(np.maximum(np.diag(cov)[:2], 0.0)) * np.array([m, d11])
     return SurgeFit(m=m, d11=d11, stderr={"m": float(se[0]), "d11": float(se[1])}, currents=np.asarray(cur, float),

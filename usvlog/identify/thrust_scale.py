@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from ..choices import EXTENDED_PARAM_NAMES
-from ..errors import ConfigError
+from ..errors import ConfigError, FitFailed
 from ..log.fieldlog import FieldLog
 from ..log.summary import health_from_provenance
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
@@ -239,6 +239,10 @@ def reverse_ratio(logs: list[FieldLog], vessel: Vessel, model: str = "paper") ->
     if total == 0 or np.abs(sn).sum() < 0.02 * total:
         return float(fallback), "vessel"
     X = np.concatenate([A, -sn[:, :, None]], 2)       # (2, N, 6)
+    ok = np.isfinite(X).all(axis=(0, 2)) & np.isfinite(sp).all(axis=0)
+    if ok.sum() < 2 * X.shape[2]:   # too few finite samples (gaps in the smoothed states)
+        return float(fallback), "vessel"
+    X, sp = X[:, ok], sp[:, ok]
     w = np.ones(2)
     for _ in range(2):
         Xw = (X * w[:, None, None]).reshape(-1, X.shape[2])
@@ -318,10 +322,13 @@ def profile_ratio(logs: list[FieldLog], vessel: Vessel, rho0: float, *, free_mas
 
     def cost(rho: float, first: bool) -> float:
         runs = [with_ratio(d[0], d[1], d[2], rho) for d in data]
-        oe = fit_output_error(runs, best["theta"], lambda i, t: kin[i].at(t), free_mask=free,
-                              fit_current=fit_current, currents0=best["cur"], segment_s=segment_s,
-                              warm_segment_s=0.0, reweight=False, max_nfev=60 if first else 20)
-        c = float(oe.sigma2) if np.all(np.isfinite(oe.theta)) else np.inf
+        try:
+            oe = fit_output_error(runs, best["theta"], lambda i, t: kin[i].at(t), free_mask=free,
+                                  fit_current=fit_current, currents0=best["cur"], segment_s=segment_s,
+                                  warm_segment_s=0.0, reweight=False, max_nfev=60 if first else 20)
+        except FitFailed:   # no fit at this ratio: it is not the one
+            return np.inf
+        c = float(oe.sigma2) if np.all(np.isfinite(oe.theta)) and np.isfinite(oe.sigma2) else np.inf
         if c < best["cost"]:
             best.update(cost=c, theta=oe.theta, cur=oe.currents)
         return c
@@ -384,8 +391,11 @@ def profile_ratio_ext(logs: list[FieldLog], vessel: Vessel, rho0: float, *, fit_
 
     def cost(rho: float) -> float:
         runs = [with_ratio(d[0], d[1], d[2], rho) for d in data]
-        oe = fit_extended_output_error(runs, kin, start(rho), fit_current=fit_current,
-                                       max_current_mps=max_current_mps, segment_s=segment_s, max_iter=60)
+        try:
+            oe = fit_extended_output_error(runs, kin, start(rho), fit_current=fit_current,
+                                           max_current_mps=max_current_mps, segment_s=segment_s, max_iter=60)
+        except FitFailed:   # no fit at this ratio: it is not the one
+            return math.inf
         # the whitened sum of squares (the residuals' RMS per sensor times their counts)
         c = sum(n_g * oe.rms["gps"] ** 2 + n_c * oe.rms["compass"] ** 2 for n_g, n_c in counts)
         c = c if math.isfinite(c) and not oe.diverged and not ext_physical_problem(oe.theta) else math.inf
@@ -438,15 +448,19 @@ def _ee_start(data, rho: float, free, base) -> np.ndarray:
     from .equation import fit_equation_error  # local: only the ratio searches need a start from it
 
     nus, nuds, tus, trs = [], [], [], []
-    for r1, pos, neg, ks in data:
-        nu = ks.nu((0.0, 0.0))
-        tu, tr = thrust_on_grid(with_ratio(r1, pos, neg, rho), ks.t)
-        nus.append(smooth_like(ks.t, nu, EE_ACC_S))
-        nuds.append(derivative(ks.t, nu, EE_ACC_S))
-        tus.append(smooth_like(ks.t, tu, EE_ACC_S))
-        trs.append(smooth_like(ks.t, tr, EE_ACC_S))
-    ee = fit_equation_error(np.concatenate(nus), np.concatenate(nuds), np.concatenate(tus), np.concatenate(trs),
-                            fix={k: float(base[i]) for i, k in enumerate(PARAM_NAMES) if not free[i]})
+    try:
+        for r1, pos, neg, ks in data:
+            nu = ks.nu((0.0, 0.0))
+            tu, tr = thrust_on_grid(with_ratio(r1, pos, neg, rho), ks.t)
+            nus.append(smooth_like(ks.t, nu, EE_ACC_S))
+            nuds.append(derivative(ks.t, nu, EE_ACC_S))
+            tus.append(smooth_like(ks.t, tu, EE_ACC_S))
+            trs.append(smooth_like(ks.t, tr, EE_ACC_S))
+        ee = fit_equation_error(np.concatenate(nus), np.concatenate(nuds), np.concatenate(tus),
+                                np.concatenate(trs),
+                                fix={k: float(base[i]) for i, k in enumerate(PARAM_NAMES) if not free[i]})
+    except FitFailed:   # too short to smooth, too few finite samples: the base values
+        return base.copy()
     return np.where(free, ee.theta, base) if ee.valid else base.copy()
 
 
@@ -459,7 +473,10 @@ def _parabola_search(cost, rho0: float, rel_tol: float, max_eval: int) -> float:
         seen[rho] = cost(rho, not seen)
     rho = min(seen, key=lambda k: seen[k])
     while len(seen) < max_eval:
-        pts = sorted(seen.items(), key=lambda kv: kv[1])[:3]
+        finite = [kv for kv in seen.items() if math.isfinite(kv[1])]
+        if len(finite) < 3:   # failed fits (infinite cost) give no parabola: the best seen
+            break
+        pts = sorted(finite, key=lambda kv: kv[1])[:3]
         x = np.array([p[0] for p in pts])
         y = np.array([p[1] for p in pts])
         a, b, _ = np.polyfit(x, y, 2)
