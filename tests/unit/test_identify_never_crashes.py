@@ -250,9 +250,13 @@ def test_smoothing_five_samples_and_a_stuck_clock():
 
 
 def test_smoothed_states_of_a_run_too_short(short_run):
-    run, _ = short_run
+    run, ks = short_run
     with pytest.raises(FitFailed):
         savgol_states(run.window(0.0, 0.2))
+    # a held-out part the GNSS and compass do not cover (they stopped, the thrust log went on)
+    with pytest.raises(FitFailed, match="do not cover"):
+        ks.window(ks.t[-1] + 1.0, np.inf)
+    assert len(ks.window(-np.inf, 10.0).t) > 50
 
 
 def test_equation_error_degenerate_inputs(short_run, straight_run):

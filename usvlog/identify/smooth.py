@@ -95,8 +95,16 @@ class KinStates:
         return self.t[(self.t >= t0) & (self.t <= t_thrust_end)]
 
     def window(self, t_lo, t_hi) -> KinStates:
-        """The states with ``t_lo <= t <= t_hi`` (s)."""
+        """The states with ``t_lo <= t <= t_hi`` (s).
+
+        Raises :class:`~usvlog.errors.FitFailed` when fewer than MIN_SAMPLES are there (the
+        GNSS fixes and compass headings do not cover that part of the run): nothing to fit
+        or validate on."""
         k = (self.t >= t_lo) & (self.t <= t_hi)
+        if k.sum() < MIN_SAMPLES:
+            span = f"{t_lo:.1f} s onward" if t_hi == np.inf else f"{t_lo:.1f} .. {t_hi:.1f} s"
+            raise FitFailed(f"{int(k.sum())} smoothed sample(s) in {span} of the run: its GNSS fixes and compass "
+                            "headings do not cover that part (nothing to fit or validate on there)")
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
                          ve=self.ve[k], r=self.r[k], source=self.source)
 
