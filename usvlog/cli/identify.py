@@ -161,6 +161,8 @@ def format_report(d: dict) -> str:
     fp = d["fit_percent"]
     lines.append(f"fit % ({d['fit_percent_on']}): u {_pct(fp['u'])}, v {_pct(fp['v'])}, r {_pct(fp['r'])}, "
                  f"track {_pct(fp['track'])}")
+    for h, v in (d.get("fit_percent_ahead") or {}).items():   # k-step-ahead (re-started every h s)
+        lines.append(f"fit % {h} s ahead: u {_pct(v['u'])}, v {_pct(v['v'])}, r {_pct(v['r'])}")
     mc = d.get("model_comparison")
     if mc:
         for m in ("paper", "extended"):

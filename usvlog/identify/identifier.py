@@ -14,7 +14,7 @@ import pandas as pd
 
 from .._cpu import spare_cpu
 from ..choices import EXT_SCALE_FIX, EXTENDED_PARAM_NAMES, IDENTIFY_METHODS, IDENTIFY_MODELS
-from ..errors import ConfigError, InputError, UnusableResultError
+from ..errors import ConfigError, FitFailed, InputError, UnusableResultError
 from ..estimate import EstimateSettings, estimate
 from ..estimate.latency import stored_delays, with_settings_delays
 from ..log.fieldlog import FieldLog
@@ -22,6 +22,7 @@ from ..log.summary import health_from_provenance
 from ..model.frames import ssa
 from ..model.stats import fit_percent
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
+from .ahead import excited_channels, fit_percent_ahead
 from .data import RunData, run_data
 from .equation import EquationErrorResult, fit_equation_error
 from .output import (
@@ -32,9 +33,11 @@ from .output import (
     simulate_run,
     velocity_samples,
 )
+from .signs import surge_sign, thrust_yaw_sign
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S, ThrustScale, fit_in_command_units, thrust_scale_known
+from .velocity import VelocityFitResult, data_scales, fit_velocity_error
 
 if TYPE_CHECKING:   # the extended model and filter error are imported where used (start-up of the default fit)
     from .extended import ExtendedFit
@@ -57,6 +60,7 @@ REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
 EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
+AHEAD_S = (5.0, 10.0, 30.0)  # k-step-ahead validation horizons (s): a path follower's prediction horizons
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -323,6 +327,31 @@ def _refuse_dead_channels(logs: list[FieldLog], health: list[dict]) -> None:
         raise err
 
 
+def _refuse_wrong_signs(runs: list[RunData], kin: list[KinStates]) -> list:
+    """Sign checks of each run (:mod:`usvlog.identify.signs`) before any fit: the yaw rate against
+    the differential thrust and the surge speed against the total thrust. A yaw response of the
+    wrong sign is refused with the fix (a fit would find negative inertias, or a boat that does not
+    exist, and say nothing of why). The surge check is recorded only: the sway-yaw coupling in the
+    surge equation makes it far less certain (t ~ 6 against ~ 21 for yaw on a simulated run), and it
+    was wrong on a short run of the paper's vessel."""
+    checks = []
+    for run, ks in zip(runs, kin):
+        tu, tr = thrust_on_grid(run, ks.t)
+        nu = ks.nu()
+        yaw, surge = thrust_yaw_sign(ks.t, tr, nu[:, 2]), surge_sign(ks.t, tu, nu[:, 0])
+        checks.append({"source": run.source, "yaw": yaw.to_dict(), "surge": surge.to_dict()})
+        reasons = []
+        if yaw.sign < 0:
+            reasons.append(f"{yaw.message}: map the channel named right to thrust_left and the one named left to "
+                           f"thrust_right when importing (--column/--topic thrust_left=... thrust_right=...), or "
+                           f"set the vessel's arm sign right")
+        if reasons:
+            err = UnusableResultError(f"{run.source or 'log'}: identification refused: " + "; ".join(reasons))
+            err.reasons = reasons      # type: ignore[attr-defined]
+            raise err
+    return checks
+
+
 def _excitation_warnings(kin: list[KinStates], force: bool = False) -> list[str]:
     r_rms = math.sqrt(np.mean(np.concatenate([k.r for k in kin]) ** 2))
     psi_span = max(float(np.ptp(k.psi)) for k in kin)
@@ -575,6 +604,7 @@ class Identifier:
             self.thrust_scale_ = ThrustScale()
         all_runs = [run_data(lg, vessel) for lg in logs]
         all_kin = [kinematic_states(lg, r, vessel) for lg, r in zip(logs, all_runs)]
+        self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin)
         holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
         if holdout is None:
             self.validation_mode_ = "leave-one-out"
@@ -592,6 +622,7 @@ class Identifier:
             runs.append(run)
             kin.append(ks)
         # -- candidates, fitted on the fit part, judged on the held-out part ---------------
+        self._data_scales = data_scales(runs, kin)
         ee = self._equation_error(runs, kin)
         self.equation_error_ = ee
         self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
@@ -625,7 +656,10 @@ class Identifier:
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
-            final = self._refit(chosen, all_runs, all_kin, logs, vessel, held)
+            try:
+                final = self._refit(chosen, all_runs, all_kin, logs, vessel, held)
+            except FitFailed:   # the refit on all the data could not proceed: the validated candidate stands
+                final = chosen
             if final is not chosen:
                 runs, kin = all_runs, all_kin
         else:
@@ -651,9 +685,38 @@ class Identifier:
         self._kin = kin
         self._set_result(final, runs)
         self.validation_ = self.validations_[0] if self.validations_ else None
+        self._held = held
+        try:
+            self.fit_percent_ahead_, self.excited_ = self._ahead(held)
+        except FitFailed:   # too short a held-out part to predict ahead: the free run alone judges
+            self.fit_percent_ahead_, self.excited_ = {}, {}
         self.reasons_, self.verdict_ = self._verdict(vessel, runs, kin)
         self.usable_ = self.verdict_ != "unusable"
         return self
+
+    def _ahead(self, held) -> tuple[dict, dict]:
+        """k-step-ahead fit % (:func:`~usvlog.identify.ahead.fit_percent_ahead`, H = AHEAD_S) of the
+        returned model on the held-out parts (mean over them), and which of u, v, r those parts
+        excite at all; empty without held-out data."""
+        if not held:
+            return {}, {}
+        simulate = None
+        theta = self.theta_
+        if self.extended_ is not None:
+            from .extended_oe import free_run_full  # lazy: the extended model only
+
+            simulate, theta = free_run_full, self.extended_.as_array()
+        per = []
+        for i, (r, k) in enumerate(held):
+            cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
+            if simulate is not None:
+                per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S, simulate=simulate))
+            else:
+                per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S))
+        ahead = {h: {c: float(np.mean([p[h][c] for p in per])) for c in ("u", "v", "r")} for h in per[0]}
+        nu = np.concatenate([k.nu(self.current_[i] if i < len(self.current_) else (0.0, 0.0))
+                             for i, (_, k) in enumerate(held)])
+        return ahead, excited_channels(nu)
 
     # -- the candidate list, one fit, the pick by validation -------------------------
     def candidate_starts(self, ee: EquationErrorResult, vessel: Vessel) -> list[Start]:
@@ -735,7 +798,21 @@ class Identifier:
         if getattr(self, "_prior_given", True) and np.max(np.abs(prior[:5] / th[:5] - 1)) > 0.1:
             out.append(Start(name="output error with velocities from the vessel's values", kind="output-error",
                              theta=prior, vel_weight=VEL_WEIGHT))
+        # velocity output error (:mod:`usvlog.identify.velocity`): starts from the data's own scales,
+        # whatever the vessel file says, so the answer does not hang on the user's guess
+        scales = getattr(self, "_data_scales", None)
+        if scales is not None:
+            out.append(Start(name="velocity output error from the data's scales", kind="velocity-error",
+                             theta=self._with_fixed(scales)))
         return out + [ee_start]
+
+    def _with_fixed(self, theta) -> np.ndarray:
+        """``theta`` with the fixed parameters set to their values."""
+        th = np.array(theta, float)
+        for i, k in enumerate(PARAM_NAMES):
+            if k in self.fix:
+                th[i] = self.fix[k]
+        return th
 
     def _free(self, st: Start) -> np.ndarray:
         """Which of the paper model's parameters a candidate's output or filter error fits."""
@@ -813,8 +890,18 @@ class Identifier:
 
     def _fit_candidate(self, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
                        threads: bool | Callable[[], bool] | None = None) -> Candidate:
-        """Fit one candidate and validate it (a failure is a result: ``failed`` says why);
-        ``threads``: an output-error fit's (:func:`fit_output_error`)."""
+        """Fit one candidate and validate it (a failure is a result: ``failed`` says why, also when
+        its fit could not proceed, :class:`~usvlog.errors.FitFailed`); ``threads``: an output-error
+        fit's (:func:`fit_output_error`)."""
+        try:
+            return self._fit_candidate_raw(st, runs, kin, fit_logs, vessel, held, held_stderr, threads)
+        except FitFailed as err:
+            return Candidate(start=st, theta=np.asarray(st.theta, float), currents=np.zeros((len(runs), 2)),
+                             fitted=None, validations=[], failed=str(err))
+
+    def _fit_candidate_raw(self, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
+                           threads: bool | Callable[[], bool] | None = None) -> Candidate:
+        """:meth:`_fit_candidate` without the catch."""
         if st.model == "extended":
             return self._fit_ext_candidate(st, runs, kin, held)
         free = self._free(st)
@@ -828,6 +915,10 @@ class Identifier:
             fitted = fit_filter_error(fit_logs, vessel, st.theta, free_mask=free, current=self.current)
             theta = fitted.theta
             cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in fit_logs])
+        elif st.kind == "velocity-error":
+            fitted = fit_velocity_error(runs, kin, st.theta, free_mask=free, fit_current=self.current,
+                                        max_current_mps=self.max_current_mps)
+            theta, cur = fitted.theta, np.asarray(fitted.currents, float)
         else:
             vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
             fitted = fit_output_error(runs, st.theta, lambda i, t: kin[i].at(t), free_mask=free,
@@ -837,7 +928,7 @@ class Identifier:
                                       threads=threads)
             theta, cur = fitted.theta, np.asarray(fitted.currents, float)
         failed = physical_problem(theta)
-        if not failed and isinstance(fitted, OutputErrorResult) and fitted.diverged:
+        if not failed and isinstance(fitted, (OutputErrorResult, VelocityFitResult)) and fitted.diverged:
             failed = "its simulation diverged"
         vals = []
         if not failed:
@@ -942,6 +1033,13 @@ class Identifier:
         elif st.kind == "equation-error":
             ee = self._equation_error(runs, kin)
             theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
+        elif st.kind == "velocity-error":
+            vf = fit_velocity_error(runs, kin, chosen.theta, free_mask=self._free(st), fit_current=self.current,
+                                    currents0=chosen.currents, max_current_mps=self.max_current_mps,
+                                    horizons_s=(120.0,))
+            theta, cur, fitted = vf.theta, vf.currents, vf
+            if vf.diverged:
+                return chosen
         else:
             vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
             th0 = chosen.theta.copy()
@@ -998,7 +1096,10 @@ class Identifier:
             if st.kind == "equation-error":
                 out.append(ee_out[-1])
                 continue
-            if st.kind == "filter-error":
+            if st.kind == "velocity-error":
+                theta = fit_velocity_error(r_, k_, chosen.theta, free_mask=self._free(st), fit_current=self.current,
+                                           max_current_mps=self.max_current_mps).theta
+            elif st.kind == "filter-error":
                 from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
 
                 fe = fit_filter_error([logs[j] for j in rest], vessel, chosen.theta,
@@ -1112,7 +1213,7 @@ class Identifier:
             self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": fitted.rms[0], "sway_n": fitted.rms[1], "yaw_nm": fitted.rms[2]}
-        elif isinstance(fitted, OutputErrorResult):
+        elif isinstance(fitted, (OutputErrorResult, VelocityFitResult)):
             names, cov = list(fitted.names), fitted.cov
             d = np.sqrt(np.maximum(np.diag(cov), 0))
             for i, k in enumerate(names):
@@ -1212,11 +1313,23 @@ class Identifier:
                 self.validation_mode_, "the validation log(s)")
             fu = fp["u"] if math.isfinite(fp["u"]) else -math.inf
             fr = fp["r"] if math.isfinite(fp["r"]) else -math.inf
+            ex: dict = {}   # which channels are excited there: not judged yet (the noise floor is not calibrated)
             txt = f"validation fit on {on}: u {fmt_pct(fp['u'])} %, r {fmt_pct(fp['r'])} %"
+            ahead = (getattr(self, "fit_percent_ahead_", {}) or {}).get("30")
             # the measured u, v, r are smoothed GPS and compass: their own noise caps the fit %
-            # of u (slow, small changes) far below 100 even for the true model; r is the sharp test
+            # of u (slow, small changes) far below 100 even for the true model; r is the sharp test.
+            # The free run over the whole held-out part is judged first; a model that fails it but
+            # predicts 30 s ahead (re-started from the smoothed state, a path follower's horizon)
+            # is usable with that caveat, not refused
+            ok_ahead = ahead is not None and all(
+                ex.get(ch) is False or (math.isfinite(ahead[ch]) and ahead[ch] >= FIT_CAVEAT) for ch in ("u", "r"))
             if fr < FIT_UNUSABLE or fu < U_FIT_UNUSABLE:
-                add(2, f"{txt}: the model predicts worse than a constant; it does not describe this boat")
+                if ok_ahead and ahead is not None:
+                    add(1, f"{txt} in a free run, but {fmt_pct(ahead['u'])} % and {fmt_pct(ahead['r'])} % predicted "
+                           f"30 s ahead (judged at that horizon: a path follower needs the model over its "
+                           f"prediction horizon, not over minutes of disturbances)")
+                else:
+                    add(2, f"{txt}: the model predicts worse than a constant; it does not describe this boat")
             elif fr < FIT_CAVEAT or fu < FIT_UNUSABLE:
                 add(1, f"{txt}: the model explains only part of the motion")
             sw = getattr(self, "loo_switch_", None)
@@ -1547,7 +1660,9 @@ class Identifier:
              "chosen": self.chosen_.start.name,
              "thrust_scale": self.thrust_scale_.to_dict(),
              "model": self.model,
-             "structure": "paper" if self.extended_ is None else "extended"}
+             "structure": "paper" if self.extended_ is None else "extended",
+             "fit_percent_ahead": {h: _finite_dict(v) for h, v in getattr(self, "fit_percent_ahead_", {}).items()},
+             "sign_checks": list(getattr(self, "sign_checks_", []))}
         if self.extended_ is not None:
             d["extended"] = {"params": self.extended_.to_dict(), "stderr": dict(self.extended_stderr_)}
         if self.model_comparison_ is not None:
@@ -1584,6 +1699,8 @@ class Identifier:
                  f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}",
                  f"thrust_scale = {q(self.thrust_scale_.case)}"]
         lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
+        for h, v in getattr(self, "fit_percent_ahead_", {}).items():   # k-step-ahead fit % per horizon (s)
+            lines += [f"fit_ahead_{h}s_{k}_pct = {v[k]:.2f}" for k in ("u", "v", "r") if math.isfinite(v[k])]
         lines.append("reasons = [" + ", ".join(q(r) for r in self.reasons_) + "]")
         return "\n".join(lines) + "\n"
 

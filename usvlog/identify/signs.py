@@ -265,7 +265,7 @@ def heading_rate_agreement(t, psi, r_gyro, window_s: float = HEADING_WINDOW_S) -
     k_w, total = len(dur), float(dur.sum())
     coef, se, _ = _ols(dpsi, np.stack([ig, dur], 1)) if k_w >= MIN_WINDOWS else (np.full(2, np.nan),) * 3
     k, t_k = float(coef[0]), float(coef[0] / se[0]) if se[0] > 0 else float("nan")
-    nums = dict(n_windows=k_w, duration_s=total, t_stat=t_k)
+    nums: dict = dict(n_windows=k_w, duration_s=total, t_stat=t_k)
     if not (math.isfinite(t_k) and abs(t_k) >= T_MIN and k != 0):
         why = (f"only {k_w} windows of {window_s:g} s" if k_w < MIN_WINDOWS else
                f"t = {t_k:.1f} over {total:.0f} s, |t| >= {T_MIN:g} needed: too few turns")

@@ -345,9 +345,9 @@ class Thrusters:
             if self.supply_v <= 0:
                 raise ConfigError(f"thruster supply_v = {self.supply_v} must be > 0 (V)")
         if self.map in CATALOGUE_MAPS:
-            _, f = thruster_curves.curve(self.map, self.supply_v)   # ConfigError naming the range
-            object.__setattr__(self, "forward_n", float(f[-1]))
-            object.__setattr__(self, "reverse_n", float(-f[0]))
+            _pwm, force = thruster_curves.curve(self.map, self.supply_v)  # type: ignore[arg-type]  # None: ConfigError
+            object.__setattr__(self, "forward_n", float(force[-1]))
+            object.__setattr__(self, "reverse_n", float(-force[0]))
         if not (self.arm_m > 0 and math.isfinite(self.arm_m)):
             raise ConfigError(f"thruster arm_m = {self.arm_m} must be a finite number > 0")
         if not (self.forward_n > 0 and self.reverse_n > 0):
@@ -378,7 +378,7 @@ class Thrusters:
         """
         if not self.catalogue:
             raise ConfigError(f"thruster map {self.map!r} is not a catalogue map ({', '.join(CATALOGUE_MAPS)})")
-        return thruster_curves.curve(self.map, self.supply_v)
+        return thruster_curves.curve(self.map, self.supply_v)  # type: ignore[arg-type]  # None: ConfigError
 
     def direction(self, side: str | None) -> float:
         """+1, or -1 for a reversed channel: the factor on a command's sign about neutral.

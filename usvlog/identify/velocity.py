@@ -1,0 +1,296 @@
+"""Velocity output error: the model's velocities fitted to the smoothed u, v, r.
+
+The paper's model (3) is integrated through the recorded thrust over windows of ``H``
+seconds, each started from the smoothed state at its start, and its velocities u, v, r are
+compared with the smoothed ones (u, v relative to the water: a constant current per run is
+fitted with them). The windows are lengthened in stages (5 s, 30 s, 120 s by default): short
+windows make the problem nearly convex (each prediction is a few time constants long and
+cannot drift away), so any starting guess from a tenth to ten times the truth reaches the
+same basin; the long ones then weigh the slow surge and yaw responses as a free run does.
+
+Positive parameters are fitted as logarithms (a step can never make a mass negative and a
+factor of ten is as easy as a factor of two). Each channel's weight is the inverse of its
+own residual RMS from the stage before (maximum likelihood with an unknown noise level per
+channel), so a channel the model cannot explain -- sway crab from wind -- loses weight
+instead of dragging the surge and yaw parameters. Velocities are over the fast dynamics
+only: the slow position and heading drift of a free run never enters, which is what makes
+this fit robust on boats and logs of other forms.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..model.vessel import PARAM_NAMES
+from .data import RunData
+from .output import DIVERGED, coarse_run, max_step
+from .shoot import no_rows, shoot
+from .smooth import KinStates, thrust_on_grid
+
+HORIZONS_S = (5.0, 30.0, 120.0)   # window lengths of the stages (s)
+MIN_SIGMA = (0.01, 0.01, 0.002)   # floor of each channel's residual scale: u, v (m/s), r (rad/s)
+BIG = 1e3                         # a residual that is not finite counts as this many sigma
+POSITIVE = np.array([k != "xg" for k in PARAM_NAMES])
+MAX_XG = 1.0                      # |xg| bound (m): the centre of gravity stays on a small hull
+
+
+@dataclass(frozen=True, kw_only=True)
+class VelocityFitResult:
+    """Result of :func:`fit_velocity_error`.
+
+    Attributes
+    ----------
+    theta : numpy.ndarray, shape (6,)
+        m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
+    currents : numpy.ndarray, shape (n_runs, 2)
+        Current north, east per run (m/s; zeros when not fitted).
+    names : tuple of str
+        The fitted quantities (free parameters, then ``current_n_<i>``, ``current_e_<i>``).
+    cov : numpy.ndarray
+        Covariance of ``names`` (parameters in their units, from the final stage's Jacobian
+        scaled by its residual variance).
+    cond : float
+        Condition number of the final stage's scaled Jacobian.
+    rms : dict of str to float
+        Residual RMS of ``u`` (m/s), ``v`` (m/s), ``r`` (rad/s) of the final stage.
+    diverged : bool
+        True when the final model's predictions left the finite range.
+    nfev : int
+        Model evaluations over all stages.
+    """
+
+    theta: np.ndarray
+    currents: np.ndarray
+    names: tuple
+    cov: np.ndarray
+    cond: float
+    rms: dict
+    diverged: bool
+    nfev: int
+
+
+class _Windows:
+    """One run cut into prediction windows of ``H`` s on the smoothed-state grid."""
+
+    def __init__(self, run: RunData, ks: KinStates, H: float):
+        self.run = coarse_run(run)
+        tg = self.run.t_thrust
+        t = ks.t[(ks.t >= tg[0]) & (ks.t <= tg[-1])]
+        self.ks = ks
+        self.t = t
+        starts = np.arange(t[0], t[-1], H) if len(t) > 1 else t[:1]
+        i0 = np.unique(np.clip(np.searchsorted(tg, starts - 1e-9), 0, len(tg) - 1))
+        i0 = i0[i0 < len(tg) - 1] if len(i0) > 1 else i0
+        self.i0 = i0.astype(np.int64)
+        self.i1 = np.append(i0[1:], len(tg) - 1).astype(np.int64)
+        self.t_start = tg[self.i0]
+        ptr = np.searchsorted(t, self.t_start - 1e-9)
+        ptr[0] = 0
+        self.ptr = np.append(ptr, len(t)).astype(np.int64)
+
+    def predict(self, theta, cur) -> tuple[np.ndarray, np.ndarray]:
+        """(predicted, smoothed) u, v, r at ``t`` (two (N, 3) arrays) for parameters and a current."""
+        x0s = np.ascontiguousarray(self.ks.at(self.t_start, cur), dtype=np.float64)
+        ox = np.zeros((len(self.t), 6))
+        nseg = len(self.i0)
+        with np.errstate(all="ignore"):
+            shoot(self.run.t_thrust, self.run.tau_u, self.run.tau_r, self.i0, self.i1, x0s,
+                  np.ascontiguousarray(theta, dtype=np.float64), np.tile(np.asarray(cur, float), (nseg, 1)),
+                  self.t, self.ptr, max_step(theta), False, ox, *no_rows())
+        return ox[:, 3:], self.ks.at(self.t, cur)[:, 3:]
+
+
+def _not_a_boat(theta) -> bool:
+    m, Iz, _, _, _, xg = theta
+    return not np.all(np.isfinite(theta)) or Iz - m * xg * xg <= 0.02 * Iz
+
+
+class _Problem:
+    """The stacked residuals of every run's windows, in the fitted (log) coordinates."""
+
+    def __init__(self, runs, kin, H, theta0, free, fit_current, currents0, sigma):
+        self.win = [_Windows(r, k, H) for r, k in zip(runs, kin)]
+        self.theta0 = np.asarray(theta0, float)
+        self.free = np.asarray(free, bool)
+        self.fit_current = fit_current
+        self.currents0 = np.asarray(currents0, float)
+        self.sigma = np.asarray(sigma, float)
+        self.nfev = 0
+
+    def unpack(self, p):
+        th = self.theta0.copy()
+        q = p[:int(self.free.sum())]
+        th[self.free] = np.where(POSITIVE[self.free], np.exp(np.clip(q, -50, 50)), q)
+        cur = p[len(q):].reshape(-1, 2) if self.fit_current else self.currents0
+        return th, cur
+
+    def pack(self, theta, cur) -> np.ndarray:
+        th = np.asarray(theta, float)[self.free]
+        q = np.where(POSITIVE[self.free], np.log(np.maximum(th, 1e-12)), th)
+        return np.concatenate([q, np.asarray(cur, float).ravel() if self.fit_current else []])
+
+    def residuals(self, p, by_channel: bool = False):
+        self.nfev += 1
+        th, cur = self.unpack(p)
+        out = []
+        for i, w in enumerate(self.win):
+            if _not_a_boat(th):
+                res = np.full((len(w.t), 3), BIG)
+            else:
+                pred, meas = w.predict(th, cur[i])
+                res = (pred - meas) / self.sigma
+                bad = ~np.isfinite(res) | (np.abs(pred) > DIVERGED)
+                res[bad] = BIG
+                res = np.clip(res, -BIG, BIG)
+            out.append(res)
+        res = np.concatenate(out)
+        return res if by_channel else res.ravel()
+
+
+def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, free_mask=None,
+                       fit_current: bool = True, currents0=None, max_current_mps: float = 0.5,
+                       horizons_s=HORIZONS_S, max_nfev: int = 200) -> VelocityFitResult:
+    """Fit m, Iz, d11, d22, d33, xg (and a current per run) to the smoothed velocities.
+
+    Parameters
+    ----------
+    runs : list of RunData
+        The runs (recorded thrust, times in s from each run's start).
+    kin : list of KinStates
+        Their smoothed states (the measurements: u, v, r; relative to the water for a current).
+    theta0 : array_like, shape (6,)
+        Starting m, Iz, d11, d22, d33, xg (SI). Any boat-like values; positive ones are fitted
+        as logarithms.
+    free_mask : array_like of bool, shape (6,), optional
+        Which parameters are fitted (default all); the others are held at ``theta0``.
+    fit_current : bool, default True
+        Fit a constant current (north, east, m/s) per run, each within +-``max_current_mps``.
+    currents0 : array_like, shape (n_runs, 2), optional
+        Starting (or, without ``fit_current``, held) currents; default zero.
+    max_current_mps : float, default 0.5
+        Bound on each current component (m/s).
+    horizons_s : sequence of float, default (5, 30, 120)
+        Window lengths of the stages, each started from the stage before.
+    max_nfev : int, default 200
+        Model evaluations per stage at most.
+
+    Returns
+    -------
+    VelocityFitResult
+    """
+    theta = np.array(theta0, float)
+    if theta[5] != 0.0:
+        theta[5] = float(np.clip(theta[5], -MAX_XG, MAX_XG))
+    free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
+    if _not_a_boat(theta):   # xg too large for Iz: start from the centre line
+        theta[5] = 0.0
+    cur = np.zeros((len(runs), 2)) if currents0 is None else np.array(currents0, float).reshape(-1, 2)
+    cur = np.clip(cur, -0.99 * max_current_mps, 0.99 * max_current_mps)
+    sigma = np.array([max(float(np.std(np.concatenate([k.nu()[:, j] for k in kin]))), MIN_SIGMA[j])
+                      for j in range(3)])
+    nfev = 0
+    prob = None
+    sol = None
+    for H in horizons_s:
+        prob = _Problem(runs, kin, H, theta, free, fit_current, cur, sigma)
+        p0 = prob.pack(theta, cur)
+        lb = np.where(POSITIVE[free], -np.inf, -MAX_XG)
+        ub = np.where(POSITIVE[free], np.inf, MAX_XG)
+        if fit_current:
+            lb = np.concatenate([lb, np.full(2 * len(runs), -max_current_mps)])
+            ub = np.concatenate([ub, np.full(2 * len(runs), max_current_mps)])
+        inner = 1e-6 * np.where(np.isfinite(ub - lb), ub - lb, 0.0)   # strictly inside the bounds
+        p0 = np.clip(p0, lb + inner, ub - inner)
+        sol = least_squares(prob.residuals, p0, bounds=(lb, ub), diff_step=1e-4, max_nfev=max_nfev,
+                            x_scale=1.0)
+        theta, cur = prob.unpack(sol.x)
+        nfev += prob.nfev
+        # each channel weighted by its own residual RMS for the next stage (unknown noise per channel)
+        res = prob.residuals(sol.x, by_channel=True) * sigma
+        ok = np.all(np.abs(res) < BIG * 0.5, axis=1)
+        if ok.sum() > 10:
+            sigma = np.maximum(np.sqrt(np.mean(res[ok] ** 2, axis=0)), MIN_SIGMA)
+    assert prob is not None and sol is not None
+    res = prob.residuals(sol.x, by_channel=True)
+    diverged = bool(_not_a_boat(theta) or np.any(np.abs(res) >= BIG))
+    names, cov, cond = _covariance(prob, sol, theta, free, fit_current, len(runs))
+    rms_ch = np.sqrt(np.mean((res * prob.sigma) ** 2, axis=0)) if len(res) else np.full(3, np.nan)
+    return VelocityFitResult(theta=theta, currents=np.asarray(cur, float).reshape(-1, 2), names=names, cov=cov,
+                             cond=cond, rms=dict(zip(("u", "v", "r"), map(float, rms_ch))), diverged=diverged,
+                             nfev=nfev)
+
+
+def _covariance(prob: _Problem, sol, theta, free, fit_current: bool, n_runs: int):
+    """Names, covariance in the parameters' own units and condition number of the final stage."""
+    names = tuple([k for k, f in zip(PARAM_NAMES, free) if f] +
+                  ([f"current_{ax}_{i}" for i in range(n_runs) for ax in ("n", "e")] if fit_current else []))
+    J = np.asarray(sol.jac, float)
+    # back from log coordinates: d theta = theta d log(theta)
+    scale = np.ones(J.shape[1])
+    scale[:int(free.sum())] = np.where(POSITIVE[free], theta[free], 1.0)
+    n, k = J.shape
+    s2 = float(2 * sol.cost / max(n - k, 1))
+    with np.errstate(all="ignore"):
+        col = np.sqrt(np.sum(J * J, axis=0))
+        col[col == 0] = 1.0
+        Js = J / col
+        sv = np.linalg.svd(Js, compute_uv=False) if np.all(np.isfinite(Js)) else np.array([np.nan])
+        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else math.inf
+        try:
+            cov_q = np.linalg.pinv(Js.T @ Js) / np.outer(col, col) * s2
+        except np.linalg.LinAlgError:
+            cov_q = np.full((k, k), np.nan)
+    cov = cov_q * np.outer(scale, scale)
+    return names, cov, cond
+
+
+def data_scales(runs: list[RunData], kin: list[KinStates]) -> np.ndarray | None:
+    """A start for the fit from the data alone: the scales of the surge and yaw responses.
+
+    d11 = typical surge force / typical speed while moving, d33 = typical yaw moment / typical
+    yaw rate while turning, time constants of 2 s in surge and 1 s in yaw (m = 2 d11,
+    Iz = d33), sway twice as damped as surge, xg = 0. Medians of magnitudes, so a log's
+    spikes do not matter. None when the run neither moves nor turns enough to say.
+
+    Parameters
+    ----------
+    runs : list of RunData
+    kin : list of KinStates
+
+    Returns
+    -------
+    numpy.ndarray, shape (6,), or None
+        m, Iz, d11, d22, d33, xg.
+    """
+    us: list = []
+    rs: list = []
+    tus: list = []
+    trs: list = []
+    for run, ks in zip(runs, kin):
+        if len(ks.t) < 10 or len(run.t_thrust) < 2:
+            continue
+        a, b = thrust_on_grid(run, ks.t)
+        nu = ks.nu()
+        us.append(nu[:, 0])
+        rs.append(nu[:, 2])
+        tus.append(a)
+        trs.append(b)
+    if not us:
+        return None
+    u, r, tu, tr = (np.concatenate(x) for x in (us, rs, tus, trs))
+    moving = np.abs(u) > max(0.2, 0.3 * float(np.nanmax(np.abs(u))) if np.isfinite(u).any() else 0.2)
+    turning = np.abs(r) > math.radians(3.0)
+    if moving.sum() < 20 or turning.sum() < 20:
+        return None
+    d11 = float(np.median(np.abs(tu[moving])) / np.median(np.abs(u[moving])))
+    d33 = float(np.median(np.abs(tr[turning])) / np.median(np.abs(r[turning])))
+    if not (math.isfinite(d11) and math.isfinite(d33) and d11 > 0 and d33 > 0):
+        return None
+    return np.array([2.0 * d11, d33, d11, 2.0 * d11, d33, 0.0])
+
+
+__all__ = ["VelocityFitResult", "fit_velocity_error", "data_scales", "HORIZONS_S"]
