@@ -1313,7 +1313,7 @@ class Identifier:
                 self.validation_mode_, "the validation log(s)")
             fu = fp["u"] if math.isfinite(fp["u"]) else -math.inf
             fr = fp["r"] if math.isfinite(fp["r"]) else -math.inf
-            ex: dict = {}   # which channels are excited there: not judged yet (the noise floor is not calibrated)
+            excited: dict = {}   # which channels are excited there: not judged yet (the noise floor is not calibrated)
             txt = f"validation fit on {on}: u {fmt_pct(fp['u'])} %, r {fmt_pct(fp['r'])} %"
             ahead = (getattr(self, "fit_percent_ahead_", {}) or {}).get("30")
             # the measured u, v, r are smoothed GPS and compass: their own noise caps the fit %
@@ -1322,7 +1322,7 @@ class Identifier:
             # predicts 30 s ahead (re-started from the smoothed state, a path follower's horizon)
             # is usable with that caveat, not refused
             ok_ahead = ahead is not None and all(
-                ex.get(ch) is False or (math.isfinite(ahead[ch]) and ahead[ch] >= FIT_CAVEAT) for ch in ("u", "r"))
+                excited.get(ch) is False or (math.isfinite(ahead[ch]) and ahead[ch] >= FIT_CAVEAT) for ch in ("u", "r"))
             if fr < FIT_UNUSABLE or fu < U_FIT_UNUSABLE:
                 if ok_ahead and ahead is not None:
                     add(1, f"{txt} in a free run, but {fmt_pct(ahead['u'])} % and {fmt_pct(ahead['r'])} % predicted "
