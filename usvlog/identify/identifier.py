@@ -658,7 +658,7 @@ class Identifier:
         if self.validation_mode_ == "holdout":
             try:
                 final = self._refit(chosen, all_runs, all_kin, logs, vessel, held)
-            except FitFailed:   # the refit on all the data could not proceed: the validated candidate stands
+            except UnusableResultError:   # the refit on all the data could not proceed: the validated one stands
                 final = chosen
             if final is not chosen:
                 runs, kin = all_runs, all_kin
@@ -895,7 +895,7 @@ class Identifier:
         fit's (:func:`fit_output_error`)."""
         try:
             return self._fit_candidate_raw(st, runs, kin, fit_logs, vessel, held, held_stderr, threads)
-        except FitFailed as err:
+        except UnusableResultError as err:   # FitFailed, or an estimate inside the fit that diverged
             return Candidate(start=st, theta=np.asarray(st.theta, float), currents=np.zeros((len(runs), 2)),
                              fitted=None, validations=[], failed=str(err))
 

@@ -27,7 +27,7 @@ from scipy.optimize import least_squares
 
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
-from .output import DIVERGED, coarse_run, max_step
+from .output import DIVERGED, MAX_STIFFNESS, coarse_run, max_step, stiffness
 from .shoot import no_rows, shoot
 from .smooth import KinStates, thrust_on_grid
 
@@ -105,8 +105,12 @@ class _Windows:
 
 
 def _not_a_boat(theta) -> bool:
+    """Parameters no boat has: not finite, Iz - m xg^2 (nearly) not positive, or a velocity time
+    constant under 1 / MAX_STIFFNESS (whose simulation would need ever smaller steps)."""
     m, Iz, _, _, _, xg = theta
-    return not np.all(np.isfinite(theta)) or Iz - m * xg * xg <= 0.02 * Iz
+    if not np.all(np.isfinite(theta)) or Iz - m * xg * xg <= 0.02 * Iz:
+        return True
+    return not stiffness(theta) <= MAX_STIFFNESS
 
 
 class _Problem:
@@ -153,7 +157,7 @@ class _Problem:
 
 def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, free_mask=None,
                        fit_current: bool = True, currents0=None, max_current_mps: float = 0.5,
-                       horizons_s=HORIZONS_S, max_nfev: int = 200) -> VelocityFitResult:
+                       horizons_s=HORIZONS_S, max_nfev: int = 100) -> VelocityFitResult:
     """Fit m, Iz, d11, d22, d33, xg (and a current per run) to the smoothed velocities.
 
     Parameters
@@ -175,7 +179,7 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
         Bound on each current component (m/s).
     horizons_s : sequence of float, default (5, 30, 120)
         Window lengths of the stages, each started from the stage before.
-    max_nfev : int, default 200
+    max_nfev : int, default 100
         Model evaluations per stage at most.
 
     Returns
