@@ -172,7 +172,8 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
                columns: dict[str, str] | None = None, topics: dict[str, str] | None = None,
                thrust_unit: str | None = None, start_utc: str | int | None = None, force: bool = False,
                on_mapping: Callable | None = None, prefix_time: str | None = None,
-               thrust_range: str | tuple | None = None, keep_dead: bool = False) -> ImportResult:
+               thrust_range: str | tuple | None = None, keep_dead: bool = False,
+               msg_dirs: Sequence[PathLike] = ()) -> ImportResult:
     """Import a field log (CSV, NMEA 0183, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg): ``usvlog import``.
 
     Parameters
@@ -216,6 +217,9 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
         Write channels the sensor health audit judges dead as data (``--keep-dead``); by
         default they go to ``/raw/...`` and are flagged.
 
+    msg_dirs : sequence of str or os.PathLike
+        ROS bags: directories whose ``.msg`` files (``<pkg>/msg/<Name>.msg``) define the
+        message types the bag does not store (``--msg-dir``, repeatable).
     Returns
     -------
     ImportResult
@@ -228,10 +232,11 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
     return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
                        thrust_unit=thrust_unit, start_utc=start_utc, out=out, force=force,
                        on_mapping=on_mapping, prefix_time=prefix_time, thrust_range=thrust_range,
-                       keep_dead=keep_dead)
+                       keep_dead=keep_dead, msg_dirs=msg_dirs)
 
 
-def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None) -> LogSummary | Catalog:
+def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None,
+            msg_dirs: Sequence[PathLike] = ()) -> LogSummary | Catalog:
     """What is in a log or a foreign source (``usvlog inspect``).
 
     A canonical MCAP log gives its summary: the file is read a chunk at a time
@@ -253,6 +258,9 @@ def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None) -> 
         role -> ``SOURCE.field.path[i]`` for a foreign source, checked and honoured as
         ``usvlog import --topic`` would.
 
+    msg_dirs : sequence of str or os.PathLike
+        ROS bags: directories of ``.msg`` files for the types the bag does not store
+        (``--msg-dir``).
     Returns
     -------
     LogSummary or Catalog
@@ -270,7 +278,7 @@ def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None) -> 
             return _inspect_file(path)
         from .io.importers import catalog_file  # heavy: the importers (numpy, pandas)
 
-        return catalog_file(path, fmt, topics=topics)
+        return catalog_file(path, fmt, topics=topics, msg_dirs=msg_dirs)
     from .log.summary import summarize  # heavy: numpy, pandas
 
     return summarize(log)

@@ -25,6 +25,9 @@ def register(sub) -> None:
                         "a scalar message needs no field; repeatable")
     p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
                    help="unit of recorded thruster commands (default: guessed from the values)")
+    p.add_argument("--msg-dir", action="append", default=[], metavar="DIR",
+                   help="ROS bags without stored message definitions: every .msg file under DIR "
+                        "(<pkg>/msg/<Name>.msg) defines the type <pkg>/msg/<Name>; repeatable")
     p.add_argument("--thrust-range", default=None, metavar="LO:HI",
                    help="range of integer thrust commands (unit counts), e.g. --thrust-range=-255:255 or "
                         "0:200 (full scale: the larger magnitude; commands outside it are skipped and counted)")
@@ -58,7 +61,8 @@ def run(args) -> int:
                          columns=parse_pairs(args.column, "--column"), topics=parse_pairs(args.topic, "--topic"),
                          thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
                          on_mapping=_print_mapping, prefix_time=getattr(args, "prefix_time", None),
-                         thrust_range=args.thrust_range, keep_dead=args.keep_dead)
+                         thrust_range=args.thrust_range, keep_dead=args.keep_dead,
+                         msg_dirs=getattr(args, "msg_dir", None) or ())
     r = res.report
     if args.json:
         print_json(res.to_dict())

@@ -13,6 +13,9 @@ def register(sub) -> None:
     p.add_argument("--format", default="auto", help="format of a field log (default: detected from the content)")
     p.add_argument("--topic", action="append", default=[], metavar="ROLE=SOURCE[.field.path[i]]",
                    help="check a mapping as `usvlog import --topic` would; repeatable")
+    p.add_argument("--msg-dir", action="append", default=[], metavar="DIR",
+                   help="ROS bags without stored message definitions: every .msg file under DIR "
+                        "(<pkg>/msg/<Name>.msg) defines the type <pkg>/msg/<Name>; repeatable")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=run)
 
@@ -27,7 +30,7 @@ def run(args) -> int:
     from ..log.summary import LogSummary, format_summary
 
     topics = parse_pairs(args.topic, "--topic")
-    s = api.inspect(args.log, fmt=args.format, topics=topics)
+    s = api.inspect(args.log, fmt=args.format, topics=topics, msg_dirs=getattr(args, "msg_dir", None) or ())
     if not isinstance(s, LogSummary):   # a foreign source's catalog
         from ..io.importers.catalog import format_catalog  # heavy: the importers
 

@@ -29,6 +29,9 @@ The checks (thresholds are the module constants):
   position that never changes (exactly) while thrust is applied for at least
   :data:`THRUST_APPLIED_S`. A position that moves less than :data:`POSITION_STILL_M`
   under thrust is *suspect* (a moored bollard test looks the same) and kept;
+* **heading mounting offset**: heading - course over ground on the straight runs of the
+  GNSS track, constant across courses (:func:`usvlog.model.heading_offset.detect_heading_offset`
+  on fixes and headings thinned to one per :data:`OFFSET_SAMPLE_S`);
 * **time base** (``utc``; ``boot`` for a flight log's boot clock or ``relative`` for a
   relative time column, with what it was counted from) and the offset
   between each sensor's own stamps and the log time (median, min, max, s).
@@ -44,6 +47,8 @@ record under the key ``health``; read it back with :func:`health_of`)::
      "dead": [topic, ...],             # channels judged dead (canonical topics)
      "suspect": [topic, ...],
      "thrust": {"unit", "range", "reason", "direction_flag", "force_scale"} | None,
+     "heading_offset": {"decided", "offset_deg", "std_deg", "runs", "courses", "reason", ...,
+                        "text": str, "note": str} | None,   # note: one line when decided
      "channels": {topic: {
          "records": int,               # samples the importer handed over
          "invalid": int,               # non-finite or negative-time samples
@@ -69,6 +74,7 @@ import math
 import numpy as np
 
 from ...log.summary import health_from_provenance
+from ...model.heading_offset import detect_heading_offset
 
 DUP_STAMP_DEPTH = 8
 """A sample whose own stamp equals one of this many samples before it is a republished copy."""
@@ -94,6 +100,9 @@ _DT_BIN_NS = 100_000            # interval histogram bin (0.1 ms)
 _OFF_BIN_NS = 1_000_000         # stamp offset histogram bin (1 ms)
 _M_PER_DEG = 111_320.0          # metres per degree of latitude (spherical, enough here)
 _LEG_WINDOW = 64                # fixes first searched for the end of a track leg (doubled until found)
+
+OFFSET_SAMPLE_S = 0.2
+"""Fixes and headings kept for the mounting offset check: one per this many s (bounded memory)."""
 
 RAW_PREFIX = "/raw"
 DEAD_CAPABLE = ("gnss", "heading", "yaw_rate")
@@ -395,6 +404,49 @@ class TrackTurn:
         return math.degrees(self.turn_rad) if self.legs >= 2 else None
 
 
+class HeadingCourse:
+    """GNSS positions and headings of an import, thinned to one per :data:`OFFSET_SAMPLE_S`,
+    for the heading mounting offset check (:meth:`result`)."""
+
+    def __init__(self):
+        self.parts: dict[str, list[np.ndarray]] = {"gnss": [], "local": [], "heading": []}
+        self._bin: dict[str, int] = {}
+        self._origin: tuple[float, float] | None = None
+
+    def observe(self, stream: str, t: np.ndarray, cols: dict) -> None:
+        """Samples written of ``stream`` (``gnss``: lat/lon deg; ``local``: n/e m; ``heading``: rad)."""
+        names = {"gnss": ("lat_deg", "lon_deg"), "local": ("n_m", "e_m"), "heading": ("heading_rad",)}.get(stream)
+        if names is None or not len(t):
+            return
+        b = np.asarray(t, np.int64) // int(OFFSET_SAMPLE_S * 1e9)
+        keep = np.ones(len(b), bool)
+        keep[1:] = b[1:] != b[:-1]
+        keep[0] = int(b[0]) != self._bin.get(stream)
+        self._bin[stream] = int(b[-1])
+        vals = [np.asarray(cols[c], float)[keep] for c in names]
+        if stream == "gnss":
+            if self._origin is None:
+                self._origin = (float(vals[0][0]), float(vals[0][1])) if len(vals[0]) else None
+            if self._origin is None:
+                return
+            coslat = math.cos(math.radians(self._origin[0]))
+            vals = [(vals[0] - self._origin[0]) * _M_PER_DEG, (vals[1] - self._origin[1]) * _M_PER_DEG * coslat]
+        self.parts[stream].append(np.column_stack([np.asarray(t, np.int64)[keep], *vals]))
+
+    def result(self) -> dict | None:
+        """The offset check as a JSON-ready dict (:meth:`HeadingOffset.to_dict` plus ``text`` and
+        ``note``, the import report's line when an offset is found); None without fixes or headings."""
+        pos = self.parts["gnss"] or self.parts["local"]
+        if not pos or not self.parts["heading"]:
+            return None
+        g, h = np.concatenate(pos), np.concatenate(self.parts["heading"])
+        t0 = min(int(g[0, 0]), int(h[0, 0]))
+        found = detect_heading_offset((g[:, 0] - t0) * 1e-9, g[:, 1], g[:, 2], (h[:, 0] - t0) * 1e-9, h[:, 1])
+        note = (f"heading: {found.describe()}; apply it with `usvlog estimate --heading-offset auto` or "
+                "heading_offset_deg in the vessel file's [sensors]") if found.decided else ""
+        return {**found.to_dict(), "text": found.describe(), "note": note}
+
+
 class HealthAudit:
     """The health of every channel of one import, built a batch at a time.
 
@@ -414,6 +466,7 @@ class HealthAudit:
         self.thrust_applied_ns = 0
         self._thrust_last: tuple[int, bool] | None = None
         self.thrust: dict | None = None
+        self.heading_course = HeadingCourse()
 
     def channel(self, stream: str) -> ChannelHealth:
         """The :class:`ChannelHealth` of ``stream`` (made on first use)."""
@@ -424,10 +477,13 @@ class HealthAudit:
     def observe(self, stream: str, t: np.ndarray, stamp: np.ndarray, cols: dict) -> None:
         """Samples written of ``stream`` (after every filter), with their value columns."""
         values = {"gnss": ("lat_deg", "lon_deg"), "heading": ("heading_rad",), "yaw_rate": ("r_radps",),
-                  "velocity": ("sog_mps",), "thrust": ("left", "right")}[stream]
+                  "velocity": ("sog_mps",), "thrust": ("left", "right"), "local": ("n_m", "e_m")}[stream]
         self.channel(stream).observe(t, stamp, [cols[v] for v in values])
+        self.heading_course.observe(stream, t, cols)
         if stream == "gnss":
             self.track.add(cols["lat_deg"], cols["lon_deg"])
+        elif stream == "local":   # metres as degrees at the equator: the same courses
+            self.track.add(np.asarray(cols["n_m"], float) / _M_PER_DEG, np.asarray(cols["e_m"], float) / _M_PER_DEG)
         elif stream == "thrust" and len(t):
             on = (np.asarray(cols["left"], float) != 0) | (np.asarray(cols["right"], float) != 0)
             full_t = t if self._thrust_last is None else np.concatenate(([self._thrust_last[0]], t))
@@ -499,7 +555,7 @@ class HealthAudit:
         return {"version": 1, "time_base": time_base, "time_counted_from": time_counted_from,
                 "keep_dead": self.keep_dead, "track_turn_deg": self.track.turn_deg,
                 "thrust_applied_s": self.thrust_applied_ns / 1e9, "dead": dead, "suspect": suspect,
-                "thrust": self.thrust, "channels": chans}
+                "thrust": self.thrust, "channels": chans, "heading_offset": self.heading_course.result()}
 
 
 def health_of(log) -> dict:

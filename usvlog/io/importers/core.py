@@ -14,7 +14,12 @@ equal). :class:`Assembler` turns batches into canonical frames, one batch at a t
 * headings beyond +-360 deg and thrust commands outside their unit's range
   (:data:`THRUST_LIMITS`; newtons beyond +-:data:`THRUST_ABSURD_N`);
 * republished copies of a sample (same sensor stamp, or a GNSS fix identical to the
-  one before it): collapsed, see :mod:`usvlog.io.importers.audit`.
+  one before it): collapsed, see :mod:`usvlog.io.importers.audit`;
+* held repeats a reader marked (a ``held`` column: sample-and-hold resampling, see
+  :mod:`usvlog.io.importers.held`): collapsed and counted as ``{stream}_held_repeat``.
+
+A stream that keeps less than :data:`USABLE_SHARE` of its samples (collapsed copies and
+held repeats apart) makes the import unusable: :meth:`Assembler.shortfalls` says which.
 
 Thrust commands that are not newtons go through the vessel's thruster map
 (:meth:`usvlog.model.vessel.Thrusters.command_to_force`); the recorded commands and
@@ -64,7 +69,10 @@ STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
     "thrust": ("/thrust/command", ("left", "right")),
     "yaw_rate": ("/imu/yaw_rate", ("r_radps",)),
     "velocity": ("/gnss/velocity", ("sog_mps",)),
+    "local": ("/local/position", ("n_m", "e_m")),
 }
+QUALITY_TOPIC = "/gnss/quality"
+"""GGA fix quality and HDOP of the fixes that carry them (``fix_quality``, ``hdop`` columns of the gnss stream)."""
 _COV = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
         "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
 THRUST_ABSURD_N = 1e5
@@ -81,6 +89,12 @@ COUNT_FULL_SCALES = (100, 127, 200, 255, 500, 1000, 1023, 1024, 2047, 2048, 4095
 THRUST_GUESS_ROWS = 500
 """A guessed thrust unit is guessed from at least this many commands (or all, if fewer)."""
 _TWO_PI = 2.0 * math.pi
+USABLE_SHARE = 0.5
+"""A stream keeping less than this share of its samples (copies collapsed on purpose apart) is unusable."""
+USABLE_MIN_SAMPLES = 10
+"""Streams with fewer samples (copies apart) are not judged unusable."""
+COLLAPSED = ("_republished", "_held_repeat")
+"""Skip reasons that are collapsed copies, not losses."""
 
 
 @dataclass
@@ -97,6 +111,8 @@ class ImportReport:
     counts: Counter = field(default_factory=Counter)    # topic -> samples written
     first_bad: dict = field(default_factory=dict)       # reason -> where the first one was
     health: dict | None = None                          # the sensor health record (audit.py)
+    unusable: str | None = None                         # why the result is unusable (written with --force)
+    propulsion: dict | None = None                      # commands outside the twin-thruster model
 
     def skip(self, reason: str, n: int = 1, where: str | None = None) -> None:
         """Count ``n`` records dropped for ``reason``; remember where the first one was.
@@ -137,13 +153,16 @@ class ImportReport:
         dict
             ``source``, ``format``, ``records``, ``skipped`` (reason -> count, sorted),
             ``first_bad``, ``guesses``, ``mapping``, ``notes``, ``channels`` (topic ->
-            samples written, sorted) and ``health`` (the sensor health record of
-            :mod:`usvlog.io.importers.audit`, None before the import finished).
+            samples written, sorted), ``health`` (the sensor health record of
+            :mod:`usvlog.io.importers.audit`, None before the import finished) and
+            ``propulsion`` (commands the twin-thruster model does not describe, else None).
         """
         return {"source": self.source, "format": self.format, "records": self.records,
                 "skipped": dict(sorted(self.skipped.items())), "first_bad": dict(self.first_bad),
                 "guesses": dict(self.guesses), "mapping": dict(self.mapping), "notes": list(self.notes),
-                "channels": dict(sorted(self.counts.items())), "health": self.health}
+                "channels": dict(sorted(self.counts.items())), "health": self.health,
+                **({"unusable": self.unusable} if self.unusable else {}),
+                "propulsion": self.propulsion}
 
 
 def clock_offset_fallback(opts, report, what: str, first_ns: int | None = None) -> int:
@@ -294,6 +313,7 @@ class Assembler:
         self.report = report
         self.vessel = vessel
         self.datum = datum
+        self.local_geo = datum is not None   # a given datum is the origin of local positions
         self.thrust_unit = thrust_unit
         self.thrust_range = None if thrust_range is None else (float(thrust_range[0]), float(thrust_range[1]))
         self.keep_dead = keep_dead
@@ -305,6 +325,8 @@ class Assembler:
         self._thrust_pending: list[dict] = []                # thrust columns waiting for the unit guess
         self._thrust: dict | None = None                     # unit, lo, hi, reason, full scale, guessed
         self._dir_sign: bool | None = None                   # direction flags: +-1 signs (else 0/1)
+        self._quality: list[pd.DataFrame] = []               # /gnss/quality frames not yet returned
+        self.held: Counter = Counter()                       # stream -> held repeats dropped
 
     def process(self, batch: dict[str, dict[str, np.ndarray]]) -> dict[str, pd.DataFrame]:
         """Turn one batch of role streams into canonical frames.
@@ -328,6 +350,7 @@ class Assembler:
             ``t_ns`` (int64 ns since the Unix epoch) is required, ``stamp_ns`` defaults
             to it. Thrust may carry ``left_dir``/``right_dir`` direction flags (0 forward,
             non-zero reverse; or signs -1/+1 when the stream has negative flags).
+            ``batch["raw"]`` is ``{"/raw/...": {column: array}}`` kept as it is.
 
         Returns
         -------
@@ -343,6 +366,9 @@ class Assembler:
         """
         out = {}
         for stream, cols in batch.items():
+            if stream == "raw":
+                out.update(self._raw(cols))
+                continue
             if stream not in STREAMS:
                 raise ConfigError(f"unknown stream {stream!r}")
             if stream == "thrust":
@@ -351,6 +377,22 @@ class Assembler:
                     continue
             frame = self._stream(stream, cols)
             self._emit(stream, frame, out)
+        if self._quality:   # the fix quality of the GNSS fixes written (NMEA GGA)
+            q = self._quality[0] if len(self._quality) == 1 else pd.concat(self._quality)
+            self._quality = []
+            self.report.counts[QUALITY_TOPIC] += len(q)
+            out[QUALITY_TOPIC] = q
+        return out
+
+    def _raw(self, topics: dict[str, dict[str, np.ndarray]]) -> dict[str, pd.DataFrame]:
+        """Source data kept as it is under ``/raw/...`` (e.g. commands outside the model): a frame
+        per topic, columns as given (``t_ns`` the index), nothing checked or dropped."""
+        out = {}
+        for topic, cols in topics.items():
+            t = np.asarray(cols["t_ns"], np.int64)
+            if len(t):
+                out[topic] = frame_from_columns({k: v for k, v in cols.items() if k != "t_ns"}, t)
+                self.report.counts[topic] += len(t)
         return out
 
     def _emit(self, stream: str, frame: pd.DataFrame | None, out: dict) -> None:
@@ -410,11 +452,46 @@ class Assembler:
             self.report.note(f"most thrust commands ({thr['out_of_range']} of {thr['records']}) are outside "
                              f"{th['lo']:g}..{th['hi']:g} {th['unit']}: is the unit right (--thrust-unit, "
                              "--thrust-range)?")
+        if (self.health.get("heading_offset") or {}).get("note"):
+            self.report.note(self.health["heading_offset"]["note"])
         for topic, ch in self.health["channels"].items():
             if ch["status"] == "suspect":
                 self.report.note(f"{topic} suspect: {ch['why']}")
             if ch["republished"]:
                 self.report.note(f"{topic}: {ch['republished']} republished copies collapsed")
+        return out
+
+    def shortfalls(self) -> list[dict]:
+        """Streams that kept less than :data:`USABLE_SHARE` of their samples (call after :meth:`finish`).
+
+        Republished copies and held repeats are collapsed on purpose, and fixes the receiver
+        itself marks as no fix are honest gaps: none is counted as a sample. Streams with fewer
+        than :data:`USABLE_MIN_SAMPLES` samples are not judged, nor thrust commands in a unit
+        the user gave (written as asked, with the note that most are out of range).
+
+        Returns
+        -------
+        list of dict
+            One per such stream: ``topic``, ``kept``, ``of``, ``reason`` (the main skip
+            reason, None if unknown), ``count`` (how many for it) and ``first`` (where its
+            first one was, or None).
+        """
+        out = []
+        for stream, (topic, _) in STREAMS.items():
+            ch = (self.health or {}).get("channels", {}).get(topic)
+            if not ch:
+                continue
+            if stream == "thrust" and (self.thrust_unit is not None or self.thrust_range is not None):
+                continue   # the user gave the unit: written as asked, with a note when mostly out of range
+            honest = self.report.skipped.get(f"{stream}_no_fix", 0)
+            n = int(ch["records"]) - int(ch["republished"]) - int(self.held[stream]) - honest
+            if n < USABLE_MIN_SAMPLES or ch["written"] >= USABLE_SHARE * n:
+                continue
+            lost = {k: v for k, v in self.report.skipped.items()
+                    if k.startswith(stream + "_") and not k.endswith(COLLAPSED + ("_no_fix",))}
+            main = max(lost, key=lost.get) if lost else None
+            out.append({"topic": topic, "kept": int(ch["written"]), "of": n, "reason": main,
+                        "count": lost.get(main, 0), "first": self.report.first_bad.get(main)})
         return out
 
     # -- thrust units --------------------------------------------------------------------
@@ -574,6 +651,11 @@ class Assembler:
                 keep &= ~far
             elif stream == "thrust":
                 keep = self._thrust_values(cols, keep, ch)
+        if "held" in cols:
+            h = keep & np.asarray(cols["held"], bool)
+            self.report.skip(f"{stream}_held_repeat", int(h.sum()))
+            self.held[stream] += int(h.sum())
+            keep &= ~h
         vi = np.flatnonzero(keep)
         payload = [cols[c][vi] for c in ("lat_deg", "lon_deg", "alt_m") if c in cols] if stream == "gnss" else None
         # a GNSS message's own fix time (when the reader has one: -1 where not) names the fix
@@ -616,7 +698,21 @@ class Assembler:
         for k in _COV:
             cols[k] = np.asarray(c.get(k, np.zeros(n)), float)
         cols["cov_type"] = np.asarray(c.get("cov_type", np.zeros(n, np.int64)), np.int64)
+        if "fix_quality" in c:
+            self._frame_quality(c)
         return frame_from_columns(cols, c["t_ns"], channel_spec("/gnss/fix"))
+
+    def _frame_quality(self, c) -> None:
+        """Hold the ``/gnss/quality`` records (GGA fix quality, HDOP) of the fixes written that
+        have one (``fix_quality`` >= 0; an RMC-only fix has none): written by :meth:`process`."""
+        q = np.asarray(c["fix_quality"], float)
+        ok = np.isfinite(q) & (q >= 0)
+        if not ok.any():
+            return
+        hdop = np.asarray(c.get("hdop", np.full(len(q), np.nan)), float)[ok]
+        cols = {"stamp_ns": c["stamp_ns"][ok].astype(np.int64), "fix_quality": q[ok].astype(np.int64),
+                "satellites": np.full(int(ok.sum()), -1, np.int64), "hdop": np.where(np.isfinite(hdop), hdop, np.nan)}
+        self._quality.append(frame_from_columns(cols, c["t_ns"][ok], channel_spec(QUALITY_TOPIC)))
 
     def _frame_heading(self, c) -> pd.DataFrame:
         n = len(c["t_ns"])
@@ -657,6 +753,15 @@ class Assembler:
     def _frame_yaw_rate(self, c) -> pd.DataFrame:
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "r_radps": c["r_radps"].astype(float)}
         return frame_from_columns(cols, c["t_ns"], channel_spec("/imu/yaw_rate"))
+
+    def _frame_local(self, c) -> pd.DataFrame:
+        n = len(c["t_ns"])
+        cols = {"stamp_ns": c["stamp_ns"].astype(np.int64),
+                "frame_id": np.asarray(c["frame_id"] if "frame_id" in c else text_column(n, "local"), dtype=object),
+                "n_m": c["n_m"].astype(float), "e_m": c["e_m"].astype(float),
+                "var_m2": np.asarray(c.get("var_m2", np.full(n, np.nan)), float),
+                "geo": np.full(n, self.local_geo, bool)}
+        return frame_from_columns(cols, c["t_ns"], channel_spec("/local/position"))
 
     def _frame_velocity(self, c) -> pd.DataFrame:
         n = len(c["t_ns"])

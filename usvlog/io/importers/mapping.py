@@ -28,8 +28,11 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
+from .probe import Series, angle_like, course_agreement
 
 LAT_NAMES = ("latitude", "lat", "lat_deg", "latitude_deg", "lat_e7")
 LON_NAMES = ("longitude", "lon", "lng", "long", "lon_deg", "longitude_deg", "lon_e7")
@@ -48,11 +51,19 @@ RIGHT_NAMES = ("right", "starboard", "stbd", "r", "right_cmd", "right_thrust", "
 COMMAND_WORDS = ("thrust", "motor", "cmd", "command", "pwm", "esc", "actuator", "propul", "servo", "output",
                  "rcou", "throttle", "setpoint")
 HEADING_TOPIC_WORDS = ("heading", "compass", "hdg", "cap", "yaw")
+NOT_MEASURED_WORDS = frozenset({"desired", "target", "setpoint", "goal", "ref", "reference", "gain", "sigma", "error",
+                                "err", "control", "controller", "guidance", "waypoint", "waypoints", "mission",
+                                "obstacle", "obstacles", "plan", "planned", "input", "cmd", "command"})
+"""Words of a topic name that make it a setpoint, gain or error signal, never a measurement."""
+NOT_POSITION_WORDS = frozenset({"vel", "velocity", "twist", "accel", "acceleration", "rate", "speed", "wind",
+                                "force", "wrench", "imu", "mag", "gyro", "current"})
+POSE_WORDS = frozenset({"pose", "position", "odom", "odometry", "ins", "nav", "local", "mocap", "vicon",
+                        "optitrack", "qualisys", "location", "xy", "ned", "enu"})
 NUMERIC = ("float", "double", "int", "uint", "byte", "char", "bool", "number")
 
 # roles a --topic may name: the streams above plus the two that expand to a pair
 ROLES = ("gnss", "heading", "yaw_rate", "thrust", "thrust_left", "thrust_right", "velocity", "speed_mps",
-         "course")
+         "course", "local", "local_n", "local_e")
 
 _INDEX = re.compile(r"^(.*)\[(\d+)\]$")
 
@@ -223,9 +234,10 @@ class _Cand:
 
     def __init__(self, topic: TopicInfo, paths: dict, score: int, why: str, plausible: bool = True):
         self.topic, self.paths, self.score, self.why, self.plausible = topic, paths, score, why, plausible
+        self.agree = 0   # heading vs course over ground: 1 agrees, -1 does not, 0 unknown
 
     def key(self):
-        return (self.plausible, self.score, round(_rate(self.topic), 1))
+        return (self.plausible, self.score, self.agree, round(_rate(self.topic), 1))
 
     def where(self) -> str:
         return ", ".join(_join(self.topic.name, p) for p in self.paths.values())
@@ -267,6 +279,40 @@ def _gnss_candidates(cat: Catalog) -> list[_Cand]:
     return out
 
 
+def _local_candidates(cat: Catalog) -> list[_Cand]:
+    """Positions in metres: x/y of a pose (Pose2D, a pose's position, odometry) or of a topic named like one.
+
+    ``paths`` holds ``local_n``/``local_e``: x north and y east when the topic or type is named NED,
+    else ROS REP-103 ENU (x east, y north); ``frame`` says which, ``yaw`` names the message's own
+    heading (a Pose2D ``theta`` or the pose's orientation quaternion) when it has one.
+    """
+    out = []
+    for t in cat.topics:
+        tw = words(t.name + " " + t.type)
+        if t.note or _not_measured(t) or tw & NOT_POSITION_WORDS:
+            continue
+        paths = {f.path for f in t.fields}
+        for par, g in _groups(t).items():
+            if "x" not in g or "y" not in g or "[" in par or _pick(LAT_NAMES, g) is not None:
+                continue
+            pose2d = t.type.lower().endswith("pose2d") and par == ""
+            posed = leaf(par) == "position" if par else False
+            if not (pose2d or posed or tw & POSE_WORDS):
+                continue
+            ned = "ned" in tw
+            x, y = _join(par, "x").lstrip("."), _join(par, "y").lstrip(".")
+            c = _Cand(t, {"local_n": x, "local_e": y} if ned else {"local_n": y, "local_e": x},
+                      3 if pose2d or posed else 2,
+                      f"{t.type} {par or 'x/y'} in metres ("
+                      + ("x north, y east: named NED" if ned else "x east, y north: ROS REP-103 ENU") + ")")
+            c.frame = "ned" if ned else "enu"  # type: ignore[attr-defined]
+            quat = _join(parent(par), "orientation").lstrip(".") if posed else ""
+            c.yaw = ("theta" if pose2d and "theta" in g else  # type: ignore[attr-defined]
+                     quat if quat and all(f"{quat}.{a}" in paths for a in "xyzw") else "")
+            out.append(c)
+    return out
+
+
 def _velocity_candidates(cat: Catalog) -> list[_Cand]:
     out = []
     for t in cat.topics:
@@ -292,14 +338,28 @@ def _velocity_candidates(cat: Catalog) -> list[_Cand]:
     return out
 
 
+def _not_measured(t: TopicInfo) -> str:
+    """Why a topic is a setpoint, gain or error signal rather than a measurement ("" when it may be one)."""
+    if _commandlike(t):
+        return "a command topic"
+    hit = sorted(words(t.name) & NOT_MEASURED_WORDS)
+    return f"named like a setpoint, gain or error ({hit[0]!r})" if hit else ""
+
+
 def _heading_candidates(cat: Catalog) -> tuple[list[_Cand], list[str]]:
     out, courses = [], []
     for t in cat.topics:
-        if t.note or _commandlike(t):   # a heading setpoint is not a measurement
+        if t.note:
             continue
         nums = [f for f in t.fields if is_numeric(f) and f.length is None and not _is_stamp(f.path)]
         tw = words(t.name)
-        if len(nums) == 1 and tw & set(HEADING_TOPIC_WORDS) and not tw & {"rate", "speed", "vel"}:
+        scalar = len(nums) == 1 and tw & set(HEADING_TOPIC_WORDS) and not tw & {"rate", "speed", "vel"}
+        nm = _not_measured(t)
+        if nm:   # a heading setpoint, a controller's heading gain or error is not a measurement
+            if scalar:
+                out.append(_Cand(t, {"heading": nums[0].path}, 0, nm, plausible=False))
+            continue
+        if scalar:
             out.append(_Cand(t, {"heading": nums[0].path}, 4, "scalar message on a topic named like a heading"))
             continue
         paths = {f.path for f in t.fields}
@@ -370,6 +430,72 @@ def _thrust_candidates(cat: Catalog, any_topic: bool = False) -> list[_Cand]:
     return out
 
 
+RUDDER_WORDS = ("rudder", "steer", "steering")
+RUDDER_NAMES = ("delta", "delta_rad", "delta_deg", "delta_cmd")   # the rudder angle's usual symbol
+PROPELLER_WORDS = ("rpm", "propeller", "prop", "throttle")
+THRUSTER_WORDS = ("thrust", "thruster", "motor", "esc")
+
+
+def _propulsion_kind(t: TopicInfo, f: FieldInfo, single: bool) -> str | None:
+    """``"rudder"``, ``"propeller"`` or None for one numeric field, from its name (and the
+    topic's name when the field is the topic's only number)."""
+    ws = set(re.split(r"[^a-z0-9]+", leaf(f.path))) | (words(t.name) if single else set())
+    if ws & set(RUDDER_WORDS) or leaf(f.path) in RUDDER_NAMES or {"servo", "angle"} <= ws:
+        return "rudder"
+    if ws & set(PROPELLER_WORDS) or (_commandlike(t) and ws & set(THRUSTER_WORDS)):
+        return "propeller"
+    return None
+
+
+def propulsion_outside_model(cat: Catalog, mapping: dict) -> dict | None:
+    """Commands the paper's twin-thruster model (differential thrust) does not describe.
+
+    Looked for only when no left/right thrust pair is mapped: numeric fields named like a
+    rudder or steering angle (``rudder``, ``steer``, ``delta``, ``servo ... angle``) or a
+    propeller speed (``rpm``, ``propeller``, ``prop``, ``throttle``; ``thrust``/``motor`` on a
+    command-like topic). A rudder (with or without a propeller), or a single propeller/thruster
+    command, is a vessel outside the model; two or more unpaired thruster commands say nothing.
+
+    Parameters
+    ----------
+    cat : Catalog
+        The source's topics and fields.
+    mapping : dict
+        The role mapping chosen (:func:`map_roles`).
+
+    Returns
+    -------
+    dict or None
+        ``kind`` (``"propeller and rudder"``, ``"rudder"`` or ``"one thruster"``),
+        ``commands`` (``TOPIC.field`` of each command found), ``topics`` (their topics),
+        ``reason`` (why identify and replay refuse) and ``why`` (one line for the import
+        report); None when the vessel may be a twin-thruster boat.
+    """
+    if "thrust_left" in mapping or "thrust_right" in mapping:
+        return None
+    found: dict[str, list[str]] = {"rudder": [], "propeller": []}
+    topics: list[str] = []
+    for t in cat.topics:
+        if t.note:
+            continue
+        nums = [f for f in t.fields if is_numeric(f) and f.length is None and "[" not in f.path
+                and not _is_stamp(f.path)]
+        for f in nums:
+            kind = _propulsion_kind(t, f, len(nums) == 1)
+            if kind is not None:
+                found[kind].append(_join(t.name, f.path))
+                topics.append(t.name)
+    rud, prop = found["rudder"], found["propeller"]
+    if not rud and len(prop) != 1:
+        return None
+    kind = "propeller and rudder" if rud and prop else "rudder" if rud else "one thruster"
+    cmds = prop + rud
+    reason = (f"the paper's twin-thruster model (differential thrust) does not apply to this vessel's "
+              f"propulsion: {kind} ({', '.join(cmds)})")
+    why = f"propulsion: {reason}; positions and heading are imported, the commands kept as raw data"
+    return {"kind": kind, "commands": cmds, "topics": list(dict.fromkeys(topics)), "reason": reason, "why": why}
+
+
 def _choose(role: str, cands: list[_Cand], reasons: dict, notes: list) -> _Cand | None:
     if not cands:
         return None
@@ -390,7 +516,7 @@ def _choose(role: str, cands: list[_Cand], reasons: dict, notes: list) -> _Cand 
     return best
 
 
-def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, list]:
+def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple[dict, dict, list]:
     """Choose the topic and field of every role from a catalog.
 
     Parameters
@@ -400,7 +526,13 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
     requested : dict, optional
         role -> ``"TOPIC.field.path[i]"`` given by the user (``--topic``); roles are
         :data:`ROLES` (``thrust`` names a message with a left/right pair or a 2-element
-        array, ``velocity`` one with speed and course fields).
+        array, ``velocity`` one with speed and course fields, ``local`` a pose whose x/y are
+        metres; ``local_n``/``local_e`` numeric fields in metres north/east).
+    series : callable, optional
+        ``series(topic, path) -> Series | None``: a candidate's values, from readers that can
+        give them (ROS bags). Heading candidates must then behave like an angle
+        (:func:`usvlog.io.importers.probe.angle_like`) and are ranked by how often they agree
+        with the course over ground; without it, by structure only.
 
     Returns
     -------
@@ -439,6 +571,18 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
             for r, p in cs[0].paths.items():
                 mapping[r] = _join(topic, p)
                 reasons[r] = "given (--topic thrust)"
+        elif role == "local":
+            t = cat.topic(topic)
+            assert t is not None
+            cs = [c for c in _local_candidates(Catalog(cat.source, cat.format, [t]))
+                  if all(p.startswith(path) for p in c.paths.values())]
+            if not cs:
+                raise InputError(f"{cat.source}: {spec!r} for role local has no x/y pose fields "
+                                 f"(fields: {field_listing(t)}); map local_n and local_e")
+            for r, p in cs[0].paths.items():
+                mapping[r] = _join(topic, p)
+                reasons[r] = f"given (--topic local): {cs[0].why}"
+            reasons["local_frame"] = cs[0].frame  # type: ignore[attr-defined]
         elif role == "velocity":
             t = cat.topic(topic)
             assert t is not None
@@ -466,6 +610,17 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
             mapping["gnss"] = _join(c.topic.name, c.paths["gnss"])
         else:
             reasons.setdefault("gnss", "no message with latitude and longitude fields")
+    pose = None
+    if "gnss" not in mapping and not ({"local_n", "local_e"} & set(mapping)):
+        pose = _choose("local", _local_candidates(cat), reasons, notes)
+        if pose is not None:
+            for r, p in pose.paths.items():
+                mapping[r] = _join(pose.topic.name, p)
+                reasons[r] = reasons["local"]
+            reasons["local_frame"] = pose.frame  # type: ignore[attr-defined]
+        reasons.pop("local", None)
+    if ("local_n" in mapping) != ("local_e" in mapping):
+        raise InputError(f"{cat.source}: local positions need both local_n and local_e (give --topic for both)")
     if "speed_mps" not in mapping:
         cands = _velocity_candidates(cat)
         gt = mapping.get("gnss", "\0").split(".")[0]
@@ -489,9 +644,17 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
             reasons.pop("course", None)
     hc, courses = _heading_candidates(cat)
     if "heading" not in mapping:
+        if pose is not None and pose.yaw:  # type: ignore[attr-defined]
+            hc = [c for c in hc if not (c.topic is pose.topic and c.paths["heading"] == pose.yaw)]  # type: ignore
+            hc.append(_Cand(pose.topic, {"heading": pose.yaw}, 5,  # type: ignore[attr-defined]
+                            f"the position's own heading ({pose.yaw})"))  # type: ignore[attr-defined]
+        if series is not None:
+            _check_headings(cat, hc, mapping, series, pose)
         c = _choose("heading", hc, reasons, notes)
         if c is not None:
             mapping["heading"] = _join(c.topic.name, c.paths["heading"])
+            if pose is not None and c.topic is pose.topic and pose.frame == "enu":  # type: ignore[attr-defined]
+                reasons["heading_frame"] = "enu"   # a Pose2D theta in ENU: counter-clockwise from east
         else:
             reasons.setdefault("heading", "no heading, yaw or orientation field" + (
                 f" (course over ground {', '.join(courses)} is not a heading: give --topic heading=... to use it)"
@@ -513,6 +676,56 @@ def map_roles(cat: Catalog, requested: dict | None = None) -> tuple[dict, dict, 
             reasons.pop("thrust", None)
             reasons.setdefault("thrust_left", "no left/right command pair on a command-like topic")
     return mapping, reasons, notes
+
+
+def _positions(cat: Catalog, mapping: dict, series, pose) -> tuple | None:
+    """(t_ns, north m, east m) of the mapped positions, for the course over ground (None: none)."""
+    if pose is not None:
+        sn = series(pose.topic.name, pose.paths["local_n"])
+        se = series(pose.topic.name, pose.paths["local_e"])
+        if sn is None or se is None or len(sn.v) != len(se.v):
+            return None
+        return sn.t_ns, sn.v, se.v
+    if "gnss" not in mapping:
+        return None
+    topic, path = split_mapping(cat, mapping["gnss"])
+    t = cat.topic(topic)
+    g = _groups(t).get(path, {}) if t is not None else {}
+    la, lo = _pick(LAT_NAMES, g), _pick(LON_NAMES, g)
+    if la is None or lo is None:
+        return None
+    sa, so = series(topic, la.path), series(topic, lo.path)
+    if sa is None or so is None or len(sa.v) != len(so.v) or not len(sa.v):
+        return None
+    lat0 = float(np.nanmedian(sa.v))
+    k = 111_320.0   # m per degree of latitude (enough for a course)
+    return sa.t_ns, (sa.v - lat0) * k, (so.v - float(np.nanmedian(so.v))) * k * np.cos(np.radians(lat0))
+
+
+def _check_headings(cat: Catalog, cands: list, mapping: dict, series, pose) -> None:
+    """Heading candidates that do not behave like an angle lose; agreement with the course ranks the rest."""
+    pos = _positions(cat, mapping, series, pose)
+    for c in cands:
+        if not c.plausible:
+            continue
+        s = series(c.topic.name, c.paths["heading"])
+        if s is None:
+            continue
+        chk = angle_like(s)
+        if chk.constant:   # a dead compass is still the compass: the health audit judges it
+            c.agree, c.why = -1, f"{c.why} ({chk.why})"
+            continue
+        if not chk.ok:
+            c.plausible, c.why = False, f"{c.why}: not an angle ({chk.why})"
+            continue
+        if pose is not None and c.topic is pose.topic and pose.frame == "enu" and c.paths["heading"] == "theta":
+            s = Series(s.t_ns, np.pi / 2 - (np.radians(s.v) if chk.unit == "deg" else s.v))
+            chk = angle_like(s)
+        if pos is not None:
+            a = course_agreement(s, chk.unit, *pos)
+            if a is not None:
+                c.agree = 1 if a >= 0.5 else -1 if a < 0.2 else 0
+                c.why += f"; within 45 deg of the course over ground {100 * a:.0f} % of the time"
 
 
 def apply(cat: Catalog, requested: dict | None = None) -> Catalog:

@@ -38,10 +38,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ...errors import FormatError, InputError
+from ...errors import ConfigError, FormatError, InputError
+from .audit import RAW_PREFIX
 from .catalog import Catalog, FieldInfo, TopicInfo
 from .core import foreign, guarded, guess_thrust_unit, yaw_from_quaternion_enu
-from .mapping import ALT_NAMES, LAT_NAMES, LON_NAMES, map_roles, split_mapping, split_path, topic_listing
+from .mapping import (
+    ALT_NAMES,
+    LAT_NAMES,
+    LON_NAMES,
+    map_roles,
+    propulsion_outside_model,
+    split_mapping,
+    split_path,
+    topic_listing,
+)
+from .probe import Series
 from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
 
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4   # rosbags' Nodetype values
@@ -49,6 +60,7 @@ _MAX_EXPAND = 16                               # elements of a message array lis
 _UTC_MIN_NS = 946_684_800 * 10**9              # 2000-01-01: record times before this are not wall clock
 _FIX_TIME_NAMES = ("time", "fix_time", "utc_time", "time_utc", "gps_time")   # a fix's own UTC time, s
 _FIX_TIME_MIN_S = 946_684_800.0
+PROBE_MESSAGES = 20_000                        # messages of a candidate topic the mapping looks at
 
 
 def _open_path(path: Path, fmt: str, stack) -> Path:
@@ -82,15 +94,78 @@ def _printable(text, limit: int = 60) -> str:
     return " ".join(s.split())[:limit]
 
 
+def msg_dir_types(dirs) -> tuple[dict, dict[str, list[str]]]:
+    """The message types of every ``.msg`` file under each directory, named by package path.
+
+    ``DIR/.../<pkg>/msg/<Name>.msg`` is the type ``<pkg>/msg/<Name>`` (a ``.msg`` file that is
+    not in a ``msg`` directory: its directory's name is the package). Field types are resolved
+    as ROS does (``Header`` -> ``std_msgs/msg/Header``, a bare name -> the same package); the
+    types they name are looked up when the bag is opened (the bag's own definitions, these
+    files, then the standard ROS 1 Noetic / ROS 2 Humble types).
+
+    Parameters
+    ----------
+    dirs : iterable of path-like
+        The ``--msg-dir`` directories, in order (the first definition of a type wins).
+
+    Returns
+    -------
+    types : dict
+        rosbags' type name -> parsed definition (``rosbags.typesys`` ``Typesdict``).
+    registered : dict
+        directory (as given) -> the type names found under it, sorted.
+
+    Raises
+    ------
+    ConfigError
+        A directory does not exist or holds no ``.msg`` file, or a ``.msg`` file does not
+        parse (one line naming the file).
+    """
+    from rosbags.typesys import get_types_from_msg
+
+    types: dict = {}
+    registered: dict[str, list[str]] = {}
+    for d in dirs:
+        for f in _msg_files(d):
+            pkg = f.parent.parent.name if f.parent.name == "msg" else f.parent.name
+            name = f"{pkg}/msg/{f.stem}"
+            try:
+                new = get_types_from_msg(f.read_text(encoding="utf-8", errors="replace"), name)
+            except Exception as err:  # noqa: BLE001 -- rosbags' parser on the user's file
+                raise ConfigError(f"--msg-dir {d}: {f} does not parse as a ROS message definition "
+                                  f"({type(err).__name__}: {_printable(err, 120)})") from err
+            for k, v in new.items():
+                types.setdefault(k, v)
+            registered.setdefault(str(d), []).append(name)
+        registered[str(d)] = sorted(registered.get(str(d), []))
+    return types, registered
+
+
+def _msg_files(d) -> list[Path]:
+    """The ``.msg`` files under ``d`` (sorted); ConfigError when there is none or ``d`` is no directory."""
+    p = Path(d)
+    if not p.is_dir():
+        raise ConfigError(f"--msg-dir {d}: not a directory")
+    files = sorted(f for f in p.rglob("*.msg") if f.is_file())
+    if not files:
+        raise ConfigError(f"--msg-dir {d}: no .msg file under it")
+    return files
+
+
 def _robust_reader_class():
     """AnyReader whose typestore is filled one connection at a time (a bad definition skips its type)."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
     class RobustReader(AnyReader):
-        """rosbags' AnyReader; ``bad_types`` maps a message type to why it cannot be read."""
+        """rosbags' AnyReader; ``bad_types`` maps a message type to why it cannot be read.
+
+        ``extra_types`` (set before ``open()``): types from ``--msg-dir`` files, used where the
+        bag stores no definition (or an empty one) and before the standard store's.
+        """
 
         bad_types: dict
+        extra_types: dict = {}
 
         def _open(self) -> None:
             assert self.stack
@@ -102,7 +177,11 @@ def _robust_reader_class():
             connections = [y for x in self.readers for y in x.connections]
             for conn in connections:
                 fmt = getattr(conn.msgdef.format, "name", "NONE")
-                if fmt == "NONE" or conn.msgtype in self.bad_types:
+                if fmt == "NONE" or not str(conn.msgdef.data).strip():   # no definition stored
+                    if conn.msgtype in self.extra_types and conn.digest:
+                        digests[conn.msgtype] = conn.digest   # the --msg-dir file checked against the bag
+                    continue
+                if conn.msgtype in self.bad_types:
                     continue
                 try:
                     if fmt == "MSG":
@@ -122,6 +201,8 @@ def _robust_reader_class():
                     typs.setdefault(k, v)
                 if conn.digest:
                     digests[conn.msgtype] = conn.digest
+            for k, v in self.extra_types.items():
+                typs.setdefault(k, v)
             if self.default_typestore is not None:
                 for k, v in self.default_typestore.fielddefs.items():
                     typs.setdefault(k, v)
@@ -144,7 +225,8 @@ def _robust_reader_class():
                 if ok is None:
                     self.bad_types.setdefault(msgtype, "its message definition cannot be read")
                 elif not ok and not self.is2:
-                    self.bad_types.setdefault(msgtype, "its message definition does not match its checksum")
+                    self.bad_types.setdefault(msgtype, "its message definition does not match its checksum" + (
+                        " (the --msg-dir file differs from the one recorded)" if msgtype in self.extra_types else ""))
             self.connections = connections
             self.typestore = store
 
@@ -152,8 +234,11 @@ def _robust_reader_class():
 
 
 @contextlib.contextmanager
-def _opened(path: Path, fmt: str):
-    """The bag open for reading (rosbags' errors -> one-line FormatError); temporary links removed."""
+def _opened(path: Path, fmt: str, extra_types: dict | None = None):
+    """The bag open for reading (rosbags' errors -> one-line FormatError); temporary links removed.
+
+    ``extra_types``: message types from ``--msg-dir`` (:func:`msg_dir_types`).
+    """
     from rosbags.typesys import Stores, get_typestore
 
     _check_kind(path, fmt)
@@ -163,6 +248,7 @@ def _opened(path: Path, fmt: str):
         store = get_typestore(Stores.ROS1_NOETIC if fmt == "ros1" else Stores.ROS2_HUMBLE)
         with foreign(path, f"not a readable {'ROS 1' if fmt == 'ros1' else 'ROS 2'} bag"):
             reader = _robust_reader_class()([bag], default_typestore=store)
+            reader.extra_types = dict(extra_types or {})
             reader.open()
         try:
             yield reader
@@ -269,7 +355,8 @@ def _scan(reader, path: Path, fmt: str) -> Catalog:
             try:
                 _fields(reader.typestore, msgtype, msg, "", fields)
             except KeyError:
-                note, fields = f"its message definition cannot be read ({_printable(msgtype)})", []
+                note, fields = (f"its message definition cannot be read ({_printable(msgtype)}; give --msg-dir "
+                                "DIR with the package's .msg files)"), []
         topics.append(TopicInfo(name=_printable(name, 200), type=_printable(msgtype, 200), count=counts[name],
                                 first_ns=first.get(name), last_ns=last.get(name), fields=tuple(fields), note=note))
     starts = [v for v in first.values()]
@@ -309,8 +396,35 @@ def catalog(path, opts=None, *, fmt: str | None = None) -> Catalog:
     """
     p = Path(path)
     f = _fmt_of(p, fmt)
-    with _opened(p, f) as reader:
-        return _scan(reader, p, f)
+    types, registered = msg_dir_types(getattr(opts, "msg_dirs", ()) or ())
+    with _opened(p, f, types) as reader:
+        cat = _scan(reader, p, f)
+    cat.msg_dirs = list(registered)
+    cat.notes.extend(msg_dir_notes(registered, cat))
+    return cat
+
+
+def msg_dir_notes(registered: dict[str, list[str]], cat: Catalog) -> list[str]:
+    """One line per ``--msg-dir``: the types registered from it and the topics read with them.
+
+    Parameters
+    ----------
+    registered : dict
+        directory -> type names, as :func:`msg_dir_types` returns.
+    cat : Catalog
+        The bag's topics (those whose type a directory gave, and that could be read, are named).
+
+    Returns
+    -------
+    list of str
+    """
+    out = []
+    for d, names in registered.items():
+        used = [t.name for t in cat.topics if t.type in names and not t.note]
+        out.append(f"--msg-dir {d}: {len(names)} message types registered ({', '.join(names[:12])}"
+                   + (", ..." if len(names) > 12 else "") + ")"
+                   + (f"; topics read with them: {', '.join(used)}" if used else "; no topic of the bag uses them"))
+    return out
 
 
 def _get(obj, parts):
@@ -398,11 +512,17 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
         not exist or is of the wrong kind (the message lists what exists).
     """
     p = Path(path)
-    with _opened(p, fmt) as reader:
+    types, registered = msg_dir_types(getattr(opts, "msg_dirs", ()) or ())
+    with _opened(p, fmt, types) as reader:
         cat = _scan(reader, p, fmt)
-        mapping, reasons, notes = map_roles(cat, opts.topics)
-        for n in notes:
+        mapping, reasons, notes = map_roles(cat, opts.topics, series=_Probe(reader, p))
+        report.guesses.update({k: reasons[k] for k in ("local_frame", "heading_frame") if k in reasons})
+        for n in msg_dir_notes(registered, cat) + notes:
             report.note(n)
+        prop = propulsion_outside_model(cat, mapping)
+        if prop:
+            report.propulsion = prop
+            report.note(prop["why"])
         if not mapping:
             raise InputError(f"{p}: no topic maps to a role (give --topic ROLE=/topic[.field]; see usvlog inspect; "
                              f"topics: {topic_listing(cat)})")
@@ -411,45 +531,101 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
         report.guesses.update({f"reason {r}": v for r, v in reasons.items() if r in mapping and r not in opts.topics})
         if on_mapping is not None:
             on_mapping(report)
-        yield from _read_mapped(reader, p, cat, mapping, opts, report)
+        yield from _read_mapped(reader, p, cat, mapping, opts, report, prop["commands"] if prop else ())
 
 
-_ORDER = ("gnss", "heading", "yaw_rate", "course", "speed_mps", "thrust_right", "thrust_left")
+class _Probe:
+    """``probe(topic, path) -> Series``: the first :data:`PROBE_MESSAGES` values of a field (for the mapping).
+
+    A path naming an orientation quaternion (or a quaternion message) gives the heading,
+    rad clockwise from north (REP-103 ENU yaw converted). Each topic is read once.
+    """
+
+    def __init__(self, reader, path: Path):
+        self.reader, self.path = reader, path
+        self._msgs: dict[str, list] = {}
+
+    def _messages(self, topic: str) -> list:
+        if topic not in self._msgs:
+            conns = [c for c in self.reader.connections if c.topic == topic]
+            out: list = []
+            for conn, t_ns, raw in guarded(self.reader.messages(connections=conns), self.path,
+                                           f"damaged bag while reading {topic}"):
+                with contextlib.suppress(Exception):   # one message rosbags cannot decode: left out
+                    out.append((int(t_ns), self.reader.deserialize(raw, conn.msgtype)))
+                if len(out) >= PROBE_MESSAGES:
+                    break
+            self._msgs[topic] = out
+        return self._msgs[topic]
+
+    def __call__(self, topic: str, path: str) -> Series | None:
+        parts = split_path(path)
+        t, v = [], []
+        for t_ns, msg in self._messages(topic):
+            obj = _get(msg, parts)
+            if obj is not None and all(hasattr(obj, a) for a in ("x", "y", "z", "w")):
+                x = float(yaw_from_quaternion_enu(obj.x, obj.y, obj.z, obj.w))
+            else:
+                n = _number(obj)
+                x = math.nan if n is None else n
+            t.append(t_ns)
+            v.append(x)
+        return Series(np.asarray(t, np.int64), np.asarray(v, float)) if t else None
 
 
-def _read_mapped(reader, path, cat, mapping, opts, report) -> Iterator[dict]:
+_ORDER = ("gnss", "local_n", "local_e", "heading", "yaw_rate", "course", "speed_mps", "thrust_right", "thrust_left")
+
+
+def _raw_fields(cat, specs) -> dict[str, list[tuple[str, list]]]:
+    """topic -> [(column, split field path)] of the ``TOPIC.field`` specs kept under ``/raw/...``."""
+    out: dict[str, list[tuple[str, list]]] = {}
+    for spec in specs:
+        topic, field = split_mapping(cat, spec)
+        col = "_".join(str(x) for x in split_path(field)) or "data"
+        out.setdefault(topic, []).append((col, split_path(field)))
+    return out
+
+
+def _read_mapped(reader, path, cat, mapping, opts, report, raw_specs=()) -> Iterator[dict]:
     roles = {r: split_mapping(cat, v) for r, v in mapping.items()}
     parts = {r: split_path(f) for r, (_t, f) in roles.items()}
     by_topic: dict[str, list[str]] = {}
     for r in sorted(roles, key=lambda r: _ORDER.index(r) if r in _ORDER else 99):
         by_topic.setdefault(roles[r][0], []).append(r)
-    sel = [c for c in reader.connections if c.topic in by_topic]
+    raw = _raw_fields(cat, raw_specs)
+    sel = [c for c in reader.connections if c.topic in by_topic or c.topic in raw]
     buf = _Buf(report)
     for r in ("heading", "course"):
         if r in roles:
             buf.units[r] = _angle_unit(roles[r][1])
             if buf.units[r] is not None:   # the field's name says the unit
                 report.guesses[f"{r}_unit"] = buf.units[r]
-    held = {"thrust_left": math.nan, "thrust_right": math.nan}
+    held = {"thrust_left": math.nan, "thrust_right": math.nan, "local_n": math.nan}
     pair_same_topic = roles.get("thrust_left", ("a",))[0] == roles.get("thrust_right", ("b",))[0]
+    local_same_topic = roles.get("local_n", ("a",))[0] == roles.get("local_e", ("b",))[0]
+    buf.heading_enu = report.guesses.get("heading_frame") == "enu"
+    local_frame = {"ned": "x north, y east", "enu": "x east, y north"}.get(report.guesses.get("local_frame", ""),
+                                                                         "local_n/local_e as given")
     thrust_unit = opts.thrust_unit
     last_t = None
 
     def damaged() -> str:
         return "damaged bag" + (f" after t_ns {last_t}" if last_t is not None else "")
 
-    for conn, t_ns, raw in guarded(reader.messages(connections=sel), path, damaged):
+    for conn, t_ns, data in guarded(reader.messages(connections=sel), path, damaged):
         report.records += 1
         last_t = t_ns
         try:
-            msg = reader.deserialize(raw, conn.msgtype)
+            msg = reader.deserialize(data, conn.msgtype)
         except Exception:  # noqa: BLE001 -- rosbags' deserializer on one damaged message: skip it, count it
             report.skip("ros_bad_message", 1, where=f"topic {conn.topic} at t_ns {t_ns}")
             continue
         stamp = _stamp(msg)
         stamp = int(t_ns) if stamp is None else stamp
         course = math.nan
-        for role in by_topic[conn.topic]:
+        if conn.topic in raw:
+            buf.raw(conn.topic, t_ns, stamp, [(c, _number(_get(msg, fp))) for c, fp in raw[conn.topic]])
+        for role in by_topic.get(conn.topic, ()):
             obj = _get(msg, parts[role])
             where = f"topic {conn.topic} at t_ns {t_ns}"
             if obj is None:
@@ -493,6 +669,20 @@ def _read_mapped(reader, path, cat, mapping, opts, report) -> Iterator[dict]:
                     continue
                 flu = "angular_velocity" in roles[role][1]   # REP-103: FLU z up -> FRD z down
                 buf.yaw_rate(t_ns, stamp, -v if flu else v)
+            elif role in ("local_n", "local_e"):
+                v = _number(obj)
+                if v is None:
+                    report.skip("local_bad_value", 1, where=where)
+                    continue
+                if role == "local_n":
+                    held["local_n"] = v
+                    continue
+                if math.isfinite(held["local_n"]):
+                    buf.local(t_ns, stamp, held["local_n"], v, f"{roles['local_n'][0].strip('/')} ({local_frame})")
+                else:
+                    report.skip("local_incomplete", 1, where=where)
+                if local_same_topic:
+                    held["local_n"] = math.nan
             elif role == "course":
                 v = _number(obj)
                 course = math.nan if v is None else v
@@ -524,11 +714,19 @@ class _Buf:
     def __init__(self, report):
         self.report = report
         self.units: dict = {}
+        self.heading_enu = False
         self._reset()
 
     def _reset(self):
-        self.d = {k: {} for k in ("gnss", "heading", "yaw_rate", "velocity", "thrust")}
+        self.d = {k: {} for k in ("gnss", "local", "heading", "yaw_rate", "velocity", "thrust")}
+        self.rawd: dict[str, dict[str, list]] = {}   # source topic -> column -> values (kept as they are)
         self.n = 0
+
+    def raw(self, topic, t, stamp, vals):
+        d = self.rawd.setdefault(topic, {})
+        for k, v in [("t_ns", t), ("stamp_ns", stamp)] + list(vals):
+            d.setdefault(k, []).append(math.nan if v is None else v)
+        self.n += 1
 
     def _add(self, stream, **vals):
         d = self.d[stream]
@@ -547,6 +745,9 @@ class _Buf:
 
     def heading(self, t, stamp, psi, unit):
         self._add("heading", t_ns=t, stamp_ns=stamp, heading_rad=psi, _unit=unit or "", reference="true")
+
+    def local(self, t, stamp, n, e, frame):
+        self._add("local", t_ns=t, stamp_ns=stamp, n_m=n, e_m=e, frame_id=frame)
 
     def yaw_rate(self, t, stamp, r):
         self._add("yaw_rate", t_ns=t, stamp_ns=stamp, r_radps=r)
@@ -581,7 +782,10 @@ class _Buf:
                                   (np.int64 if k.endswith("_ns") or k == "cov_type" else float))
                     for k, v in d.items()}
             if stream == "heading":
-                cols["heading_rad"] = self._to_rad("heading", cols["heading_rad"], cols.pop("_unit"))
+                fixed = cols.pop("_unit")
+                cols["heading_rad"] = self._to_rad("heading", cols["heading_rad"], fixed)
+                if self.heading_enu:   # a pose's theta in ENU: counter-clockwise from east -> from north
+                    cols["heading_rad"] = np.where(fixed == "", np.pi / 2 - cols["heading_rad"], cols["heading_rad"])
             if stream == "velocity":
                 cols["cog_rad"] = self._to_rad("course", cols["cog_rad"])
             if stream == "thrust":
@@ -590,5 +794,8 @@ class _Buf:
                     self.report.guesses["thrust_unit"] = thrust_unit
                 cols["unit"] = np.full(len(cols["t_ns"]), thrust_unit, dtype=object)
             out[stream] = cols
+        if self.rawd:
+            out["raw"] = {RAW_PREFIX + topic: {k: np.asarray(v, np.int64 if k.endswith("_ns") else float)
+                                               for k, v in d.items()} for topic, d in self.rawd.items()}
         self._reset()
         return out, thrust_unit
