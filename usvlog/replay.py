@@ -22,9 +22,10 @@ import numpy as np
 from ._cpu import spare_cpu
 from .control.gains import Gains
 from .control.law import COL, Controller, speed_at
-from .errors import InputError
+from .errors import InputError, UnusableResultError
 from .log.channels import channel_spec, frame_from_columns
 from .log.fieldlog import FieldLog
+from .log.summary import propulsion_from_provenance
 from .model.frames import ssa
 from .model.stats import rms
 from .model.vessel import Vessel, default_vessel
@@ -309,8 +310,19 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     unchanged) the channels it reads are left in the file again once used, in ``log`` and
     in the result (:meth:`usvlog.log.fieldlog.FieldLog.redefer`: decoded again if touched,
     copied undecoded when written), so their frames do not stay in memory with the results.
+
+    Raises
+    ------
+    usvlog.errors.UnusableResultError
+        The log's import found a propulsion the twin-thruster controller does not command
+        (a propeller and rudder, or one thruster): refused with that reason.
     """
     src = log.source or "log"
+    prop = propulsion_from_provenance(log.provenance)
+    if prop is not None:   # the controller commands two thrusters: nothing to compare on a rudder boat
+        err = UnusableResultError(f"{src}: replay refused: {prop['reason']}")
+        err.reasons = [str(prop["reason"])]      # type: ignore[attr-defined]
+        raise err
     ves = vessel or (scen.sim.vessel if "vessel" in scen.doc else None) or log.vessel or default_vessel()
     gains = gains or scen.gains
     ctl_name = controller or scen.controller

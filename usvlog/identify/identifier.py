@@ -18,7 +18,7 @@ from ..errors import ConfigError, FitFailed, InputError, UnusableResultError
 from ..estimate import EstimateSettings, estimate
 from ..estimate.latency import stored_delays, with_settings_delays
 from ..log.fieldlog import FieldLog
-from ..log.summary import health_from_provenance
+from ..log.summary import health_from_provenance, propulsion_from_provenance
 from ..model.frames import ssa
 from ..model.stats import fit_percent
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
@@ -327,6 +327,19 @@ def _refuse_dead_channels(logs: list[FieldLog], health: list[dict]) -> None:
         raise err
 
 
+def _refuse_outside_model(logs: list[FieldLog]) -> None:
+    """A log whose import found a propeller and rudder (or one thruster) is not the paper's
+    twin-thruster boat: the model (3) with differential thrust cannot be fitted to it."""
+    for log in logs:
+        prop = propulsion_from_provenance(log.provenance)
+        if prop is None:
+            continue
+        reasons = [str(prop["reason"])]
+        err = UnusableResultError(f"{log.source or 'log'}: identification refused: " + reasons[0])
+        err.reasons = reasons      # type: ignore[attr-defined]
+        raise err
+
+
 def _refuse_wrong_signs(runs: list[RunData], kin: list[KinStates]) -> list:
     """Sign checks of each run (:mod:`usvlog.identify.signs`) before any fit: the yaw rate against
     the differential thrust and the surge speed against the total thrust. A yaw response of the
@@ -582,7 +595,9 @@ class Identifier:
         usvlog.errors.InputError
             If there are no logs, a log lacks a channel or has too few samples.
         usvlog.errors.UnusableResultError
-            If a log's compass was judged dead at import (and left out), or every
+            If a log's import found a propulsion outside the twin-thruster model (a
+            propeller and rudder, or one thruster), a log's compass was judged dead at
+            import (and left out), or every
             candidate failed (diverged or physically impossible values).
         """
         if isinstance(logs, FieldLog):
@@ -593,6 +608,7 @@ class Identifier:
         vessel = vessel or logs[0].vessel or default_vessel()
         self.vessel_in_ = vessel
         self.health_ = [health_from_provenance(lg.provenance) or {} for lg in logs]
+        _refuse_outside_model(logs)
         _refuse_dead_channels(logs, self.health_)
         # thrust without a known force scale: the model in command units (and the gain from a fixed value)
         if not getattr(self, "_command_units", False):

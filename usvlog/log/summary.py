@@ -411,6 +411,32 @@ def health_from_provenance(provenance: list[dict]) -> dict | None:
     return None
 
 
+def propulsion_from_provenance(provenance: list[dict]) -> dict | None:
+    """What the last import found of a propulsion outside the twin-thruster model, if anything.
+
+    Parameters
+    ----------
+    provenance : list of dict
+        Provenance records ({key: text}), oldest first.
+
+    Returns
+    -------
+    dict or None
+        ``kind``, ``commands``, ``topics``, ``reason`` and ``why`` (one line each), as the import recorded them
+        (:func:`usvlog.io.importers.mapping.propulsion_outside_model`); None when the last
+        import that recorded a health record found none (or no import recorded one).
+    """
+    for rec in reversed(list(provenance)):
+        if not rec.get("health") and not rec.get("propulsion"):
+            continue
+        try:
+            d = json.loads(rec.get("propulsion") or "null")
+        except json.JSONDecodeError:
+            return None
+        return d if isinstance(d, dict) and d.get("reason") else None
+    return None
+
+
 def format_health(h: dict) -> list[str]:
     """Text lines of a health record (the ``health`` section of ``usvlog inspect``).
 

@@ -31,7 +31,7 @@ from .core import Assembler, ImportReport
 from .csvlog import looks_like_csv
 from .mapping import ROLES as MAPPING_ROLES
 from .mapping import apply as mapping_apply
-from .mapping import split_path
+from .mapping import propulsion_outside_model, split_path
 from .nmea import looks_like_nmea
 from .sink import McapSink, MemorySink
 from .sniff import (
@@ -67,6 +67,16 @@ def _check_topic_spec(role: str, spec) -> None:
                           "(e.g. /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0])")
 
 
+def _check_msg_dirs(dirs) -> None:
+    """Every ``--msg-dir`` is a directory with a ``.msg`` file under it (ConfigError, one line, if not)."""
+    for d in dirs:
+        p = Path(d)
+        if not p.is_dir():
+            raise ConfigError(f"--msg-dir {d}: not a directory")
+        if next((f for f in p.rglob("*.msg") if f.is_file()), None) is None:
+            raise ConfigError(f"--msg-dir {d}: no .msg file under it")
+
+
 @dataclass(frozen=True, kw_only=True)
 class ImportOptions:
     """Settings of one import (recorded in the log's provenance)."""
@@ -79,6 +89,7 @@ class ImportOptions:
     prefix_time: str | None = None                # text logs: None, "auto", "none" or a strptime format
     thrust_range: tuple | None = None             # (lo, hi) of counts commands (--thrust-range)
     keep_dead: bool = False                       # write channels judged dead as data (--keep-dead)
+    msg_dirs: tuple = ()                          # ROS bags: directories of .msg files (--msg-dir)
 
     def __post_init__(self):
         if self.prefix_time is not None and self.prefix_time not in ("auto", "none") and "%" not in self.prefix_time:
@@ -95,6 +106,7 @@ class ImportOptions:
             _check_topic_spec(role, spec)
         if self.chunk_rows < 1:
             raise ConfigError("chunk_rows must be >= 1")
+        _check_msg_dirs(self.msg_dirs)
         if self.thrust_range is not None:
             lo, hi = self.thrust_range
             if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and max(abs(lo), abs(hi)) > 0):
@@ -120,6 +132,8 @@ class ImportOptions:
             d["thrust_range"] = list(self.thrust_range)
         if self.keep_dead:
             d["keep_dead"] = True
+        if self.msg_dirs:
+            d["msg_dirs"] = [str(x) for x in self.msg_dirs]
         return d
 
 
@@ -268,7 +282,7 @@ def file_identity(path) -> dict:
     return {"size": size, "sha256": h.hexdigest()}
 
 
-def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catalog:
+def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None, msg_dirs=()) -> Catalog:
     """What a foreign source holds and how it would be mapped: ``usvlog inspect SOURCE``.
 
     Parameters
@@ -279,6 +293,9 @@ def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catal
         ``auto`` (detected from the content) or one of :data:`FORMATS`.
     topics : dict, optional
         role -> ``SOURCE.field.path[i]`` to check and honour, as ``--topic`` of ``import``.
+    msg_dirs : sequence of path-like
+        ROS bags: directories whose ``.msg`` files define the message types the bag does
+        not store (``--msg-dir``).
 
     Returns
     -------
@@ -297,7 +314,7 @@ def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catal
     p = check_input(src)
     if fmt not in ("auto",) + FORMATS:
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
-    opts = ImportOptions(topics=dict(topics or {}))
+    opts = ImportOptions(topics=dict(topics or {}), msg_dirs=tuple(str(d) for d in msg_dirs or ()))
     if p.is_file() and p.stat().st_size == 0:
         raise InputError(f"{p}: empty file")
     if fmt == "auto":
@@ -310,6 +327,9 @@ def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None) -> Catal
     cat = lister(p, opts, fmt=fmt) if fmt in ("ros1", "ros2") else lister(p, opts)
     if not cat.mapping:
         mapping_apply(cat, opts.topics)
+    cat.propulsion = propulsion_outside_model(cat, cat.mapping)
+    if cat.propulsion:
+        cat.notes.append(cat.propulsion["why"])
     return cat
 
 
@@ -317,7 +337,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
                 datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
                 on_mapping=None, prefix_time: str | None = None, thrust_range=None,
-                keep_dead: bool = False) -> ImportResult:
+                keep_dead: bool = False, msg_dirs=()) -> ImportResult:
     """Import one field log.
 
     Parameters
@@ -357,6 +377,9 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     keep_dead : bool
         Write channels the health audit judges dead as data (flagged) instead of under
         ``/raw/...`` (:mod:`usvlog.io.importers.audit`).
+    msg_dirs : sequence of path-like
+        ROS bags: directories whose ``.msg`` files (``<pkg>/msg/<Name>.msg``) define the
+        message types the bag does not store (``--msg-dir``).
 
     Returns
     -------
@@ -382,7 +405,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     opts = ImportOptions(columns=dict(columns or {}), topics=dict(topics or {}), thrust_unit=thrust_unit,
                          start_utc_ns=start_ns, chunk_rows=chunk_rows, prefix_time=prefix_time,
                          thrust_range=None if thrust_range is None else tuple(float(x) for x in thrust_range),
-                         keep_dead=bool(keep_dead))
+                         keep_dead=bool(keep_dead), msg_dirs=tuple(str(d) for d in msg_dirs or ()))
     if out is not None:
         check_output(out, force)
     if p.is_file() and p.stat().st_size == 0:
@@ -415,7 +438,8 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
                             skipped=dict(sorted(report.skipped.items())), guesses=report.guesses,
                             mapping=report.mapping, records=str(report.records), health=asm.health,
                             **({"force_scale": asm.health["thrust"]["force_scale"]}
-                               if asm.health and asm.health.get("thrust") else {}))
+                               if asm.health and asm.health.get("thrust") else {}),
+                            **({"propulsion": report.propulsion} if report.propulsion else {}))
         return meta.meta
 
     if out is None:

@@ -107,6 +107,11 @@ class Catalog:
         role -> why that source was chosen, or why none was.
     notes : list of str
         Anything the user should know (skipped topics, ambiguous candidates).
+    msg_dirs : list of str
+        ``--msg-dir`` directories whose ``.msg`` files were registered (ROS bags).
+    propulsion : dict or None
+        Commands found that the paper's twin-thruster model does not describe (a propeller
+        and a rudder, or one thruster): :func:`usvlog.io.importers.mapping.propulsion_outside_model`.
     """
 
     source: str
@@ -116,6 +121,8 @@ class Catalog:
     mapping: dict = field(default_factory=dict)
     reasons: dict = field(default_factory=dict)
     notes: list = field(default_factory=list)
+    msg_dirs: list = field(default_factory=list)
+    propulsion: dict | None = None
 
     def topic(self, name: str) -> TopicInfo | None:
         """The topic called ``name``, or None."""
@@ -131,6 +138,8 @@ class Catalog:
         """
         out = out or Path(self.source).stem + ".mcap"
         parts = ["usvlog", "import", self.source, "--out", out]
+        for d in self.msg_dirs:
+            parts += ["--msg-dir", d]
         if self.format in ("ros1", "ros2", "ulog", "dataflash"):
             for role, spec in self.mapping.items():
                 parts += ["--topic", f"{role}={spec}"]
@@ -140,8 +149,8 @@ class Catalog:
         """JSON-ready form (``usvlog inspect SOURCE --json``), with ``import_command``."""
         return {"source": self.source, "format": self.format, "time_base": self.time_base,
                 "topics": [t.to_dict() for t in self.topics], "mapping": dict(self.mapping),
-                "reasons": dict(self.reasons), "notes": list(self.notes),
-                "import_command": self.import_command()}
+                "reasons": dict(self.reasons), "notes": list(self.notes), "msg_dirs": list(self.msg_dirs),
+                "propulsion": self.propulsion, "import_command": self.import_command()}
 
 
 def _fmt_ns(ns: int | None) -> str:
