@@ -18,12 +18,14 @@ from ..errors import ConfigError, InputError
 from ..estimate.core import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
 from ..estimate.latency import stored_delays
 from ..log.fieldlog import FieldLog
+from ..log.positions import LOCAL_TOPIC, local_positions, uses_local
 from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
+DEFAULT_LOCAL_SIGMA_M = 0.05   # the estimate's local_noise_m: positions in metres from an INS or motion capture
 
-INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
+INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, LOCAL_TOPIC)
 """The channels an identification reads: the thrust, and the sensors the kinematic smoother
 (:func:`usvlog.estimate.estimate`) fuses. A verb that writes no copy of the log loads only
 these (:func:`usvlog.io.mcap.read_log` ``topics=``): the derived channels of an estimate
@@ -168,23 +170,29 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     t0 = int(t_ns[0])
 
     delay = stored_delays(log)
-    g = log["/gnss/fix"]
-    tg = np.asarray(g.index, dtype=np.int64) - int(round(delay.get("gnss", 0.0) * 1e9))
-    lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
-    ok = np.isfinite(lat) & np.isfinite(lon)
-    datum = log.datum
-    if datum is None:
-        if not ok.any():
-            raise InputError(f"{src} /gnss/fix: no valid fix")
-        datum = Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0]))
-    n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=datum)
-    sig = np.full(len(g), DEFAULT_GPS_SIGMA_M)
-    if "cov_nn_m2" in g and "cov_ee_m2" in g:
-        var = 0.5 * (g["cov_nn_m2"].to_numpy(float) + g["cov_ee_m2"].to_numpy(float))
-        good = np.isfinite(var) & (var > 0)
-        if "cov_type" in g:
-            good &= g["cov_type"].to_numpy() != 0
-        sig[good] = np.sqrt(var[good])
+    lp = local_positions(log) if uses_local(log) else None
+    if lp is not None:   # positions in metres (an INS pose, motion capture) instead of fixes
+        tg, n, e = lp.t_ns, lp.n_m, lp.e_m
+        sig = np.where(np.isfinite(lp.var_m2), np.sqrt(lp.var_m2), DEFAULT_LOCAL_SIGMA_M)
+        ok = np.ones(len(tg), bool)
+    else:
+        g = log["/gnss/fix"]
+        tg = np.asarray(g.index, dtype=np.int64) - int(round(delay.get("gnss", 0.0) * 1e9))
+        lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
+        ok = np.isfinite(lat) & np.isfinite(lon)
+        datum = log.datum
+        if datum is None:
+            if not ok.any():
+                raise InputError(f"{src} /gnss/fix: no valid fix")
+            datum = Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0]))
+        n, e, _ = geodetic_to_ned(lat, lon, 0.0, datum=datum)
+        sig = np.full(len(g), DEFAULT_GPS_SIGMA_M)
+        if "cov_nn_m2" in g and "cov_ee_m2" in g:
+            var = 0.5 * (g["cov_nn_m2"].to_numpy(float) + g["cov_ee_m2"].to_numpy(float))
+            good = np.isfinite(var) & (var > 0)
+            if "cov_type" in g:
+                good &= g["cov_type"].to_numpy() != 0
+            sig[good] = np.sqrt(var[good])
     ok &= (tg >= t_ns[0]) & (tg <= t_ns[-1])
 
     c = log["/compass/heading"]

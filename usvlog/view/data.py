@@ -16,8 +16,9 @@ import numpy as np
 
 from ..errors import UnusableResultError
 from ..log.fieldlog import FieldLog
+from ..log.positions import local_positions, uses_local
 from ..log.status import estimate_status
-from ..model.frames import Datum, geodetic_to_ned, ssa, unwrap
+from ..model.frames import Datum, geodetic_to_ned, ned_to_geodetic, ssa, unwrap
 from ..model.stats import fit_percent, rms
 
 META_PATH = "usvlog.path"
@@ -93,7 +94,19 @@ def nonempty(log: FieldLog, topic: str):
 
 
 def gps(log: FieldLog):
-    """(t_ns, lat, lon, n, e) of every GPS fix, or None. n, e are NaN without a datum."""
+    """(t_ns, lat, lon, n, e) of every GPS fix, or None. n, e are NaN without a datum.
+
+    A log whose positions are in metres (``/local/position``, no fixes) gives those; their
+    latitude/longitude are NaN unless the log's datum geo-references them (then there is
+    no map, only the local view)."""
+    if uses_local(log):
+        lp = local_positions(log)
+        assert lp is not None
+        if lp.geo and log.datum is not None:
+            lat, lon, _ = ned_to_geodetic(lp.n_m, lp.e_m, 0.0, datum=log.datum)
+        else:
+            lat = lon = np.full(len(lp.t_ns), np.nan)
+        return lp.t_ns, np.asarray(lat, float), np.asarray(lon, float), lp.n_m, lp.e_m
     f = nonempty(log, "/gnss/fix")
     if f is None:
         return None

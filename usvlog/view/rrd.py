@@ -101,7 +101,7 @@ class _Writer:
         self.t0 = tr[0] if tr else 0
         self.datum = log.datum
         g = vd.gps(log)
-        if self.datum is None and g is not None and len(g[0]):
+        if self.datum is None and g is not None and len(g[0]) and np.isfinite(g[1][0]):
             self.datum = Datum(lat_deg=float(g[1][0]), lon_deg=float(g[2][0]))
 
     # -- helpers ---------------------------------------------------------------
@@ -208,8 +208,10 @@ class _Writer:
         if g is not None and len(g[0]):
             t, lat, lon, n, e = g
             c = (*self.color("gps"), 110)   # small and translucent, under the tracks
-            self.static("map", "map/gps", rr.GeoPoints(lat_lon=self.note_geo(np.column_stack([lat, lon])),
-                                                        radii=rr.Radius.ui_points(1.5), colors=[c]))
+            on_map = bool(np.isfinite(lat).any())   # positions in metres without a datum: no map
+            if on_map:
+                self.static("map", "map/gps", rr.GeoPoints(lat_lon=self.note_geo(np.column_stack([lat, lon])),
+                                                            radii=rr.Radius.ui_points(1.5), colors=[c]))
             self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(1.5),
                                                           colors=[c], draw_order=5.0))
             self.tag(e, n, "GPS fixes", self.color("gps"))
@@ -217,8 +219,9 @@ class _Writer:
             if rej is not None and len(rej[0]):
                 k = np.clip(np.searchsorted(t, rej[0]), 0, len(t) - 1)
                 c = self.color("gps_rejected", "dark")
-                self.static("map", "map/gps_rejected", rr.GeoPoints(
-                    lat_lon=np.column_stack([lat[k], lon[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
+                if on_map:
+                    self.static("map", "map/gps_rejected", rr.GeoPoints(
+                        lat_lon=np.column_stack([lat[k], lon[k]]), radii=rr.Radius.ui_points(5.0), colors=[c]))
                 self.static("local", "local/gps_rejected", rr.Points2D(
                     np.column_stack([e[k], -n[k]]), radii=rr.Radius.ui_points(5.0), colors=[c],
                     labels=[self.label("GPS rejected")], show_labels=True, draw_order=30.0))

@@ -26,7 +26,7 @@ from .forked import Forked, two_cores
 
 # what view/rrd.py draws; the report draws the same but the recorded thrust commands
 REPORT_TOPICS = tuple(dict.fromkeys([
-    "/gnss/fix", "/compass/heading", "/estimate/innovations", "/identify/fit",
+    "/gnss/fix", "/local/position", "/compass/heading", "/estimate/innovations", "/identify/fit",
     *(t for t, _label, _desc in vd.STATES), *(t for t, _label, _state, _desc in vd.CONTROLLERS),
     *(s for _t, _label, s, _desc in vd.CONTROLLERS)]))
 VIEW_TOPICS = (*REPORT_TOPICS, "/thrust/command")
