@@ -14,7 +14,9 @@ def register(sub) -> None:
                    help="input format (default: detected from the content)")
     p.add_argument("--vessel", default=None, help="vessel TOML (thruster map for non-newton commands)")
     p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
-                   help="CSV: map a role (time_s, time_ns, time_iso, lat_deg, lon_deg, alt_m, heading_deg, "
+                   help="CSV: map a role (time_s, time_ms, time_us, time_ns: seconds, milliseconds, "
+                        "microseconds, nanoseconds, since 1970 or, with --start-utc, since boot; time_iso, "
+                        "lat_deg, lon_deg, alt_m, heading_deg, "
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
                         "course_deg, thrust_left_dir, thrust_right_dir: direction flags, 0 forward and non-zero "
                         "reverse, or -1/+1) to a column; repeatable")
@@ -41,7 +43,9 @@ def register(sub) -> None:
                    help="NMEA/text: use the time stamp a logger wrote before each sentence (auto: ISO 8601 or "
                         "seconds; or a strptime format such as '%%Y-%%m-%%d %%H:%%M:%%S.%%f'; none: never). "
                         "Default: only stamps that give their zone; sentence UTC (RMC/ZDA) otherwise")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--force", action="store_true",
+                   help="overwrite an existing output; also write a log that keeps less than half of a sensor's "
+                        "samples (exit 1 without it), flagged as unusable in its provenance")
     p.add_argument("--json", action="store_true", help="print the import report as JSON")
     p.set_defaults(func=run)
 

@@ -13,15 +13,17 @@ One module per format; each has ``read(path, options, report) -> iterator of bat
 
 from __future__ import annotations
 
+import gzip
 import hashlib
 import importlib
 import math
 import re
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...choices import IMPORT_FORMATS
-from ...errors import ConfigError, FormatError, InputError
+from ...errors import ConfigError, FormatError, InputError, UnusableResultError
 from ...log.fieldlog import FieldLog, parse_time
 from ...model.frames import Datum
 from ...model.vessel import THRUST_UNITS, Vessel
@@ -36,6 +38,7 @@ from .nmea import looks_like_nmea
 from .sink import McapSink, MemorySink
 from .sniff import (
     DATAFLASH_MAGIC,
+    GZIP_MAGIC,
     MCAP_MAGIC,
     ROS1_MAGIC,
     SQLITE_MAGIC,
@@ -46,7 +49,8 @@ from .sniff import (
 FORMATS = IMPORT_FORMATS
 _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
             "dataflash": "dataflash", "ulog": "ulog"}
-CSV_ROLES = ("time_s", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad",
+CSV_ROLES = ("time_s", "time_ms", "time_us", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg",
+             "heading_rad",
              "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg",
              "thrust_left_dir", "thrust_right_dir")
 TOPIC_ROLES = MAPPING_ROLES  # gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, speed_mps, course
@@ -216,6 +220,31 @@ def parse_start_utc(text: str | None) -> int | None:
         raise ConfigError(f"start time {text!r} is not an ISO 8601 time") from err
 
 
+_TIME_REASONS = ("_time_backwards", "_time_duplicate", "_time_negative")
+
+
+def _check_usable(p, asm: Assembler, report: ImportReport, force: bool) -> None:
+    """Raise :class:`UnusableResultError` when a stream kept less than half of its samples
+    (:meth:`Assembler.shortfalls`); with ``force`` flag the report (and the log's provenance)
+    and go on."""
+    short = asm.shortfalls()
+    if not short:
+        return
+    s = short[0]
+    why = f"{s['reason']} {s['count']}" if s["reason"] else "reason unknown"
+    if s["first"]:
+        why += "; first: " + " ".join(str(s["first"]).split())
+    fix = ("give the right time column (e.g. --column time_ms=HEADER)" if s["reason"] and
+           s["reason"].endswith(_TIME_REASONS) else "check the column/topic mapping")
+    more = f" (and {', '.join(x['topic'] for x in short[1:])})" if len(short) > 1 else ""
+    msg = (f"{p}: {s['topic']}{more}: kept {s['kept']} of {s['of']} samples ({why}); {fix}, "
+           "or --force writes it anyway, flagged")
+    if not force:
+        raise UnusableResultError(msg)
+    report.unusable = msg
+    report.note(f"UNUSABLE, written with --force: {msg}")
+
+
 def detect_format(path) -> str:
     """Format of ``path`` from its content (magic bytes, first lines), not its name."""
     p = Path(path)
@@ -238,6 +267,8 @@ def detect_format(path) -> str:
         return "ulog"
     if head.startswith(DATAFLASH_MAGIC):
         return "dataflash"
+    if head.startswith(GZIP_MAGIC):
+        return _detect_gzip(p)
     text = head.decode("utf-8", errors="replace")
     if looks_like_nmea(text):   # before the binary check: a receiver's capture may mix binary messages in
         return "nmea"
@@ -248,6 +279,21 @@ def detect_format(path) -> str:
         return "csv"
     raise FormatError(f"{p}: unknown format (not CSV, NMEA, ROS bag, DataFlash or ULog); "
                       "give --format if it is one of them")
+
+
+def _detect_gzip(p: Path) -> str:
+    """Format of a gzip-compressed file: CSV (read through pandas) or NMEA, from its first lines."""
+    try:
+        with gzip.open(p, "rb") as fh:
+            text = fh.read(65536).decode("utf-8", errors="replace")
+    except (OSError, EOFError, zlib.error) as err:
+        raise FormatError(f"{p}: damaged gzip file ({type(err).__name__}: {err})") from err
+    if looks_like_nmea(text):
+        return "nmea"
+    if looks_like_csv(text) and not looks_binary(text):
+        return "csv"
+    raise FormatError(f"{p}: gzip-compressed content that is not CSV or NMEA (decompress it and give "
+                      "--format if it is another format)")
 
 
 def looks_binary(text: str) -> bool:
@@ -428,6 +474,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
             sk = ", ".join(f"{k} {v}" for k, v in sorted(report.skipped.items())) or "none"
             first = "; first: " + " ".join(next(iter(report.first_bad.values())).split()) if report.first_bad else ""
             raise InputError(f"{p}: nothing imported as {fmt} ({report.records} records read, skipped: {sk}{first})")
+        _check_usable(p, asm, report, force)
         meta = FieldLog()
         if asm.datum is not None:
             meta.datum = asm.datum
@@ -437,6 +484,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
                             size=str(ident["size"]), sha256=ident["sha256"],
                             skipped=dict(sorted(report.skipped.items())), guesses=report.guesses,
                             mapping=report.mapping, records=str(report.records), health=asm.health,
+                            **({"unusable": report.unusable} if report.unusable else {}),
                             **({"force_scale": asm.health["thrust"]["force_scale"]}
                                if asm.health and asm.health.get("thrust") else {}),
                             **({"propulsion": report.propulsion} if report.propulsion else {}))

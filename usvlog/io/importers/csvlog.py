@@ -13,6 +13,8 @@ sample, else they count from the Unix epoch) or ``time_iso``
 
 from __future__ import annotations
 
+import gzip
+import math
 import re
 import warnings
 from collections.abc import Iterator
@@ -23,17 +25,23 @@ import pandas as pd
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
 from .core import guess_thrust_unit, listing, text_column
+from .held import Held, detect_held, held_mask
+from .infer import TimeVerdict, angle_unit, judge_time, rate_scale
+from .sniff import GZIP_MAGIC, file_head
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {
     "time_ns": ("t_ns", "time_ns", "timestamp_ns", "stamp_ns", "log_time_ns"),
+    "time_ms": ("time_ms", "t_ms", "timestamp_ms", "timems", "time_boot_ms", "epoch_ms"),
+    "time_us": ("time_us", "t_us", "timestamp_us", "timeus", "time_boot_us", "epoch_us"),
     "time_s": ("time_s", "t_s", "time", "t", "timestamp", "seconds", "sec", "elapsed_s", "time_sec",
                "timestamp_s", "unix_time", "epoch_s"),
     "time_iso": ("utc", "datetime", "date_time", "time_utc", "iso_time"),
     "lat_deg": ("lat_deg", "lat", "latitude", "latitude_deg", "gps_lat", "gnss_lat"),
     "lon_deg": ("lon_deg", "lon", "lng", "long", "longitude", "longitude_deg", "gps_lon", "gnss_lon"),
     "alt_m": ("alt_m", "alt", "altitude", "altitude_m", "gps_alt"),
-    "heading_deg": ("heading_deg", "heading", "hdg", "compass", "compass_deg", "yaw_deg", "heading_true_deg"),
+    "heading_deg": ("heading_deg", "heading", "hdg", "compass", "compass_deg", "yaw_deg", "heading_true_deg",
+                    "yaw"),
     "heading_rad": ("heading_rad", "yaw_rad", "psi_rad", "psi"),
     "thrust_left": ("thrust_left", "left", "left_thrust", "thrust_left_n", "port", "motor_left", "thr_left",
                     "cmd_left", "left_cmd", "pwm_left", "left_pwm", "thruster_left", "left_n"),
@@ -144,6 +152,8 @@ def _numeric(col: pd.Series, role: str, header: str, line0: int, report) -> tupl
 
 
 _NS_PER = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+_ROLE_NS = {"time_s": 1e9, "time_ms": 1e6, "time_us": 1e3, "time_ns": 1.0}   # ns per tick of a time role
+TIME_ROLES = ("time_ns", "time_s", "time_ms", "time_us", "time_iso")
 
 
 def _datetimes_ns(arr: np.ndarray) -> np.ndarray:
@@ -168,18 +178,19 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
         state["iso"] = True
         ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
         return _datetimes_ns(ts.dt.tz_localize(None).to_numpy())
-    if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype):
+    if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype) and not state.get("relative"):
         t = col.to_numpy(dtype=np.int64)
         return np.where(t >= 0, t, -1)
     v, present = _numeric(col, kind, header, line0, report) if not pd.api.types.is_numeric_dtype(col.dtype) \
         else (col.to_numpy(dtype=float, na_value=np.nan), col.notna().to_numpy())
-    if kind == "time_ns":
+    if kind == "time_ns" and not state.get("relative"):
         t = np.where(present & np.isfinite(v), v, -1.0)
         return t.astype(np.int64)
-    if "relative" not in state:
+    ns_per = _ROLE_NS[kind]
+    if "first" not in state:
         fin = v[np.isfinite(v) & (v >= 0)]
         if len(fin):
-            state["relative"] = bool(np.median(fin) < 1e8)
+            state.setdefault("relative", bool(np.median(fin) * ns_per < 1e17))   # 1e8 s: before 1973
             state["first"] = float(fin[0])   # --start-utc is the time of the first sample
             if state["relative"] and start_ns is None:
                 report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
@@ -187,14 +198,14 @@ def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str,
                             "times start at the Unix epoch")
     rel = state.get("relative", False)
     with np.errstate(invalid="ignore", over="ignore"):
-        # relative seconds to the ns; epoch seconds (float64: ~0.2 us resolution) to the us
-        t = np.round(v * 1e9) if rel else np.round(v * 1e6)
+        # relative times to the ns; epoch times (float64: ~0.2 us resolution in seconds) to the us
+        t = np.round(v * ns_per) if rel else np.round(v * (ns_per / 1000))
         ok = np.isfinite(t) & (t >= 0) & (t < (2**62 if rel else 2**62 / 1000))
         ti = np.where(ok, t, -1).astype(np.int64)
         if not rel:
             ti = np.where(ok, ti * 1000, -1)
     if rel:
-        first = int(round(state.get("first", 0.0) * 1e9)) if start_ns is not None else 0
+        first = int(round(state.get("first", 0.0) * ns_per)) if start_ns is not None else 0
         ti = np.where(ok, ti - first + int(start_ns or 0), -1)
         ti = np.where(ti >= 0, ti, -1)
     return ti
@@ -216,7 +227,7 @@ def _header(p, opts) -> tuple[str, str, list[str]]:
         ``--column`` names a column that is not in it.
     """
     try:
-        with open(p, encoding="utf-8", errors="replace", newline="") as fh:
+        with _open_text(p) as fh:
             header_line = fh.readline()
     except OSError as err:
         raise InputError(f"{p}: cannot read ({err})") from err
@@ -224,7 +235,8 @@ def _header(p, opts) -> tuple[str, str, list[str]]:
         raise InputError(f"{p}: empty file (no header row)")
     sep = sniff_sep(header_line) or ","
     try:
-        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace").columns)
+        headers = list(pd.read_csv(p, nrows=0, sep=sep, encoding_errors="replace",
+                                   compression=compression(p)).columns)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
         raise InputError(f"{p} line 1: not a CSV header ({_parser_message(err)})") from err
     missing = {r: h for r, h in opts.columns.items() if h not in headers}
@@ -232,6 +244,196 @@ def _header(p, opts) -> tuple[str, str, list[str]]:
         r, h = next(iter(missing.items()))
         raise InputError(f"{p}: column {h!r} for role {r} is not in the header (columns: {listing(headers)})")
     return header_line, sep, headers
+
+
+# -- decisions from the first rows -------------------------------------------------------------
+SAMPLE_ROWS = 20_000
+"""Rows read first to decide the time column, angle and rate units and held GNSS values."""
+_TIME_TOKENS = frozenset(("t", "time", "times", "timestamp", "stamp", "date", "datetime", "utc", "epoch",
+                          "elapsed", "boot", "clock", "tow", "millis", "micros", "nanos", "sec", "secs",
+                          "seconds", "timeus", "timems", "timens"))
+_TIME_NAMES = tuple(n for r in ("time_ns", "time_ms", "time_us", "time_s", "time_iso") for n in GUESSES[r])
+_UNITLESS_HEADING = {"yaw": "deg", "heading": "deg", "hdg": "deg", "compass": "deg", "psi": "rad",
+                     "theta": "rad"}
+_UNIT_ROLE = {"s": "time_s", "ms": "time_ms", "us": "time_us", "ns": "time_ns"}
+
+
+def time_like(header: str) -> bool:
+    """Whether a header names a time (``Unix Timestamp``, ``original_timestamp``, ``TimeUS``, ``Date``)."""
+    n = normalize_header(header)
+    return n in _TIME_NAMES or any(tok in _TIME_TOKENS for tok in n.split("_"))
+
+
+def _sample(p, sep: str, headers: list[str]) -> pd.DataFrame:
+    """The first :data:`SAMPLE_ROWS` rows of the columns ``headers`` (bad rows left out)."""
+    if not headers:
+        return pd.DataFrame()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", pd.errors.ParserWarning)
+            return pd.read_csv(p, sep=sep, nrows=SAMPLE_ROWS, usecols=headers, keep_default_na=False,
+                               na_values=[""], on_bad_lines="skip", encoding_errors="replace",
+                               compression=compression(p))
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as err:
+        raise InputError(f"{p}: {_parser_message(err)}") from err
+
+
+def _time_values(col: pd.Series) -> tuple[np.ndarray | None, bool]:
+    """(values, ISO text?) of a candidate time column: numbers, or ISO 8601 text as ns since 1970;
+    (None, False) when fewer than 90 % of its non-empty cells are either."""
+    filled = max(1, int(col.notna().sum()))
+    num = col if pd.api.types.is_numeric_dtype(col.dtype) else pd.to_numeric(col, errors="coerce")
+    if num.notna().sum() >= 0.9 * filled:
+        return num.to_numpy(dtype=float, na_value=np.nan), False
+    ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
+    if ts.notna().sum() >= 0.9 * filled:
+        ns = _datetimes_ns(ts.dt.tz_localize(None).to_numpy()).astype(float)
+        return np.where(ns >= 0, ns, np.nan), True
+    return None, False
+
+
+def _choose_time(sample: pd.DataFrame, mapping: dict, guessed: dict, report, state: dict) -> None:
+    """Pick the time column from the data (monotonic; unit from magnitude and step): updates
+    ``mapping``/``guessed``, the report's reasons, and ``state`` (relative or not)."""
+    cands = [h for h in sample.columns if time_like(h)]
+    old = next(((r, mapping[r]) for r in TIME_ROLES if r in mapping), None)
+    verdicts: dict[str, TimeVerdict] = {}
+    for h in cands:
+        v, text = _time_values(sample[h])
+        verdicts[h] = (judge_time(v, normalize_header(h), text=text) if v is not None else
+                       TimeVerdict(False, None, False, None, "neither numbers nor ISO 8601 times"))
+    rejected = [f"{h!r}: {vd.why}" for h, vd in verdicts.items() if not vd.ok]
+    if rejected:
+        report.guesses["time_rejected"] = "; ".join(rejected)
+    ok = [h for h, vd in verdicts.items() if vd.ok]
+    if not ok:
+        if old is not None:
+            report.note(f"no time column is monotonic: {old[1]!r} taken because of its name "
+                        f"({verdicts.get(old[1], TimeVerdict(False, None, False, None, '')).why or 'not judged'})")
+        return
+    for r in TIME_ROLES:
+        mapping.pop(r, None)
+        guessed.pop(r, None)
+    names = [normalize_header(h) for h in ok]
+
+    def rank(i: int) -> tuple:
+        n = names[i]
+        return (not verdicts[ok[i]].epoch, _TIME_NAMES.index(n) if n in _TIME_NAMES else len(_TIME_NAMES), i)
+
+    h = ok[min(range(len(ok)), key=rank)]
+    vd = verdicts[h]
+    role = "time_iso" if vd.unit == "ns" and _time_values(sample[h])[1] else _UNIT_ROLE[vd.unit]
+    mapping[role] = guessed[role] = h
+    if role != "time_iso":
+        state["relative"] = not vd.epoch
+    report.guesses[f"reason {role}"] = vd.why
+    report.guesses["time_column"] = f"{h!r}: {vd.why}"
+
+
+def _sample_seconds(col: pd.Series, role: str) -> np.ndarray:
+    """Times of the sample rows in s (on the column's own base; NaN where unusable)."""
+    if role == "time_iso":
+        v, _ = _time_values(col)
+        return np.full(len(col), np.nan) if v is None else v / 1e9
+    v = pd.to_numeric(col, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+    return v * (_ROLE_NS[role] / 1e9)
+
+
+def _num(sample: pd.DataFrame, header: str) -> np.ndarray:
+    return pd.to_numeric(sample[header], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+def _heading_unit(sample: pd.DataFrame, mapping: dict, guessed: dict, report) -> None:
+    """Degrees or radians of a guessed heading column whose name does not say (``yaw``, ``heading``)."""
+    role = next((r for r in ("heading_deg", "heading_rad") if r in guessed), None)
+    if role is None or normalize_header(mapping[role]) not in _UNITLESS_HEADING:
+        return
+    h = mapping[role]
+    unit, why = angle_unit(_num(sample, h), _UNITLESS_HEADING[normalize_header(h)])
+    new = f"heading_{unit}"
+    if new != role:
+        del mapping[role], guessed[role]
+        mapping[new] = guessed[new] = h
+    report.guesses["heading_unit"] = f"{h!r} in {unit}: {why}"
+    report.guesses[f"reason {new}"] = f"{unit}: {why}"
+
+
+def _yaw_rate_unit(sample: pd.DataFrame, t_s: np.ndarray, mapping: dict, guessed: dict, report) -> None:
+    """rad/s or deg/s of a guessed yaw-rate column, from its scale against d(heading)/dt."""
+    role = next((r for r in ("yaw_rate_degps", "yaw_rate_radps") if r in guessed), None)
+    if role is None:
+        return
+    h = mapping[role]
+    hr = next((r for r in ("heading_rad", "heading_deg") if r in mapping), None)
+    fit = None
+    if hr is not None:
+        psi = _num(sample, mapping[hr]) * (1.0 if hr == "heading_rad" else np.pi / 180.0)
+        r = _num(sample, h)
+        mh, mr = np.isfinite(psi) & np.isfinite(t_s), np.isfinite(r) & np.isfinite(t_s)
+        fit = rate_scale(t_s[mh], psi[mh], t_s[mr], r[mr])
+    if fit is None:
+        unit = "deg/s" if role == "yaw_rate_degps" else "rad/s"
+        why = ("no heading to compare against" if hr is None else
+               "the heading does not turn enough to compare against") + ": the name's unit"
+        report.guesses["yaw_rate_unit"] = f"{h!r} in {unit} ({why})"
+        return
+    k, corr = fit
+    new = "yaw_rate_radps" if abs(math.log(abs(k))) < abs(math.log(abs(k) / (180.0 / math.pi))) else "yaw_rate_degps"
+    if new != role:
+        del mapping[role], guessed[role]
+        mapping[new] = guessed[new] = h
+    unit = "rad/s" if new == "yaw_rate_radps" else "deg/s"
+    why = (f"scale {k:.3g} against d(heading)/dt (correlation {corr:.2f}; 1 is rad/s, 57.3 deg/s)"
+           + ("; its sign is opposite to the heading's" if k < 0 else ""))
+    report.guesses["yaw_rate_unit"] = f"{h!r} in {unit}: {why}"
+    report.guesses[f"reason {new}"] = f"{unit}: {why}"
+
+
+def _held(sample: pd.DataFrame, t_s: np.ndarray, mapping: dict, report) -> Held | None:
+    """Sample-and-hold GNSS positions in the first rows (:func:`usvlog.io.importers.held.detect_held`)."""
+    if "lat_deg" not in mapping or "lon_deg" not in mapping:
+        return None
+    lat, lon = _num(sample, mapping["lat_deg"]), _num(sample, mapping["lon_deg"])
+    m = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(t_s)
+    held = detect_held(np.round(t_s[m] * 1e9).astype(np.int64), lat[m], lon[m])
+    if held is not None:
+        report.guesses["gnss_held"] = held.describe()
+        report.guesses["gnss_rate_hz"] = round(held.rate_hz, 3)
+    return held
+
+
+def _decide(p, sep: str, headers: list[str], mapping: dict, guessed: dict, opts, report
+            ) -> tuple[dict, Held | None]:
+    """What the first rows decide: the time column and its unit (unless given), the units of
+    guessed heading and yaw-rate columns, and held GNSS values. Updates ``mapping`` and
+    ``guessed``; returns (the time state for :class:`_Chunker`, the held GNSS stream or None)."""
+    state: dict = {}
+    given_time = any(r in opts.columns for r in TIME_ROLES)
+    want = {h for h in headers if not given_time and time_like(h)}
+    want |= {mapping[r] for r in ("lat_deg", "lon_deg", "heading_deg", "heading_rad", "yaw_rate_degps",
+                                  "yaw_rate_radps") + TIME_ROLES if r in mapping}
+    sample = _sample(p, sep, [h for h in headers if h in want])
+    if not given_time:
+        _choose_time(sample, mapping, guessed, report, state)
+    _heading_unit(sample, mapping, guessed, report)
+    time_role = next((r for r in TIME_ROLES if r in mapping), None)
+    if time_role is None or not len(sample):
+        return state, None
+    t_s = _sample_seconds(sample[mapping[time_role]], time_role)
+    _yaw_rate_unit(sample, t_s, mapping, guessed, report)
+    return state, _held(sample, t_s, mapping, report)
+
+
+def compression(p) -> str | None:
+    """``"gzip"`` for a gzip-compressed file (from its magic bytes, not its name), else None."""
+    return "gzip" if file_head(p, 2) == GZIP_MAGIC else None
+
+
+def _open_text(p):
+    """The file as text (undecodable bytes replaced), gunzipped when it is gzip-compressed."""
+    if compression(p) == "gzip":
+        return gzip.open(p, "rt", encoding="utf-8", errors="replace", newline="")
+    return open(p, encoding="utf-8", errors="replace", newline="")
 
 
 def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
@@ -259,11 +461,13 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
     p = path
     header_line, sep, headers = _header(p, opts)
     mapping, guessed = guess_mapping(headers, opts.columns)
+    state, held = _decide(p, sep, headers, mapping, guessed, opts, report)
     report.mapping.update(mapping)
     report.guesses.update({f"column {k}": v for k, v in guessed.items()})
-    time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
+    time_role = next((r for r in TIME_ROLES if r in mapping), None)
     if time_role is None:
-        raise InputError(f"{p}: no time column found (give --column time_s=HEADER; columns: "
+        raise InputError(f"{p}: no time column found (give --column time_s=HEADER, or time_ms, time_us, "
+                         f"time_ns, time_iso; columns: "
                          f"{listing(headers)})")
     for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
         if (a in mapping) != (b in mapping):
@@ -275,7 +479,7 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
                          f"{listing(headers)})")
     if on_mapping is not None:
         on_mapping(report)
-    chunker = _Chunker(mapping, time_role, opts, report)
+    chunker = _Chunker(mapping, time_role, opts, report, state=state, held=held)
     short, n_lines = short_rows(p, sep, header_line.count(sep))
     cut = [k for k in short if k == n_lines - 1]   # the last row of a file cut mid-way
     if cut:
@@ -317,7 +521,7 @@ def short_rows(path, sep: str, n_sep: int, block: int = 1 << 22) -> tuple[list[i
     """
     out: list[int] = []
     sepb, line, carry = ord(sep), 0, b""
-    with open(path, "rb") as fh:
+    with (gzip.open(path, "rb") if compression(path) else open(path, "rb")) as fh:
         while True:
             buf = fh.read(block)
             data = carry + buf if carry else buf
@@ -349,7 +553,7 @@ def _chunks(p, sep: str, chunk_rows: int, skip=()) -> Iterator[pd.DataFrame]:
     """pandas' chunked reader; its parser errors become one-line InputErrors naming the file."""
     try:
         reader = pd.read_csv(p, sep=sep, chunksize=chunk_rows, keep_default_na=False, na_values=[""],
-                             skiprows=list(skip) or None,
+                             skiprows=list(skip) or None, compression=compression(p),
                              on_bad_lines="warn", encoding_errors="replace", skip_blank_lines=False,
                              low_memory=True)
         yield from reader   # usvlog's work on each chunk runs in the caller, outside this try
@@ -381,13 +585,16 @@ def _both(pres: dict, a: str, b: str, good_t: np.ndarray, report, reason: str) -
 class _Chunker:
     """One chunk of rows -> a batch of role streams (state: relative time, thrust unit)."""
 
-    def __init__(self, mapping: dict, time_role: str, opts, report):
+    def __init__(self, mapping: dict, time_role: str, opts, report, *, state: dict | None = None,
+                 held: Held | None = None):
         self.mapping = mapping
         self.time_role = time_role
         self.start_ns = opts.start_utc_ns
         self.thrust_unit = opts.thrust_unit
         self.report = report
-        self.state: dict = {}
+        self.state: dict = dict(state or {})
+        self.held = held
+        self.hold_state = None
 
     def batch(self, chunk: pd.DataFrame, line0: int) -> dict:
         mapping, time_role, report = self.mapping, self.time_role, self.report
@@ -413,6 +620,9 @@ class _Chunker:
             g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
             if "alt_m" in vals:
                 g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
+            if self.held is not None:
+                g["held"], self.hold_state = held_mask(g["t_ns"], [g["lat_deg"], g["lon_deg"]],
+                                                       self.held.update_s, self.hold_state)
             batch["gnss"] = g
         for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
             if role in pres:
@@ -484,7 +694,7 @@ def catalog(path, opts) -> Catalog:
     p = Path(path)
     _, sep, headers = _header(p, opts)
     mapping, guessed = guess_mapping(headers, opts.columns)
-    time_role = next((r for r in ("time_ns", "time_s", "time_iso") if r in mapping), None)
+    time_role = next((r for r in TIME_ROLES if r in mapping), None)
     n = 0
     first: dict = {}
     kinds: dict = {h: set() for h in headers}

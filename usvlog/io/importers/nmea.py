@@ -37,6 +37,7 @@ evenly between the timed sentences around them.
 from __future__ import annotations
 
 import datetime as _dt
+import gzip
 import math
 import re
 import statistics
@@ -60,6 +61,7 @@ from ..nmea import (
     resolve_time_of_day,
 )
 from .catalog import Catalog, FieldInfo, TopicInfo
+from .sniff import GZIP_MAGIC, file_head
 
 _SENTENCE = re.compile(r"[$!][A-Z][A-Z0-9]{2,5},")
 _DAY_NS = 86_400 * 1_000_000_000
@@ -285,13 +287,20 @@ class _Clock:
         return t
 
 
+def _open(path, mode: str, **kw):
+    """The file, gunzipped on the fly when it is gzip-compressed (from its magic bytes)."""
+    if file_head(path, 2) == GZIP_MAGIC:
+        return gzip.open(path, mode, **kw)
+    return open(path, mode, **kw)
+
+
 def _lines(path) -> Iterator[str]:
     """The file's lines (undecodable bytes replaced); OS errors -> one-line StorageError.
 
     A generator, so the ``try`` of :func:`usvlog.io.atomic.reading` covers the file
     reads only, not what the caller does with each line.
     """
-    with reading(path), open(path, encoding="ascii", errors="replace", newline=None) as fh:
+    with reading(path), _open(path, "rt", encoding="ascii", errors="replace", newline=None) as fh:
         yield from fh
 
 
@@ -545,7 +554,7 @@ _BLOCK_BYTES = 4 << 20   # the fast path reads the file in blocks of whole lines
 def _lone_cr(p) -> bool:
     """The file breaks lines with a CR alone somewhere (old Mac line ends)."""
     prev = b""
-    with reading(p), open(p, "rb") as fh:
+    with reading(p), _open(p, "rb") as fh:
         for block in iter(lambda: fh.read(_BLOCK_BYTES), b""):
             b = prev + block
             cr = b.count(b"\r")
@@ -558,7 +567,7 @@ def _lone_cr(p) -> bool:
 def _blocks(p, size: int) -> Iterator[bytes]:
     """The file's bytes in blocks that end at a line end (the last one maybe not)."""
     rest = b""
-    with reading(p), open(p, "rb") as fh:
+    with reading(p), _open(p, "rb") as fh:
         for block in iter(lambda: fh.read(size), b""):
             data = rest + block
             cut = data.rfind(b"\n") + 1

@@ -12,6 +12,7 @@ DATAFLASH_MAGIC = b"\xa3\x95\x80"
 ROS1_MAGIC = b"#ROSBAG V2.0"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
+GZIP_MAGIC = b"\x1f\x8b"   # a CSV or NMEA log may come gzipped
 
 
 def file_head(path, n: int) -> bytes:
