@@ -1,7 +1,10 @@
 """ROS 1 .bag and ROS 2 bags (sqlite3 or mcap storage) through rosbags: no ROS install.
 
 The message definitions embedded in the bag are read one topic at a time: a topic whose
-definition cannot be parsed is skipped with a one-line note, the others are read.
+definition cannot be parsed is skipped with a one-line note, the others are read. A bag that
+stores none (ROS 2 before Jazzy; a ROS 1 connection with an empty definition) is read with
+``--msg-dir DIR`` (:func:`msg_dir_types`: every ``<pkg>/msg/<Name>.msg`` under DIR); without
+it its custom topics are skipped with that advice.
 :func:`catalog` lists every topic with its type, count, time span and every leaf field path
 (types, array lengths, a sample value from the first message); the roles are then chosen
 from it by structure (:mod:`usvlog.io.importers.mapping`), so custom message types map
@@ -493,7 +496,10 @@ def read(path, opts, report, *, fmt="ros2", on_mapping=None) -> Iterator[dict]:
         The bag: a ROS 1 ``.bag`` file, a ROS 2 bag directory or its ``.db3``/``.mcap`` file.
     opts : usvlog.io.importers.ImportOptions
         ``topics`` (role -> ``/topic[.field.path[i]]``), ``thrust_unit`` (guessed from the
-        values when None), ``chunk_rows`` samples per batch.
+        values when None), ``chunk_rows`` samples per batch, ``msg_dirs`` (``.msg`` files for
+        types the bag does not store). Commands outside the twin-thruster model
+        (:func:`usvlog.io.importers.mapping.propulsion_outside_model`) go to
+        ``report.propulsion`` and their values, as recorded, to ``/raw/<topic>``.
     report : usvlog.io.importers.core.ImportReport
         Filled with messages read, messages skipped by reason, the mapping, guesses and notes
         (skipped topics, ambiguous candidates).
