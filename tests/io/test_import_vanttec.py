@@ -89,3 +89,19 @@ def test_datum_geo_references_the_pose(tmp_path):
     res = import_file(BAGS[-1], datum="25.6514,-100.2895")
     assert res.log["/local/position"]["geo"].all()
     assert res.log.datum.lat_deg == pytest.approx(25.6514) and res.log.datum.lon_deg == pytest.approx(-100.2895)
+
+
+def test_a_pose_held_between_ins_updates_is_one_measurement(imported):
+    """06-08 runs: the INS pose is republished at 100 Hz but updated 6.5-8.3 times a second; every
+    repeat of the position before it is collapsed (counted), each real update kept."""
+    bag, res = imported
+    t, x, y, _ = _pose(bag)
+    changed = np.r_[True, (np.diff(x) != 0) | (np.diff(y) != 0)]
+    lp = res.log["/local/position"]
+    assert len(lp) == int(changed.sum())
+    assert res.report.skipped.get("local_held_repeat", 0) == len(t) - int(changed.sum())
+    rate = len(lp) / ((t[-1] - t[0]) * 1e-9)
+    if "06-08" in bag.name:
+        assert 6.0 < rate < 9.0, rate
+    else:
+        assert rate > 100.0, rate

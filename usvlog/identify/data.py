@@ -23,7 +23,7 @@ from ..model.frames import Datum, geodetic_to_ned, ssa
 from ..model.vessel import Vessel, default_vessel
 
 DEFAULT_GPS_SIGMA_M = 1.5
-DEFAULT_LOCAL_SIGMA_M = 0.05   # the estimate's local_noise_m: positions in metres from an INS or motion capture
+DEFAULT_LOCAL_SIGMA_M = 0.3   # the estimate's local_noise_m: positions in metres from an INS or motion capture
 
 INPUT_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, LOCAL_TOPIC)
 """The channels an identification reads: the thrust, and the sensors the kinematic smoother

@@ -614,6 +614,7 @@ def _read_mapped(reader, path, cat, mapping, opts, report, raw_specs=()) -> Iter
                                                                          "local_n/local_e as given")
     thrust_unit = opts.thrust_unit
     last_t = None
+    last_local: tuple[float, float] | None = None
 
     def damaged() -> str:
         return "damaged bag" + (f" after t_ns {last_t}" if last_t is not None else "")
@@ -683,7 +684,12 @@ def _read_mapped(reader, path, cat, mapping, opts, report, raw_specs=()) -> Iter
                 if role == "local_n":
                     held["local_n"] = v
                     continue
-                if math.isfinite(held["local_n"]):
+                if math.isfinite(held["local_n"]) and (held["local_n"], v) == last_local:
+                    # the same position again: a pose held between the navigation's updates (published
+                    # faster than it is computed) is one measurement, not many (collapsed, counted)
+                    report.skip("local_held_repeat", 1)
+                elif math.isfinite(held["local_n"]):
+                    last_local = (held["local_n"], v)
                     buf.local(t_ns, stamp, held["local_n"], v, f"{roles['local_n'][0].strip('/')} ({local_frame})")
                 else:
                     report.skip("local_incomplete", 1, where=where)
