@@ -18,6 +18,7 @@ the library it needs when it is called, so that ``import usvlog`` and ``usvlog -
 from __future__ import annotations
 
 import difflib
+import math
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import replace
@@ -519,7 +520,8 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
              current: bool | None = None, tune: bool = False, sway_damping: bool | None = None,
              gate: float = 0.9999, smoother: bool = True, gnss_delay_s: float | str = 0.0,
              compass_delay_s: float | str = 0.0, force: bool = False,
-             progress: Progress = None, gps_only: bool = False) -> EstimateResult:
+             progress: Progress = None, gps_only: bool = False,
+             heading_offset: float | str | None = None) -> EstimateResult:
     """Estimate the state of a run with an EKF and RTS smoother (``usvlog estimate``).
 
     Parameters
@@ -557,6 +559,12 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     gps_only : bool
         Fuse no heading even when the log has one (without a usable heading channel the
         estimate is GNSS-only anyway; ``report.mode`` says which).
+    heading_offset : float or "auto", optional
+        Heading mounting offset in degrees, measured minus true (the heading fused is the
+        measured one minus it), or ``"auto"``: detected against the course over ground and
+        applied when one is found (``report.heading_offset`` says which). None: the vessel
+        file's ``[sensors] heading_offset_deg``, else none. An estimate with a detected
+        offset not applied, or an implausible sideslip, has ``report.status`` ``failed``.
 
     Returns
     -------
@@ -575,9 +583,12 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     for k, v in delays.items():
         if v != "auto" and not isinstance(v, (int, float)):
             raise ConfigError(f"{k}_delay_s = {v!r} must be a number of seconds or 'auto'")
+    offset = {"heading_offset_auto": True} if heading_offset == "auto" else \
+        {} if heading_offset is None else {"compass_offset_rad": math.radians(float(heading_offset))}
     settings = EstimateSettings(model=model, current=current, tune=tune, gate_probability=gate,
                                 smoother=smoother, sway_damping=sway_damping, gps_only=gps_only, estimate_delays=auto,
-                                **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()})
+                                **{f"{k}_delay_s": 0.0 if v == "auto" else float(v) for k, v in delays.items()},
+                                **offset)
     read_here = _is_path(log)
     src = log if read_here else log.source
     log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)

@@ -399,7 +399,7 @@ def test_imported_messages_validate_against_their_schemas(tmp_path):
             for schema, channel, message in make_reader(fh).iter_messages():
                 validators[schema.name].validate(json.loads(message.data))
                 seen.add(channel.topic)
-    assert seen == {"/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity"}
+    assert seen == {"/gnss/fix", "/compass/heading", "/thrust/command", "/gnss/velocity", "/gnss/quality"}
 
 
 def test_nmea_gga_only_rolls_past_midnight_without_dates(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from .common import print_json, stage
 
@@ -33,6 +34,12 @@ def register(sub) -> None:
                         "from the data (needs the dynamic model and the recorded thrust), default 0")
     p.add_argument("--compass-delay-s", type=delay_arg, default=0.0, metavar="auto|VALUE",
                    help="compass latency in s, or auto (default 0)")
+    p.add_argument("--heading-offset", type=offset_arg, default=None, metavar="auto|DEG",
+                   help="heading mounting offset in deg, measured minus true (the heading fused is the measured one "
+                        "minus it), or auto: detected against the course over ground on straight runs and applied "
+                        "when found (default: the vessel file's [sensors] heading_offset_deg, else none). An estimate "
+                        "with a detected offset not applied, or an implausible sideslip, is written flagged failed "
+                        "and exits 1")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.set_defaults(func=run)
@@ -51,6 +58,19 @@ def delay_arg(text: str) -> float | str:
     return v
 
 
+def offset_arg(text: str) -> float | str:
+    """``auto`` or a heading mounting offset in degrees (a number in [-360, 360]) for --heading-offset."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor a number of degrees") from None
+    if not (-360.0 <= v <= 360.0):  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text!r}: a heading offset must be in [-360, 360] deg")
+    return v
+
+
 def run(args) -> int:
     from .. import api  # heavy: imported only when the verb runs
 
@@ -58,10 +78,14 @@ def run(args) -> int:
                           tune=args.tune, sway_damping=args.sway_damping, gate=args.gate,
                           smoother=not args.no_smoother, gnss_delay_s=args.gnss_delay_s,
                           compass_delay_s=args.compass_delay_s, force=args.force, progress=stage,
-                          gps_only=args.gps_only)
+                          gps_only=args.gps_only, heading_offset=args.heading_offset)
     stage(f"wrote {args.out}")
     if args.json:
         print_json(result.report.to_dict())
     else:
         print(result.report.format())
+    if result.report.status == "failed":   # written, flagged failed: later stages refuse it
+        print("usvlog estimate: error: the estimate is not usable: " + "; ".join(result.report.blocking),
+              file=sys.stderr)
+        return 1
     return 0

@@ -22,6 +22,8 @@ from ..log.fieldlog import FieldLog, format_time
 from ..log.status import EstimateStatus, set_estimate_status
 from ..log.summary import health_from_provenance
 from ..model.frames import Datum, geodetic_to_ned, ssa
+from ..model.gnss_noise import gnss_sigma_from_quality, quality_name
+from ..model.heading_offset import MIN_OFFSET_DEG, MIN_OFFSET_SIGMAS, HeadingOffset, detect_heading_offset
 from ..model.vessel import Vessel, VesselParams, default_vessel
 from . import kernels
 from .kernels import (
@@ -44,7 +46,8 @@ INNOVATION_TOPIC = "/estimate/innovations"
 GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thrust/command"
 YAW_RATE_TOPIC = "/imu/yaw_rate"   # fused without being asked for when no heading is
 VELOCITY_TOPIC = "/gnss/velocity"  # speed and course over ground: fused by the kinematic model in NED
-INPUT_TOPICS = (GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC)
+QUALITY_TOPIC = "/gnss/quality"    # GGA fix quality and HDOP: each fix's noise when it has no covariance
+INPUT_TOPICS = (GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, QUALITY_TOPIC)
 """Every channel the estimator reads (the ``usvlog estimate`` verb decodes only these)."""
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
@@ -115,6 +118,7 @@ class Problem:
     skipped: dict = field(default_factory=dict)   # sensor -> records skipped (non-finite, out of range)
     mode: str = "gnss+compass"   # or "gps-only": no heading measurement fused
     mode_reason: str = ""        # why GNSS only (empty with a compass)
+    gnss_noise: str = ""         # where the GNSS noise came from, in words (gnss_noise_source)
 
     @property
     def nx(self) -> int:
@@ -263,15 +267,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
     tg = tg[good]
     skipped = {"gnss": int((~good).sum())}
-    if s.gps_noise_m is not None:
-        var = s.gps_noise_m ** 2
-        Rg = np.column_stack([np.full(len(tg), var), np.zeros(len(tg)), np.full(len(tg), var)])
-    else:
-        nn, ne, ee = (_col(gps, c)[good] for c in ("cov_nn_m2", "cov_ne_m2", "cov_ee_m2"))
-        ok = np.isfinite(nn) & np.isfinite(ee) & (nn > 0) & (ee > 0)
-        ne = np.where(np.isfinite(ne) & ok, ne, 0.0)
-        fb = s.gps_fallback_m ** 2
-        Rg = np.column_stack([np.where(ok, nn, fb), ne, np.where(ok, ee, fb)])
+    Rg, gnss_noise = _gnss_noise(log, gps, good, tg, s)
 
     parts = [(tg, GNSS, np.column_stack([n, e]), Rg)]
     mode_reason = _heading_unusable(log, comp, s)
@@ -357,7 +353,85 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
                    mz=mz, mR=mR, x0=x0, P0=P0, prm=vessel.params.as_array(),
                    model=DYNAMIC if s.model == "dynamic" else KINEMATIC_SWAY if s.sway_damping else KINEMATIC,
                    gates=np.asarray(gate, float), dropouts=drop, skipped=skipped,
-                   mode="gps-only" if mode_reason else "gnss+compass", mode_reason=mode_reason)
+                   mode="gps-only" if mode_reason else "gnss+compass", mode_reason=mode_reason,
+                   gnss_noise=gnss_noise)
+
+
+QUALITY_MATCH_S = 0.5
+"""A ``/gnss/quality`` record sets the noise of the fix nearest it within this (s)."""
+
+
+def fix_quality_sigma(log: FieldLog, tg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One-sigma noise (m, NaN: the log says nothing) and GGA fix quality (-1: none) of each
+    fix at times ``tg`` (ns), from the ``/gnss/quality`` record nearest in time (within
+    :data:`QUALITY_MATCH_S`) through :func:`usvlog.model.gnss_noise.gnss_sigma_from_quality`."""
+    sig, code = np.full(len(tg), np.nan), np.full(len(tg), -1, np.int64)
+    qf = log.get(QUALITY_TOPIC)
+    if qf is None or not len(qf) or not len(tg):
+        return sig, code
+    tq = np.asarray(qf.index, np.int64)
+    order = np.argsort(tq, kind="stable")
+    tq, q, h = tq[order], _col(qf, "fix_quality")[order], _col(qf, "hdop")[order]
+    j = np.searchsorted(tq, tg)
+    lo, hi = np.clip(j - 1, 0, len(tq) - 1), np.clip(j, 0, len(tq) - 1)
+    j = np.where(np.abs(tq[lo] - tg) <= np.abs(tq[hi] - tg), lo, hi)
+    near = np.abs(tq[j] - tg) <= QUALITY_MATCH_S * 1e9
+    sig = np.where(near, gnss_sigma_from_quality(q[j], h[j]), np.nan)
+    code = np.where(near & np.isfinite(q[j]), q[j], -1).astype(np.int64)
+    return sig, code
+
+
+def _gnss_noise(log: FieldLog, gps: pd.DataFrame, good: np.ndarray, tg: np.ndarray, s: EstimateSettings):
+    """(R (M, 3) of the valid fixes, where it came from in words): ``gps_noise_m`` when set;
+    else per fix its covariance columns, else its fix quality and HDOP (``/gnss/quality``),
+    else ``gps_fallback_m``."""
+    if s.gps_noise_m is not None:
+        var = s.gps_noise_m ** 2
+        Rg = np.column_stack([np.full(len(tg), var), np.zeros(len(tg)), np.full(len(tg), var)])
+        return Rg, f"GNSS noise as set: {s.gps_noise_m:g} m on every fix"
+    nn, ne, ee = (_col(gps, c)[good] for c in ("cov_nn_m2", "cov_ne_m2", "cov_ee_m2"))
+    ok = np.isfinite(nn) & np.isfinite(ee) & (nn > 0) & (ee > 0)
+    ne = np.where(np.isfinite(ne) & ok, ne, 0.0)
+    fb = np.full(len(tg), s.gps_fallback_m ** 2)
+    sig, code = fix_quality_sigma(log, tg) if not ok.all() else (np.full(len(tg), np.nan), None)
+    byq = ~ok & np.isfinite(sig)
+    if byq.any():
+        fb = np.where(byq, sig * sig, fb)
+    Rg = np.column_stack([np.where(ok, nn, fb), ne, np.where(ok, ee, fb)])
+    return Rg, gnss_noise_source(ok, byq, sig, code, s.gps_fallback_m)
+
+
+def gnss_noise_source(cov: np.ndarray, byq: np.ndarray, sig: np.ndarray, code: np.ndarray | None,
+                      fallback_m: float) -> str:
+    """Where the fixes' noise came from, in words: e.g. ``GNSS noise from fix quality: RTK
+    fixed 3 cm on 95 % of fixes; the default 2 m on 5 %``.
+
+    Parameters
+    ----------
+    cov, byq : numpy.ndarray
+        (M,) bool: fixes with their own covariance; fixes whose noise is their fix quality's.
+    sig : numpy.ndarray
+        (M,) the fix-quality sigmas (m).
+    code : numpy.ndarray or None
+        (M,) GGA fix qualities.
+    fallback_m : float
+        The default one-sigma (m).
+    """
+    M = max(len(cov), 1)
+    parts = []
+    if cov.any():
+        parts.append(f"the fixes' own covariance on {100 * cov.sum() / M:.0f} %")
+    if byq.any() and code is not None:
+        kinds, counts = np.unique(code[byq], return_counts=True)
+        for k, c in sorted(zip(kinds.tolist(), counts.tolist()), key=lambda x: -x[1]):
+            sd = float(np.median(sig[byq][code[byq] == k]))
+            size = f"{100 * sd:.0f} cm" if sd < 1 else f"{sd:.2g} m"
+            parts.append(f"fix quality {quality_name(k)} {size} on {100 * c / M:.0f} %")
+    rest = ~(cov | byq)
+    if rest.any():
+        parts.append(f"the default {fallback_m:g} m on {100 * rest.sum() / M:.0f} %"
+                     + (" (the log states no fix quality or covariance)" if not (cov.any() or byq.any()) else ""))
+    return "GNSS noise from " + "; ".join(parts) + " of fixes"
 
 
 def chi2_quantile(p: float, dof: int) -> float:
@@ -1094,6 +1168,19 @@ class EstimateReport:
         Re-initialisations of the divergence guard: (time in ns since the Unix epoch, why).
     latency : tuple of DelayEstimate
         The sensor delays searched (``settings.estimate_delays``), empty without a search.
+    heading_offset : dict or None
+        The heading mounting offset: ``detected`` (:meth:`HeadingOffset.to_dict`, None
+        without a heading to test), ``text`` (it in words), ``applied_deg`` (subtracted from
+        the heading before fusion) and ``source`` (``auto``, ``given``, ``vessel file``, ``none``).
+    sideslip : dict or None
+        Over the moving parts of the estimate (speed > :data:`SIDESLIP_MIN_SPEED_MPS`):
+        ``median_abs_deg`` (|atan2(v, u)|), ``median_u_mps``, ``median_abs_v_mps``,
+        ``moving_s``; None when the boat never moves or no heading was fused.
+    blocking : tuple of str
+        Why the estimate must not be used (status ``failed``): an implausible sideslip, a
+        mounting offset detected and not applied.
+    gnss_noise : str
+        Where the GNSS noise came from, in words (covariance, fix quality or the default).
     """
 
     model: str
@@ -1110,6 +1197,10 @@ class EstimateReport:
     mode_reason: str = ""
     reinits: tuple[tuple[int, str], ...] = ()
     latency: tuple[DelayEstimate, ...] = ()
+    heading_offset: dict | None = None
+    sideslip: dict | None = None
+    blocking: tuple[str, ...] = ()
+    gnss_noise: str = ""
 
     @property
     def dropouts_bridged(self) -> int:
@@ -1172,12 +1263,15 @@ class EstimateReport:
 
     @property
     def status(self) -> str:
-        """``ok``, or ``degraded`` when GNSS only, re-initialised or a sensor is inconsistent."""
+        """``failed`` with a :attr:`blocking` reason (not to be used: ``usvlog estimate`` exits 1),
+        else ``degraded`` when GNSS only, re-initialised or a sensor is inconsistent, else ``ok``."""
+        if self.blocking:
+            return "failed"
         return "degraded" if self.status_reasons() else "ok"
 
     def status_reasons(self) -> list[str]:
-        """Why the estimate is degraded, in plain words (empty when ``ok``)."""
-        out = []
+        """Why the estimate failed or is degraded, in plain words (empty when ``ok``)."""
+        out = list(self.blocking)
         if self.mode == "gps-only":
             out.append(f"gps-only: {self.mode_reason}")
         if self.reinits:
@@ -1199,13 +1293,25 @@ class EstimateReport:
                 "dropouts_bridged": self.dropouts_bridged, "thrust_skipped": self.thrust_skipped,
                 "dropouts": [{"start_ns": a, "start": format_time(a), "duration_s": d} for a, d in self.dropouts],
                 "loglik": self.loglik, "settings": self.settings, "tuned": self.tuned,
-                "latency": [d.to_dict() for d in self.latency]}
+                "latency": [d.to_dict() for d in self.latency], "heading_offset": self.heading_offset,
+                "sideslip": self.sideslip, "gnss_noise": self.gnss_noise}
 
     def format(self) -> str:
         """Human-readable multi-line summary (what ``usvlog estimate`` prints)."""
         lines = [f"estimate ({self.model}, {self.states} states, {self.mode}): {self.steps} steps over "
                  f"{self.duration_s:.1f} s; status {self.status}"]
         lines += [f"  note: {x}" for x in self.mode_notes()]
+        lines += [f"  FAILED: {x}" for x in self.blocking]
+        if self.gnss_noise:
+            lines.append(f"  {self.gnss_noise}")
+        ho = self.heading_offset or {}
+        if ho.get("text"):
+            lines.append(f"  heading: {ho['text']}; applied {ho.get('applied_deg', 0.0):+.1f} deg "
+                         f"({ho.get('source', 'none')})")
+        if self.sideslip:
+            sl = self.sideslip
+            lines.append(f"  sideslip while moving: median |beta| {sl['median_abs_deg']:.1f} deg, median u "
+                         f"{sl['median_u_mps']:.2f} m/s, |v| {sl['median_abs_v_mps']:.2f} m/s")
         for r in self.sensors:
             lines.append(f"  {r.sensor:8s} accepted {r.accepted:7d}  rejected {r.rejected:5d}"
                          f"  mean NIS {r.mean_nis:6.3f} (dim {r.dim})"
@@ -1450,6 +1556,95 @@ def _output_run(pb: Problem, q: np.ndarray, settings: EstimateSettings, smoother
                   columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6, forward=not smoother)
 
 
+def heading_offset_of(log: FieldLog, settings: EstimateSettings) -> HeadingOffset | None:
+    """The heading mounting offset detected in a log
+    (:func:`usvlog.model.heading_offset.detect_heading_offset` on its fixes and its headings
+    as measured, magnetic ones with the declination added); None without fixes or headings."""
+    gps = _channel(log, GNSS_TOPIC, required=False)
+    comp = _channel(log, COMPASS_TOPIC, required=False)
+    if gps is None or comp is None:
+        return None
+    lat, lon = _col(gps, "lat_deg"), _col(gps, "lon_deg")
+    good = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
+    if not good.any():
+        return None
+    datum = log.datum or Datum(lat_deg=float(lat[good][0]), lon_deg=float(lon[good][0]))
+    n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
+    tg, tc = np.asarray(gps.index, np.int64)[good], np.asarray(comp.index, np.int64)
+    hd = _col(comp, "heading_rad")
+    if "reference" in comp.columns:
+        hd = hd + np.where(comp["reference"].astype(str).to_numpy() == "magnetic", settings.declination_rad, 0.0)
+    t0 = int(min(tg[0], tc[0]))
+    return detect_heading_offset((tg - t0) * 1e-9, n, e, (tc - t0) * 1e-9, hd)
+
+
+def apply_heading_offset(settings: EstimateSettings, found: HeadingOffset | None,
+                         vessel: Vessel) -> tuple[EstimateSettings, str]:
+    """The settings with the heading mounting offset in effect, and where it came from.
+
+    ``heading_offset_auto``: the detected offset when one was decided (``auto``), else the
+    given one; otherwise ``compass_offset_rad`` when not 0 (``given``), else the vessel
+    file's ``[sensors] heading_offset_deg`` (``vessel file``), else none.
+    """
+    if settings.heading_offset_auto:
+        if found is not None and found.decided:
+            return replace(settings, compass_offset_rad=found.offset_rad), "auto"
+        return settings, "auto (none detected)" if not settings.compass_offset_rad else "given"
+    if settings.compass_offset_rad:
+        return settings, "given"
+    deg = getattr(vessel, "heading_offset_deg", None)
+    if deg:
+        return replace(settings, compass_offset_rad=math.radians(deg)), "vessel file"
+    return settings, "none"
+
+
+SIDESLIP_MIN_SPEED_MPS = 0.5
+"""Sideslip is judged where the estimated speed exceeds this (m/s)."""
+SIDESLIP_MAX_DEG = 30.0
+"""A median |sideslip| beyond this (deg) while moving is no boat's: a wrong heading."""
+SIDESLIP_MIN_MOVING_S = 10.0
+"""...judged only when the boat moved at least this long (s)."""
+
+
+def sideslip_figures(state: pd.DataFrame) -> dict | None:
+    """Median |atan2(v, u)| (deg), u and |v| (m/s) where the speed exceeds
+    :data:`SIDESLIP_MIN_SPEED_MPS`, and how long that was (s); None when never."""
+    u, v = state["u_mps"].to_numpy(), state["v_mps"].to_numpy()
+    moving = np.hypot(u, v) > SIDESLIP_MIN_SPEED_MPS
+    if not moving.any():
+        return None
+    t = np.asarray(state.index, np.int64)
+    dt = float(np.median(np.diff(t))) * 1e-9 if len(t) > 1 else 0.0
+    beta = np.degrees(np.abs(np.arctan2(v[moving], u[moving])))
+    return {"median_abs_deg": float(np.median(beta)), "median_u_mps": float(np.median(u[moving])),
+            "median_abs_v_mps": float(np.median(np.abs(v[moving]))), "moving_s": float(moving.sum() * dt)}
+
+
+def heading_blocking(found: HeadingOffset | None, applied_rad: float, mode: str,
+                     sideslip: dict | None) -> tuple[str, ...]:
+    """Why an estimate whose heading was fused must not be used: a mounting offset detected
+    and not applied (its heading-based velocities are wrong), a median sideslip beyond
+    :data:`SIDESLIP_MAX_DEG` while moving; each with the likely fix."""
+    if mode != "gnss+compass":
+        return ()
+    out = []
+    missed = found is not None and found.decided and abs(
+        math.degrees(float(ssa(found.offset_rad - applied_rad)))) > max(MIN_OFFSET_DEG,
+                                                                       MIN_OFFSET_SIGMAS * found.std_deg)
+    fix = (f"heading {found.describe()} (applied {math.degrees(applied_rad):+.1f} deg): rerun with "
+           f"`usvlog estimate --heading-offset auto` (or --heading-offset {found.offset_deg:.1f}, or "
+           "heading_offset_deg in the vessel file's [sensors])" if missed and found is not None else "")
+    if missed:
+        out.append(fix)
+    if sideslip and sideslip["moving_s"] >= SIDESLIP_MIN_MOVING_S and sideslip["median_abs_deg"] > SIDESLIP_MAX_DEG:
+        cause = ("the heading mounting offset above" if missed else
+                 "a heading mounting offset or a wrong heading source (check --heading-offset, or --gps-only)")
+        out.append(f"implausible sideslip: median |beta| {sideslip['median_abs_deg']:.0f} deg while moving (u "
+                   f"{sideslip['median_u_mps']:.2f} m/s, |v| {sideslip['median_abs_v_mps']:.2f} m/s), no boat's; "
+                   f"likely cause: {cause}")
+    return tuple(out)
+
+
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
              vessel: Vessel | None = None) -> EstimateResult:
     """Estimate the state of a run (forward EKF, then the extended RTS smoother).
@@ -1500,6 +1695,8 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     """
     if vessel is None:
         vessel = log.vessel or default_vessel()
+    found = heading_offset_of(log, settings) if not settings.gps_only else None
+    settings, offset_source = apply_heading_offset(settings, found, vessel)
     pb = build_problem(log, settings, vessel)
     run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel)
     why = _compass_disagrees(pb, raw)
@@ -1536,10 +1733,16 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     sd["vessel"] = vessel.name if settings.model == "dynamic" else None
     if settings.model == "dynamic":
         sd["vessel_params"] = vessel.params.to_dict()
+    slip = sideslip_figures(state) if pb.mode == "gnss+compass" else None
+    offset = {"detected": found.to_dict() if found is not None else None,
+              "text": found.describe() if found is not None else "",
+              "applied_deg": math.degrees(settings.compass_offset_rad), "source": offset_source}
     report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
                             duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
                             dropouts=pb.dropouts, loglik=raw.loglik,
                             thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned,
-                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits, latency=latency)
+                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits, latency=latency,
+                            heading_offset=offset, sideslip=slip, gnss_noise=pb.gnss_noise,
+                            blocking=heading_blocking(found, settings.compass_offset_rad, pb.mode, slip))
     return EstimateResult(state=state, innovations=innov, report=report, settings=settings, vessel=vessel,
                           _make_forward=make_forward)

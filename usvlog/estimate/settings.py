@@ -60,7 +60,14 @@ class EstimateSettings:
     compass_fallback_rad : float, default radians(3)
         One-sigma compass noise in rad for headings without a usable std.
     compass_offset_rad : float, default 0.0
-        Compass reading minus true heading of the hull (mounting), rad, in [-2 pi, 2 pi].
+        Compass reading minus true heading of the hull (mounting), rad, in [-2 pi, 2 pi]:
+        the heading fused is ``heading_measured - compass_offset_rad``. A dual-antenna GNSS
+        heading whose baseline sits 70 deg clockwise of the keel reads 70 deg more than the
+        hull's heading: offset +70 deg (``usvlog estimate --heading-offset 70``).
+    heading_offset_auto : bool, default False
+        Detect a constant mounting offset of the heading against the course over ground
+        (:func:`usvlog.model.heading_offset.detect_heading_offset`) and, when one is
+        found, use it instead of ``compass_offset_rad`` (``--heading-offset auto``).
     declination_rad : float, default 0.0
         Magnetic declination, east positive, added to ``magnetic`` headings, rad.
     yaw_rate_topic : str or None, default None
@@ -123,6 +130,7 @@ class EstimateSettings:
     gps_fallback_m: float = 2.0
     compass_fallback_rad: float = math.radians(3.0)
     compass_offset_rad: float = 0.0
+    heading_offset_auto: bool = False
     declination_rad: float = 0.0
     yaw_rate_topic: str | None = None
     yaw_rate_noise_radps: float = 0.01

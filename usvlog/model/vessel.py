@@ -649,6 +649,10 @@ class Vessel:
     extended : ExtendedParams or None, default None
         The extended model, when the vessel has that structure; the simulated plant
         then follows it (see :func:`extended_vessel`).
+    heading_offset_deg : float or None, default None
+        Heading sensor mounting offset, deg in [-360, 360], measured minus true (the
+        estimator fuses the measured heading minus it); ``[sensors] heading_offset_deg``
+        in the vessel TOML. None: not stated.
 
     See Also
     --------
@@ -659,6 +663,12 @@ class Vessel:
     params: VesselParams = field(default_factory=VesselParams)
     thrusters: Thrusters = field(default_factory=Thrusters)
     extended: ExtendedParams | None = None
+    heading_offset_deg: float | None = None
+
+    def __post_init__(self):
+        h = self.heading_offset_deg
+        if h is not None and not (math.isfinite(h) and -360.0 <= h <= 360.0):
+            raise ConfigError(f"[sensors] heading_offset_deg = {h} must be an angle in [-360, 360] deg")
 
     @property
     def structure(self) -> str:
@@ -710,6 +720,8 @@ class Vessel:
                 lines.append(f'{f.name} = "{v}"')
             else:
                 lines.append(f"{f.name} = {_toml_float(v)}")
+        if self.heading_offset_deg is not None:
+            lines += ["", "[sensors]", f"heading_offset_deg = {_toml_float(self.heading_offset_deg)}"]
         return "\n".join(lines) + "\n"
 
     def to_dict(self) -> dict[str, str]:
@@ -729,6 +741,8 @@ class Vessel:
             d.update({f"extended.{k}": repr(v) for k, v in self.extended.to_dict().items()})
         d.update({f"thrusters.{k}": str(v) for k, v in asdict(self.thrusters).items()
                   if not _thruster_default(k, v)})
+        if self.heading_offset_deg is not None:
+            d["sensors.heading_offset_deg"] = repr(self.heading_offset_deg)
         return d
 
     @classmethod
@@ -761,9 +775,12 @@ class Vessel:
                 v = d[key]
                 thr[f.name] = v if f.type == "str" else (v == "True") if f.type == "bool" else float(v)
         ext = {k.split(".", 1)[1]: float(v) for k, v in d.items() if k.startswith("extended.")}
+        off = float(d["sensors.heading_offset_deg"]) if "sensors.heading_offset_deg" in d else None
         if ext:
-            return extended_vessel(d.get("name", "vessel"), ExtendedParams(**ext), Thrusters(**thr))
-        return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr))
+            return replace(extended_vessel(d.get("name", "vessel"), ExtendedParams(**ext), Thrusters(**thr)),
+                           heading_offset_deg=off)
+        return cls(name=d.get("name", "vessel"), params=VesselParams(**model), thrusters=Thrusters(**thr),
+                   heading_offset_deg=off)
 
     def with_params(self, **changes) -> Vessel:
         """A copy with some model parameters replaced.
@@ -874,8 +891,9 @@ def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
     structure = doc.get("structure", "extended" if "extended" in doc else "paper")
     if structure not in ("paper", "extended"):
         raise ConfigError(f"{source}: structure {structure!r} is not paper or extended")
+    offset = _heading_offset_from_dict(doc.get("sensors", {}), source)
     if structure == "extended":
-        return _extended_from_dict(doc, source)
+        return replace(_extended_from_dict(doc, source), heading_offset_deg=offset)
     if "extended" in doc:
         raise ConfigError(f"{source}: an [extended] table needs structure = \"extended\"")
     model = doc.get("model", {})
@@ -888,7 +906,22 @@ def vessel_from_dict(doc: dict, source: str = "<vessel>") -> Vessel:
         params = VesselParams(**{k: float(v) for k, v in model.items()})
     except (ConfigError, TypeError, ValueError) as err:
         raise ConfigError(f"{source}: {err}") from err
-    return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters)
+    return Vessel(name=str(doc.get("name", "vessel")), params=params, thrusters=thrusters, heading_offset_deg=offset)
+
+
+def _heading_offset_from_dict(sensors: dict, source: str) -> float | None:
+    """``[sensors] heading_offset_deg`` (deg, in [-360, 360]) or None; no other key is known."""
+    if not isinstance(sensors, dict):
+        raise ConfigError(f"{source}: sensors must be a table ([sensors])")
+    for k in sensors:
+        if k != "heading_offset_deg":
+            raise ConfigError(f"{source}: [sensors] has unknown key {k!r} (expected heading_offset_deg)")
+    v = sensors.get("heading_offset_deg")
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not (math.isfinite(v) and -360.0 <= v <= 360.0):
+        raise ConfigError(f"{source}: [sensors] heading_offset_deg = {v!r} must be an angle in [-360, 360] deg")
+    return float(v)
 
 
 def _thrusters_from_dict(thr: dict, source: str) -> Thrusters:

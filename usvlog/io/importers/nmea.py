@@ -306,7 +306,7 @@ def _lines(path) -> Iterator[str]:
 
 class _Buf:
     def __init__(self):
-        self.gnss = {k: [] for k in ("t_ns", "stamp_ns", "lat_deg", "lon_deg", "alt_m")}
+        self.gnss = {k: [] for k in ("t_ns", "stamp_ns", "lat_deg", "lon_deg", "alt_m", "fix_quality", "hdop")}
         self.heading = {k: [] for k in ("t_ns", "stamp_ns", "heading_rad", "reference")}
         self.velocity = {k: [] for k in ("t_ns", "stamp_ns", "sog_mps", "cog_rad")}
 
@@ -319,7 +319,8 @@ class _Buf:
             d = getattr(self, name)
             if d["t_ns"]:
                 out[name] = {k: np.asarray(v, dtype=object if k == "reference" else
-                                           (np.int64 if k.endswith("_ns") else float)) for k, v in d.items()}
+                                           (np.int64 if k.endswith("_ns") or k == "fix_quality" else float))
+                             for k, v in d.items()}
         self.__init__()
         return out
 
@@ -580,7 +581,7 @@ def _blocks(p, size: int) -> Iterator[bytes]:
         yield rest
 
 
-_COLUMNS = ("typ", "tod", "date", "tpre", "fix", "lat", "lon", "alt", "hdg", "ref", "sog", "cog")
+_COLUMNS = ("typ", "tod", "date", "tpre", "fix", "lat", "lon", "alt", "hdg", "ref", "sog", "cog", "qual", "hdop")
 
 
 def _read_fast(p, report, sc: _Scan, mode, use_prefix: bool, offset: int, velocity_from: str,
@@ -627,7 +628,7 @@ def _read_fast(p, report, sc: _Scan, mode, use_prefix: bool, offset: int, veloci
         out = {}
         if len(g_i):
             out["gnss"] = {"t_ns": g_t, "stamp_ns": g_s, "lat_deg": c["lat"][g_i], "lon_deg": c["lon"][g_i],
-                           "alt_m": c["alt"][g_i]}
+                           "alt_m": c["alt"][g_i], "fix_quality": c["qual"][g_i], "hdop": c["hdop"][g_i]}
         if len(h_i):
             out["heading"] = {"t_ns": h_t, "stamp_ns": h_s, "heading_rad": c["hdg"][h_i],
                               "reference": np.array(["true", "magnetic"], dtype=object)[c["ref"][h_i]]}
@@ -645,7 +646,7 @@ def _block_columns(nf, buf: np.ndarray, line0: int, sc: _Scan, mode, use_prefix:
     """The parsed sentences of one block: columns (:data:`_COLUMNS`), their line indices, the
     block's line count and its non-blank line count; skipped lines into ``skips``."""
     (status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog,
-     cog) = nf.scan_lines(readonly(buf), kernel_prefix, sc.kind == "utc", int(offset))
+     cog, qual, hdop) = nf.scan_lines(readonly(buf), kernel_prefix, sc.kind == "utc", int(offset))
     ref = np.zeros(len(status), np.int8)                  # heading reference: 0 true, 1 magnetic
     no_sentence = np.flatnonzero(status == nf.NO_SENTENCE)
     if len(no_sentence):
@@ -671,15 +672,23 @@ def _block_columns(nf, buf: np.ndarray, line0: int, sc: _Scan, mode, use_prefix:
         if smp.has_fix:
             lat[i], lon[i] = smp.lat_deg, smp.lon_deg
             alt[i] = math.nan if smp.alt_m is None else smp.alt_m
+            qual[i], hdop[i] = _quality(smp)
         if smp.heading_rad is not None:
             hdg[i] = smp.heading_rad
             ref[i] = smp.reference == "magnetic"
         sog[i] = math.nan if smp.sog_mps is None else smp.sog_mps
         cog[i] = math.nan if smp.cog_rad is None else smp.cog_rad
     rec = np.flatnonzero(status == nf.OK)
-    cols = dict(zip(_COLUMNS, (typ, tod, date, tpre, fix, lat, lon, alt, hdg, ref, sog, cog)))
+    cols = dict(zip(_COLUMNS, (typ, tod, date, tpre, fix, lat, lon, alt, hdg, ref, sog, cog, qual, hdop)))
     return ({k: v[rec] for k, v in cols.items()}, line0 + rec, len(status),
             int(np.count_nonzero(status != nf.BLANK)))
+
+
+def _quality(s: NmeaSample) -> tuple[int, float]:
+    """(GGA fix quality, HDOP) of a fix sentence: (-1, NaN) where it has none (RMC, GLL)."""
+    if s.kind != "GGA" or s.fix_quality is None:
+        return -1, math.nan
+    return int(s.fix_quality), math.nan if s.hdop is None else float(s.hdop)
 
 
 def _values(s: NmeaSample, clock: _Clock):
@@ -688,7 +697,7 @@ def _values(s: NmeaSample, clock: _Clock):
     if s.kind in _POSITION:
         if not s.has_fix:
             return "nofix", None, None
-        return "gnss", (s.lat_deg, s.lon_deg, math.nan if s.alt_m is None else s.alt_m), stamp
+        return "gnss", (s.lat_deg, s.lon_deg, math.nan if s.alt_m is None else s.alt_m, *_quality(s)), stamp
     if s.kind in _HEADING:
         return "heading", (s.heading_rad, s.reference), None
     return "velocity", (math.nan if s.sog_mps is None else s.sog_mps,
@@ -703,6 +712,8 @@ def _put(buf: _Buf, kind: str, t: int, stamp: int, vals: tuple) -> None:
         d["lat_deg"].append(vals[0])
         d["lon_deg"].append(vals[1])
         d["alt_m"].append(vals[2])
+        d["fix_quality"].append(vals[3])
+        d["hdop"].append(vals[4])
     elif kind == "heading":
         d["heading_rad"].append(vals[0])
         d["reference"].append(vals[1])

@@ -269,7 +269,8 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
     Returns per line: status (BLANK, OK, FALLBACK, NO_SENTENCE), start and end of the
     stripped line, sentence start, type, time of day ns, date ns (NONE_I64: none), prefix
     time ns (NONE_I64: none), has_fix, and lat (deg), lon (deg), alt (m, NaN none),
-    heading (rad), sog (m/s, NaN none), cog (rad, NaN none).
+    heading (rad), sog (m/s, NaN none), cog (rad, NaN none), GGA fix quality (-1 none) and
+    HDOP (NaN none).
     """
     n = len(buf)
     nl = 0
@@ -293,6 +294,8 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
     hdg = np.full(nl, np.nan)
     sog = np.full(nl, np.nan)
     cog = np.full(nl, np.nan)
+    qual = np.full(nl, -1, np.int64)
+    hdop = np.full(nl, np.nan)
     fa = np.zeros(24, np.int64)
     fb = np.zeros(24, np.int64)
     a = 0
@@ -400,7 +403,7 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
             st0, td = _tod(buf, fa[0], fb[0])
             sq, qv = _uint(buf, fa[5], fb[5])
             s6, _ = _uint(buf, fa[6], fb[6])
-            s7, _ = _num(buf, fa[7], fb[7])
+            s7, hd7 = _num(buf, fa[7], fb[7])
             if st0 == 2 or sq == 2 or s6 == 2 or s7 == 2:
                 continue
             ps, la, lo = (0, 0.0, 0.0) if qv == 0 else _position(buf, fa, fb, 1)
@@ -416,6 +419,8 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
                 fix[li] = True
                 lat[li], lon[li] = la, lo
                 alt[li] = al if s8 == 1 else np.nan
+                qual[li] = qv
+                hdop[li] = hd7 if s7 == 1 else np.nan
             if st0 == 1:
                 tod[li] = td
         elif t == RMC:
@@ -464,7 +469,7 @@ def scan_lines(buf, use_prefix, prefix_utc, offset):
         typ[li] = t
         tpre[li] = tp
         status[li] = OK
-    return status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog, cog
+    return status, start, end, sent, typ, tod, date, tpre, fix, lat, lon, alt, hdg, sog, cog, qual, hdop
 
 
 @jitable
