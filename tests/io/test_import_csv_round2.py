@@ -14,11 +14,13 @@ import pandas as pd
 import pytest
 
 from usvlog.cli import main
-from usvlog.errors import UnusableResultError
-from usvlog.io.importers import import_file
+from usvlog.errors import FormatError, UnusableResultError
+from usvlog.io.importers import catalog_file, detect_format, import_file
 from usvlog.io.importers.held import detect_held, held_mask
 from usvlog.io.importers.infer import angle_unit, judge_time, rate_scale
 from usvlog.io.mcap import read_log
+from usvlog.io.nmea import format_deg_min
+from usvlog.io.nmea import with_checksum as _cs
 from usvlog.model.frames import ssa
 
 EPOCH_MS = 1_703_025_363_629          # 2023-12-19T22:36:03.629Z
@@ -191,6 +193,9 @@ def test_ms_since_boot_held_gnss_and_rad_per_s_yaw_rate(tmp_path):
     np.testing.assert_array_equal(r.index.to_numpy(), tr["t_ns"])
     np.testing.assert_allclose(r["r_radps"], tr["r"], atol=1e-6, rtol=0)
     assert rep.unusable is None
+    cat = catalog_file(tmp_path / "boat.csv")           # inspect shows the same decisions
+    assert cat.mapping["time_ms"] == "boat.csv.original_timestamp" and "yaw_rate_radps" in cat.mapping
+    assert "ms since boot" in cat.reasons["time_ms"] and any("5 Hz" in n for n in cat.notes)
 
 
 # -- a garbled time column and nothing else: exit 1, or flagged with --force ----------------------
@@ -264,3 +269,33 @@ def test_gzipped_csv_imports_like_the_plain_file(tmp_path):
         assert lz[topic].equals(lp[topic]), topic
     res = import_file(zipped)                           # detected and mapped without help too
     assert res.report.format == "csv" and len(res.log["/gnss/fix"]) == int(tr["fix"].sum())
+
+
+def test_gzipped_nmea_is_detected_and_read(tmp_path):
+    t = np.arange(0, 60, 1.0)
+    _, _, lat, lon = track(t, lat0=59.43, lon0=10.47)
+    lines = []
+    for k, tk in enumerate(t):
+        la, lh = format_deg_min(lat[k], True)
+        lo, oh = format_deg_min(lon[k], False)
+        hms = f"1000{int(tk):02d}.00"
+        lines.append(_cs(f"GPRMC,{hms},A,{la},{lh},{lo},{oh},2.3,90.0,010524,,,A"))
+    src = tmp_path / "capture.nmea.gz"
+    with gzip.open(src, "wt") as fh:
+        fh.write("\r\n".join(lines) + "\r\n")
+    assert detect_format(src) == "nmea"
+    g = import_file(src).log["/gnss/fix"]
+    np.testing.assert_array_equal(g.index.to_numpy(), START_UTC_NS + np.round(t * 1e9).astype(np.int64))
+    np.testing.assert_allclose(g["lat_deg"], lat, atol=1e-6, rtol=0)
+
+
+def test_a_damaged_gzip_is_one_format_error(tmp_path):
+    df, _ = otter_rows(300)
+    src = tmp_path / "cut.csv.gz"
+    with gzip.open(src, "wt") as fh:
+        df.to_csv(fh, index=False)
+    src.write_bytes(src.read_bytes()[:-40])             # cut short: the end of the stream is missing
+    for fmt in ("auto", "csv", "nmea"):
+        with pytest.raises(FormatError, match="damaged gzip file") as exc:
+            import_file(src, fmt)
+        assert "\n" not in str(exc.value) and "cut.csv.gz" in str(exc.value)

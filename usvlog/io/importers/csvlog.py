@@ -24,10 +24,10 @@ import pandas as pd
 
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import guess_thrust_unit, listing, text_column
+from .core import ImportReport, guess_thrust_unit, listing, text_column
 from .held import Held, detect_held, held_mask
 from .infer import TimeVerdict, angle_unit, judge_time, rate_scale
-from .sniff import GZIP_MAGIC, file_head
+from .sniff import check_gzip
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {
@@ -426,7 +426,7 @@ def _decide(p, sep: str, headers: list[str], mapping: dict, guessed: dict, opts,
 
 def compression(p) -> str | None:
     """``"gzip"`` for a gzip-compressed file (from its magic bytes, not its name), else None."""
-    return "gzip" if file_head(p, 2) == GZIP_MAGIC else None
+    return "gzip" if check_gzip(p) else None
 
 
 def _open_text(p):
@@ -694,6 +694,8 @@ def catalog(path, opts) -> Catalog:
     p = Path(path)
     _, sep, headers = _header(p, opts)
     mapping, guessed = guess_mapping(headers, opts.columns)
+    decided = ImportReport()
+    state, _ = _decide(p, sep, headers, mapping, guessed, opts, decided)
     time_role = next((r for r in TIME_ROLES if r in mapping), None)
     n = 0
     first: dict = {}
@@ -715,7 +717,8 @@ def catalog(path, opts) -> Catalog:
                              "float" if pd.api.types.is_numeric_dtype(dt) else
                              ("text" if len(nz) else "empty"))
             if time_role is not None:
-                t = _times(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2, {})
+                t = _times(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2,
+                           dict(state))
                 t = t[t >= 0]
                 if len(t):
                     t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
@@ -733,8 +736,11 @@ def catalog(path, opts) -> Catalog:
     for role, h in mapping.items():
         cat.mapping[role] = f"{p.name}.{h}"
         stream = _ROLE_STREAM.get(role, "time")
+        why = decided.guesses.get(f"reason {role}")
         cat.reasons[role] = (f"given (--column {role}={h})" if role not in guessed else
+                             f"header {h!r}: {why}" if why else
                              f"header {h!r} is a common name for {role}") + f"; feeds {stream}"
+    cat.notes.extend(f"{k}: {v}" for k, v in decided.guesses.items() if not k.startswith(("reason ", "column ")))
     if time_role is None:
         cat.notes.append(f"no time column found: give --column time_s=HEADER (columns: {listing(headers)})")
     for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):

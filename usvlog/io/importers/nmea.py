@@ -61,7 +61,7 @@ from ..nmea import (
     resolve_time_of_day,
 )
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .sniff import GZIP_MAGIC, file_head
+from .sniff import check_gzip
 
 _SENTENCE = re.compile(r"[$!][A-Z][A-Z0-9]{2,5},")
 _DAY_NS = 86_400 * 1_000_000_000
@@ -289,7 +289,7 @@ class _Clock:
 
 def _open(path, mode: str, **kw):
     """The file, gunzipped on the fly when it is gzip-compressed (from its magic bytes)."""
-    if file_head(path, 2) == GZIP_MAGIC:
+    if check_gzip(path):
         return gzip.open(path, mode, **kw)
     return open(path, mode, **kw)
 
