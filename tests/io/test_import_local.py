@@ -165,3 +165,29 @@ def test_only_one_of_local_n_local_e_is_an_error(mocap_bag, tmp_path, capsys):
 def test_bad_datum_is_a_config_error(mocap_bag, tmp_path, capsys):
     assert main(["import", str(mocap_bag), "--out", str(tmp_path / "x.mcap"), "--datum", "95,10"]) == 2
     assert "--datum" in capsys.readouterr().err
+
+
+def test_inspect_decides_from_the_values_and_prints_a_command_that_reproduces_the_import(tmp_path, capsys):
+    """A Pose2D in ENU: inspect names the frame, and its command (--topic local=...) imports the same."""
+    import json
+
+    msgs = []
+    for i in range(N):
+        theta = math.pi / 2 - PSI[i]
+        msgs.append(("/ins/pose", "geometry_msgs/msg/Pose2D", int(TIMES[i]),
+                     lambda T, i=i, th=theta: T["geometry_msgs/msg/Pose2D"](x=EAST[i], y=NORTH[i], theta=th)))
+        msgs.append(("/heading_gain", "std_msgs/msg/Float64", int(TIMES[i]) + 3, _float(2.0 + (i % 7))))
+        msgs += _thrust(i)
+    bag = _write(tmp_path / "p.bag", msgs, True)
+    assert main(["inspect", str(bag), "--json"]) == 0
+    cat = json.loads(capsys.readouterr().out)
+    assert cat["mapping"]["heading"] == "/ins/pose.theta" and cat["reasons"]["local_frame"] == "enu"
+    cmd = cat["import_command"].split()
+    assert "local=/ins/pose" in cmd
+    out = tmp_path / "again.mcap"
+    assert main(cmd[1:3] + ["--out", str(out)] + cmd[5:]) == 0
+    import usvlog
+
+    log = usvlog.load(out)
+    np.testing.assert_allclose(log["/local/position"]["n_m"], NORTH, atol=1e-9)
+    np.testing.assert_allclose(ssa(log["/compass/heading"]["heading_rad"].to_numpy() - PSI), 0.0, atol=1e-9)

@@ -141,7 +141,11 @@ class Catalog:
         for d in self.msg_dirs:
             parts += ["--msg-dir", d]
         if self.format in ("ros1", "ros2", "ulog", "dataflash"):
-            for role, spec in self.mapping.items():
+            mapping = dict(self.mapping)
+            if "local_frame" in self.reasons and "local_n" in mapping:   # the pose, so its frame is decided again
+                pose = mapping.pop("local_n").rsplit(".", 1)[0]
+                mapping = {"local": pose, **{r: v for r, v in mapping.items() if r != "local_e"}}
+            for role, spec in mapping.items():
                 parts += ["--topic", f"{role}={spec}"]
         return " ".join(shlex.quote(p) for p in parts)
 
@@ -151,6 +155,10 @@ class Catalog:
                 "topics": [t.to_dict() for t in self.topics], "mapping": dict(self.mapping),
                 "reasons": dict(self.reasons), "notes": list(self.notes), "msg_dirs": list(self.msg_dirs),
                 "propulsion": self.propulsion, "import_command": self.import_command()}
+
+
+FRAME_WORDS = {"ned": "NED (x north, y east; theta clockwise from north)",
+               "enu": "ROS REP-103 ENU (x east, y north; theta counter-clockwise from east)"}
 
 
 def _fmt_ns(ns: int | None) -> str:
@@ -207,11 +215,16 @@ def format_catalog(cat: Catalog, fields: bool = True) -> str:
     lines.append("mapping")
     group = {"thrust_left": "thrust", "thrust_right": "thrust", "speed_mps": "velocity", "course": "velocity"}
     covered = {group[r] for r in cat.mapping if r in group}
-    roles = list(cat.mapping) + [r for r in cat.reasons if r not in cat.mapping and r not in covered]
+    frames = {"local_frame": "local positions' frame", "heading_frame": "heading convention"}
+    roles = list(cat.mapping) + [r for r in cat.reasons if r not in cat.mapping and r not in covered
+                                 and r not in frames]
     for role in roles:
         src = cat.mapping.get(role, "(none)")
         why = cat.reasons.get(role) or cat.reasons.get(group.get(role, ""), "")
         lines.append(f"  {role:<13} <- {src}" + (f"   ({why})" if why else ""))
+    for key, what in frames.items():
+        if key in cat.reasons:
+            lines.append(f"  {what}: {FRAME_WORDS.get(cat.reasons[key], cat.reasons[key])}")
     for n in cat.notes:
         lines.append(f"note      {n}")
     lines.append("import with")

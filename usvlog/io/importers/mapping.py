@@ -175,7 +175,7 @@ def resolve_spec(cat: Catalog, role: str, spec: str) -> tuple[str, str]:
         path = normalize(path)
     else:
         kind, found = "message", list(topic.fields)
-    if role in ("gnss", "velocity", "thrust"):
+    if role in ("gnss", "velocity", "thrust", "local"):
         if kind != "message":
             raise InputError(f"{src}: role {role} needs a message, {topic.name}.{path} is a single field "
                              f"(fields: {field_listing(topic)})")
@@ -553,6 +553,7 @@ def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple
         wrong kind (the message lists what exists).
     """
     requested = dict(requested or {})
+    pose = None   # the position message in metres, when positions come from one (its frame, its own yaw)
     mapping: dict = {}
     reasons: dict = {}
     notes: list = [f"topic {t.name} skipped: {t.note}" for t in cat.topics if t.note]
@@ -583,6 +584,7 @@ def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple
                 mapping[r] = _join(topic, p)
                 reasons[r] = f"given (--topic local): {cs[0].why}"
             reasons["local_frame"] = cs[0].frame  # type: ignore[attr-defined]
+            pose = cs[0]
         elif role == "velocity":
             t = cat.topic(topic)
             assert t is not None
@@ -610,7 +612,6 @@ def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple
             mapping["gnss"] = _join(c.topic.name, c.paths["gnss"])
         else:
             reasons.setdefault("gnss", "no message with latitude and longitude fields")
-    pose = None
     if "gnss" not in mapping and not ({"local_n", "local_e"} & set(mapping)):
         pose = _choose("local", _local_candidates(cat), reasons, notes)
         if pose is not None:
@@ -659,6 +660,8 @@ def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple
             reasons.setdefault("heading", "no heading, yaw or orientation field" + (
                 f" (course over ground {', '.join(courses)} is not a heading: give --topic heading=... to use it)"
                 if courses else ""))
+    elif pose is not None and pose.frame == "enu" and mapping["heading"] == _join(pose.topic.name, "theta"):
+        reasons["heading_frame"] = "enu"   # the given heading is the ENU pose's theta
     if "yaw_rate" not in mapping:
         c = _choose("yaw_rate", _yaw_rate_candidates(cat), reasons, notes)
         if c is not None:
@@ -728,9 +731,9 @@ def _check_headings(cat: Catalog, cands: list, mapping: dict, series, pose) -> N
                 c.why += f"; within 45 deg of the course over ground {100 * a:.0f} % of the time"
 
 
-def apply(cat: Catalog, requested: dict | None = None) -> Catalog:
+def apply(cat: Catalog, requested: dict | None = None, series=None) -> Catalog:
     """Fill ``cat.mapping``, ``cat.reasons`` and ``cat.notes`` with :func:`map_roles` and return it."""
-    mapping, reasons, notes = map_roles(cat, requested)
+    mapping, reasons, notes = map_roles(cat, requested, series)
     cat.mapping, cat.reasons = mapping, reasons
     cat.notes = list(dict.fromkeys(list(cat.notes) + list(notes)))
     return cat

@@ -49,6 +49,7 @@ from .mapping import (
     ALT_NAMES,
     LAT_NAMES,
     LON_NAMES,
+    apply,
     map_roles,
     propulsion_outside_model,
     split_mapping,
@@ -402,6 +403,7 @@ def catalog(path, opts=None, *, fmt: str | None = None) -> Catalog:
     types, registered = msg_dir_types(getattr(opts, "msg_dirs", ()) or ())
     with _opened(p, f, types) as reader:
         cat = _scan(reader, p, f)
+        apply(cat, getattr(opts, "topics", None), series=_Probe(reader, p))   # the values judge the candidates
     cat.msg_dirs = list(registered)
     cat.notes.extend(msg_dir_notes(registered, cat))
     return cat
