@@ -41,6 +41,8 @@ def test_import_reports_the_offset(offset_run, capsys):
     assert rec["decided"] and abs(rec["offset_deg"] - 70.0) < 2.0 and rec["courses"] == 4
     q = log["/gnss/quality"]
     assert len(q) == len(log["/gnss/fix"]) and (q["fix_quality"] == 4).all() and np.allclose(q["hdop"], 0.7)
+    assert main(["inspect", str(d / "rtk.mcap")]) == 0
+    assert "heading mounting offset +70.0" in capsys.readouterr().out
 
 
 def test_estimate_without_the_offset_is_refused_with_the_fix(offset_run, capsys):

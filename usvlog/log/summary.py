@@ -451,7 +451,8 @@ def format_health(h: dict) -> list[str]:
         A header line (time base, track turn, thrust time) and one line per channel:
         status, rate (Hz), jitter (ms), gaps, republished copies collapsed, out-of-range
         values, longest stuck stretch (s), stamp offset (s); then why a channel is dead or
-        suspect, and the thrust unit, range and whether the force scale is known.
+        suspect, the thrust unit, range and whether the force scale is known, and the
+        heading's mounting offset against the course over ground (or why none).
     """
     base = h.get("time_base", "?")
     if h.get("time_counted_from"):
@@ -479,6 +480,9 @@ def format_health(h: dict) -> list[str]:
         lines.append(f"  thrust unit {th.get('unit')} range {lo:g}:{hi:g} ({th.get('reason', '')}); force scale "
                      f"{th.get('force_scale')}" + (f"; direction flag {th['direction_flag']}"
                                                    if th.get("direction_flag") else ""))
+    ho = h.get("heading_offset")
+    if ho and ho.get("text"):
+        lines.append(f"  heading {ho['text']}")
     return lines
 
 
