@@ -186,8 +186,8 @@ def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, 
                                          "psi_ref_rad", "psi_d_rad", "r_d_radps", "r_d_dot_radps2", "u_d_mps",
                                          "u_d_dot_mps2", "u_e_mps", "psi_e_rad", "cross_track_m", "tau_u_n",
                                          "tau_r_nm", "thrust_left_n", "thrust_right_n")}
-    cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit), float)
-    cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit), float)
+    cols["cmd_left"] = np.asarray(thrusters.force_to_command(cols["thrust_left_n"], unit, side="left"), float)
+    cols["cmd_right"] = np.asarray(thrusters.force_to_command(cols["thrust_right_n"], unit, side="right"), float)
     cols["saturated"] = rows[:, COL["saturated"]] != 0.0
     # memory: one copy of the numbers (the rows), not a second one in a pandas 2-D block
     return frame_from_columns(cols, t_ns, channel_spec(topic), copy=False)

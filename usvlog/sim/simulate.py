@@ -672,8 +672,8 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     ti = _every(t, sn.thrust_rate_hz, st.dt_s)
     fl, fr = thr.forces_from_tau(np.asarray(tau_u)[ti], np.asarray(tau_r)[ti])
     unit = "newton" if thr.map == "identity" else "normalized"
-    cmd_l = thr.force_to_command(fl, unit)
-    cmd_r = thr.force_to_command(fr, unit)
+    cmd_l = thr.force_to_command(fl, unit, side="left")
+    cmd_r = thr.force_to_command(fr, unit, side="right")
     q = _QUANTUM["thrust"] if unit == "newton" else _QUANTUM["normalized"]
     thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
               "right": np.round(np.asarray(cmd_r, float), q), "unit": StrCodes.repeat(unit, len(ti)),

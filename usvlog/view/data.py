@@ -214,8 +214,8 @@ def recorded_tau(log: FieldLog):
         if vessel is None:
             return None
         unit = str(f["unit"].iloc[0]) if "unit" in f.columns else "newton"
-        fl = vessel.thrusters.command_to_force(_col(f, "left"), unit)
-        fr = vessel.thrusters.command_to_force(_col(f, "right"), unit)
+        fl = vessel.thrusters.command_to_force(_col(f, "left"), unit, side="left")
+        fr = vessel.thrusters.command_to_force(_col(f, "right"), unit, side="right")
     tu, tr = vessel.thrusters.tau_from_forces(fl, fr)
     return _times(f), np.asarray(tu), np.asarray(tr)
 
