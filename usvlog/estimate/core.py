@@ -19,6 +19,7 @@ from .._cpu import spare_cpu
 from ..errors import ConfigError, InputError, UnusableResultError
 from ..log.channels import StrCodes, channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog, format_time
+from ..log.positions import LOCAL_TOPIC, local_positions, uses_local
 from ..log.status import EstimateStatus, set_estimate_status
 from ..log.summary import health_from_provenance
 from ..model.frames import Datum, geodetic_to_ned, ssa
@@ -47,7 +48,7 @@ GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC = "/gnss/fix", "/compass/heading", "/thr
 YAW_RATE_TOPIC = "/imu/yaw_rate"   # fused without being asked for when no heading is
 VELOCITY_TOPIC = "/gnss/velocity"  # speed and course over ground: fused by the kinematic model in NED
 QUALITY_TOPIC = "/gnss/quality"    # GGA fix quality and HDOP: each fix's noise when it has no covariance
-INPUT_TOPICS = (GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, QUALITY_TOPIC)
+INPUT_TOPICS = (GNSS_TOPIC, COMPASS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, QUALITY_TOPIC, LOCAL_TOPIC)
 """Every channel the estimator reads (the ``usvlog estimate`` verb decodes only these)."""
 
 # initial one-sigma before the first measurements: n, e, psi, u, v, r, then the extra states
@@ -253,21 +254,24 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     """
     s = settings
     log = delayed_log(log, s)   # latency: stamps -> the times the measurements describe
-    gps = _channel(log, GNSS_TOPIC)
     comp = _channel(log, COMPASS_TOPIC, required=False)
     thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
-
-    # GNSS -> NED about the datum
-    tg = np.asarray(gps.index, dtype=np.int64)
-    lat, lon = _col(gps, "lat_deg"), _col(gps, "lon_deg")
-    good = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
-    if not good.any():
-        raise InputError(f"{_where(log)}channel {GNSS_TOPIC}: no valid fix")
-    datum = log.datum or Datum(lat_deg=float(lat[good][0]), lon_deg=float(lon[good][0]))
-    n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
-    tg = tg[good]
-    skipped = {"gnss": int((~good).sum())}
-    Rg, gnss_noise = _gnss_noise(log, gps, good, tg, s)
+    if uses_local(log):   # positions in metres (an INS pose, motion capture): measured like fixes
+        tg, n, e, Rg, gnss_noise, nbad = _local_measurements(log, s)
+        skipped = {"gnss": nbad}
+    else:
+        # GNSS -> NED about the datum
+        gps = _channel(log, GNSS_TOPIC)
+        tg = np.asarray(gps.index, dtype=np.int64)
+        lat, lon = _col(gps, "lat_deg"), _col(gps, "lon_deg")
+        good = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
+        if not good.any():
+            raise InputError(f"{_where(log)}channel {GNSS_TOPIC}: no valid fix")
+        datum = log.datum or Datum(lat_deg=float(lat[good][0]), lon_deg=float(lon[good][0]))
+        n, e, _ = geodetic_to_ned(lat[good], lon[good], 0.0, datum=datum)
+        tg = tg[good]
+        skipped = {"gnss": int((~good).sum())}
+        Rg, gnss_noise = _gnss_noise(log, gps, good, tg, s)
 
     parts = [(tg, GNSS, np.column_stack([n, e]), Rg)]
     mode_reason = _heading_unusable(log, comp, s)
@@ -379,6 +383,24 @@ def fix_quality_sigma(log: FieldLog, tg: np.ndarray) -> tuple[np.ndarray, np.nda
     sig = np.where(near, gnss_sigma_from_quality(q[j], h[j]), np.nan)
     code = np.where(near & np.isfinite(q[j]), q[j], -1).astype(np.int64)
     return sig, code
+
+
+def _local_measurements(log: FieldLog, s: EstimateSettings):
+    """(t_ns, n, e, R (M, 3), noise in words, records skipped) of the local position channel:
+    ``gps_noise_m`` when set, else each record's variance, else ``local_noise_m``."""
+    lp = local_positions(log)
+    if lp is None or not len(lp.t_ns):
+        raise InputError(f"{_where(log)}channel {LOCAL_TOPIC}: no valid position")
+    if s.gps_noise_m is not None:
+        var, why = np.full(len(lp.t_ns), s.gps_noise_m ** 2), f"position noise as set: {s.gps_noise_m:g} m"
+    else:
+        own = np.isfinite(lp.var_m2)
+        var = np.where(own, lp.var_m2, s.local_noise_m ** 2)
+        why = (f"local position noise: its own variance on {100 * own.mean():.0f} % of records, "
+               f"else {s.local_noise_m:g} m" if own.any() else
+               f"local position noise {s.local_noise_m:g} m (the source gives none; --gps-noise sets it)")
+    R = np.column_stack([var, np.zeros(len(var)), var])
+    return lp.t_ns, lp.n_m, lp.e_m, R, f"positions from {LOCAL_TOPIC} ({lp.frame}); {why}", lp.skipped
 
 
 def _gnss_noise(log: FieldLog, gps: pd.DataFrame, good: np.ndarray, tg: np.ndarray, s: EstimateSettings):

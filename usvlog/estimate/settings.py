@@ -57,6 +57,9 @@ class EstimateSettings:
         the log, falling back to ``compass_fallback_rad``).
     gps_fallback_m : float, default 2.0
         One-sigma GNSS noise in m for fixes without a usable covariance.
+    local_noise_m : float, default 0.3
+        One-sigma noise in m of local positions in metres (``/local/position``: an INS pose,
+        motion capture) without a variance of their own.
     compass_fallback_rad : float, default radians(3)
         One-sigma compass noise in rad for headings without a usable std.
     compass_offset_rad : float, default 0.0
@@ -128,6 +131,7 @@ class EstimateSettings:
     gps_noise_m: float | None = None
     compass_noise_rad: float | None = None
     gps_fallback_m: float = 2.0
+    local_noise_m: float = 0.3
     compass_fallback_rad: float = math.radians(3.0)
     compass_offset_rad: float = 0.0
     heading_offset_auto: bool = False
@@ -162,7 +166,7 @@ class EstimateSettings:
             v = getattr(self, name)
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"estimate setting {name} = {v} must be a finite number > 0")
-        for name in ("q_current", "gps_fallback_m", "compass_fallback_rad", "yaw_rate_noise_radps",
+        for name in ("q_current", "gps_fallback_m", "local_noise_m", "compass_fallback_rad", "yaw_rate_noise_radps",
                      "gnss_velocity_noise_mps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
