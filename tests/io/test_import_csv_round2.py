@@ -16,6 +16,7 @@ import pytest
 from usvlog.cli import main
 from usvlog.errors import FormatError, UnusableResultError
 from usvlog.io.importers import catalog_file, detect_format, import_file
+from usvlog.io.importers.csvlog import time_like
 from usvlog.io.importers.held import detect_held, held_mask
 from usvlog.io.importers.infer import angle_unit, judge_time, rate_scale
 from usvlog.io.mcap import read_log
@@ -59,6 +60,9 @@ def test_time_unit_from_magnitude_and_step():
     bad = judge_time(garbled, "time")
     assert not bad.ok and "not monotonic" in bad.why
     assert not judge_time(np.full(50, 7.0), "time").ok
+    names = ["t", "t_s", "t_water", "Unix Timestamp", "original_timestamp", "TimeUS", "Date", "speed_ms", "yaw"]
+    assert [h for h in names if time_like(h)] == ["t", "t_s", "Unix Timestamp", "original_timestamp", "TimeUS",
+                                                  "Date"]
 
 
 def test_angle_and_rate_units_from_the_data():

@@ -426,7 +426,7 @@ class HeadingCourse:
         vals = [np.asarray(cols[c], float)[keep] for c in names]
         if stream == "gnss":
             if self._origin is None:
-                self._origin = (float(vals[0][0]), float(vals[0][1])) if len(vals[0]) else None
+                self._origin = (float(vals[0][0]), float(vals[1][0])) if len(vals[0]) else None
             if self._origin is None:
                 return
             coslat = math.cos(math.radians(self._origin[0]))

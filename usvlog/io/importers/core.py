@@ -155,7 +155,9 @@ class ImportReport:
             ``first_bad``, ``guesses``, ``mapping``, ``notes``, ``channels`` (topic ->
             samples written, sorted), ``health`` (the sensor health record of
             :mod:`usvlog.io.importers.audit`, None before the import finished) and
-            ``propulsion`` (commands the twin-thruster model does not describe, else None).
+            ``propulsion`` (commands the twin-thruster model does not describe, else None);
+            ``unusable`` (why, one line) only for a result written with ``force`` although a
+            sensor kept less than half of its samples.
         """
         return {"source": self.source, "format": self.format, "records": self.records,
                 "skipped": dict(sorted(self.skipped.items())), "first_bad": dict(self.first_bad),

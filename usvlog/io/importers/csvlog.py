@@ -249,7 +249,7 @@ def _header(p, opts) -> tuple[str, str, list[str]]:
 # -- decisions from the first rows -------------------------------------------------------------
 SAMPLE_ROWS = 20_000
 """Rows read first to decide the time column, angle and rate units and held GNSS values."""
-_TIME_TOKENS = frozenset(("t", "time", "times", "timestamp", "stamp", "date", "datetime", "utc", "epoch",
+_TIME_TOKENS = frozenset(("time", "times", "timestamp", "stamp", "date", "datetime", "utc", "epoch",
                           "elapsed", "boot", "clock", "tow", "millis", "micros", "nanos", "sec", "secs",
                           "seconds", "timeus", "timems", "timens"))
 _TIME_NAMES = tuple(n for r in ("time_ns", "time_ms", "time_us", "time_s", "time_iso") for n in GUESSES[r])
@@ -259,7 +259,8 @@ _UNIT_ROLE = {"s": "time_s", "ms": "time_ms", "us": "time_us", "ns": "time_ns"}
 
 
 def time_like(header: str) -> bool:
-    """Whether a header names a time (``Unix Timestamp``, ``original_timestamp``, ``TimeUS``, ``Date``)."""
+    """Whether a header names a time (``Unix Timestamp``, ``original_timestamp``, ``TimeUS``, ``Date``;
+    ``t`` alone or with a unit, not ``t_water``)."""
     n = normalize_header(header)
     return n in _TIME_NAMES or any(tok in _TIME_TOKENS for tok in n.split("_"))
 
