@@ -5,10 +5,21 @@ sample of that stream at this time", never zero. A GNSS fix needs both latitude 
 longitude in the row, a thrust sample both commands. Malformed rows (wrong field
 count), unparseable cells and bad times are skipped and counted.
 
-Time: ``time_ns`` (ns since the epoch), ``time_s`` (seconds; since the epoch when the
-values are > 1e8, else relative: ``--start-utc`` is then the time of the first row's
-sample, else they count from the Unix epoch) or ``time_iso``
-(ISO 8601 text). Roles are guessed from obvious headers when not given.
+Time: ``time_ns`` (ns since the epoch), ``time_s``, ``time_ms``, ``time_us`` (seconds,
+milliseconds, microseconds; since the epoch when the values are > 1e8 s, else relative
+-- since boot or the start: ``--start-utc`` is then the time of the first row's sample,
+else they count from the Unix epoch) or ``time_iso`` (ISO 8601 text). Roles are guessed
+from obvious headers when not given.
+
+Decided from the first :data:`SAMPLE_ROWS` rows (each decision, with why, in the
+report's guesses; :mod:`usvlog.io.importers.infer`): the time column, when none is
+given, among the headers that name a time -- it must be monotonic (a garbled one is
+rejected with the reason) and its magnitude and step give its unit and base; degrees
+or radians of a heading whose name does not say (``yaw``, ``heading``); rad/s or deg/s
+of a yaw rate from its scale against d(heading)/dt; GNSS positions held between
+updates on a resampled grid (:mod:`usvlog.io.importers.held`: one row kept per real
+update, the repeats counted as ``gnss_held_repeat``). A gzip-compressed file is read
+as it is.
 """
 
 from __future__ import annotations
