@@ -174,7 +174,7 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
                thrust_unit: str | None = None, start_utc: str | int | None = None, force: bool = False,
                on_mapping: Callable | None = None, prefix_time: str | None = None,
                thrust_range: str | tuple | None = None, keep_dead: bool = False,
-               msg_dirs: Sequence[PathLike] = ()) -> ImportResult:
+               msg_dirs: Sequence[PathLike] = (), datum: str | tuple | None = None) -> ImportResult:
     """Import a field log (CSV, NMEA 0183, ROS 1/2 bag, ArduPilot .bin, PX4 .ulg): ``usvlog import``.
 
     Parameters
@@ -217,10 +217,14 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
     keep_dead : bool
         Write channels the sensor health audit judges dead as data (``--keep-dead``); by
         default they go to ``/raw/...`` and are flagged.
-
     msg_dirs : sequence of str or os.PathLike
         ROS bags: directories whose ``.msg`` files (``<pkg>/msg/<Name>.msg``) define the
         message types the bag does not store (``--msg-dir``, repeatable).
+    datum : str or tuple, optional
+        ``"LAT,LON"`` or ``(lat, lon)`` in degrees (``--datum``): the origin of the local
+        frame; positions in metres (``/local/position``) are then geo-referenced. None: the
+        first fix (and local positions stay local).
+
     Returns
     -------
     ImportResult
@@ -233,7 +237,7 @@ def import_log(src: PathLike, out: PathLike | None = None, *, fmt: str = "auto",
     return import_file(src, fmt, vessel=_vessel_file(vessel), columns=columns, topics=topics,
                        thrust_unit=thrust_unit, start_utc=start_utc, out=out, force=force,
                        on_mapping=on_mapping, prefix_time=prefix_time, thrust_range=thrust_range,
-                       keep_dead=keep_dead, msg_dirs=msg_dirs)
+                       keep_dead=keep_dead, msg_dirs=msg_dirs, datum=datum)
 
 
 def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None,
@@ -258,10 +262,10 @@ def inspect(log, *, fmt: str = "auto", topics: dict[str, str] | None = None,
     topics : dict, optional
         role -> ``SOURCE.field.path[i]`` for a foreign source, checked and honoured as
         ``usvlog import --topic`` would.
-
     msg_dirs : sequence of str or os.PathLike
         ROS bags: directories of ``.msg`` files for the types the bag does not store
         (``--msg-dir``).
+
     Returns
     -------
     LogSummary or Catalog

@@ -22,14 +22,15 @@ def register(sub) -> None:
                         "reverse, or -1/+1) to a column; repeatable")
     p.add_argument("--topic", action="append", default=[], metavar="ROLE=SOURCE[.field.path[i]]",
                    help="map a role (gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, "
-                        "speed_mps, course) to a topic/message and field path, as `usvlog inspect SOURCE` lists "
-                        "them: /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0], RCOU.C1; "
-                        "a scalar message needs no field; repeatable")
-    p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
-                   help="unit of recorded thruster commands (default: guessed from the values)")
+                        "speed_mps, course; local: a pose whose x/y are metres; local_n, local_e: metres north "
+                        "and east) to a topic/message and field path, as `usvlog inspect SOURCE` lists "
+                        "them: /fix, /motors.left, /cmd.data[1], actuator_outputs.1.output[0], RCOU.C1, "
+                        "/mocap.pose[0]; a scalar message needs no field; repeatable")
     p.add_argument("--msg-dir", action="append", default=[], metavar="DIR",
                    help="ROS bags without stored message definitions: every .msg file under DIR "
                         "(<pkg>/msg/<Name>.msg) defines the type <pkg>/msg/<Name>; repeatable")
+    p.add_argument("--thrust-unit", choices=THRUST_UNITS, default=None,
+                   help="unit of recorded thruster commands (default: guessed from the values)")
     p.add_argument("--thrust-range", default=None, metavar="LO:HI",
                    help="range of integer thrust commands (unit counts), e.g. --thrust-range=-255:255 or "
                         "0:200 (full scale: the larger magnitude; commands outside it are skipped and counted)")
@@ -46,6 +47,9 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="overwrite an existing output; also write a log that keeps less than half of a sensor's "
                         "samples (exit 1 without it), flagged as unusable in its provenance")
+    p.add_argument("--datum", default=None, metavar="LAT,LON",
+                   help="origin of the local frame in degrees: positions in metres (an INS pose, odometry, "
+                        "motion capture) are geo-referenced to it (default: they stay local, the view has no map)")
     p.add_argument("--json", action="store_true", help="print the import report as JSON")
     p.set_defaults(func=run)
 
@@ -66,7 +70,7 @@ def run(args) -> int:
                          thrust_unit=args.thrust_unit, start_utc=args.start_utc, force=args.force,
                          on_mapping=_print_mapping, prefix_time=getattr(args, "prefix_time", None),
                          thrust_range=args.thrust_range, keep_dead=args.keep_dead,
-                         msg_dirs=getattr(args, "msg_dir", None) or ())
+                         msg_dirs=getattr(args, "msg_dir", None) or (), datum=args.datum)
     r = res.report
     if args.json:
         print_json(res.to_dict())

@@ -193,6 +193,26 @@ def parse_thrust_range(text: str | None) -> tuple[float, float] | None:
     return rng
 
 
+def parse_datum(value) -> Datum | None:
+    """``--datum`` ``"LAT,LON"`` (degrees), a ``(lat, lon)`` pair or a Datum -> Datum (None stays None).
+
+    Raises
+    ------
+    ConfigError
+        Not two numbers, or latitude/longitude out of range.
+    """
+    if value is None or isinstance(value, Datum):
+        return value
+    parts = value.replace(";", ",").split(",") if isinstance(value, str) else list(value)
+    try:
+        lat, lon = (float(x) for x in parts)
+    except (TypeError, ValueError):
+        raise ConfigError(f"--datum {value!r} is not LAT,LON in degrees (e.g. 25.6514,-100.2895)") from None
+    if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90 and abs(lon) <= 180):
+        raise ConfigError(f"--datum {value!r}: latitude must be within +-90 and longitude within +-180 degrees")
+    return Datum(lat_deg=lat, lon_deg=lon)
+
+
 def parse_start_utc(text: str | None) -> int | None:
     """``--start-utc`` text -> ns since the Unix epoch.
 
@@ -381,7 +401,7 @@ def catalog_file(src, fmt: str = "auto", *, topics: dict | None = None, msg_dirs
 
 def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns: dict | None = None,
                 topics: dict | None = None, thrust_unit: str | None = None, start_utc: str | int | None = None,
-                datum: Datum | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
+                datum: Datum | str | tuple | None = None, out=None, force: bool = False, chunk_rows: int = 50_000,
                 on_mapping=None, prefix_time: str | None = None, thrust_range=None,
                 keep_dead: bool = False, msg_dirs=()) -> ImportResult:
     """Import one field log.
@@ -403,8 +423,9 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     start_utc : str or int, optional
         Time of the first sample of a log with relative times (ISO 8601 text or ns since the
         Unix epoch); for NMEA without RMC/ZDA also the date.
-    datum : usvlog.model.frames.Datum, optional
-        Origin of the local NED frame; the first kept fix when None.
+    datum : usvlog.model.frames.Datum or str, optional
+        Origin of the local NED frame (or ``"LAT,LON"``, :func:`parse_datum`); the first kept
+        fix when None. Local positions in metres are geo-referenced to it.
     out : path-like, optional
         Stream the log into this MCAP file (written atomically) instead of memory.
     force : bool
@@ -446,6 +467,7 @@ def import_file(src, fmt: str = "auto", *, vessel: Vessel | None = None, columns
     if fmt not in ("auto",) + FORMATS:
         raise ConfigError(f"format {fmt!r} is not auto or one of {', '.join(FORMATS)}")
     start_ns = start_utc if isinstance(start_utc, int) or start_utc is None else parse_start_utc(start_utc)
+    datum = parse_datum(datum)
     if isinstance(thrust_range, str):
         thrust_range = parse_thrust_range(thrust_range)
     opts = ImportOptions(columns=dict(columns or {}), topics=dict(topics or {}), thrust_unit=thrust_unit,

@@ -746,8 +746,8 @@ class Assembler:
                 continue
             if self._thrust_forces_known is None:
                 self._thrust_forces_known = True
-            fl[m] = thr.command_to_force(left[m], u)
-            fr[m] = thr.command_to_force(right[m], u)
+            fl[m] = thr.command_to_force(left[m], u, side="left")
+            fr[m] = thr.command_to_force(right[m], u, side="right")
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "left": left, "right": right,
                 "unit": units, "thrust_left_n": fl, "thrust_right_n": fr}
         return frame_from_columns(cols, c["t_ns"], channel_spec("/thrust/command"))
