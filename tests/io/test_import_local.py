@@ -191,3 +191,31 @@ def test_inspect_decides_from_the_values_and_prints_a_command_that_reproduces_th
     log = usvlog.load(out)
     np.testing.assert_allclose(log["/local/position"]["n_m"], NORTH, atol=1e-9)
     np.testing.assert_allclose(ssa(log["/compass/heading"]["heading_rad"].to_numpy() - PSI), 0.0, atol=1e-9)
+
+
+def _csv(path, cols: dict):
+    import pandas as pd
+
+    pd.DataFrame({"time_s": (TIMES - T0) / 1e9, **cols, "left": 12.0, "right": 8.0}).to_csv(path, index=False)
+    return path
+
+
+@pytest.mark.parametrize("north_is_x", [True, False])
+def test_csv_x_y_columns_decided_from_the_heading(tmp_path, north_is_x):
+    """x/y in metres: which is north is decided by the heading's agreement with the course."""
+    x, y = (NORTH, EAST) if north_is_x else (EAST, NORTH)
+    src = _csv(tmp_path / "xy.csv", {"x": x, "y": y, "heading_deg": np.degrees(PSI) % 360})
+    res = import_file(src, start_utc="2024-05-01T10:00:00Z")
+    assert (res.report.mapping["local_n"], res.report.mapping["local_e"]) == (("x", "y") if north_is_x else ("y", "x"))
+    assert ("x north, y east" if north_is_x else "x east, y north") in res.report.guesses["local_frame"]
+    lp = res.log["/local/position"]
+    np.testing.assert_allclose(lp["n_m"], NORTH, atol=1e-6)
+    np.testing.assert_allclose(lp["e_m"], EAST, atol=1e-6)
+
+
+def test_csv_north_east_columns_given(tmp_path):
+    src = _csv(tmp_path / "ne.csv", {"pn": NORTH, "pe": EAST})
+    res = import_file(src, columns={"local_n": "pn", "local_e": "pe"}, start_utc="2024-05-01T10:00:00Z")
+    np.testing.assert_allclose(res.log["/local/position"]["n_m"], NORTH, atol=1e-6)
+    np.testing.assert_allclose(res.log["/local/position"]["e_m"], EAST, atol=1e-6)
+    assert "/gnss/fix" not in res.log.topics and "/compass/heading" not in res.log.topics

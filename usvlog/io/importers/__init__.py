@@ -52,7 +52,7 @@ _MODULES = {"csv": "csvlog", "nmea": "nmea", "ros1": "rosbag", "ros2": "rosbag",
 CSV_ROLES = ("time_s", "time_ms", "time_us", "time_ns", "time_iso", "lat_deg", "lon_deg", "alt_m", "heading_deg",
              "heading_rad",
              "thrust_left", "thrust_right", "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg",
-             "thrust_left_dir", "thrust_right_dir")
+             "thrust_left_dir", "thrust_right_dir", "local_n", "local_e")
 TOPIC_ROLES = MAPPING_ROLES  # gnss, heading, yaw_rate, thrust, thrust_left, thrust_right, velocity, speed_mps, course
 
 

@@ -38,6 +38,7 @@ from .catalog import Catalog, FieldInfo, TopicInfo
 from .core import ImportReport, guess_thrust_unit, listing, text_column
 from .held import Held, detect_held, held_mask
 from .infer import TimeVerdict, angle_unit, judge_time, rate_scale
+from .probe import Series, course_agreement
 from .sniff import check_gzip
 
 # role -> normalized header names that mean it
@@ -63,12 +64,16 @@ GUESSES: dict[str, tuple[str, ...]] = {
     "thrust_right_dir": ("thrust_right_dir", "right_dir", "dir_right", "right_direction", "direction_right"),
     "yaw_rate_degps": ("yaw_rate_degps", "yaw_rate", "gyro_z", "r_degps", "yaw_rate_deg_s", "rot_degps"),
     "yaw_rate_radps": ("yaw_rate_radps", "r_radps", "gyro_z_radps"),
+    "local_n": ("local_n", "north_m", "n_m", "pos_n", "north", "position_north", "x_north"),
+    "local_e": ("local_e", "east_m", "e_m", "pos_e", "east", "position_east", "y_east"),
+    "local_x": ("x", "x_m", "pos_x", "position_x", "local_x"),
+    "local_y": ("y", "y_m", "pos_y", "position_y", "local_y"),
     "speed_mps": ("speed_mps", "speed", "sog", "sog_mps", "ground_speed"),
     "course_deg": ("course_deg", "course", "cog", "cog_deg"),
 }
 _VALUE_ROLES = ("lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad", "thrust_left", "thrust_right",
                 "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg", "thrust_left_dir",
-                "thrust_right_dir")
+                "thrust_right_dir", "local_n", "local_e")
 _NAN_TEXT = {"nan", "NaN", "NAN", "-nan", "+nan", "n/a", "NA", "null", "None"}
 
 
@@ -423,17 +428,56 @@ def _decide(p, sep: str, headers: list[str], mapping: dict, guessed: dict, opts,
     given_time = any(r in opts.columns for r in TIME_ROLES)
     want = {h for h in headers if not given_time and time_like(h)}
     want |= {mapping[r] for r in ("lat_deg", "lon_deg", "heading_deg", "heading_rad", "yaw_rate_degps",
-                                  "yaw_rate_radps") + TIME_ROLES if r in mapping}
+                                  "yaw_rate_radps", "local_x", "local_y") + TIME_ROLES if r in mapping}
     sample = _sample(p, sep, [h for h in headers if h in want])
     if not given_time:
         _choose_time(sample, mapping, guessed, report, state)
     _heading_unit(sample, mapping, guessed, report)
     time_role = next((r for r in TIME_ROLES if r in mapping), None)
-    if time_role is None or not len(sample):
+    t_s = _sample_seconds(sample[mapping[time_role]], time_role) if time_role is not None and len(sample) else None
+    _local_axes(sample, t_s, mapping, guessed, report)
+    if t_s is None:
         return state, None
-    t_s = _sample_seconds(sample[mapping[time_role]], time_role)
     _yaw_rate_unit(sample, t_s, mapping, guessed, report)
     return state, _held(sample, t_s, mapping, report)
+
+
+def _local_axes(sample: pd.DataFrame, t_s, mapping: dict, guessed: dict, report) -> None:
+    """Columns named only x/y (positions in metres, no latitude/longitude, no north/east columns):
+    which is north. With a heading, the convention whose course over ground agrees with it
+    (x north or x east); without one, x east and y north (the plotting and ROS convention), said so."""
+    xy = [r for r in ("local_x", "local_y") if r in mapping]
+    for r in xy:
+        h = mapping.pop(r)
+        guessed.pop(r, None)
+        if len(xy) < 2 or "lat_deg" in mapping or "local_n" in mapping or "local_e" in mapping:
+            continue
+        mapping.setdefault("_" + r, h)
+    if "_local_x" not in mapping:
+        return
+    x, y = mapping.pop("_local_x"), mapping.pop("_local_y")
+    agree = {}
+    hd = next((r for r in ("heading_deg", "heading_rad") if r in mapping), None)
+    if hd is not None and t_s is not None and len(sample):
+        t = np.round(np.nan_to_num(np.asarray(t_s, float)) * 1e9).astype(np.int64)
+        hv = pd.to_numeric(sample[mapping[hd]], errors="coerce").to_numpy(float)
+        xs = pd.to_numeric(sample[x], errors="coerce").to_numpy(float)
+        ys = pd.to_numeric(sample[y], errors="coerce").to_numpy(float)
+        unit = "deg" if hd == "heading_deg" else "rad"
+        for name, (n, e) in (("x north, y east", (xs, ys)), ("x east, y north", (ys, xs))):
+            agree[name] = course_agreement(Series(t, hv), unit, t, n, e)
+    known = {k: v for k, v in agree.items() if v is not None}
+    best = max(known, key=lambda k: known[k]) if known else None
+    other = min(known, key=lambda k: known[k]) if known else None
+    if best is not None and known[best] >= 0.5 and known[best] - known[other] >= 0.2:
+        why = (f"{best}: the heading agrees with the course over ground {100 * known[best]:.0f} % of the time "
+               f"({100 * known[other]:.0f} % the other way)")
+    else:
+        best, why = "x east, y north", ("x east, y north assumed (no heading decides it; give --column "
+                                        "local_n=... --column local_e=... to say)")
+    mapping["local_n"], mapping["local_e"] = (x, y) if best == "x north, y east" else (y, x)
+    guessed["local_n"], guessed["local_e"] = mapping["local_n"], mapping["local_e"]
+    report.guesses["local_frame"] = why
 
 
 def compression(p) -> str | None:
@@ -481,7 +525,7 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
         raise InputError(f"{p}: no time column found (give --column time_s=HEADER, or time_ms, time_us, "
                          f"time_ns, time_iso; columns: "
                          f"{listing(headers)})")
-    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right")):
+    for a, b in (("lat_deg", "lon_deg"), ("thrust_left", "thrust_right"), ("local_n", "local_e")):
         if (a in mapping) != (b in mapping):
             have, miss = (a, b) if a in mapping else (b, a)
             raise InputError(f"{p}: column {mapping[have]!r} ({have}) has no {miss} column to pair with "
@@ -636,6 +680,11 @@ class _Chunker:
                 g["held"], self.hold_state = held_mask(g["t_ns"], [g["lat_deg"], g["lon_deg"]],
                                                        self.held.update_s, self.hold_state)
             batch["gnss"] = g
+        if "local_n" in pres or "local_e" in pres:
+            both = _both(pres, "local_n", "local_e", good_t, report, "local_incomplete")
+            batch["local"] = {"t_ns": t[both], "n_m": vals["local_n"][both], "e_m": vals["local_e"][both],
+                              "frame_id": text_column(int(both.sum()), f"csv {self.mapping['local_n']}/"
+                                                                       f"{self.mapping['local_e']} (north/east m)")}
         for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
             if role in pres:
                 m = pres[role] & good_t
@@ -672,7 +721,7 @@ class _Chunker:
 _ROLE_STREAM = {"lat_deg": "gnss", "lon_deg": "gnss", "alt_m": "gnss", "heading_deg": "heading",
                 "heading_rad": "heading", "thrust_left": "thrust", "thrust_right": "thrust",
                 "yaw_rate_degps": "yaw_rate", "yaw_rate_radps": "yaw_rate", "speed_mps": "velocity",
-                "course_deg": "velocity"}
+                "course_deg": "velocity", "local_n": "local", "local_e": "local"}
 
 
 def catalog(path, opts) -> Catalog:
