@@ -16,7 +16,7 @@ def register(sub) -> None:
     p.add_argument("--column", action="append", default=[], metavar="ROLE=HEADER",
                    help="CSV: map a role (time_s, time_ms, time_us, time_ns: seconds, milliseconds, "
                         "microseconds, nanoseconds, since 1970 or, with --start-utc, since boot; time_iso, "
-                        "lat_deg, lon_deg, alt_m, heading_deg, "
+                        "lat_deg, lon_deg, alt_m, local_n, local_e: metres north and east, heading_deg, "
                         "heading_rad, thrust_left, thrust_right, yaw_rate_degps, yaw_rate_radps, speed_mps, "
                         "course_deg, thrust_left_dir, thrust_right_dir: direction flags, 0 forward and non-zero "
                         "reverse, or -1/+1) to a column; repeatable")
