@@ -46,6 +46,7 @@ UNITS: dict[str, tuple[str, ...]] = {
     "view":     ("usvlog.view",),
     "regress":  ("usvlog.regress",),
     "replay":   ("usvlog.replay",),
+    "check":    ("usvlog.check",),
     "sim":      ("usvlog.sim",),
     "estimate": ("usvlog.estimate",),
     "identify": ("usvlog.identify",),
@@ -64,7 +65,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("api",),
     ("campaign",),      # many runs of the pipeline: runs the API's stages (handed in), draws with view
     ("view", "regress"),
-    ("replay",),
+    ("replay", "check"),   # check: judges a log with the numerics below (view and campaign show it)
     ("sim",),
     ("estimate", "identify", "control"),
     ("log",),
