@@ -51,6 +51,7 @@ UNITS: dict[str, tuple[str, ...]] = {
     "estimate": ("usvlog.estimate",),
     "identify": ("usvlog.identify",),
     "control":  ("usvlog.control",),
+    "trials":   ("usvlog.trials",),
     "log":      ("usvlog.log",),
     "model":    ("usvlog.model",),
     "base":     ("usvlog.errors", "usvlog._version", "usvlog._jit", "usvlog._cpu", "usvlog.resources",
@@ -67,7 +68,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("view", "regress"),
     ("replay", "check"),   # check: judges a log with the numerics below (view and campaign show it)
     ("sim",),
-    ("estimate", "identify", "control"),
+    ("estimate", "identify", "control", "trials"),
     ("log",),
     ("model",),
     ("base",),
@@ -78,6 +79,7 @@ SIDEWAYS: frozenset[tuple[str, str]] = frozenset({
 # control is pure: only the model and the log (and base) under it
 NARROWED: dict[str, frozenset[str]] = {
     "control": frozenset({"log", "model", "base"}),
+    "trials": frozenset({"log", "model", "base"}),   # manoeuvres: pure, from the state frame handed in
 }
 # io is the edge: it reads and writes model/log objects and is used from the top only.
 IO = "io"

@@ -21,7 +21,7 @@ import types as _types
 from ._version import __version__
 
 _API = ("load", "save", "import_log", "inspect", "export", "simulate", "estimate", "identify", "gains",
-        "replay", "to_rrd", "report", "regress", "campaign")
+        "replay", "to_rrd", "report", "regress", "campaign", "manoeuvres")
 _LAZY = {"FieldLog": "usvlog.log.fieldlog", "UsvlogError": "usvlog.errors", **{n: "usvlog.api" for n in _API}}
 
 __all__ = ["FieldLog", "UsvlogError", "__version__", *_API]

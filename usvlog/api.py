@@ -38,6 +38,7 @@ if TYPE_CHECKING:  # for annotations only: importing these at run time pulls num
     from .model.vessel import Vessel
     from .regress.stages import ScenarioOutcome
     from .replay import ReplayResult
+    from .trials import Manoeuvres
 
 PathLike = str | os.PathLike
 Progress = Callable[[str], None] | None
@@ -864,6 +865,56 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
         save(res.log, out, force=force)
         _say(progress, f"wrote {out}")
     return res
+
+
+# -----------------------------------------------------------------------------
+# manoeuvres
+# -----------------------------------------------------------------------------
+
+def manoeuvres(log, *, progress: Progress = None) -> Manoeuvres:
+    """Find the standard manoeuvres of a run and measure them (``usvlog manoeuvres``).
+
+    Turning circles, zig-zags, speed steps, stops and pivot turns, found from the thrust
+    commands and the state, with the definitions of ``docs/manoeuvres.md`` (the execute is the
+    moment the differential command is applied); each metric with its one-sigma.
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        The run, or its MCAP file. Its ``/estimate/state`` is used; a log without one is
+        estimated first with the default settings (``usvlog estimate``'s kinematic model).
+    progress : callable, optional
+        Receives a line before the work (and before an estimate).
+
+    Returns
+    -------
+    usvlog.trials.Manoeuvres
+        In time order, times in s from the log's start; empty when the run has none
+        (``to_dict()``, ``to_dataframe()``, ``format()``).
+
+    Raises
+    ------
+    InputError
+        The log has no ``/thrust/command`` (manoeuvres are found from the commands) or no
+        usable state.
+    """
+    _check_paths([log], None, False)
+    from .trials import find_manoeuvres  # heavy: numpy, pandas
+
+    src = log if _is_path(log) else log.source
+    log = _read(log, progress)
+    thrust = log.get("/thrust/command")
+    if thrust is None or len(thrust) < 2:
+        raise InputError(f"{src or 'log'}: no /thrust/command: manoeuvres are found from the thrust commands")
+    state = log.get("/estimate/state")
+    if state is None or len(state) < 10:
+        state = estimate(log, progress=progress).state
+    tr = log.time_range()
+    _say(progress, f"finding manoeuvres in {src or 'the log'}")
+    try:
+        return find_manoeuvres(state, thrust, int(tr[0]) if tr else int(state.index[0]))
+    except InputError as err:
+        raise InputError(f"{src or 'log'}: {err}") from err
 
 
 # -----------------------------------------------------------------------------

@@ -26,6 +26,7 @@ VERBS = [
     "export",
     "estimate",
     "identify",
+    "manoeuvres",
     "gains",
     "replay",
     "regress",

@@ -1,0 +1,344 @@
+"""Find the standard manoeuvres of a run from its thrust commands and its state.
+
+Pure: arrays in (:class:`Track`, :class:`Commands`), a :class:`~usvlog.trials.result.Manoeuvres`
+out. The definitions, adapted to differential thrust, are in ``docs/manoeuvres.md``:
+
+1. the commands are cut into *holds*: stretches over which both thrusters keep their
+   command (within :attr:`Settings.tol_frac` of the run's full scale);
+2. a hold's *differential* is ``left - right``, its *common* thrust ``left + right``; the
+   differential is *applied* when it is at least :attr:`Settings.diff_frac` of the full scale;
+3. the kinds, each from holds and the state (heading, speed):
+
+   * pivot turn: thrusters of opposite signs, held at least ``min_pivot_s``;
+   * turning circle: one differential (thrusters of one sign) held through a heading change of
+     at least ``min_turn_deg``;
+   * zig-zag: a differential applied, then reversed at least twice, each reversal when the
+     heading is off the execute heading by one angle (within ``zigzag_angle_tol_deg``), alternately
+     to either side;
+   * speed steps: at least two consecutive steps of the common thrust without differential,
+     each held at least ``min_step_s``;
+   * stop / coast-down: both thrusters to zero while moving, held at least ``min_stop_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from . import metrics as M
+from .result import Manoeuvre, Manoeuvres
+
+
+@dataclass(frozen=True, kw_only=True)
+class Settings:
+    """Thresholds of the detection (defaults as documented in docs/manoeuvres.md).
+
+    Parameters
+    ----------
+    tol_frac : float
+        Two commands are the same when within this fraction of the full scale (the largest
+        thruster command of the run).
+    diff_frac : float
+        A differential is applied when ``|left - right|`` is at least this fraction of the
+        full scale.
+    step_frac : float
+        A speed step changes the common thrust by at least this fraction of the full scale.
+    min_turn_deg : float
+        A turning circle turns the heading at least this much within one held differential.
+    min_step_s, min_stop_s, min_pivot_s : float
+        Shortest hold of a speed step, a stop and a pivot turn, s.
+    min_stop_speed_mps : float
+        A stop starts from at least this speed over ground.
+    zigzag_angle_tol_deg : float
+        The heading deviations at a zig-zag's reversals agree within this.
+    """
+
+    tol_frac: float = 0.03
+    diff_frac: float = 0.1
+    step_frac: float = 0.1
+    min_turn_deg: float = 360.0
+    min_step_s: float = 15.0
+    min_stop_s: float = 5.0
+    min_pivot_s: float = 5.0
+    min_stop_speed_mps: float = 0.2
+    zigzag_angle_tol_deg: float = 4.0
+
+    def __post_init__(self):
+        for name in ("tol_frac", "diff_frac", "step_frac", "min_turn_deg", "min_step_s", "min_stop_s",
+                     "min_pivot_s", "min_stop_speed_mps", "zigzag_angle_tol_deg"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"manoeuvre setting {name} = {v!r} must be a positive number")
+
+
+@dataclass(frozen=True)
+class Track:
+    """The state of a run: times (s from the log's start), pose, body velocities and one-sigmas.
+
+    ``psi`` is unwrapped (continuous); the ``*_std`` arrays are zeros for a truth trajectory.
+    """
+
+    t: np.ndarray
+    n: np.ndarray
+    e: np.ndarray
+    psi: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    r: np.ndarray
+    n_std: np.ndarray
+    e_std: np.ndarray
+    psi_std: np.ndarray
+    u_std: np.ndarray
+    r_std: np.ndarray
+
+    @property
+    def speed(self) -> np.ndarray:
+        """Speed over ground sqrt(u^2 + v^2), m/s."""
+        return np.hypot(self.u, self.v)
+
+    def at(self, t: float) -> int:
+        """Index of the first sample at or after ``t`` (clipped to the track)."""
+        return min(int(np.searchsorted(self.t, t)), len(self.t) - 1)
+
+
+@dataclass(frozen=True)
+class Commands:
+    """Thrust commands: times (s from the log's start), left and right (forces in N when known)."""
+
+    t: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    unit: str = "N"
+
+
+@dataclass(frozen=True)
+class Hold:
+    """A stretch of constant commands: [start, end) in s, mean left and right."""
+
+    start: float
+    end: float
+    left: float
+    right: float
+
+    @property
+    def diff(self) -> float:
+        """left - right."""
+        return self.left - self.right
+
+    @property
+    def common(self) -> float:
+        """left + right."""
+        return self.left + self.right
+
+    @property
+    def duration(self) -> float:
+        """end - start, s."""
+        return self.end - self.start
+
+
+def track_from_frame(frame: pd.DataFrame, t0_ns: int) -> Track:
+    """A :class:`Track` from an ``/estimate/state`` or ``/truth/state`` frame (indexed by t_ns).
+
+    Missing ``*_std`` columns (a truth) are zeros; rows with a non-finite pose are dropped.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        With fewer than 10 finite rows.
+    """
+    idx = frame.index.to_numpy()
+    t = (np.asarray(idx, np.int64) - int(t0_ns)) * 1e-9
+
+    def col(name: str) -> np.ndarray:
+        return frame[name].to_numpy(float) if name in frame.columns else np.zeros(len(frame))
+
+    n, e, psi, u, v, r = (col(c) for c in ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"))
+    ok = np.isfinite(n) & np.isfinite(e) & np.isfinite(psi) & np.isfinite(u) & np.isfinite(v) & np.isfinite(r)
+    if ok.sum() < 10:
+        raise InputError(f"the state has {int(ok.sum())} finite rows: too few to find manoeuvres")
+    stds = [np.nan_to_num(col(c + "_std")[ok], nan=0.0) for c in ("n_m", "e_m", "psi_rad", "u_mps", "r_radps")]
+    return Track(t[ok], n[ok], e[ok], np.unwrap(psi[ok]), u[ok], v[ok], r[ok], *stds)
+
+
+def commands_from_frame(frame: pd.DataFrame, t0_ns: int) -> Commands:
+    """:class:`Commands` from a ``/thrust/command`` frame: the forces ``thrust_left_n`` and
+    ``thrust_right_n`` when they are finite, else the commands ``left`` and ``right``.
+
+    Raises
+    ------
+    usvlog.errors.InputError
+        With fewer than 2 finite commands.
+    """
+    t = (np.asarray(frame.index.to_numpy(), np.int64) - int(t0_ns)) * 1e-9
+    unit = "N"
+    if {"thrust_left_n", "thrust_right_n"} <= set(frame.columns) and \
+            np.isfinite(frame["thrust_left_n"].to_numpy(float)).mean() > 0.9:
+        left, right = frame["thrust_left_n"].to_numpy(float), frame["thrust_right_n"].to_numpy(float)
+    else:
+        left, right = frame["left"].to_numpy(float), frame["right"].to_numpy(float)
+        unit = str(frame["unit"].iloc[0]) if "unit" in frame.columns and len(frame) else "command"
+    ok = np.isfinite(left) & np.isfinite(right)
+    if ok.sum() < 2:
+        raise InputError("/thrust/command has fewer than 2 finite commands: no manoeuvre can be found")
+    order = np.argsort(t[ok], kind="stable")
+    return Commands(t[ok][order], left[ok][order], right[ok][order], unit)
+
+
+def full_scale(cmd: Commands) -> float:
+    """The run's full scale: the 99.9th percentile of |left| and |right| (0 for an idle run)."""
+    return float(np.percentile(np.abs(np.r_[cmd.left, cmd.right]), 99.9))
+
+
+def holds(cmd: Commands, tol: float) -> list[Hold]:
+    """Cut the commands into holds: a new hold starts where either thruster leaves the first
+    value of the current hold by more than ``tol``.
+
+    The last hold ends at the last command's time.
+    """
+    t, left, right = cmd.t, cmd.left, cmd.right
+    out: list[Hold] = []
+    i = 0
+    n = len(t)
+    while i < n:
+        away = np.flatnonzero((np.abs(left[i:] - left[i]) > tol) | (np.abs(right[i:] - right[i]) > tol))
+        j = i + int(away[0]) if len(away) else n
+        end = t[j] if j < n else t[-1]
+        out.append(Hold(float(t[i]), float(end), float(np.mean(left[i:j])), float(np.mean(right[i:j]))))
+        i = j
+    return out
+
+
+def find(track: Track, cmd: Commands, settings: Settings | None = None, *, t0_ns: int = 0,
+         source: str = "") -> Manoeuvres:
+    """Find the standard manoeuvres of a run and measure them.
+
+    Parameters
+    ----------
+    track : Track
+        The state (estimate or truth), times in s from the log's start.
+    cmd : Commands
+        The thrust commands, same time base.
+    settings : Settings, optional
+    t0_ns : int
+        The log's start (recorded in the result).
+    source : str
+        Where the state came from (recorded in the result).
+
+    Returns
+    -------
+    Manoeuvres
+        In time order; empty when the run has none.
+    """
+    st = settings or Settings()
+    fs = full_scale(cmd)
+    if not fs > 0:
+        return Manoeuvres((), int(t0_ns), source)
+    hs = [h for h in holds(cmd, st.tol_frac * fs) if h.end > track.t[0] and h.start < track.t[-1]]
+    d_on = st.diff_frac * fs
+    zero = st.tol_frac * fs
+    used = [False] * len(hs)
+    found: list[Manoeuvre] = []
+
+    # zig-zags first: their holds are not turning circles or steps
+    for i in range(len(hs)):
+        if used[i]:
+            continue
+        z = _zigzag_at(track, hs, i, d_on, st, cmd.unit)
+        if z is not None:
+            m, k = z
+            found.append(m)
+            for j in range(i, k):
+                used[j] = True
+    for i, h in enumerate(hs):
+        if used[i] or h.duration <= 0:
+            continue
+        opposite = h.left * h.right < 0 and min(abs(h.left), abs(h.right)) > zero
+        if opposite and abs(h.diff) >= d_on and h.duration >= st.min_pivot_s:
+            found.append(M.pivot(track, h.start, h.end))
+            used[i] = True
+        elif not opposite and abs(h.diff) >= d_on:
+            i0, i1 = track.at(h.start), track.at(h.end)
+            turned = abs(track.psi[i1] - track.psi[i0])
+            if math.degrees(turned) >= st.min_turn_deg:
+                tc = M.turning_circle(track, h.start, h.end)
+                if tc is not None:
+                    found.append(tc)
+                    used[i] = True
+        elif abs(h.left) <= zero and abs(h.right) <= zero and h.duration >= st.min_stop_s and i > 0 \
+                and h.start - track.t[0] >= M.EXECUTE_HEADING_S:
+            w = (track.t >= h.start - M.EXECUTE_HEADING_S) & (track.t < h.start)
+            if track.u[w].mean() >= st.min_stop_speed_mps:
+                sm = M.stop(track, h.start, h.end)
+                if sm is not None:
+                    found.append(sm)
+                    used[i] = True
+    found.extend(_speed_steps(track, hs, used, d_on, zero, fs, st, cmd.unit))
+    found.sort(key=lambda m: m.start_s)
+    return Manoeuvres(tuple(found), int(t0_ns), source)
+
+
+def _zigzag_at(track: Track, hs: list[Hold], i: int, d_on: float, st: Settings,
+               unit: str) -> tuple[Manoeuvre, int] | None:
+    """A zig-zag whose execute is hold ``i``: (the manoeuvre, the index after its last hold), or None."""
+    h0 = hs[i]
+    if abs(h0.diff) < d_on or h0.left * h0.right < 0:
+        return None
+    seq = [h0]
+    k = i + 1
+    while k < len(hs):
+        h = hs[k]
+        same_size = abs(abs(h.diff) - abs(h0.diff)) <= 0.25 * abs(h0.diff)
+        if not (same_size and np.sign(h.diff) == -np.sign(seq[-1].diff)
+                and abs(h.common - h0.common) <= 0.25 * max(abs(h0.diff), 1e-12)):
+            break
+        seq.append(h)
+        k += 1
+    if len(seq) < 3:   # execute + at least two reversals
+        return None
+    psi0 = M.execute_heading(track, h0.start)
+    devs = np.array([track.psi[track.at(h.start)] - psi0 for h in seq[1:]])
+    # every reversal with the heading off to alternate sides, by one angle
+    signs = np.sign(devs)
+    if np.any(signs == 0) or np.any(signs[1:] == signs[:-1]):
+        return None
+    if np.ptp(np.abs(devs)) > 2 * st.zigzag_angle_tol_deg * math.pi / 180 or \
+            math.degrees(np.mean(np.abs(devs))) < 2.0:
+        return None
+    m = M.zigzag(track, [h.start for h in seq], seq[-1].end)
+    if m is None:
+        return None
+    return m, k
+
+
+def _speed_steps(track: Track, hs: list[Hold], used: list[bool], d_on: float, zero: float, fs: float,
+                 st: Settings, unit: str) -> list[Manoeuvre]:
+    """Runs of at least two consecutive speed steps (straight holds, the common thrust changed)."""
+    steps = []
+    for i in range(1, len(hs)):
+        h, p = hs[i], hs[i - 1]
+        ok = (not used[i] and abs(h.diff) < d_on and abs(p.diff) < d_on and h.common > zero
+              and abs(h.common - p.common) >= st.step_frac * fs and h.duration >= st.min_step_s)
+        steps.append(i if ok else None)
+    out = []
+    group: list[int] = []
+    ends: list[int | None] = [*steps, None]
+    for k in ends:
+        if k is not None and (not group or k == group[-1] + 1):
+            group.append(k)
+            continue
+        if len(group) >= 2:
+            m = M.speed_steps(track, [(hs[j].start, hs[j].end, hs[j].common) for j in group], unit)
+            if m is not None:
+                out.append(m)
+                for j in group:
+                    used[j] = True
+        group = [k] if k is not None else []
+    return out
+
+
+__all__ = ["Commands", "Hold", "Settings", "Track", "commands_from_frame", "find", "full_scale", "holds",
+           "track_from_frame"]
