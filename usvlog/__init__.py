@@ -2,7 +2,7 @@
 
 The package namespace is the Python API, one function per command line verb (see
 :mod:`usvlog.api`): ``load``, ``save``, ``import_log``, ``inspect``, ``export``, ``simulate``,
-``estimate``, ``identify``, ``gains``, ``replay``, ``to_rrd``, ``report``, ``regress``, ``campaign``; plus
+``estimate``, ``identify``, ``gains``, ``replay``, ``to_rrd``, ``report``, ``regress``, ``campaign``, ``check``; plus
 :class:`FieldLog` (one run in memory) and :class:`UsvlogError` (every error a user can cause).
 
 Everything is imported on first use (PEP 562 module ``__getattr__``), so ``import usvlog``
@@ -21,7 +21,7 @@ import types as _types
 from ._version import __version__
 
 _API = ("load", "save", "import_log", "inspect", "export", "simulate", "estimate", "identify", "gains",
-        "replay", "to_rrd", "report", "regress", "campaign", "manoeuvres")
+        "replay", "to_rrd", "report", "regress", "campaign", "manoeuvres", "check")
 _LAZY = {"FieldLog": "usvlog.log.fieldlog", "UsvlogError": "usvlog.errors", **{n: "usvlog.api" for n in _API}}
 
 __all__ = ["FieldLog", "UsvlogError", "__version__", *_API]

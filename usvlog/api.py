@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 from .errors import ConfigError, InputError, StorageError
 
 if TYPE_CHECKING:  # for annotations only: importing these at run time pulls numpy and pandas
+    from .check import CheckResult
     from .control.gains import GainCheck, Gains
     from .estimate import EstimateResult
     from .identify import Identifier
@@ -915,6 +916,61 @@ def manoeuvres(log, *, progress: Progress = None) -> Manoeuvres:
         return find_manoeuvres(state, thrust, int(tr[0]) if tr else int(state.index[0]))
     except InputError as err:
         raise InputError(f"{src or 'log'}: {err}") from err
+
+
+# -----------------------------------------------------------------------------
+# check
+# -----------------------------------------------------------------------------
+
+def check(log, *, vessel=None, fmt: str = "auto", msg_dirs: Sequence[PathLike] = (),
+          progress: Progress = None) -> CheckResult:
+    """Is this log sound, and what is wrong with the boat's sensors (``usvlog check``)?
+
+    Parameters
+    ----------
+    log : FieldLog or path
+        A log, its canonical MCAP file, or any field log ``usvlog import`` reads: that one is
+        imported in memory first with the import's own guesses (an import that keeps too
+        little is checked all the same, its reason an error finding).
+    vessel : Vessel or path, optional
+        The boat (thruster map and limits, heading offset); default the log's own.
+    fmt : str
+        Format of a field log (``"auto"``: from the content).
+    msg_dirs : sequence of str or os.PathLike
+        ROS bags: directories of ``.msg`` files for types the bag does not store.
+    progress : callable, optional
+        Receives a line per stage.
+
+    Returns
+    -------
+    usvlog.check.CheckResult
+        The findings (severity, channel, time range from the log's start, evidence, action)
+        and the checks that ran; ``exit_code`` is 1 when any finding is an error.
+    """
+    from .log.findings import Finding, findings_from_health  # light: standard library only
+
+    extra: list = []
+    if _is_path(log) and not _is_canonical_candidate(Path(log)):
+        _say(progress, f"importing {log} in memory")
+        res = import_log(log, fmt=fmt, vessel=vessel, force=True, msg_dirs=msg_dirs)
+        rep = res.report
+        if rep.unusable:
+            extra.append(Finding(severity="error", code="import.unusable", evidence=str(rep.unusable),
+                                 action="fix the mapping or the time column at import"))
+        topic = {"gnss": "/gnss/fix", "heading": "/compass/heading", "yaw_rate": "/imu/yaw_rate",
+                 "velocity": "/gnss/velocity", "local": "/local/position"}
+        held = {topic.get(k[:-len("_held_repeat")], k): int(n) for k, n in rep.skipped.items()
+                if k.endswith("_held_repeat")}
+        extra += findings_from_health(None, held)
+        log = res.log
+    else:
+        if _is_path(log):
+            _check_paths([log], None, False)
+        log = _read(log, progress)
+    from .check import check_log  # heavy: numpy, scipy and the identification's smoother
+
+    _say(progress, "checking")
+    return check_log(log, _vessel_file(vessel), extra=extra)
 
 
 # -----------------------------------------------------------------------------

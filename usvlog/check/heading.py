@@ -40,15 +40,23 @@ MAX_LEG_HEADING_STD_DEG = 15.0
 """Legs whose heading scatters more than this (circular std, deg) are left out."""
 MAX_LEG_TURN_DEG = 3.0
 """Legs over which the heading's linear trend turns more than this (deg) are left out."""
+MIN_THRUST_SPREAD = 0.05
+"""A thrust term enters the leg fit when its spread over the legs is at least this share of the
+mean total thrust (a differential thrust that is zero on every straight leg says nothing)."""
 MIN_LEGS = 12
 """The leg fit needs this many legs..."""
-MIN_OCTANTS = 4
-"""...and, for the deviation curve, courses in this many of the eight 45 deg sectors."""
+MIN_OCTANTS = 5
+"""...and, for the deviation curve, courses in this many of the eight 45 deg sectors (four
+courses 90 deg apart cannot tell the two-cycle terms apart)."""
 
 
 def mounting_offset(ctx: CheckContext) -> list[Finding]:
-    """A constant offset between the heading and the course over ground
-    (:func:`usvlog.model.heading_offset.detect_heading_offset`)."""
+    """A constant offset between the heading and the course over ground: decided by
+    :func:`usvlog.model.heading_offset.detect_heading_offset` (the import's test: the same on
+    every course), measured on the steady legs (:func:`_legs`) when there are
+    :data:`MIN_LEGS`: a whole straight run also holds the seconds after a turn, when the
+    sway still decays and the hull crabs (about 2 deg too much on a simulated run turning
+    one way every minute)."""
     tr, h = ctx.track, ctx.heading
     if tr is None or h is None:
         return []
@@ -61,11 +69,18 @@ def mounting_offset(ctx: CheckContext) -> list[Finding]:
     if not off.decided:
         return [Finding(severity="info", code="heading.mounting_offset", channel=COMPASS_TOPIC,
                         evidence=off.describe(), numbers=nums)]
-    big = abs(off.offset_deg) >= 20.0
+    o, sd, what = off.offset_deg, off.std_deg, f"{off.runs} straight runs"
+    legs = _legs(ctx)
+    if len(legs) >= MIN_LEGS:   # the steady legs only: no crab of the sway still decaying after a turn
+        c, s = float(np.mean(np.cos(legs[:, 3]))), float(np.mean(np.sin(legs[:, 3])))
+        spread = math.sqrt(-2.0 * math.log(min(max(math.hypot(c, s), 1e-12), 1.0)))
+        o, sd = math.degrees(math.atan2(s, c)), math.degrees(spread) / math.sqrt(len(legs))
+        what = f"{len(legs)} steady legs ({off.offset_deg:+.1f} deg on {off.runs} whole straight runs)"
+    nums.update(offset_deg=o, std_deg=sd)
+    big = abs(o) >= 20.0
     return [Finding(severity="error" if big else "warning", code="heading.mounting_offset", channel=COMPASS_TOPIC,
-                    evidence=f"heading - course over ground {off.offset_deg:+.1f} +- {off.std_deg:.1f} deg on "
-                             f"{off.runs} straight runs over {off.courses} courses (spread {off.spread_deg:.1f} deg): "
-                             "the same on every course, a mounting offset",
+                    evidence=f"heading - course over ground {o:+.1f} +- {sd:.1f} deg on {what} over {off.courses} "
+                             f"courses (spread {off.spread_deg:.1f} deg): the same on every course, a mounting offset",
                     action="apply it: usvlog estimate --heading-offset auto (or heading_offset_deg in the vessel "
                            "file's [sensors]); or turn the sensor/antenna baseline to the keel",
                     numbers=nums)]
@@ -115,7 +130,8 @@ def _f_test(y, full, reduced) -> tuple[float, float]:
     """F statistic and p-value of the columns ``full`` has beyond ``reduced``."""
     rss_f, _ = _rss(y, full)
     rss_r, _ = _rss(y, reduced)
-    q, dof = full.shape[1] - reduced.shape[1], len(y) - full.shape[1]
+    rank_f = int(np.linalg.matrix_rank(full))
+    q, dof = rank_f - int(np.linalg.matrix_rank(reduced)), len(y) - rank_f   # collinear columns count once
     if q <= 0 or dof <= 0 or rss_f <= 0:
         return float("nan"), float("nan")
     f = ((rss_r - rss_f) / q) / (rss_f / dof)
@@ -136,8 +152,9 @@ def deviation_and_thrust(ctx: CheckContext) -> list[Finding]:
     c, d = legs[:, 2], np.degrees(legs[:, 3])
     one = np.ones(len(c))
     harm = np.stack([np.sin(c), np.cos(c), np.sin(2 * c), np.cos(2 * c)], 1)
+    level = float(np.nanmean(np.abs(legs[:, 4]))) if len(legs) else 0.0
     thr_cols = [(name, x) for name, x in (("|left|+|right|", legs[:, 4]), ("left-right", legs[:, 5]))
-                if np.all(np.isfinite(x)) and np.std(x) > 1e-6 * (1 + np.abs(x).max())]
+                if np.all(np.isfinite(x)) and np.std(x) > MIN_THRUST_SPREAD * level]
     T = np.stack([x for _, x in thr_cols], 1) if thr_cols else np.zeros((len(c), 0))
     octants = len(set(np.floor(np.mod(c, 2 * math.pi) / (math.pi / 4)).astype(int).tolist()))
     out = []

@@ -23,6 +23,7 @@ VERBS = [
     "simulate",
     "import_",
     "inspect",
+    "check",
     "export",
     "estimate",
     "identify",
