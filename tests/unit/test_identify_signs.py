@@ -142,3 +142,56 @@ def test_heading_rate_undetermined_without_turns():
     rng = np.random.default_rng(9)
     res = heading_rate_agreement(t, 0.5 + 0.03 * rng.standard_normal(len(t)), 0.002 * rng.standard_normal(len(t)))
     assert res.sign == 0 and "not determined" in res.message and math.isnan(res.scale)
+
+
+def _channels(manoeuvres):
+    """(t, T_left, T_right, u, r) of the simulated run, each channel's force recovered from tau."""
+    t, tau_u, tau_r, x = manoeuvres
+    return t, 0.5 * (tau_u + tau_r / ARM_M), 0.5 * (tau_u - tau_r / ARM_M), x[:, 3], x[:, 5]
+
+
+@pytest.mark.parametrize("fault, verdict", [(None, "ok"), ("right", "right reversed"), ("left", "left reversed"),
+                                            ("both", "both reversed"), ("swap", "swapped")])
+def test_channel_signs_name_a_reversed_or_swapped_channel(manoeuvres, fault, verdict):
+    from usvlog.identify.signs import channel_signs
+
+    t, fl, fr, u, r = _channels(manoeuvres)
+    rng = np.random.default_rng(4)
+    u = u + 0.01 * rng.standard_normal(len(t))
+    r = r + 0.01 * rng.standard_normal(len(t))
+    if fault == "right":
+        fr = -fr
+    elif fault == "left":
+        fl = -fl
+    elif fault == "both":
+        fl, fr = -fl, -fr
+    elif fault == "swap":
+        fl, fr = fr, fl
+    res = channel_signs(t, fl, fr, u, r)
+    assert res.verdict == verdict, res.message
+    if fault is None:   # the truth: both push forward, left turns to starboard, right to port
+        assert min(res.surge_t) > 0 and res.yaw_t[0] > 4 and res.yaw_t[1] < -4
+
+
+def test_channel_signs_undetermined_without_differential_thrust():
+    from usvlog.identify.signs import channel_signs
+
+    rng = np.random.default_rng(5)
+    f = _steps(rng, 3000, 6.0, 0.0, 20.0)
+    t, tau_u, tau_r, x = _simulate(f, f)    # equal thrust on both: the channels cannot be told apart
+    res = channel_signs(t, 0.5 * tau_u, 0.5 * tau_u, x[:, 3], x[:, 5])
+    assert res.verdict == "undetermined"
+
+
+def test_identify_refuses_a_log_whose_right_channel_is_reversed():
+    """The recorded right forces negated (a reversed ESC): refused before any fit, naming the fix."""
+    from usvlog.errors import UnusableResultError
+    from usvlog.identify import Identifier
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=240.0), seed=3)
+    th = log["/thrust/command"]
+    th["thrust_right_n"] = -th["thrust_right_n"]
+    th["right"] = -th["right"]
+    with pytest.raises(UnusableResultError, match="reversed_right = true"):
+        Identifier(method="equation-error").fit([log])

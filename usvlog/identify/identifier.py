@@ -33,7 +33,7 @@ from .output import (
     simulate_run,
     velocity_samples,
 )
-from .signs import surge_sign, thrust_yaw_sign
+from .signs import channel_signs, surge_sign, thrust_yaw_sign
 from .smooth import KinStates, derivative, kinematic_states, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S, ThrustScale, fit_in_command_units, thrust_scale_known
@@ -340,7 +340,7 @@ def _refuse_outside_model(logs: list[FieldLog]) -> None:
         raise err
 
 
-def _refuse_wrong_signs(runs: list[RunData], kin: list[KinStates]) -> list:
+def _refuse_wrong_signs(runs: list[RunData], kin: list[KinStates], arm_m: float) -> list:
     """Sign checks of each run (:mod:`usvlog.identify.signs`) before any fit: the yaw rate against
     the differential thrust and the surge speed against the total thrust. A yaw response of the
     wrong sign is refused with the fix (a fit would find negative inertias, or a boat that does not
@@ -352,9 +352,17 @@ def _refuse_wrong_signs(runs: list[RunData], kin: list[KinStates]) -> list:
         tu, tr = thrust_on_grid(run, ks.t)
         nu = ks.nu()
         yaw, surge = thrust_yaw_sign(ks.t, tr, nu[:, 2]), surge_sign(ks.t, tu, nu[:, 0])
-        checks.append({"source": run.source, "yaw": yaw.to_dict(), "surge": surge.to_dict()})
+        fl, fr = 0.5 * (tu + tr / arm_m), 0.5 * (tu - tr / arm_m)   # each channel's force again
+        ch = channel_signs(ks.t, fl, fr, nu[:, 0], nu[:, 2])
+        checks.append({"source": run.source, "yaw": yaw.to_dict(), "surge": surge.to_dict(),
+                       "channels": ch.to_dict()})
         reasons = []
-        if yaw.sign < 0:
+        if ch.verdict.endswith("reversed"):
+            side = {"left reversed": "reversed_left = true", "right reversed": "reversed_right = true",
+                    "both reversed": "reversed_left = true and reversed_right = true"}[ch.verdict]
+            reasons.append(f"{ch.message}: set {side} in the vessel's [thrusters] (commands in PWM, counts or "
+                           f"normalized) or negate that channel's recorded forces")
+        elif yaw.sign < 0:
             reasons.append(f"{yaw.message}: map the channel named right to thrust_left and the one named left to "
                            f"thrust_right when importing (--column/--topic thrust_left=... thrust_right=...), or "
                            f"set the vessel's arm sign right")
@@ -620,7 +628,7 @@ class Identifier:
             self.thrust_scale_ = ThrustScale()
         all_runs = [run_data(lg, vessel) for lg in logs]
         all_kin = [kinematic_states(lg, r, vessel) for lg, r in zip(logs, all_runs)]
-        self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin)
+        self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin, vessel.thrusters.arm_m)
         holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
         if holdout is None:
             self.validation_mode_ = "leave-one-out"

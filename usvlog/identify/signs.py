@@ -296,3 +296,95 @@ def heading_rate_agreement(t, psi, r_gyro, window_s: float = HEADING_WINDOW_S) -
 
 
 __all__ = ["SignCheck", "RateCheck", "thrust_yaw_sign", "surge_sign", "heading_rate_agreement"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChannelCheck:
+    """Result of :func:`channel_signs`: each thruster channel's effect on surge and yaw.
+
+    ``surge_t``/``yaw_t``: t-statistics of each channel's gain ((left, right)); usvlog's
+    convention expects surge gains > 0 for both, the yaw gain > 0 for left and < 0 for right.
+    ``verdict``: ``"ok"``, ``"left reversed"``, ``"right reversed"``, ``"both reversed"``,
+    ``"swapped"`` or ``"undetermined"``; ``message`` in plain words.
+    """
+
+    surge_t: tuple[float, float]
+    yaw_t: tuple[float, float]
+    verdict: str
+    n_windows: int
+    duration_s: float
+    message: str
+
+    def to_dict(self) -> dict:
+        """The fields as a JSON-ready dict."""
+        return asdict(self)
+
+
+def _channel_t(t, fl, fr, y, window_s) -> tuple[tuple[float, float], int, float]:
+    """t-statistics of (left, right) in y_dot = a_l F_l + a_r F_r - b y + c (integral form)."""
+    dur, (dy, il, ir, iy) = _increments(t, [(y, "level"), (fl, "integral"), (fr, "integral"), (y, "integral")],
+                                        window_s)
+    nan = float("nan")
+    if len(dur) < MIN_WINDOWS:
+        return (nan, nan), len(dur), float(dur.sum())
+    coef, se, _dof = _ols(dy, np.stack([il, ir, -iy, dur], 1))
+    ts = tuple(float(c / s) if np.isfinite(s) and s > 0 else nan for c, s in zip(coef[:2], se[:2]))
+    return (ts[0], ts[1]), len(dur), float(dur.sum())
+
+
+def channel_signs(t, f_left, f_right, u, r, window_s: float = RESPONSE_WINDOW_S) -> ChannelCheck:
+    """Whether each thruster channel turns and pushes the boat the way its side says (reversed, swapped).
+
+    Fits the yaw response to the two channels separately, in integral form as
+    :func:`thrust_yaw_sign`: r(t+W) - r(t) = g_l int F_l + g_r int F_r - d int r + e W, and the
+    same for u. usvlog's convention: the left channel turns to starboard (g_l > 0), the right one
+    to port (g_r < 0), both push forward. The yaw gains' signs (both |t| >= T_MIN) name the fault:
+    (+, -) as expected; (-, -) the left channel reversed; (+, +) the right one reversed; (-, +)
+    left and right swapped, or both reversed when the total thrust also drives the boat
+    backwards (the surge gain of F_l + F_r < 0 with |t| >= T_MIN). A single channel is called
+    reversed only when its own surge gain does not clearly say forward. The yaw gains are the
+    strong evidence (t ~ 20 on a 300 s run against ~ 3-5 for one channel's surge: the sway-yaw
+    coupling); anything less clear is "undetermined".
+
+    Parameters
+    ----------
+    t : array_like, shape (N,)
+        Sorted times, s.
+    f_left, f_right : array_like, shape (N,)
+        Each channel's force as recorded (or mapped from its command), N.
+    u, r : array_like, shape (N,)
+        Surge speed (m/s) and yaw rate (rad/s), smoothed.
+    window_s : float, default RESPONSE_WINDOW_S
+
+    Returns
+    -------
+    ChannelCheck
+    """
+    fl, fr = np.asarray(f_left, float), np.asarray(f_right, float)
+    su, k, dur = _channel_t(t, fl, fr, u, window_s)
+    sy, _, _ = _channel_t(t, fl, fr, r, window_s)
+    total, _ = _response("surge", t, fl + fr, u, window_s)
+    st = total["t_stat"]
+
+    def sign(x: float) -> int:   # +-1 when determined, else 0
+        return int(math.copysign(1.0, x)) if math.isfinite(x) and abs(x) >= T_MIN else 0
+
+    yl, yr, s_sum = sign(sy[0]), sign(sy[1]), sign(st)
+    stats = (f"yaw t {sy[0]:.1f}/{sy[1]:.1f}, surge t {su[0]:.1f}/{su[1]:.1f} (left/right), "
+             f"{st:.1f} (total) over {dur:.0f} s")
+    if (yl, yr) == (1, -1):
+        verdict, msg = "ok", f"each thruster channel turns the boat as its side says ({stats})"
+    elif (yl, yr) == (-1, -1) and sign(su[0]) <= 0:
+        verdict, msg = "left reversed", (f"the left thruster channel appears reversed: a positive command drives it "
+                                         f"backwards ({stats})")
+    elif (yl, yr) == (1, 1) and sign(su[1]) <= 0:
+        verdict, msg = "right reversed", (f"the right thruster channel appears reversed: a positive command drives "
+                                          f"it backwards ({stats})")
+    elif (yl, yr) == (-1, 1) and s_sum < 0:
+        verdict, msg = "both reversed", ("both thruster channels push the boat backwards for a positive command "
+                                         f"({stats})")
+    elif (yl, yr) == (-1, 1):
+        verdict, msg = "swapped", f"left and right appear swapped ({stats})"
+    else:
+        verdict, msg = "undetermined", f"the channels' signs are not determined ({stats})"
+    return ChannelCheck(surge_t=su, yaw_t=sy, verdict=verdict, n_windows=k, duration_s=dur, message=msg)
