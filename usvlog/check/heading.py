@@ -141,6 +141,8 @@ def _f_test(y, full, reduced) -> tuple[float, float]:
 def deviation_and_thrust(ctx: CheckContext) -> list[Finding]:
     """The leg fit (module docstring): deviation that varies with the heading, and a heading
     disturbance that follows the thrust."""
+    if ctx.track is None or ctx.heading is None:
+        return []
     legs = _legs(ctx)
     legs = legs[np.all(np.isfinite(legs[:, :4]), 1)]
     if len(legs) < MIN_LEGS:
@@ -152,7 +154,7 @@ def deviation_and_thrust(ctx: CheckContext) -> list[Finding]:
     c, d = legs[:, 2], np.degrees(legs[:, 3])
     one = np.ones(len(c))
     harm = np.stack([np.sin(c), np.cos(c), np.sin(2 * c), np.cos(2 * c)], 1)
-    level = float(np.nanmean(np.abs(legs[:, 4]))) if len(legs) else 0.0
+    level = float(np.mean(np.abs(legs[:, 4]))) if np.all(np.isfinite(legs[:, 4])) else 0.0
     thr_cols = [(name, x) for name, x in (("|left|+|right|", legs[:, 4]), ("left-right", legs[:, 5]))
                 if np.all(np.isfinite(x)) and np.std(x) > MIN_THRUST_SPREAD * level]
     T = np.stack([x for _, x in thr_cols], 1) if thr_cols else np.zeros((len(c), 0))
