@@ -204,8 +204,14 @@ def holds(cmd: Commands, tol: float) -> list[Hold]:
     i = 0
     n = len(t)
     while i < n:
-        away = np.flatnonzero((np.abs(left[i:] - left[i]) > tol) | (np.abs(right[i:] - right[i]) > tol))
-        j = i + int(away[0]) if len(away) else n
+        j, step = i + 1, 64   # look ahead in growing chunks: linear in the run's length however many holds
+        while j < n:
+            k = min(j + step, n)
+            away = np.flatnonzero((np.abs(left[j:k] - left[i]) > tol) | (np.abs(right[j:k] - right[i]) > tol))
+            if len(away):
+                j += int(away[0])
+                break
+            j, step = k, 2 * step
         end = t[j] if j < n else t[-1]
         out.append(Hold(float(t[i]), float(end), float(np.mean(left[i:j])), float(np.mean(right[i:j]))))
         i = j

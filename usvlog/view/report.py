@@ -37,6 +37,7 @@ from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
 from . import data as vd
+from . import manoeuvres as vman
 from .forked import Forked as _Forked
 from .forked import two_cores as _two_cores
 
@@ -435,6 +436,7 @@ def _fig_measured(plt, log, path, *, axes: _Axes):
         n, e = _col(est, "n_m"), _col(est, "e_m")
         ax.plot(*xy(n, e), "-", color="C0", lw=1.4, label="smoothed estimate", zorder=4)
         _start_marker(ax, xy, n, e, "C0")
+        vman.draw_on_track(ax, xy, log, vman.of_log(log))   # each standard manoeuvre, numbered as in its table
     if path is not None:
         ax.plot(*xy(path[:, 0], path[:, 1]), ":", color="C1", lw=1.4, label="desired path (dotted)", zorder=2)
     axes.label(ax)
@@ -1087,6 +1089,7 @@ def _page_head(log, baseline, links=()) -> list[str]:
     parts += _metrics_section(log, baseline)
     parts += _estimate_section(log)
     parts += _identification_section(log)
+    parts += vman.html_section(vman.of_log(log))
     ev = vd.events_once(log)
     if ev:
         parts.append(f"<h2>Events ({len(ev)})</h2><ul class='events'>")

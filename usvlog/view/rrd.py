@@ -9,6 +9,7 @@ Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
     /runs/<name>/local/{...same..., ctl_<ctl>/closest, ctl_<ctl>/carrot, ctl_<ctl>/arrows} 2D, x = east, y = -north
     /runs/<name>/ts/<quantity>/<series>                                       Scalars (fit/: identification)
     /runs/<name>/events                                                       TextLog
+    /runs/<name>/manoeuvres (start and end of each), /runs/<name>/local/manoeuvres (its stretch)
 
 ``<ctl>`` is ``control`` (closed-loop simulation), ``replay`` (controller replayed on a
 recorded run) or ``whatif``. The local 2D view draws x = east and y = -north, so with
@@ -41,6 +42,7 @@ from ..io.atomic import deferred_signals as _deferred
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, ned_to_geodetic
 from . import data as vd
+from . import manoeuvres as vman
 
 APP_ID = "usvlog"
 OVERLAY_HZ = 10.0
@@ -201,6 +203,7 @@ class _Writer:
         self.draw_controllers()
         self.draw_series()
         self.draw_events()
+        self.draw_manoeuvres()
 
     def draw_tracks(self) -> None:
         log = self.log
@@ -448,6 +451,22 @@ class _Writer:
         self.rec.send_columns(path, indexes=self.index_cols(t),
                               columns=rr.TextLog.columns(text=text, level=[e.level for e in ev]))
         self.views["events"].append(path)
+
+
+    def draw_manoeuvres(self) -> None:
+        """The standard manoeuvres (measured on the stored estimate): a text entry at each one's start
+        (its metrics) and end in the events view, and its stretch of the track in the local view."""
+        part = vman.rerun_parts(self.log)
+        if part is None:
+            return
+        t, text, level, strips, labels = part
+        path = f"{self.prefix}/{vman.ENTITY}"
+        self.rec.send_columns(path, indexes=self.index_cols(t),
+                              columns=rr.TextLog.columns(text=[self.label(x) for x in text], level=level))
+        self.views["events"].append(path)
+        if strips:
+            self.static("local", vman.TRACK_ENTITY, rr.LineStrips2D(
+                strips, radii=rr.Radius.ui_points(3.0), labels=[self.label(x) for x in labels], show_labels=False))
 
 
 def _col(frame, name) -> np.ndarray:

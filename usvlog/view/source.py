@@ -24,12 +24,13 @@ from ..log.fieldlog import FieldLog
 from . import data as vd
 from .forked import Forked, two_cores
 
-# what view/rrd.py draws; the report draws the same but the recorded thrust commands
+# what view/rrd.py draws; the report draws the same but the recorded thrust commands (it reads them to find
+# the standard manoeuvres)
 REPORT_TOPICS = tuple(dict.fromkeys([
-    "/gnss/fix", "/local/position", "/compass/heading", "/estimate/innovations", "/identify/fit",
+    "/gnss/fix", "/local/position", "/compass/heading", "/estimate/innovations", "/identify/fit", "/thrust/command",
     *(t for t, _label, _desc in vd.STATES), *(t for t, _label, _state, _desc in vd.CONTROLLERS),
     *(s for _t, _label, s, _desc in vd.CONTROLLERS)]))
-VIEW_TOPICS = (*REPORT_TOPICS, "/thrust/command")
+VIEW_TOPICS = tuple(dict.fromkeys((*REPORT_TOPICS, "/thrust/command")))
 
 
 @dataclass(frozen=True)
