@@ -91,3 +91,27 @@ def test_bad_input_exit_2_one_line(tmp_path, capsys, content):
     assert main(["check", str(p)]) == 2
     err = capsys.readouterr().err
     assert "usvlog check: error:" in err and "Traceback" not in err
+
+
+def test_report_and_rrd_show_the_findings(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from usvlog.sim.simulate import SensorSettings
+
+    st = SimSettings(duration_s=200.0, sensors=SensorSettings(gps_dropouts=((100.0, 12.0),)))
+    usvlog.save(simulate("turns", st, seed=2), tmp_path / "gap.mcap")
+    page = usvlog.report(tmp_path / "gap.mcap", tmp_path / "report")
+    text = page.read_text()
+    assert "<h2 id='findings'>Findings (0 error(s), 1 warning(s)" in text
+    assert "<td>sensors.gaps</td><td>/gnss/fix</td><td>99.9-112.0 s</td>" in text   # the fixes around the gap
+    rrd = usvlog.to_rrd(tmp_path / "gap.mcap", tmp_path / "gap.rrd")
+    entries = []
+    for c in RrdReader(rrd).stream().to_chunks():
+        if c.entity_path.endswith("/check"):
+            d = c.to_record_batch().to_pydict()
+            entries += [(t, lv[0], tx[0]) for t, lv, tx in zip(d["time"], d["TextLog:level"], d["TextLog:text"])]
+    assert entries and all(lv in ("ERROR", "WARN", "INFO") for _, lv, _ in entries)
+    (gap,) = [(t, tx) for t, lv, tx in entries if lv == "WARN"]
+    assert gap[1].startswith("sensors.gaps /gnss/fix (99.9-112.0 s)")
+    start = min(t for t, _, _ in entries)
+    assert (gap[0] - start).total_seconds() == pytest.approx(99.9, abs=0.05)

@@ -58,11 +58,14 @@ class CheckResult:
         The checks that ran (each a JUnit testcase), passed or not.
     source : str
         The log's name (its path, or "log").
+    t0_ns : int
+        The log's start (ns since the Unix epoch): the findings' times count from it.
     """
 
     findings: tuple[Finding, ...]
     checks: tuple[str, ...]
     source: str = "log"
+    t0_ns: int = 0
 
     @property
     def worst(self) -> str | None:
@@ -87,9 +90,10 @@ class CheckResult:
         return junit_xml(self.findings, self.checks, suite=self.source)
 
     def to_dict(self) -> dict:
-        """JSON-ready: source, counts per severity, exit code, checks and findings."""
-        return {"source": self.source, "counts": counts(self.findings), "exit_code": self.exit_code,
-                "checks": list(self.checks), "findings": findings_to_dicts(self.findings)}
+        """JSON-ready: source, start (ns), counts per severity, exit code, checks and findings."""
+        return {"source": self.source, "t0_ns": self.t0_ns, "counts": counts(self.findings),
+                "exit_code": self.exit_code, "checks": list(self.checks),
+                "findings": findings_to_dicts(self.findings)}
 
 
 def _run(fn, names: Sequence[str], ctx: CheckContext) -> list[Finding]:
@@ -126,7 +130,7 @@ def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Fi
     mine = {(f.code, f.channel) for f in own}
     health = [f for f in findings_from_health(ctx.health) if (f.code, f.channel) not in mine]
     return CheckResult(findings=tuple(sort_findings([*own, *health, *extra])), checks=tuple(names),
-                       source=str(log.source or "log"))
+                       source=str(log.source or "log"), t0_ns=ctx.t0_ns)
 
 
 __all__ = ["CHECKS", "CheckResult", "check_log"]

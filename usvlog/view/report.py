@@ -2,7 +2,8 @@
 
 * every run: a status line first (the estimate's consistency verdict, the identification's
   verdict, whether a replayed run follows its scenario's path), the warnings, the metrics
-  (path-following metrics exactly as ``usvlog replay`` printed them, with their window);
+  (path-following metrics exactly as ``usvlog replay`` printed them, with their window), and
+  the findings of ``usvlog check`` as a table (:mod:`usvlog.view.findings`);
 * an estimated run: raw GPS fixes (points) against the smoothed track, surge speed, heading
   and yaw rate with their 1-sigma bands, the sensors' consistency table and the import's
   sensor health audit;
@@ -37,6 +38,7 @@ from ..log.status import estimate_status as stored_estimate_status
 from ..log.summary import format_health, health_from_provenance
 from ..model.frames import ssa
 from . import data as vd
+from . import findings as vfind
 from . import manoeuvres as vman
 from .forked import Forked as _Forked
 from .forked import two_cores as _two_cores
@@ -1089,6 +1091,7 @@ def _page_head(log, baseline, links=()) -> list[str]:
     parts += _metrics_section(log, baseline)
     parts += _estimate_section(log)
     parts += _identification_section(log)
+    parts += vfind.html_section(vfind.of_log(log))
     parts += vman.html_section(vman.of_log(log))
     ev = vd.events_once(log)
     if ev:

@@ -9,6 +9,7 @@ Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
     /runs/<name>/local/{...same..., ctl_<ctl>/closest, ctl_<ctl>/carrot, ctl_<ctl>/arrows} 2D, x = east, y = -north
     /runs/<name>/ts/<quantity>/<series>                                       Scalars (fit/: identification)
     /runs/<name>/events                                                       TextLog
+    /runs/<name>/check                                   TextLog: the findings of usvlog check, at their start
     /runs/<name>/manoeuvres (start and end of each), /runs/<name>/local/manoeuvres (its stretch)
 
 ``<ctl>`` is ``control`` (closed-loop simulation), ``replay`` (controller replayed on a
@@ -42,6 +43,7 @@ from ..io.atomic import deferred_signals as _deferred
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, ned_to_geodetic
 from . import data as vd
+from . import findings as vfind
 from . import manoeuvres as vman
 
 APP_ID = "usvlog"
@@ -203,6 +205,7 @@ class _Writer:
         self.draw_controllers()
         self.draw_series()
         self.draw_events()
+        self.draw_findings()
         self.draw_manoeuvres()
 
     def draw_tracks(self) -> None:
@@ -467,6 +470,18 @@ class _Writer:
         if strips:
             self.static("local", vman.TRACK_ENTITY, rr.LineStrips2D(
                 strips, radii=rr.Radius.ui_points(3.0), labels=[self.label(x) for x in labels], show_labels=False))
+
+
+    def draw_findings(self) -> None:
+        """The findings of ``usvlog check``: one text entry per finding at its start, with its level."""
+        part = vfind.rerun_parts(self.log)
+        if part is None:
+            return
+        t, text, level = part
+        path = f"{self.prefix}/{vfind.ENTITY}"
+        self.rec.send_columns(path, indexes=self.index_cols(t),
+                              columns=rr.TextLog.columns(text=[self.label(x) for x in text], level=level))
+        self.views["events"].append(path)
 
 
 def _col(frame, name) -> np.ndarray:
