@@ -126,7 +126,8 @@ def dead_or_frozen(ctx: CheckContext) -> list[Finding]:
             dead_heading = turn is not None and turn >= TRACK_TURN_DEG
             out.append(Finding(
                 severity="error" if dead_heading else "warning",
-                code="sensors.dead", channel=COMPASS_TOPIC, t0_s=float(h[0][0]), t1_s=float(h[0][-1]),
+                code="sensors.dead" if dead_heading else "sensors.dead.suspect", channel=COMPASS_TOPIC,
+                t0_s=float(h[0][0]), t1_s=float(h[0][-1]),
                 evidence=f"heading moved {span:.2f} deg in all ({len(h[0])} records) while the track turned "
                          + ("an unknown angle" if turn is None else f"{turn:.0f} deg"),
                 action="the compass is dead (or stuck): check it; estimate without it (GNSS only)"

@@ -35,6 +35,9 @@ from xml.sax.saxutils import escape, quoteattr
 SEVERITIES = ("error", "warning", "info")
 """The severities, most severe first."""
 _RANK = {s: i for i, s in enumerate(SEVERITIES)}
+GAP_WARN_S = 0.5
+"""The import's gaps are a warning when the longest is at least this long (s), else an info (as
+:data:`usvlog.check.sensors.GAP_MIN_S`)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -232,7 +235,8 @@ def _channel_findings(topic: str, ch: Mapping) -> list[Finding]:
     gaps = int(ch.get("gaps") or 0)
     if gaps:
         longest = _num(ch.get("longest_gap_s"))
-        out.append(Finding(severity="warning", code="sensors.gaps", channel=topic,
+        out.append(Finding(severity="warning" if longest >= GAP_WARN_S else "info", code="sensors.gaps",
+                           channel=topic,
                            evidence=f"{gaps} gap(s) longer than 3 intervals at import, longest {longest:.2f} s "
                                     f"(rate {_num(ch.get('rate_hz')):.3g} Hz)",
                            action="check the sensor's connection and the logger's load",
@@ -249,8 +253,9 @@ def findings_from_health(health: Mapping | None, held: Mapping[str, int] | None 
     """Findings from the import's sensor health record (:mod:`usvlog.io.importers.audit`).
 
     Dead channels are errors, suspect ones warnings; per channel, records out of the
-    possible range, records not after the one before, and gaps are warnings, republished
-    duplicates an info; a decided heading mounting offset is a warning with its number and
+    possible range, records not after the one before, and gaps (the longest at least
+    :data:`GAP_WARN_S`; shorter ones an info) are warnings, republished duplicates an info;
+    a decided heading mounting offset is a warning (an error from 20 deg) with its number and
     the option that applies it; commands without a known force scale a warning.
 
     Parameters
