@@ -189,7 +189,10 @@ def deviation_and_thrust(ctx: CheckContext) -> list[Finding]:
                                     f"({MIN_OCTANTS} needed)", action="drive straight legs on more courses",
                            numbers={"legs": len(c), "octants": octants}))
     if T.shape[1]:
-        base = np.column_stack([one, harm]) if octants >= MIN_OCTANTS else one[:, None]
+        # the deviation curve is part of the base only when it is significant: else its four terms
+        # would soak up part of a thrust effect that changes from leg to leg with the course
+        curve = any(f.code == "heading.deviation" and f.severity == "warning" for f in out)
+        base = np.column_stack([one, harm]) if curve else one[:, None]
         full = np.column_stack([base, T])
         f, p = _f_test(d, full, base)
         _, beta = _rss(d, full)
