@@ -40,6 +40,10 @@ SCHEMA: dict[str, str] = {
     "estimate_model": "str", "estimate_consistent": "bool", "estimate_warnings": "str",
     "estimate_status": "str", "estimate_mode": "str", "estimate_reinits": "int",
     "estimate_dropouts": "int",
+    # standard manoeuvres (on the estimate; means over the run's manoeuvres of a kind)
+    "manoeuvres": "int", "tactical_diameter_m": "float", "tactical_diameter_m_std": "float",
+    "advance_m": "float", "turn_rate_degps": "float", "zigzag_overshoot_deg": "float",
+    "zigzag_overshoot_deg_std": "float", "stopping_distance_m": "float", "pivot_rate_degps": "float",
     # identify
     "identify_method": "str", **{k: "float" for p in PARAM_NAMES for k in (p, f"{p}_se")},
     "verdict": "str", "verdict_reasons": "str", "fit_on": "str", "fit_u_pct": "float", "fit_v_pct": "float",
@@ -158,6 +162,53 @@ def estimate_columns(result) -> dict[str, Any]:
     return out
 
 
+MANOEUVRE_COLUMNS = {"tactical_diameter_m": ("turning_circle", "tactical_diameter_m"),
+                     "advance_m": ("turning_circle", "advance_m"),
+                     "turn_rate_degps": ("turning_circle", "steady_turn_rate_degps"),
+                     "zigzag_overshoot_deg": ("zigzag", "first_overshoot_deg"),
+                     "stopping_distance_m": ("stop", "stopping_distance_m"),
+                     "pivot_rate_degps": ("pivot", "yaw_rate_degps")}
+"""Campaign column -> (manoeuvre kind, metric) it is the run's mean of."""
+
+
+def manoeuvre_columns(state, log) -> dict[str, Any]:
+    """Columns of the standard manoeuvres of a run (``usvlog manoeuvres``), measured on its estimate.
+
+    Parameters
+    ----------
+    state : pandas.DataFrame
+        The run's ``/estimate/state`` (``EstimateResult.state``).
+    log : FieldLog
+        The run (its ``/thrust/command`` and start time).
+
+    Returns
+    -------
+    dict
+        ``manoeuvres`` (how many), and per :data:`MANOEUVRE_COLUMNS` the mean of that metric over
+        the run's manoeuvres of its kind (None without one); ``tactical_diameter_m_std`` and
+        ``zigzag_overshoot_deg_std`` the one-sigma of the mean (the metrics' sigmas combined).
+        Empty when the run has no thrust commands or they cannot be read (never raises a
+        UsvlogError: a run without manoeuvres is no failed run).
+    """
+    from ..trials import find_manoeuvres  # heavy: numpy, pandas
+
+    thrust, tr = log.get("/thrust/command"), log.time_range()
+    if thrust is None or tr is None or len(thrust) < 2:
+        return {}
+    try:
+        found = find_manoeuvres(state, thrust, int(tr[0]))
+    except UsvlogError:
+        return {}
+    out: dict[str, Any] = {"manoeuvres": len(found)}
+    for col, (kind, name) in MANOEUVRE_COLUMNS.items():
+        ms = [m.metric(name) for m in found.of_kind(kind)]
+        ms = [m for m in ms if m is not None]
+        out[col] = _f(sum(m.value for m in ms) / len(ms)) if ms else None
+        if col in ("tactical_diameter_m", "zigzag_overshoot_deg"):
+            out[f"{col}_std"] = _f(math.sqrt(sum(m.std ** 2 for m in ms)) / len(ms)) if ms else None
+    return out
+
+
 def verdict_of(idf) -> tuple[str, list[str]]:
     """The identification's verdict word and its reasons (the identifier's ``verdict_`` level
     and ``reasons_``).
@@ -270,4 +321,5 @@ def failure_columns(stage: str, err: BaseException) -> dict[str, Any]:
 
 
 __all__ = ["CAVEATS", "FAILED", "OK", "SCHEMA", "UNUSABLE", "USABLE", "empty_row", "estimate_columns",
-           "failure_columns", "identify_columns", "import_columns", "log_columns", "replay_columns", "verdict_of"]
+           "failure_columns", "identify_columns", "import_columns", "log_columns", "manoeuvre_columns",
+           "replay_columns", "verdict_of"]

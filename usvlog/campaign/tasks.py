@@ -405,6 +405,7 @@ def _stages(spec: RunSpec, settings: RunSettings, stages: Stages, tmp: Path, row
             stage = "estimate"
             est = stages.estimate(log, tmp / ESTIMATE_FILE, model=settings.estimate_model, vessel=ves)
             row.update(C.estimate_columns(est))
+            row.update(C.manoeuvre_columns(est.state, log))
             map_of = est.to_log(log)
         stages.save(map_log(map_of), tmp / MAP_FILE)
         if "identify" in settings.stages:

@@ -1,0 +1,43 @@
+"""Campaign columns of the standard manoeuvres: a season's run with a turning circle and one
+without any, through the campaign's own stages, against the truth's manoeuvres."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import usvlog
+from usvlog.campaign import columns as C
+from usvlog.trials import find_manoeuvres
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "unit"))
+import manoeuvre_runs as R  # noqa: E402
+
+
+def test_tactical_diameter_per_run(tmp_path):
+    log = R.turning_circle_run(seed=4)
+    usvlog.save(log, tmp_path / "circle.mcap")
+    usvlog.simulate("paper-circle", tmp_path / "closed.mcap", duration_s=30)
+    season = usvlog.campaign([tmp_path / "circle.mcap", tmp_path / "closed.mcap"], tmp_path / "season",
+                             stages=["import", "estimate"], sequential=True)
+    t = season.table.set_index(season.table["source"].map(lambda s: Path(s).stem))
+    truth = find_manoeuvres(log["/truth/state"], log["/thrust/command"], log.time_range()[0]).items[0]
+    row = t.loc["circle"]
+    assert row["status"] == "ok" and row["manoeuvres"] == 1
+    assert abs(row["tactical_diameter_m"] / truth.value("tactical_diameter_m") - 1) < 0.05
+    assert abs(row["advance_m"] / truth.value("advance_m") - 1) < 0.05
+    assert 0 < row["tactical_diameter_m_std"] < 1.0
+    assert abs(row["turn_rate_degps"] / truth.value("steady_turn_rate_degps") - 1) < 0.03
+    assert np.isnan(row["zigzag_overshoot_deg"]) and np.isnan(row["stopping_distance_m"])
+    closed = t.loc["closed"]
+    assert closed["status"] == "ok" and closed["manoeuvres"] == 0 and np.isnan(closed["tactical_diameter_m"])
+
+
+def test_a_run_without_thrust_has_no_manoeuvre_columns():
+    log = R.turning_circle_run(seed=4, duration_s=40)
+    state = log["/truth/state"]
+    del log.channels["/thrust/command"]
+    assert C.manoeuvre_columns(state, log) == {}
+    assert set(C.MANOEUVRE_COLUMNS) <= set(C.SCHEMA)
