@@ -23,7 +23,7 @@ from ..choices import PARAM_NAMES
 from ..errors import ConfigError, StorageError
 from ..io.atomic import write_text_atomic
 from . import columns as C
-from .drift import ParameterDrift, parameter_drift
+from .drift import ParameterDrift, vessel_drift
 from .engine import ClusterInfo, Runner
 from .table import to_frame, write_table
 from .tasks import (
@@ -137,8 +137,9 @@ class CampaignResult:
             hits = [d for d in by.values() if d.drifted]
             out.extend(f"{v}: {d.describe()}" for d in hits)
             if not hits:
-                out.append(f"{v}: no parameter changed across {max((d.consistency.n for d in by.values()), default=0)}"
-                           f" usable runs")
+                nd = max((d.dates for d in by.values()), default=0)
+                out.append(f"{v}: no parameter changed beyond its uncertainty across {nd} date{'s' if nd != 1 else ''}"
+                           f" ({max((d.consistency.n for d in by.values()), default=0)} usable runs)")
         return out
 
     def to_dict(self) -> dict:
@@ -200,26 +201,27 @@ def usable(table: pd.DataFrame) -> pd.DataFrame:
 def drift_by_vessel(table: pd.DataFrame, **kw) -> dict[str, dict[str, ParameterDrift]]:
     """{vessel: {parameter: ParameterDrift}} from the usable runs of the table.
 
-    Parameters fixed in the identification (no standard error) are left out.
+    Parameters fixed in the identification (no standard error) are left out. A vessel's
+    parameters are tested together: the correction covers every parameter at every date.
 
     Parameters
     ----------
     table : pandas.DataFrame
         The campaign table.
     **kw
-        Passed to :func:`usvlog.campaign.drift.parameter_drift`.
+        Passed to :func:`usvlog.campaign.drift.vessel_drift`.
     """
     ok = usable(table)
     out: dict[str, dict[str, ParameterDrift]] = {}
     for v, g in ok.groupby(ok["vessel"].fillna(""), sort=True):
         t = g["start_utc"].to_numpy(dtype="datetime64[ns]").astype(np.int64)
-        by = {}
+        params = {}
         for p in PARAM_NAMES:
             se = g[f"{p}_se"].to_numpy(dtype=float, na_value=np.nan)
             if not np.isfinite(se).any() or not (se[np.isfinite(se)] > 0).any():
                 continue
-            by[p] = parameter_drift(p, t, g[p].to_numpy(dtype=float, na_value=np.nan), se, **kw)
-        out[str(v) or "(unnamed)"] = by
+            params[p] = (g[p].to_numpy(dtype=float, na_value=np.nan), se)
+        out[str(v) or "(unnamed)"] = vessel_drift(t, params, **kw)
     return out
 
 
