@@ -103,7 +103,7 @@ def crc_seconds(path) -> float:
                 chunks.append(zstandard.decompress(rec.data, rec.uncompressed_size))
     data_end = data.rfind(b"\x0f\x04\x00\x00\x00\x00\x00\x00\x00")  # the Data End record
 
-    from usvlog.io.mcap.reader import _crc32  # the reader's own CRC-32 (fastcrc's, or zlib's)
+    from usvlog.io.mcap.format import crc32 as _crc32  # the reader's own CRC-32 (fastcrc's, or zlib's)
 
     def run():
         for c in chunks:

@@ -543,7 +543,7 @@ def test_the_readers_crc_is_zlibs():
     # data section's check runs it window by window, and over memoryview slices of a larger buffer
     import zlib
 
-    from usvlog.io.mcap.reader import _crc32
+    from usvlog.io.mcap.format import crc32 as _crc32
 
     rng = np.random.default_rng(3)
     data = rng.integers(0, 256, 100_003, dtype=np.uint8).tobytes()

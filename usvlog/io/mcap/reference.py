@@ -12,6 +12,19 @@ from ...errors import InputError
 from ...log.fieldlog import FieldLog
 from ..atomic import atomic_path
 from .codec import Codec
+from .container import (
+    _add_message,
+    _apply,
+    _check_message_index,
+    _chunk_data,
+    _chunk_records,
+    _CorruptChunk,
+    _layout,
+    _parse,
+    _Scan,
+    _summary_channel,
+)
+from .decode import _read_log
 from .format import (
     _REC,
     OP_CHUNK,
@@ -20,24 +33,13 @@ from .format import (
     OP_MESSAGE,
     OP_MESSAGE_INDEX,
 )
-from .reader import (
-    _add_message,
-    _apply,
-    _check_message_index,
-    _chunk_data,
-    _chunk_records,
+from .recovery import (
     _chunk_shape,
-    _CorruptChunk,
     _finish,
-    _layout,
     _next_chunk_reference,
     _note_region,
-    _parse,
-    _read_log,
     _region_reason,
     _resync,
-    _Scan,
-    _summary_channel,
     _unexpected,
 )
 from .writer import _codec_for, _compression, _schema_record

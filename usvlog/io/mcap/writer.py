@@ -33,7 +33,7 @@ from .format import (
     MAGIC,
     crc32,
 )
-from .reader import ChunkStream, channel_ids
+from .stream import ChunkStream, channel_ids
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
     import pandas as pd
