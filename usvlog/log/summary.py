@@ -451,8 +451,10 @@ def format_health(h: dict) -> list[str]:
         A header line (time base, track turn, thrust time) and one line per channel:
         status, rate (Hz), jitter (ms), gaps, republished copies collapsed, out-of-range
         values, longest stuck stretch (s), stamp offset (s); then why a channel is dead or
-        suspect, the thrust unit, range and whether the force scale is known, and the
-        heading's mounting offset against the course over ground (or why none).
+        suspect, the thrust unit, range and whether the force scale is known, the
+        heading's mounting offset against the course over ground (or why none), and the
+        errors and warnings as ``usvlog check`` words them
+        (:func:`usvlog.log.findings.findings_from_health`).
     """
     base = h.get("time_base", "?")
     if h.get("time_counted_from"):
@@ -483,6 +485,12 @@ def format_health(h: dict) -> list[str]:
     ho = h.get("heading_offset")
     if ho and ho.get("text"):
         lines.append(f"  heading {ho['text']}")
+    from .findings import findings_from_health  # light: standard library only (the lines usvlog check prints)
+
+    found = [f for f in findings_from_health(h) if f.severity != "info"]
+    if found:
+        lines.append(f"  findings ({len(found)}; `usvlog check` runs every check):")
+        lines += [f"    {f.line()}" for f in found]
     return lines
 
 
