@@ -115,3 +115,30 @@ def test_report_and_rrd_show_the_findings(tmp_path):
     assert gap[1].startswith("sensors.gaps /gnss/fix (99.9-112.0 s)")
     start = min(t for t, _, _ in entries)
     assert (gap[0] - start).total_seconds() == pytest.approx(99.9, abs=0.05)
+
+
+def test_held_gnss_csv_and_inspect_say_the_same(tmp_path, capsys):
+    """A CSV resampled to 10 Hz whose fixes are held for 2 rows: the in-memory import keeps one row
+    per update and check says how many it dropped; inspect of the imported 70 deg run prints the
+    health record's findings in check's words."""
+    log = simulate("turns", SimSettings(duration_s=120.0), seed=3)
+    g, c = log["/gnss/fix"], log["/compass/heading"]
+    t = np.asarray(g.index, np.int64)
+    held = (np.arange(len(t)) // 2) * 2
+    hd = np.degrees(np.interp(t, np.asarray(c.index, np.int64), np.unwrap(c["heading_rad"].to_numpy()))) % 360
+    rows = ["time_s,lat,lon,heading_deg"] + [
+        f"{t[k] / 1e9:.3f},{g['lat_deg'].iloc[held[k]]:.8f},{g['lon_deg'].iloc[held[k]]:.8f},{hd[k]:.2f}"
+        for k in range(len(t))]
+    (tmp_path / "held.csv").write_text("\n".join(rows) + "\n")
+    assert main(["check", str(tmp_path / "held.csv"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    (h,) = [f for f in d["findings"] if f["code"] == "sensors.held"]
+    assert h["channel"] == "/gnss/fix" and h["numbers"]["held_repeats"] == pytest.approx(len(t) / 2, abs=2)
+
+
+def test_inspect_prints_the_health_findings(logs, tmp_path, capsys):
+    assert main(["import", str(logs / "rtk.nmea"), "--out", str(tmp_path / "rtk.mcap")]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(tmp_path / "rtk.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "ERROR heading.mounting_offset /compass/heading (whole run): heading - course over ground +70.0" in out
