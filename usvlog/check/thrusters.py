@@ -1,9 +1,9 @@
 """Thruster checks: left/right (or the moment's sign) swapped, surge thrust reversed, time
 saturated, commands outside their stated range, and a deadband.
 
-The command limits come from the unit: ``normalized`` -1..1, ``pwm_us`` the vessel's
-neutral +- span, ``counts`` the range the import used, ``newton`` the vessel's
-reverse/forward force when a vessel is given or stored (else unknown: not judged).
+The command limits come from the unit: ``normalized`` -1..1, ``counts`` the range the import
+used; ``pwm_us`` the vessel's neutral +- span and ``newton`` its reverse/forward force, when a
+vessel is given or stored (else unknown: not judged).
 
 The deadband check is deliberately simple: a stretch of at least :data:`DEADBAND_S` in
 which both commands are small but not both zero (at most :data:`SMALL_COMMAND` of full
@@ -37,7 +37,7 @@ def limits(ctx: CheckContext, unit: str) -> tuple[float, float] | None:
     th = ctx.vessel.thrusters
     if unit == "normalized":
         return -1.0, 1.0
-    if unit == "pwm_us":
+    if unit == "pwm_us" and ctx.vessel_given:   # ESCs differ (1100-1900, 1000-2000 us): the boat's own only
         return th.pwm_neutral_us - th.pwm_span_us, th.pwm_neutral_us + th.pwm_span_us
     if unit == "counts":
         rng = (ctx.health.get("thrust") or {}).get("range")
