@@ -21,7 +21,8 @@ from mcap.writer import CompressionType, Writer
 
 from usvlog.errors import InputError
 from usvlog.io.mcap import read_log, write_log
-from usvlog.io.mcap.codec import Codec, _decode_layout, codec_for_topic, writer_codec
+from usvlog.io.mcap.codec import Codec, codec_for_topic, writer_codec
+from usvlog.io.mcap.json_layout import _decode_layout
 from usvlog.io.mcap.reference import _write_log_reference, read_log_reference
 from usvlog.log.channels import StrCodes, auto_schema, concat_columns, frame_from_columns
 from usvlog.log.fieldlog import FieldLog
@@ -324,9 +325,9 @@ def test_decode_in_blocks_with_the_cached_layout_equals_reference(monkeypatch):
     """Blocks of messages decoded against the channel's cached layout; a block laid out
     otherwise (keys reordered, spaces) is matched on its own layout, a mixed one falls back
     to the reference: every way gives the reference's columns."""
-    from usvlog.io.mcap import codec as codec_mod
+    from usvlog.io.mcap import json_codec
 
-    monkeypatch.setattr(codec_mod, "_DECODE_BLOCK", 8)
+    monkeypatch.setattr(json_codec, "_DECODE_BLOCK", 8)
     codec = Codec(SCHEMA)
     plain = [_msg(i) for i in range(20)]
     spaced = [json.dumps(json.loads(_msg(i)), indent=1).encode() for i in range(20, 36)]
