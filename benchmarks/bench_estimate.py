@@ -41,13 +41,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from _proc import timed_run  # noqa: E402
 
 from usvlog.estimate import EstimateSettings, build_problem, estimate  # noqa: E402
-from usvlog.estimate.core import (  # noqa: E402
-    gps_only_settings,
-    head_problem,
-    process_noise,
-    run_fast,
-    run_reference_path,
-)
+from usvlog.estimate.layout import gps_only_settings, head_problem, process_noise  # noqa: E402
+from usvlog.estimate.run import run_fast, run_reference_path  # noqa: E402
 from usvlog.model.vessel import default_vessel  # noqa: E402
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate  # noqa: E402
 
@@ -138,7 +133,8 @@ def smoother_parts(pb, q: np.ndarray, s: EstimateSettings, repeat: int = 3) -> N
     wall): the forward pass, the smoother's block re-runs and its backward steps, each over
     the whole run (a block's buffers refilled, then smoothed), output rows every step."""
     from usvlog.estimate import kernels  # (the kernels module, for its parts)
-    from usvlog.estimate.core import POSITION_STD_LIMIT_M, reinit_nis
+    from usvlog.estimate.layout import POSITION_STD_LIMIT_M
+    from usvlog.estimate.run import reinit_nis
 
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     C = -(-N // kernels.SMOOTH_BLOCK)

@@ -16,14 +16,10 @@ from usvlog.estimate import (
     estimate,
     kernels,
 )
-from usvlog.estimate.core import (
-    process_noise,
-    run_fast,
-    run_reference_path,
-    yaw_jump_variance,
-)
+from usvlog.estimate.layout import process_noise, yaw_jump_variance
 from usvlog.estimate.reference import jacobian as ref_jacobian
 from usvlog.estimate.reference import rhs as ref_rhs
+from usvlog.estimate.run import run_fast, run_reference_path
 from usvlog.estimate.settings import Q_R_KINEMATIC_NO_JUMPS
 from usvlog.model.frames import ssa
 from usvlog.model.vessel import VesselParams, default_vessel
@@ -502,7 +498,7 @@ def test_chi2_quantile_closed_form_equals_scipy():
     """The NIS gate's closed-form chi-square quantiles (1 and 2 degrees of freedom) are scipy's."""
     from scipy.stats import chi2
 
-    from usvlog.estimate.core import chi2_quantile
+    from usvlog.estimate.layout import chi2_quantile
 
     for p in (0.5, 0.9, 0.99, 0.9999, 0.999999, 1 - 1e-12):
         for dof in (1, 2):
@@ -561,14 +557,14 @@ def test_output_rows_are_the_all_step_run_bit_for_bit():
 
 @pytest.mark.parametrize("slow", ["rerun", "back"])
 def test_two_thread_smoother_schedule_keeps_the_order_and_the_buffers(slow):
-    """The two threads' schedule of the blocks (core._shared_blocks): every block re-run once
+    """The two threads' schedule of the blocks (run._shared_blocks): every block re-run once
     and smoothed once, from the last down, each after its re-run, and no re-run into a buffer
     whose block is not smoothed yet; with slow re-runs the smoothing thread takes some itself.
     A re-run that fails is raised in the calling thread."""
     import threading
     import time
 
-    from usvlog.estimate.core import _shared_blocks
+    from usvlog.estimate.run import _shared_blocks
 
     blocks, nbuf = 23, 4
     lock = threading.Lock()

@@ -9,7 +9,8 @@ import pytest
 
 from usvlog.errors import UnusableResultError
 from usvlog.estimate import EstimateSettings, build_problem, estimate
-from usvlog.estimate.core import process_noise, run_fast, run_reference_path
+from usvlog.estimate.layout import process_noise
+from usvlog.estimate.run import run_fast, run_reference_path
 from usvlog.io.mcap import read_log, write_log
 from usvlog.log.status import EstimateStatus, estimate_status, set_estimate_status
 from usvlog.model.frames import ssa
@@ -139,7 +140,8 @@ def test_gps_only_dynamic_start_heading_is_the_first_moving_course():
     """The dynamic model's start heading without a compass: the kinematic smoother's course
     where the boat first moves (both paths alike), near the true heading, where the first
     10 m leg of a boat turning as it sets off points far away."""
-    from usvlog.estimate.core import gps_only_start, initial_course
+    from usvlog.estimate.core import gps_only_start
+    from usvlog.estimate.modes import initial_course
 
     log = _no_compass(simulate("turns", SimSettings(duration_s=300.0), seed=5))
     s = EstimateSettings(model="dynamic")
@@ -377,7 +379,7 @@ def test_gnss_velocity_is_fused_without_a_compass(turns_10hz):
     s = EstimateSettings()
     pb = build_problem(short, s, default_vessel())
     assert (pb.mkind == 3).sum() > 100
-    from usvlog.estimate.core import gps_only_settings
+    from usvlog.estimate.layout import gps_only_settings
 
     q = process_noise(gps_only_settings(s))
     fast, ref = run_fast(pb, q, 50, True), run_reference_path(pb, q, 50, True)

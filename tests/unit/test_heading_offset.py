@@ -10,7 +10,8 @@ import pytest
 from tests.unit.heading_offset_runs import truth
 from usvlog.errors import ConfigError
 from usvlog.estimate import EstimateSettings, estimate
-from usvlog.estimate.core import build_problem, heading_blocking
+from usvlog.estimate.problem import build_problem
+from usvlog.estimate.report import heading_blocking
 from usvlog.log.fieldlog import FieldLog
 from usvlog.model.gnss_noise import gnss_sigma_from_quality
 from usvlog.model.heading_offset import HeadingOffset, detect_heading_offset

@@ -6,17 +6,11 @@
     result.to_log(log)  # the log plus /estimate/state and /estimate/innovations
 """
 
-from .core import (
-                   INNOVATION_TOPIC,
-                   STATE_COLUMNS,
-                   STATE_TOPIC,
-                   EstimateReport,
-                   EstimateResult,
-                   SensorReport,
-                   build_problem,
-                   estimate,
-)
+from .core import EstimateResult, estimate
+from .layout import INNOVATION_TOPIC, STATE_COLUMNS, STATE_TOPIC
 from .online import OnlineEKF
+from .problem import build_problem
+from .report import EstimateReport, SensorReport
 from .settings import DEFAULT_Q, MODELS, EstimateSettings
 
 __all__ = ["EstimateSettings", "EstimateResult", "EstimateReport", "SensorReport", "OnlineEKF",

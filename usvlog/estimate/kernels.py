@@ -19,7 +19,7 @@ constant the filter estimates: a boat's lateral acceleration is mostly its sway 
 so the sway follows the yaw rate). Discretisation: Euler
 step x+ = x + dt f(x, tau) with Phi = I + dt F, Q = diag(q) dt on the velocity and
 current states (the kinematic accelerations carry the noise), plus, kinematic, a
-variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``core.yaw_jump_variance``).
+variance on r_dot at steps of the recorded yaw moment (``qjump``, see ``layout.yaw_jump_variance``).
 Measurements select state entries (GNSS: n, e; compass: psi, with the
 residual wrapped; yaw rate: r; GNSS velocity: v_n, v_e of the kinematic model in NED).
 """

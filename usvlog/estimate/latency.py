@@ -2,7 +2,7 @@
 stamped, estimated from the data.
 
 A measurement stamped t describes the boat at t - delay (``EstimateSettings.gnss_delay_s``,
-``compass_delay_s``; :func:`usvlog.estimate.core.build_problem` moves the stamps). The
+``compass_delay_s``; :func:`usvlog.estimate.problem.build_problem` moves the stamps). The
 delay is the maximiser of the forward filter's innovation log-likelihood over a window of
 the run (a profile likelihood: every other setting held): a coarse grid over
 :data:`SEARCH_RANGE_S` (:data:`SEARCH_GRID_S`), then parabolic refinement, whose curvature gives the one-sigma

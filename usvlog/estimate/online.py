@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..model.vessel import Vessel
 from . import kernels
-from .core import chi2_quantile, initial_covariance, process_noise, state_size
+from .layout import chi2_quantile, initial_covariance, process_noise, state_size
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 
@@ -38,7 +38,7 @@ class OnlineEKF:
     x0 : array_like, optional
         Initial state of ``state_size(settings)`` entries in SI units (default zeros).
     P0 : array_like, optional
-        Initial covariance (default :func:`.core.initial_covariance`).
+        Initial covariance (default :func:`.layout.initial_covariance`).
 
     Attributes
     ----------

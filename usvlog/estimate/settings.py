@@ -85,7 +85,7 @@ class EstimateSettings:
     yaw_jump_radps2 : float, default 0.25
         Kinematic model: one-sigma jump of the yaw acceleration in rad/s^2 when the
         recorded yaw moment steps by its largest magnitude in the log (0: off; see
-        ``core.yaw_jump_variance``).
+        ``layout.yaw_jump_variance``).
     sway_damping : bool or None, default None
         Kinematic model in the body frame with an estimated sway damping k in 1/s
         (u_dot = a_x + r v, v_dot = a_y - k v - r u; 10 states): u, v 2-3x better in a

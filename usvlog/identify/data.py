@@ -15,8 +15,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import ConfigError, InputError
-from ..estimate.core import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
 from ..estimate.latency import stored_delays
+from ..estimate.layout import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
 from ..log.fieldlog import FieldLog
 from ..log.positions import LOCAL_TOPIC, local_positions, uses_local
 from ..model.frames import Datum, geodetic_to_ned, ssa

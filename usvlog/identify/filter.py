@@ -12,8 +12,9 @@ from scipy.optimize import minimize
 
 from ..errors import FitFailed
 from ..estimate import EstimateSettings, build_problem
-from ..estimate.core import forward_loglik, process_noise
 from ..estimate.latency import stored_delays, with_settings_delays
+from ..estimate.layout import process_noise
+from ..estimate.run import forward_loglik
 from ..log.fieldlog import FieldLog
 from ..model.vessel import PARAM_NAMES, Vessel
 
