@@ -898,8 +898,11 @@ def manoeuvres(log, *, progress: Progress = None) -> Manoeuvres:
     InputError
         The log has no ``/thrust/command`` (manoeuvres are found from the commands) or no
         usable state.
+    UnusableResultError
+        The stored estimate, or the one made here, has status ``failed``.
     """
     _check_paths([log], None, False)
+    from .errors import UnusableResultError  # light: the error tree, loaded already
     from .trials import find_manoeuvres  # heavy: numpy, pandas
 
     src = log if _is_path(log) else log.source
@@ -909,7 +912,17 @@ def manoeuvres(log, *, progress: Progress = None) -> Manoeuvres:
         raise InputError(f"{src or 'log'}: no /thrust/command: manoeuvres are found from the thrust commands")
     state = log.get("/estimate/state")
     if state is None or len(state) < 10:
-        state = estimate(log, progress=progress).state
+        est = estimate(log, progress=progress)
+        status, why = est.report.status, "; ".join(est.report.blocking)
+        state = est.state
+    else:
+        from .log.status import estimate_status  # light: the stored status (with the log)
+
+        st = estimate_status(log)
+        status, why = (st.status, st.headline()) if st is not None else ("ok", "")
+    if status == "failed":   # nothing is measured on an estimate its maker disowned
+        raise UnusableResultError(f"{src or 'log'}: the estimate failed ({why}); no manoeuvre measured - "
+                                  "estimate it again")
     tr = log.time_range()
     _say(progress, f"finding manoeuvres in {src or 'the log'}")
     try:

@@ -104,3 +104,17 @@ def test_report_and_rrd_show_them(circle, tmp_path):
     assert len(texts) == 2 and texts[0].startswith("1. turning circle to starboard: 30.0 s")
     assert "tactical_diameter_m" in texts[0] and texts[1].endswith(": end")
     assert len(strips) == 1 and len(strips[0]) > 100
+
+
+def test_a_failed_estimate_is_refused(tmp_path, capsys):
+    from usvlog.sim.simulate import SensorSettings, SimSettings, simulate
+
+    # a compass 70 deg off: the estimate's sideslip is no boat's, its status failed
+    log = simulate("turns", SimSettings(duration_s=120, sensors=SensorSettings(compass_bias_deg=70)), seed=1)
+    usvlog.save(log, tmp_path / "bad.mcap")
+    assert main(["manoeuvres", str(tmp_path / "bad.mcap")]) == 1        # estimated here: refused
+    assert "the estimate failed (implausible sideslip" in capsys.readouterr().err
+    usvlog.save(usvlog.estimate(log).to_log(log), tmp_path / "bad-est.mcap")
+    assert main(["manoeuvres", str(tmp_path / "bad-est.mcap"), "--json"]) == 1   # stored flagged failed: refused
+    cap = capsys.readouterr()
+    assert "estimate FAILED" in cap.err and json.loads(cap.out)["kind"] == "UnusableResultError"
