@@ -112,6 +112,19 @@ def test_frozen_compass_stretch(legs):
     assert f.numbers["frozen_s"] == pytest.approx(20.0, abs=0.2)
 
 
+def test_frozen_gnss_under_thrust(legs):
+    log = legs.copy()
+    g = log["/gnss/fix"]
+    t = (np.asarray(g.index, np.int64) - int(g.index[0])) / 1e9
+    k = np.flatnonzero((t >= 300.0) & (t < 310.0))
+    lat, lon = g["lat_deg"].to_numpy().copy(), g["lon_deg"].to_numpy().copy()
+    lat[k], lon[k] = lat[k[0]], lon[k[0]]
+    _set(log, "/gnss/fix", lat_deg=lat, lon_deg=lon)
+    (f,) = _bad(check_log(log), "sensors.frozen")
+    assert f.channel == "/gnss/fix" and f.t0_s == pytest.approx(300.0, abs=0.05)
+    assert f.numbers["frozen_s"] == pytest.approx(9.9, abs=0.05)
+
+
 def test_held_gnss_two_rows_each(legs):
     log = legs.copy()
     g = log["/gnss/fix"]

@@ -154,8 +154,9 @@ def dead_or_frozen(ctx: CheckContext) -> list[Finding]:
         if topic in (GNSS_TOPIC, LOCAL_TOPIC) and thrust is not None:   # a boat at rest repeats its fix
             tt, lft, rgt, _ = thrust
             on = (lft != 0) | (rgt != 0)
-            long = np.asarray([k for k in long if on[(tt >= t[starts[k]]) & (tt <= t[ends[k]])].mean() > 0.5]
-                              if len(long) else [], int)
+            share = [float(on[m].mean()) if m.any() else 0.0
+                     for m in ((tt >= t[starts[k]]) & (tt <= t[ends[k]]) for k in long)]
+            long = long[np.asarray(share) > 0.5] if len(long) else long
         elif topic in (GNSS_TOPIC, LOCAL_TOPIC):
             long = long[:0]
         if not len(long):
