@@ -33,6 +33,8 @@ JUMP_FACTOR = 3.0
 """A GNSS jump: a speed between consecutive fixes over this many times the track's 99th
 percentile speed and over :data:`JUMP_MIN_MPS`."""
 JUMP_MIN_MPS = 5.0
+JUMP_MIN_M = 2.0
+"""...and a step at least this long (m): smaller ones are the receiver's noise."""
 HDOP_HIGH = 2.0
 """HDOP above this on more than :data:`QUALITY_SHARE` of the fixes is a warning."""
 SATS_LOW = 6
@@ -204,16 +206,20 @@ def held(ctx: CheckContext) -> list[Finding]:
 
 
 def gnss_jumps(ctx: CheckContext) -> list[Finding]:
-    """Positions that jump: a speed between consecutive fixes beyond :data:`JUMP_FACTOR` x the
-    track's 99th percentile speed and beyond :data:`JUMP_MIN_MPS`."""
+    """Positions that jump: a step of more than :data:`JUMP_MIN_M` whose speed (over at least the
+    median interval) is beyond :data:`JUMP_FACTOR` x the track's 99th percentile speed and beyond
+    :data:`JUMP_MIN_MPS`."""
     tr = ctx.track
     if tr is None or len(tr[0]) < 20:
         return []
     t, n, e = tr
     step = np.hypot(np.diff(n), np.diff(e))
-    v = step / np.diff(t)
+    dt = np.diff(t)
+    # over at least the typical interval: two records stamped a few microseconds apart (a pose
+    # published by two nodes) are no speed; and a step smaller than JUMP_MIN_M is noise, not a jump
+    v = step / np.maximum(dt, float(np.median(dt)))
     limit = max(JUMP_FACTOR * float(np.percentile(v, 99)), JUMP_MIN_MPS)
-    bad = np.flatnonzero(v > limit)
+    bad = np.flatnonzero((v > limit) & (step > JUMP_MIN_M))
     if not len(bad):
         return []
     k = int(bad[np.argmax(step[bad])])
