@@ -331,10 +331,10 @@ def _read_summary(data: bytes, footer_at: int) -> _Summary | None:
     return s
 
 
-def _layout(scan: _Scan, data: bytes) -> None:
-    """Find the footer and summary; set where the data section ends."""
+def _layout(scan: _Scan, data: bytes, find_footer=_find_footer) -> None:
+    """Find the footer (by ``find_footer(data)``) and summary; set where the data section ends."""
     scan.size = len(data)
-    f = _find_footer(data)
+    f = find_footer(data)
     if f >= 0:
         scan.footer, scan.mcap_end, scan.footer_at = True, f + 37, f
         scan.summary = _read_summary(data, f)
@@ -364,15 +364,6 @@ def _find_footer_windowed(data, release, window: int = 8 << 20) -> int:
 
 
 def _layout_windowed(scan: _Scan, data, release) -> None:
-    """:func:`_layout` for a memory-mapped file."""
-    scan.size = len(data)
-    f = _find_footer_windowed(data, release)
-    if f >= 0:
-        scan.footer, scan.mcap_end, scan.footer_at = True, f + 37, f
-        scan.summary = _read_summary(data, f)
-        scan.data_end = scan.summary.start if scan.summary is not None else f
-    else:
-        scan.mcap_end = scan.data_end = len(data)
-    if data[:8] != MAGIC:
-        scan.regions.append((0, 8, "bad magic bytes at the start"))
+    """:func:`_layout` for a memory-mapped file (its pages released after the search)."""
+    _layout(scan, data, lambda d: _find_footer_windowed(d, release))
     release()

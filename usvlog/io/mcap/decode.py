@@ -20,7 +20,7 @@ from ...errors import InputError
 from ...log.channels import concat_columns, frame_from_columns
 from ...log.fieldlog import FieldLog
 from .codec import channel_codec, loadable
-from .recovery import _report
+from .recovery import _report_if_lost, _widen
 from .stream import ChannelInfo, ChunkStream, by_channel, scan_file
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
@@ -200,16 +200,8 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
         log.channels[part.topic] = frame
         log.schemas[part.topic] = part.schema
         n_msgs += len(frame)
-        if len(frame):
-            t = frame.index.to_numpy()
-            t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
-            t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
-    trailing = scan.footer and scan.mcap_end < size
-    if not scan.complete or skipped or trailing or scan.metadata_lost:
-        log.recovery = _report(scan, size, n_msgs, t_lo, t_hi, skipped)
-        if strict:
-            raise InputError(f"{p}: damaged file: {log.recovery.reason}")
-    return log
+        t_lo, t_hi = _widen(t_lo, t_hi, frame.index.to_numpy())
+    return _with_recovery(log, p, scan, size, n_msgs, t_lo, t_hi, skipped, strict)
 
 
 def _codec_of(p: Path, topic: str, enc: str, senc: str, sname: str, sdata: bytes):
@@ -282,14 +274,17 @@ def _read_log(path, *, topics=None, strict=False, scanner=None) -> FieldLog:
         log.channels[ch.topic] = frame_from_columns(cols, t, codec.spec)
         log.schemas[ch.topic] = schema
         n_msgs += len(t)
-        if len(t):
-            t_lo = int(t.min()) if t_lo is None else min(t_lo, int(t.min()))
-            t_hi = int(t.max()) if t_hi is None else max(t_hi, int(t.max()))
-    trailing = scan.footer and scan.mcap_end < size
-    if not scan.complete or skipped or trailing or scan.metadata_lost:
-        log.recovery = _report(scan, size, n_msgs, t_lo, t_hi, skipped)
-        if strict:
-            raise InputError(f"{p}: damaged file: {log.recovery.reason}")
+        t_lo, t_hi = _widen(t_lo, t_hi, t)
+    return _with_recovery(log, p, scan, size, n_msgs, t_lo, t_hi, skipped, strict)
+
+
+def _with_recovery(log: FieldLog, p: Path, scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict,
+                   strict: bool) -> FieldLog:
+    """``log`` with its recovery report when anything was lost (:func:`.recovery._report_if_lost`);
+    with ``strict``, InputError instead."""
+    log.recovery = _report_if_lost(scan, size, n_msgs, t_lo, t_hi, skipped)
+    if log.recovery is not None and strict:
+        raise InputError(f"{p}: damaged file: {log.recovery.reason}")
     return log
 
 

@@ -264,6 +264,24 @@ def _plausible(t0, t1, lo, hi) -> bool:
     return lo is None or (t0 >= lo - _DAY_NS and t1 <= hi + _DAY_NS)
 
 
+def _widen(lo: int | None, hi: int | None, t: np.ndarray) -> tuple[int | None, int | None]:
+    """The time range (lo, hi) of the data recovered so far widened to the times ``t``
+    (int64 ns; none: unchanged)."""
+    if not len(t):
+        return lo, hi
+    a, b = int(t.min()), int(t.max())
+    return (a if lo is None else min(lo, a)), (b if hi is None else max(hi, b))
+
+
+def _report_if_lost(scan: _Scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict) -> RecoveryReport | None:
+    """:func:`_report` when anything was lost (damage, messages skipped, bytes after the
+    footer, metadata), else None."""
+    trailing = scan.footer and scan.mcap_end < size
+    if not scan.complete or skipped or trailing or scan.metadata_lost:
+        return _report(scan, size, n_msgs, t_lo, t_hi, skipped)
+    return None
+
+
 def _report(scan: _Scan, size: int, n_msgs: int, t_lo, t_hi, skipped: dict) -> RecoveryReport:
     def topic_of(cid: int) -> str:
         if cid in scan.channels:

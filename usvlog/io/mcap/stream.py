@@ -31,7 +31,7 @@ from .container import (
     _summary_channel,
 )
 from .format import MAGIC
-from .recovery import _finish_windowed, _report
+from .recovery import _finish_windowed, _report_if_lost, _widen
 from .walk import _chunks_wanted, _chunks_without, _scan_fast, _walk
 
 
@@ -236,9 +236,7 @@ class ChunkStream:
         if counted.any():
             tc = t[counted]
             self._n_msgs += int(counted.sum())
-            lo, hi = int(tc.min()), int(tc.max())
-            self._t_lo = lo if self._t_lo is None else min(self._t_lo, lo)
-            self._t_hi = hi if self._t_hi is None else max(self._t_hi, hi)
+            self._t_lo, self._t_hi = _widen(self._t_lo, self._t_hi, tc)
         return Chunk(at, t0, t1, records, cid, seq, t, ps, pe)
 
     # -- what the walk found -------------------------------------------------------------
@@ -274,10 +272,7 @@ class ChunkStream:
         scan, size = self._scan, len(self._map) if self._map is not None else self._scan.size
         skipped = dict(skipped or {})
         n = self._n_msgs - sum(skipped.values())
-        trailing = scan.footer and scan.mcap_end < size
-        if not scan.complete or skipped or trailing or scan.metadata_lost:
-            return _report(scan, size, n, self._t_lo, self._t_hi, skipped)
-        return None
+        return _report_if_lost(scan, size, n, self._t_lo, self._t_hi, skipped)
 
     def close(self) -> None:
         """Unmap and close the file."""
