@@ -41,3 +41,24 @@ def test_a_run_without_thrust_has_no_manoeuvre_columns():
     del log.channels["/thrust/command"]
     assert C.manoeuvre_columns(state, log) == {}
     assert set(C.MANOEUVRE_COLUMNS) <= set(C.SCHEMA)
+
+
+def test_check_columns_are_the_check_verbs_findings():
+    """The campaign's check columns count what `usvlog check` finds: left and right thrust swapped
+    is an error there and here, with the same code."""
+    from usvlog.campaign.columns import check_columns
+    from usvlog.check import check_log
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=120.0), seed=2)
+    clean = check_columns(log)
+    th = log["/thrust/command"]
+    for a, b in (("left", "right"), ("thrust_left_n", "thrust_right_n")):
+        th[a], th[b] = th[b].to_numpy().copy(), th[a].to_numpy().copy()
+    bad = check_columns(log)
+    res = check_log(log)
+    assert bad["check_errors"] == sum(f.severity == "error" for f in res.findings)
+    assert bad["check_warnings"] == sum(f.severity == "warning" for f in res.findings)
+    assert bad["check_errors"] > clean["check_errors"] == 0 and "thrusters.swapped" in bad["check_findings"]
+    assert all(f"{f.code}@{f.channel}" in bad["check_findings"] for f in res.findings
+               if f.severity in ("error", "warning"))

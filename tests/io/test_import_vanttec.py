@@ -80,6 +80,7 @@ def test_estimate_follows_the_pose_and_its_heading(imported):
     rms = float(np.sqrt(np.mean((n - x) ** 2 + (e - y) ** 2)))
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy()))
     med = float(np.degrees(np.median(np.abs(ssa(psi - th)))))
+    print(f"{bag.name}: position RMS {rms:.3f} m, heading median {med:.2f} deg, status {est.report.status}")
     assert rms < 0.5, rms
     assert med < 3.0, med
     assert "/local/position" in est.report.gnss_noise

@@ -36,6 +36,8 @@ SCHEMA: dict[str, str] = {
     # import
     "format": "str", "import_records": "int", "import_skipped": "int", "health_dead": "str",
     "health_suspect": "str", "time_base": "str", "input_damage": "str",
+    # usvlog check: the same findings as the verb (codes of the errors and warnings)
+    "check_errors": "int", "check_warnings": "int", "check_findings": "str",
     # estimate
     "estimate_model": "str", "estimate_consistent": "bool", "estimate_warnings": "str",
     "estimate_status": "str", "estimate_mode": "str", "estimate_reinits": "int",
@@ -209,6 +211,28 @@ def manoeuvre_columns(state, log) -> dict[str, Any]:
     return out
 
 
+def check_columns(log) -> dict[str, Any]:
+    """Columns of ``usvlog check`` on a run: how many errors and warnings, and their codes.
+
+    Parameters
+    ----------
+    log : FieldLog
+        The run as imported.
+
+    Returns
+    -------
+    dict
+        ``check_errors``, ``check_warnings`` (counts) and ``check_findings`` (``"code@channel"``
+        of each error and warning, ``; ``-separated, errors first).
+    """
+    from ..check import check_log  # heavy: the checks (numpy, pandas)
+
+    found = [f for f in check_log(log).findings if f.severity in ("error", "warning")]
+    return {"check_errors": sum(f.severity == "error" for f in found),
+            "check_warnings": sum(f.severity == "warning" for f in found),
+            "check_findings": "; ".join(f"{f.code}@{f.channel}" for f in found)}
+
+
 def verdict_of(idf) -> tuple[str, list[str]]:
     """The identification's verdict word and its reasons (the identifier's ``verdict_`` level
     and ``reasons_``).
@@ -320,6 +344,6 @@ def failure_columns(stage: str, err: BaseException) -> dict[str, Any]:
     return out
 
 
-__all__ = ["CAVEATS", "FAILED", "OK", "SCHEMA", "UNUSABLE", "USABLE", "empty_row", "estimate_columns",
-           "failure_columns", "identify_columns", "import_columns", "log_columns", "manoeuvre_columns",
-           "replay_columns", "verdict_of"]
+__all__ = ["CAVEATS", "FAILED", "OK", "SCHEMA", "UNUSABLE", "USABLE", "check_columns", "empty_row",
+           "estimate_columns", "failure_columns", "identify_columns", "import_columns", "log_columns",
+           "manoeuvre_columns", "replay_columns", "verdict_of"]

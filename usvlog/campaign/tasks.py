@@ -398,6 +398,7 @@ def _stages(spec: RunSpec, settings: RunSettings, stages: Stages, tmp: Path, row
             row.update(C.import_columns(res))
         stages.save(log, tmp / LOG_FILE)
         row.update(C.log_columns(log))
+        row.update(C.check_columns(log))
         if not row["vessel"] and log.vessel is not None:
             row["vessel"] = log.vessel.name
         map_of = log
