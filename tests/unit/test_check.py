@@ -378,3 +378,21 @@ def test_finding_forms_table_json_junit():
         Finding(severity="fatal", code="x.y")
     with pytest.raises(ValueError):
         Finding(severity="info", code="x.y", t0_s=5.0, t1_s=1.0)
+
+
+def test_an_estimated_log_shows_the_estimates_status_in_the_estimates_words():
+    """One implementation: the estimate's status reasons stored in the log are check findings, word for word."""
+    from usvlog.check import check_log
+    from usvlog.estimate.core import estimate
+    from usvlog.estimate.settings import EstimateSettings
+    from usvlog.log.status import estimate_status
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("turns", SimSettings(duration_s=120.0), seed=3)
+    out = estimate(log, EstimateSettings(gps_only=True)).to_log(log)
+    st = estimate_status(out)
+    assert st is not None and st.status == "degraded" and st.reasons
+    found = [f for f in check_log(out).findings if f.code == "estimate.degraded"]
+    assert [f.evidence for f in found] == [f"estimate degraded ({st.mode}): {r}" for r in st.reasons]
+    assert all(f.severity == "warning" and f.channel == "/estimate/state" for f in found)
+    assert not [f for f in check_log(log).findings if f.code.startswith("estimate.")]

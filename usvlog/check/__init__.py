@@ -31,6 +31,7 @@ from ..log.fieldlog import FieldLog
 from ..log.findings import (
     Finding,
     counts,
+    findings_from_estimate,
     findings_from_health,
     findings_to_dicts,
     format_table,
@@ -38,6 +39,7 @@ from ..log.findings import (
     sort_findings,
     worst,
 )
+from ..log.status import estimate_status
 from ..model.vessel import Vessel
 from . import content, heading, sensors, thrusters
 from .common import CheckContext
@@ -129,7 +131,11 @@ def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Fi
         own += _run(fn, ns, ctx)
     mine = {(f.code, f.channel) for f in own}
     health = [f for f in findings_from_health(ctx.health) if (f.code, f.channel) not in mine]
-    return CheckResult(findings=tuple(sort_findings([*own, *health, *extra])), checks=tuple(names),
+    st = estimate_status(log)   # a log with an estimate: its status, in the same words as the estimate's
+    est = findings_from_estimate(st.status, st.mode, st.reasons) if st is not None else []
+    if st is not None:
+        names.append("estimate.status")
+    return CheckResult(findings=tuple(sort_findings([*own, *health, *est, *extra])), checks=tuple(names),
                        source=str(log.source or "log"), t0_ns=ctx.t0_ns)
 
 

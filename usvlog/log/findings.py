@@ -299,5 +299,32 @@ def findings_from_health(health: Mapping | None, held: Mapping[str, int] | None 
     return sort_findings(out)
 
 
+def findings_from_estimate(status: str, mode: str, reasons: Sequence[str]) -> list[Finding]:
+    """The estimate's status (``ok``/``degraded``/``failed`` and its reasons, as stored in a log by
+    :mod:`usvlog.log.status` or held by an ``EstimateReport``) as findings: one per reason, an
+    error when the estimate failed (not to be used), a warning when it is degraded.
+
+    Parameters
+    ----------
+    status : str
+        ``ok``, ``degraded`` or ``failed``.
+    mode : str
+        ``gnss+compass`` or ``gps-only``.
+    reasons : sequence of str
+        Plain-word reasons (empty for ``ok``).
+
+    Returns
+    -------
+    list of Finding
+    """
+    if status == "ok":
+        return []
+    sev = "error" if status == "failed" else "warning"
+    act = ("the estimate is not to be used: fix what the reason names and estimate again" if sev == "error"
+           else "usable with care: the reason says what the estimate could not vouch for")
+    return [Finding(severity=sev, code=f"estimate.{status}", channel="/estimate/state",
+                    evidence=f"estimate {status} ({mode}): {r}", action=act) for r in reasons]
+
+
 __all__ = ["SEVERITIES", "Finding", "sort_findings", "worst", "counts", "format_table", "findings_to_dicts",
-           "junit_xml", "findings_from_health"]
+           "junit_xml", "findings_from_health", "findings_from_estimate"]
