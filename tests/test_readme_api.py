@@ -1,5 +1,6 @@
-"""The Python API: the README's "Python API" examples run as written, in order, in an empty
-directory; the API names stay the functions; the API and the CLI verb give the same result."""
+"""The Python API: the examples of the documentation's Python API page (docs/api.md, "## Examples") run as
+written, in order, in an empty directory; the API names stay the functions; the API and the CLI verb give the
+same result."""
 
 import re
 from pathlib import Path
@@ -7,13 +8,13 @@ from pathlib import Path
 import usvlog
 from usvlog.cli import main
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+API_PAGE = Path(__file__).resolve().parents[1] / "docs" / "api.md"
 
 
 def api_section() -> str:
-    text = README.read_text()
-    m = re.search(r"^## Python API\n(.*?)(?=^## )", text, flags=re.S | re.M)
-    assert m, "README.md has no '## Python API' section"
+    text = API_PAGE.read_text()
+    m = re.search(r"^## Examples\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
+    assert m, "docs/api.md has no '## Examples' section"
     return m.group(1)
 
 
@@ -27,13 +28,13 @@ def test_every_verb_has_an_example():
     assert set(usvlog._API) <= called, f"no example for {sorted(set(usvlog._API) - called)}"
 
 
-def test_readme_api_examples_run(tmp_path, monkeypatch):
+def test_docs_api_examples_run(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     blocks = python_blocks(api_section())
     assert len(blocks) >= 5
-    ns: dict = {"__name__": "__readme__"}
+    ns: dict = {"__name__": "__docs_api__"}
     for i, block in enumerate(blocks):
-        exec(compile(block, f"README.md Python API block {i + 1}", "exec"), ns)
+        exec(compile(block, f"docs/api.md example {i + 1}", "exec"), ns)
     # what the examples say they wrote is there
     for name in ("run.mcap", "circle.mcap", "copy.mcap", "field.mcap", "est.mcap", "identified.toml",
                  "replay.mcap", "replay.rrd", "report/report.html", "baselines/est-check.toml"):
