@@ -13,6 +13,7 @@ from usvlog.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIAL = ROOT / "docs" / "tutorial.md"
+README = ROOT / "README.md"
 BAG = ROOT / "tests" / "data" / "real" / "vanttec" / "vn_2021-06-11-13-29-34.bag"
 
 
@@ -58,3 +59,20 @@ def test_tutorial_commands_run_with_the_exit_codes_shown(tmp_path, monkeypatch):
     assert not (tmp_path / "boat.toml").exists()   # unusable: nothing written
     for img in re.findall(r"!\[[^]]*\]\((img/[^)]+)\)", TUTORIAL.read_text()):
         assert (TUTORIAL.parent / img).is_file(), img
+
+
+def test_the_readme_tour_is_the_tutorial():
+    """The README's five-minute tour shows the tutorial's commands (which the test above runs), in its order."""
+    tour = [argv for argv, _ in tutorial_commands(README.read_text())]
+    tutorial = [argv for argv, _ in tutorial_commands(TUTORIAL.read_text())]
+    assert [a[0] for a in tour] == ["inspect", "import", "check", "estimate", "identify", "view", "report"]
+    assert tour == [a for a in tutorial if a in tour] and all(a in tutorial for a in tour)
+
+
+def test_readme_is_short_and_keeps_its_setup_commands():
+    text = README.read_text()
+    assert text.count("\n") <= 300
+    setup = re.search(r"^## Set up\n(.*?)(?=^## )", text, flags=re.S | re.M).group(1)
+    commands = re.findall(r"^```sh\n(.*?)\n```", setup, flags=re.S | re.M)
+    assert commands[1].endswith('pip install -e ".[test]" && pytest -q -m "not slow" -n auto')
+    assert 'pytest -q -m "not slow" -n auto' in (ROOT / ".ci" / "run").read_text()   # CI runs the README's command
