@@ -119,7 +119,7 @@ def test_block_solve_matches_a_dense_solve():
 def test_model_comparison_says_which_model_is_returned_and_why():
     """The rule of ``--model both`` in plain words: the extended model by less than a point is
     not returned (the simpler paper model is), by more it is; equation error says so."""
-    from usvlog.identify.identifier import PREFER_WITHIN, Candidate, Start, _returned
+    from usvlog.identify.candidates import PREFER_WITHIN, Candidate, Start, _returned
 
     def cand(model, kind="output-error"):
         return Candidate(start=Start(name="x", kind=kind, theta=np.zeros(6), model=model), theta=np.zeros(6),

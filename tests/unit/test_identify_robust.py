@@ -18,7 +18,8 @@ import pytest
 from usvlog.cli import main
 from usvlog.cli.identify import format_report
 from usvlog.identify import Identifier
-from usvlog.identify.identifier import VERDICTS, physical_problem
+from usvlog.identify.candidates import physical_problem
+from usvlog.identify.verdict import VERDICTS
 from usvlog.io.config import load_vessel
 from usvlog.model.stats import fit_percent
 from usvlog.model.vessel import default_vessel

@@ -5,9 +5,11 @@
 ``.validate(log)``, ``.to_vessel()``, ``.to_dict()``.
 """
 
+from ..model.stats import fit_percent
 from .equation import EquationErrorResult, fit_equation_error, regressors
-from .identifier import METHODS, Identifier, Validation, fit_percent
+from .identifier import METHODS, Identifier
 from .output import OutputErrorResult, fit_output_error
+from .validation import Validation
 
 __all__ = ["Identifier", "Validation", "METHODS", "fit_percent", "fit_equation_error", "regressors",
            "EquationErrorResult", "fit_output_error", "OutputErrorResult"]

@@ -1,6 +1,6 @@
 """Validation that suits field data: k-step-ahead fit, excitation and residual whiteness.
 
-A free run over a whole field run (the fit % of :class:`usvlog.identify.identifier.Validation`)
+A free run over a whole field run (the fit % of :class:`usvlog.identify.validation.Validation`)
 lets every unmodelled gust, wave and current change accumulate: after a few minutes the
 model's heading has drifted and its velocities are compared with another manoeuvre. System
 identification practice (Ljung, *System Identification*, ch. 16; MATLAB ``compare(..., k)``)

@@ -1,0 +1,685 @@
+"""The candidate strategy of the identifier: which fits to try, fitting them, picking one.
+
+Output error fits several candidates (:class:`Start`) and keeps the one that validates best
+(:class:`Candidate`): equation error as it is (the floor: the answer never validates worse),
+output error from it with and without the smoothed velocities, from the vessel's values, the
+velocity output error from the data's scales, the extended model's fits, and the surge
+candidate (m held at the surge equation's own fit, :func:`_surge_candidate`). They are fitted
+two at a time in threads when a CPU is spare (:func:`_fit_candidates`), picked by validation
+with a tie margin (:func:`_pick`, :data:`PREFER_WITHIN`), refitted on all the data
+(:func:`_refit`) or validated by leaving each log out (:func:`_leave_one_out`). The functions
+taking ``self`` are methods of :class:`~usvlog.identify.identifier.Identifier`, kept here
+with the job they do.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .._cpu import spare_cpu
+from ..choices import EXTENDED_PARAM_NAMES
+from ..errors import UnusableResultError
+from ..estimate import EstimateSettings, estimate
+from ..estimate.latency import stored_delays, with_settings_delays
+from ..log.fieldlog import FieldLog
+from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
+from .data import RunData
+from .equation import EquationErrorResult, fit_equation_error
+from .output import (
+    OutputErrorResult,
+    fit_output_error,
+    velocity_samples,
+)
+from .smooth import KinStates, derivative, smooth_like, thrust_on_grid
+from .surge import SurgeFit, fit_surge
+from .thrust_scale import EXT_PROFILE_SEGMENT_S
+from .validation import _finite_dict
+from .velocity import VelocityFitResult, fit_velocity_error
+
+# typing only: the extended model is imported where used (start-up of the default fit); the Identifier
+# imports this module
+if TYPE_CHECKING:
+    from .extended import ExtendedFit
+    from .identifier import Identifier
+
+
+# equation-error smoothing (s): positions, heading, accelerations (thrust filtered alike)
+EE_POS_S, EE_PSI_S, EE_ACC_S = 16.0, 6.0, 6.0
+VEL_WEIGHT = 1.0            # weight of the smoothed velocities against GPS + compass (robust start)
+PREFER_WITHIN = 1.0         # fit % points: a preferred candidate this close to the best is taken
+# the surge equation's own m (fit_surge) this factor away from the full fit's: a candidate holding it
+SURGE_MASS_RATIO = 1.5
+EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
+EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
+
+
+MODEL_RULE = (f"the extended model is returned only when its best candidate validates better than the paper "
+              f"model's by at least {PREFER_WITHIN:g} point (score: mean fit % of the held-out track and r); "
+              f"never a fit that validates worse than equation error")
+
+
+def _returned(mc: dict, chosen) -> dict:
+    """``returned`` (the chosen candidate's model), ``why`` in plain words and the ``rule`` of
+    ``--model both`` for a model comparison ``mc`` (:meth:`Identifier._compare_models`)."""
+    model, winner, margin = chosen.start.model, mc.get("winner"), mc.get("margin")
+    if chosen.start.kind == "equation-error":
+        why = "equation error validates better than the output-error fits"
+    elif model == winner:
+        why = "it validates better" if margin is None else f"it validates better by {margin:.1f} points"
+    elif winner == "extended" and margin is not None and margin < PREFER_WITHIN:
+        why = (f"the simpler paper model: the extended one validates better by only {margin:.1f} points "
+               f"(less than {PREFER_WITHIN:g})")
+    else:
+        why = "preferred candidate within the tie margin"
+    return {"returned": model, "why": why, "rule": MODEL_RULE}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Start:
+    """One candidate of the fit: how it is fitted and from where.
+
+    Attributes
+    ----------
+    name : str
+        Plain-words name (``"output error from equation error"``).
+    kind : {"equation-error", "output-error", "filter-error"}
+        The fit that makes it (``"equation-error"``: the equation-error values as they are).
+    theta : numpy.ndarray, shape (6,)
+        Starting m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
+    vel_weight : float
+        Output error: weight of the smoothed velocities against GPS and compass (0: none).
+    model : {"paper", "extended"}
+        The model structure fitted (``theta`` then has 6 or 10 values, EXTENDED_PARAM_NAMES
+        order for the extended model).
+    surge_mass : bool
+        Output error with m held at the surge equation's own fit (:func:`~usvlog.identify.surge.fit_surge`,
+        made again on the data each fit uses) instead of fitted with the coupled sway and yaw.
+    """
+
+    name: str
+    kind: str
+    theta: np.ndarray
+    vel_weight: float = 0.0
+    model: str = "paper"
+    surge_mass: bool = False
+
+
+@dataclass(frozen=True, kw_only=True)
+class Candidate:
+    """A fitted candidate and how it validates.
+
+    Attributes
+    ----------
+    start : Start
+        What was fitted.
+    theta : numpy.ndarray, shape (6,)
+        Fitted m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
+    currents : numpy.ndarray, shape (n_runs, 2)
+        Fitted current north, east per run, m/s (zeros when not fitted).
+    fitted : object
+        The fit's result (EquationErrorResult, OutputErrorResult or FilterErrorResult).
+    validations : list of Validation
+        Free runs it was judged on (held-out parts, or the fitted runs without validation).
+    failed : str
+        Why it failed (diverged, impossible values), empty when it did not.
+    held_stderr : dict of str to float
+        Standard errors of parameters held in the fit but estimated elsewhere (``m`` of a
+        ``surge_mass`` start: the surge fit's).
+    """
+
+    start: Start
+    theta: np.ndarray
+    currents: np.ndarray
+    fitted: object
+    validations: list
+    failed: str = ""
+    held_stderr: dict = field(default_factory=dict)
+
+    @property
+    def fit_percent(self) -> dict:
+        """Mean fit % of u, v, r and track over the validations (NaN when failed)."""
+        if self.failed or not self.validations:
+            return {k: float("nan") for k in ("u", "v", "r", "track")}
+        return {k: float(np.mean([v.fit_percent[k] for v in self.validations])) for k in ("u", "v", "r", "track")}
+
+    @property
+    def score(self) -> float:
+        """Mean over the validations of :attr:`Validation.score` (-inf when failed)."""
+        if self.failed or not self.validations:
+            return -math.inf
+        return float(np.mean([v.score for v in self.validations]))
+
+    def to_dict(self) -> dict:
+        """JSON-ready: name, model, params, fit_percent, score, failed."""
+        names = EXTENDED_PARAM_NAMES if self.start.model == "extended" else PARAM_NAMES
+        return {"name": self.start.name, "model": self.start.model,
+                "params": dict(zip(names, map(float, self.theta))),
+                "fit_percent": _finite_dict(self.fit_percent),
+                "score": self.score if math.isfinite(self.score) else None, "failed": self.failed}
+
+
+def physical_problem(theta) -> str:
+    """Why a parameter vector is not a boat (empty when it is): m, Iz, d.. > 0, finite, Iz - m xg^2 > 0."""
+    th = np.asarray(theta, float)
+    if not np.all(np.isfinite(th)):
+        return "parameters not finite"
+    bad = [k for k, v in zip(PARAM_NAMES[:5], th[:5]) if v <= 0]
+    if bad:
+        return f"{', '.join(bad)} not positive"
+    if th[1] - th[0] * th[5] ** 2 <= 0:
+        return "Iz - m xg^2 not positive"
+    return ""
+
+
+def _ee_inputs(run: RunData, ks: KinStates, current=(0.0, 0.0)):
+    nu = ks.nu(current)
+    tu, tr = thrust_on_grid(run, ks.t)
+    tu = smooth_like(ks.t, smooth_like(ks.t, tu, EE_POS_S), EE_ACC_S)
+    tr = smooth_like(ks.t, smooth_like(ks.t, tr, EE_PSI_S), EE_ACC_S)
+    return smooth_like(ks.t, nu, EE_ACC_S), derivative(ks.t, nu, EE_ACC_S), tu, tr
+
+
+def _ekf_current(log: FieldLog, vessel: Vessel, theta, current: bool) -> tuple[float, float]:
+    """Mean water current the dynamic EKF estimates with the identified parameters."""
+    if not current:
+        return (0.0, 0.0)
+    v = Vessel(name=vessel.name, params=VesselParams(**dict(zip(PARAM_NAMES, map(float, theta)))),
+               thrusters=vessel.thrusters)
+    settings = with_settings_delays(EstimateSettings(model="dynamic", current=True, output_step_s=0.1),
+                                    stored_delays(log))   # the latency an earlier estimate found
+    st = estimate(log, settings, v).state
+    return (float(np.nanmean(st["current_n_mps"])), float(np.nanmean(st["current_e_mps"])))
+
+
+class _Once:
+    """A computation made at most once, when first run or asked for: :meth:`get` returns its
+    result or raises its exception (at the place that needs it, wherever it was made)."""
+
+    def __init__(self, fn: Callable[[], object]):
+        self._fn = fn
+        self._out: tuple | None = None
+
+    def run(self) -> None:
+        """Make it now (once); an exception is kept for :meth:`get`."""
+        if self._out is None:
+            try:
+                self._out = (True, self._fn())
+            except Exception as err:   # raised where the result is needed
+                self._out = (False, err)
+
+    def get(self):
+        """The result (made now if it was not), or its exception raised."""
+        self.run()
+        assert self._out is not None
+        ok, val = self._out
+        if not ok:
+            raise val
+        return val
+
+
+# -- the candidate list, one fit, the pick by validation -------------------------
+def candidate_starts(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> list[Start]:
+    """The candidates to fit, most preferred first (a tie in validation goes to the first).
+
+    Parameters
+    ----------
+    ee : EquationErrorResult
+        The equation-error fit on the fit part of the runs.
+    vessel : Vessel
+        The vessel (its values are a start of their own when it was given to :meth:`fit`
+        and they differ by more than 10 %).
+
+    Returns
+    -------
+    list of Start
+        Equation error is always among them.
+    """
+    ee_start = Start(name="equation error", kind="equation-error", theta=self._ee_theta(ee, vessel))
+    th = self._start(ee, vessel)
+    if self.model != "paper":
+        ext = self._extended_starts(th)
+        if getattr(self, "_command_units", False) and vessel.extended is not None and self.method == "output-error":
+            # the thrust-scale search's extended fit at the ratio it found (a start from its optimum)
+            ext.insert(0, Start(name="extended output error from the thrust-ratio search", kind="output-error",
+                                model="extended", theta=vessel.extended.as_array()))
+        if self.model == "extended":
+            return ext if self.method == "output-error" else ext[-1:]
+        if self.method == "equation-error":
+            return [ee_start] + ext[-1:]
+        return self.candidate_starts_paper(ee, vessel, th) + ext
+    if self.method == "equation-error":
+        return [ee_start]
+    return self.candidate_starts_paper(ee, vessel, th)
+
+
+def _extended_starts(self: Identifier, th_paper) -> list[Start]:
+    """Extended-model candidates: output error from the paper's equation-error start in the
+    extended form (preferred: the extended equation-error fit is biased by the noise of its
+    regressors, m11 a third of the truth on a noisy run) and from the extended
+    equation-error fit, then that fit itself."""
+    from .extended_oe import ext_physical_problem  # lazy: the extended model only
+
+    ext_ee = getattr(self, "_ext_ee", None)
+    assert ext_ee is not None
+    paper = ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, th_paper))))).as_array()
+    th_ee = ext_ee.theta
+    return [Start(name="extended output error from the paper's equation error", kind="output-error",
+                  model="extended", theta=paper),
+            Start(name="extended output error from extended equation error", kind="output-error",
+                  model="extended", theta=th_ee if not ext_physical_problem(th_ee) else paper),
+            Start(name="extended equation error", kind="equation-error", model="extended", theta=th_ee)]
+
+
+def candidate_starts_paper(self: Identifier, ee: EquationErrorResult, vessel: Vessel, th) -> list[Start]:
+    """The paper model's candidates (output or filter error), equation error last.
+
+    Parameters
+    ----------
+    ee : EquationErrorResult
+        The equation-error fit on the fit part of the runs.
+    vessel : Vessel
+        The vessel (its values are a start of their own, see :meth:`candidate_starts`).
+    th : numpy.ndarray, shape (6,)
+        The output-error start made from ``ee``.
+
+    Returns
+    -------
+    list of Start
+    """
+    ee_start = Start(name="equation error", kind="equation-error", theta=self._ee_theta(ee, vessel))
+    if self.method == "filter-error":
+        return [Start(name="filter error from equation error", kind="filter-error", theta=th), ee_start]
+    out = [Start(name="output error from equation error", kind="output-error", theta=th),
+           Start(name="output error with velocities from equation error", kind="output-error", theta=th,
+                 vel_weight=VEL_WEIGHT)]
+    prior = vessel.params.as_array().copy()
+    for i, k in enumerate(PARAM_NAMES):
+        if k in self.fix:
+            prior[i] = self.fix[k]
+    if getattr(self, "_prior_given", True) and np.max(np.abs(prior[:5] / th[:5] - 1)) > 0.1:
+        out.append(Start(name="output error with velocities from the vessel's values", kind="output-error",
+                         theta=prior, vel_weight=VEL_WEIGHT))
+    # velocity output error (:mod:`usvlog.identify.velocity`): starts from the data's own scales,
+    # whatever the vessel file says, so the answer does not hang on the user's guess
+    scales = getattr(self, "_data_scales", None)
+    if scales is not None:
+        out.append(Start(name="velocity output error from the data's scales", kind="velocity-error",
+                         theta=self._with_fixed(scales)))
+    return out + [ee_start]
+
+
+def _with_fixed(self: Identifier, theta) -> np.ndarray:
+    """``theta`` with the fixed parameters set to their values."""
+    th = np.array(theta, float)
+    for i, k in enumerate(PARAM_NAMES):
+        if k in self.fix:
+            th[i] = self.fix[k]
+    return th
+
+
+def _free(self: Identifier, st: Start) -> np.ndarray:
+    """Which of the paper model's parameters a candidate's output or filter error fits."""
+    return np.array([k not in self.fix and not (k == "m" and st.surge_mass) for k in PARAM_NAMES])
+
+
+def _surge(self: Identifier, runs, kin, theta) -> SurgeFit:
+    """m and d11 of the surge equation alone (output error to the GPS track), from ``theta``."""
+    return fit_surge(runs, kin, float(theta[0]), float(theta[2]), float(theta[5]), fit_current=self.current,
+                     max_current_mps=self.max_current_mps)
+
+
+def _surge_wanted(self: Identifier) -> bool:
+    """Whether :meth:`_surge_candidate` fits the surge equation (not for the extended model
+    alone, equation or filter error, a fixed m)."""
+    return not (self.model == "extended" or self.method != "output-error" or "m" in self.fix)
+
+
+def _surge_candidate(self: Identifier, cands, runs, kin, fit_logs, vessel, held, surge: _Once | None = None
+                     ) -> Candidate | None:
+    """Output error with m held at the surge equation's own fit, when that m is more than
+    SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
+    extended model alone, equation or filter error, a fixed m). It is the most preferred
+    candidate: when it and the full fit validate alike (within PREFER_WITHIN), the data's
+    surge evidence decides for its m (the held-out track and r barely see the surge time
+    constant; the smoothed u lags and cannot judge it).
+
+    The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
+    whose sway and yaw are of another form the full fit can move m far from the surge's to
+    absorb that mismatch (the track barely sees the surge time constant), and its surge
+    speed is then wrong. The validation judges the two. ``surge``: the surge fit from
+    equation error's start, when made already (:meth:`_fit_candidates`' ``meanwhile``)."""
+    if not self._surge_wanted():
+        return None
+    full = [c for c in cands if c.start.model == "paper" and c.start.kind == "output-error"
+            and c.start.vel_weight == 0]
+    th = self._start(self.equation_error_, vessel)
+    sf = surge.get() if surge is not None else self._surge(runs, kin, th)
+    if full and not full[0].failed and 1 / SURGE_MASS_RATIO < sf.m / full[0].theta[0] < SURGE_MASS_RATIO:
+        return None
+    th[0] = sf.m
+    st = Start(name="output error with the surge equation's mass", kind="output-error", theta=th,
+               surge_mass=True)
+    return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, held_stderr={"m": sf.stderr["m"]})
+
+
+def _fit_candidates(self: Identifier, starts: list[Start], runs, kin, fit_logs, vessel, held,
+                    meanwhile: _Once | None = None) -> list[Candidate]:
+    """:meth:`_fit_candidate` of each start, in their order. With a spare CPU the paper
+    model's output-error candidates are fitted two at a time in threads (the shooting
+    kernel runs without the GIL, and so does much of the arithmetic around it), each
+    integrating its segments in one thread while another fit runs and in two once it is the
+    last; the others here meanwhile, and then ``meanwhile`` (a computation the caller needs
+    next, made here while the threads run). The same numbers as one by one."""
+    par = [i for i, st in enumerate(starts) if st.kind == "output-error" and st.model == "paper"]
+    if len(par) < 2 or not spare_cpu():
+        return [self._fit_candidate(st, runs, kin, fit_logs, vessel, held) for st in starts]
+    unfinished = [len(par)]
+    lock = threading.Lock()
+
+    def fit_one(st: Start) -> Candidate:
+        try:
+            return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, threads=lambda: unfinished[0] == 1)
+        finally:
+            with lock:
+                unfinished[0] -= 1
+
+    out: list[Candidate | None] = [None] * len(starts)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        futures = {i: pool.submit(fit_one, starts[i]) for i in par}
+        for i, st in enumerate(starts):
+            if i not in futures:
+                out[i] = self._fit_candidate(st, runs, kin, fit_logs, vessel, held)
+        if meanwhile is not None:
+            meanwhile.run()
+        for i, f in futures.items():
+            out[i] = f.result()
+    return [c for c in out if c is not None]
+
+
+def _fit_candidate(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
+                   threads: bool | Callable[[], bool] | None = None) -> Candidate:
+    """Fit one candidate and validate it (a failure is a result: ``failed`` says why, also when
+    its fit could not proceed, :class:`~usvlog.errors.FitFailed`); ``threads``: an output-error
+    fit's (:func:`fit_output_error`)."""
+    try:
+        return self._fit_candidate_raw(st, runs, kin, fit_logs, vessel, held, held_stderr, threads)
+    except UnusableResultError as err:   # FitFailed, or an estimate inside the fit that diverged
+        return Candidate(start=st, theta=np.asarray(st.theta, float), currents=np.zeros((len(runs), 2)),
+                         fitted=None, validations=[], failed=str(err))
+
+
+def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
+                       threads: bool | Callable[[], bool] | None = None) -> Candidate:
+    """:meth:`_fit_candidate` without the catch."""
+    if st.model == "extended":
+        return self._fit_ext_candidate(st, runs, kin, held)
+    free = self._free(st)
+    zeros = np.zeros((len(runs), 2))
+    fitted: object
+    if st.kind == "equation-error":
+        theta, cur, fitted = st.theta, zeros, self.equation_error_
+    elif st.kind == "filter-error":
+        from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
+        fitted = fit_filter_error(fit_logs, vessel, st.theta, free_mask=free, current=self.current)
+        theta = fitted.theta
+        cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in fit_logs])
+    elif st.kind == "velocity-error":
+        fitted = fit_velocity_error(runs, kin, st.theta, free_mask=free, fit_current=self.current,
+                                    max_current_mps=self.max_current_mps)
+        theta, cur = fitted.theta, np.asarray(fitted.currents, float)
+    else:
+        vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
+        fitted = fit_output_error(runs, st.theta, lambda i, t: kin[i].at(t), free_mask=free,
+                                  fit_current=self.current, segment_s=self.segment_s,
+                                  warm_segment_s=self.warm_segment_s, warm_span_s=900.0, velocities=vel,
+                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps,
+                                  threads=threads)
+        theta, cur = fitted.theta, np.asarray(fitted.currents, float)
+    failed = physical_problem(theta)
+    if not failed and isinstance(fitted, (OutputErrorResult, VelocityFitResult)) and fitted.diverged:
+        failed = "its simulation diverged"
+    vals = []
+    if not failed:
+        # the same runs: their fitted current held (equation error's model has none: zero)
+        if held:
+            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
+        else:   # without held-out data: free runs of the fitted runs judge it
+            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
+        if any(v.diverged for v in vals):
+            failed = "its free run diverged"
+    return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
+                     fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
+
+
+def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=None) -> Candidate:
+    """An extended-model candidate fitted (output error) or taken (equation error) and validated."""
+    # lazy: the extended model only
+    from .extended_oe import ExtendedOEResult, ext_physical_problem, fit_extended_output_error
+
+    fitted: object
+    if st.kind == "equation-error":
+        theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
+    else:
+        # in command units the ratio search's short segments (its optimum stalls with long ones)
+        seg = EXT_PROFILE_SEGMENT_S if getattr(self, "_command_units", False) else EXT_SEGMENT_S
+        fitted = fit_extended_output_error(runs, kin, st.theta, fit_current=self.current, currents0=currents0,
+                                           max_current_mps=self.max_current_mps, segment_s=seg)
+        theta, cur = fitted.theta, fitted.currents
+    failed = ext_physical_problem(theta)
+    if not failed and isinstance(fitted, ExtendedOEResult) and fitted.diverged:
+        failed = "its simulation diverged"
+    vals = []
+    if not failed:
+        pairs = held if held else list(zip(runs, kin))
+        vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(pairs)]
+        if any(v.diverged for v in vals):
+            failed = "its free run diverged"
+    return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
+                     fitted=fitted, validations=vals, failed=failed)
+
+
+def _compare_models(self: Identifier, cands: list[Candidate]) -> dict:
+    """Best candidate of each model on the validation, the winner and its margin (score points)."""
+    out: dict = {}
+    for model in ("paper", "extended"):
+        ok = [c for c in cands if c.start.model == model and not c.failed]
+        if ok:
+            b = max(ok, key=lambda c: c.score)
+            out[model] = {"candidate": b.start.name, "fit_percent": _finite_dict(b.fit_percent),
+                          "score": b.score if math.isfinite(b.score) else None}
+    if "paper" in out and "extended" in out:
+        sp, se = out["paper"]["score"], out["extended"]["score"]
+        sp, se = (-math.inf if sp is None else sp), (-math.inf if se is None else se)
+        out["winner"] = "extended" if se > sp else "paper"
+        out["margin"] = abs(se - sp) if math.isfinite(se - sp) else None
+    else:
+        out["winner"] = "paper" if "paper" in out else ("extended" if "extended" in out else None)
+        out["margin"] = None
+    return out
+
+
+def _pick(self: Identifier, cands: list[Candidate]) -> Candidate:
+    """The best candidate by validation; a preferred one (earlier) within PREFER_WITHIN
+    points of the best is taken, but never one that validates worse than equation error."""
+    ok = [c for c in cands if not c.failed]
+    if not ok:
+        why = [f"{c.start.name}: {c.failed}" for c in cands]
+        err = UnusableResultError(f"identification failed: every candidate failed ({'; '.join(why)})")
+        err.reasons = why      # type: ignore[attr-defined]
+        raise err
+    best = max(c.score for c in ok)
+    ee = [c.score for c in ok if c.start.kind == "equation-error"]
+    floor = max(best - PREFER_WITHIN, max(ee) if ee else -math.inf)
+    return next(c for c in ok if c.score >= floor)
+
+
+def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -> Candidate:
+    """The chosen candidate fitted again on all the data from its values; kept only if it
+    validates (now in-sample) at least as well as the candidate did, less PREFER_WITHIN."""
+    st = chosen.start
+    fitted: object
+    held_se = chosen.held_stderr
+    if st.model == "extended":
+        # lazy: the extended model only
+        from .extended_oe import ext_physical_problem, fit_extended_output_error
+
+        if st.kind == "equation-error":
+            ext_ee = self._ext_equation_error(runs, kin)
+            theta, cur, fitted = ext_ee.theta, np.zeros((len(runs), 2)), ext_ee
+        else:
+            fitted = fit_extended_output_error(runs, kin, chosen.theta, fit_current=self.current,
+                                               currents0=chosen.currents, max_current_mps=self.max_current_mps,
+                                               segment_s=EXT_SEGMENT_S, max_iter=EXT_REFIT_ITER)
+            theta, cur = fitted.theta, fitted.currents
+            if fitted.diverged:
+                return chosen
+        if ext_physical_problem(theta):
+            return chosen
+    elif st.kind == "filter-error":
+        from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
+        fe = fit_filter_error(logs, vessel, chosen.theta, current=self.current,
+                              free_mask=np.array([k not in self.fix for k in PARAM_NAMES]))
+        theta, fitted = fe.theta, fe
+        cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in logs])
+    elif st.kind == "equation-error":
+        ee = self._equation_error(runs, kin)
+        theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
+    elif st.kind == "velocity-error":
+        vf = fit_velocity_error(runs, kin, chosen.theta, free_mask=self._free(st), fit_current=self.current,
+                                currents0=chosen.currents, max_current_mps=self.max_current_mps,
+                                horizons_s=(120.0,))
+        theta, cur, fitted = vf.theta, vf.currents, vf
+        if vf.diverged:
+            return chosen
+    else:
+        vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in kin] if st.vel_weight > 0 else None
+        th0 = chosen.theta.copy()
+        if st.surge_mass:   # the surge equation's m from all the data too
+            sf = self._surge(runs, kin, th0)
+            th0[0], held_se = sf.m, {"m": sf.stderr["m"]}
+        oe = fit_output_error(runs, th0, lambda i, t: kin[i].at(t),
+                              free_mask=self._free(st),
+                              fit_current=self.current, currents0=chosen.currents,
+                              segment_s=self.segment_s, warm_segment_s=0.0, velocities=vel,
+                              vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
+        theta, cur, fitted = oe.theta, np.asarray(oe.currents, dtype=np.float64), oe
+        if oe.diverged:
+            return chosen
+    if st.model == "paper" and physical_problem(theta):
+        return chosen
+    vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
+    again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals,
+                      held_stderr=held_se)
+    if again.score < chosen.score - PREFER_WITHIN:
+        return chosen
+    return again
+
+
+def _leave_one_out(self: Identifier, chosen: Candidate, cands, runs, kin, logs, vessel) -> tuple[list, list]:
+    """Each log left out in turn: the chosen candidate's fit on the others, validated on it,
+    and the same for equation error of the chosen's model (the floor). Returns both lists
+    of Validation, None where the fit was not a boat."""
+    out, ee_out = [], []
+    for i in range(len(runs)):
+        rest = [j for j in range(len(runs)) if j != i]
+        r_, k_ = [runs[j] for j in rest], [kin[j] for j in rest]
+        st = chosen.start
+        if st.model == "extended":
+            # lazy: the extended model only
+            from .extended_oe import ext_physical_problem, fit_extended_output_error
+
+            th_ee = self._ext_equation_error(r_, k_).theta
+            ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not ext_physical_problem(th_ee)
+                          else None)
+        else:
+            th_ee = self._ee_theta(self._equation_error(r_, k_), vessel)
+            ee_out.append(self._validate_run(runs[i], kin[i], th_ee, None) if not physical_problem(th_ee)
+                          else None)
+        if st.model == "extended":
+            if st.kind == "equation-error":
+                out.append(ee_out[-1])
+                continue
+            theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
+                                              max_current_mps=self.max_current_mps,
+                                              segment_s=EXT_SEGMENT_S).theta
+            out.append(self._validate_run(runs[i], kin[i], theta, None) if not ext_physical_problem(theta)
+                       else None)
+            continue
+        if st.kind == "equation-error":
+            out.append(ee_out[-1])
+            continue
+        if st.kind == "velocity-error":
+            theta = fit_velocity_error(r_, k_, chosen.theta, free_mask=self._free(st), fit_current=self.current,
+                                       max_current_mps=self.max_current_mps).theta
+        elif st.kind == "filter-error":
+            from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
+
+            fe = fit_filter_error([logs[j] for j in rest], vessel, chosen.theta,
+                                  free_mask=np.array([k not in self.fix for k in PARAM_NAMES]),
+                                  current=self.current)
+            theta = fe.theta
+        else:
+            vel = [velocity_samples(k.t, k.vn, k.ve, k.r) for k in k_] if st.vel_weight > 0 else None
+            th0 = chosen.theta.copy()
+            if st.surge_mass:
+                th0[0] = self._surge(r_, k_, th0).m
+            oe = fit_output_error(r_, th0, lambda q, t, k_=k_: k_[q].at(t),
+                                  free_mask=self._free(st),
+                                  fit_current=self.current, segment_s=self.segment_s, warm_segment_s=0.0,
+                                  velocities=vel, vel_weight=st.vel_weight,
+                                  max_current_mps=self.max_current_mps)
+            theta = oe.theta
+        out.append(self._validate_run(runs[i], kin[i], theta, None) if not physical_problem(theta) else None)
+    return out, ee_out
+
+
+def _ee_theta(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> np.ndarray:
+    """Equation error's values as a candidate: d22 at its bound 0 (not determined by it)
+    taken from the vessel, so that the candidate is a boat that can be simulated."""
+    th = ee.theta.copy()
+    if th[3] <= 0 and "d22" not in self.fix:
+        th[3] = vessel.params.d22
+    return th
+
+
+def _equation_error(self: Identifier, runs, kin) -> EquationErrorResult:
+    parts = [_ee_inputs(r, k) for r, k in zip(runs, kin)]
+    return fit_equation_error(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                              np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
+                              fix=self.fix)
+
+
+def _ext_equation_error(self: Identifier, runs, kin) -> ExtendedFit:
+    from .extended import fit_extended_equation_error  # lazy: the extended model only
+
+    parts = [_ee_inputs(r, k) for r, k in zip(runs, kin)]
+    return fit_extended_equation_error(*(np.concatenate([p[i] for p in parts]) for i in range(4)))
+
+
+def _start(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> np.ndarray:
+    """Output-error start: the equation-error values where plausible, else the vessel's."""
+    prior = vessel.params.as_array()
+    th = ee.theta.copy()
+    for i, k in enumerate(PARAM_NAMES):
+        if k in self.fix:
+            th[i] = self.fix[k]
+            continue
+        v = th[i]
+        if k == "xg":
+            ok = math.isfinite(v) and abs(v) < 1.0
+        else:
+            ok = math.isfinite(v) and v > 0 and (1 / 3) < v / prior[i] < 3
+        if not ok:
+            th[i] = prior[i]
+    if th[1] - th[0] * th[5] ** 2 <= 0.05 * th[1]:
+        th[5] = 0.0 if "xg" not in self.fix else th[5]
+    return th

@@ -1,0 +1,222 @@
+"""How an identified model is judged on data: :class:`Validation`, a free run and its fit %.
+
+A candidate's parameters are run through a run's recorded thrust from an initial state (and
+current) fitted on its first seconds (:func:`validate`, :func:`_validate_run`; the extended
+model: :func:`_validate_ext`), and the run is compared with the smoothed measurements
+(:func:`_validation`: fit % of u, v, r and the track). :mod:`usvlog.identify.candidates`
+ranks the candidates by these figures and :mod:`usvlog.identify.verdict` judges the returned
+one by them. The functions taking ``self`` are methods of
+:class:`~usvlog.identify.identifier.Identifier`, kept here with the job they do.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from ..choices import EXTENDED_PARAM_NAMES
+from ..log.fieldlog import FieldLog
+from ..model.frames import ssa
+from ..model.stats import fit_percent
+from .data import RunData, run_data
+from .output import (
+    fit_initial_state,
+    simulate_run,
+)
+from .smooth import KinStates, kinematic_states
+
+# typing only: the class whose methods these are (it imports this module)
+if TYPE_CHECKING:
+    from .identifier import Identifier
+
+
+@dataclass(frozen=True, kw_only=True)
+class Validation:
+    """Free run of the identified model through a run's recorded thrust.
+
+    Attributes
+    ----------
+    fit_percent : dict of str to float
+        NRMSE fit in % after the initial window, 100 (1 - |y - yhat| / |y - mean y|), for
+        ``u``, ``v``, ``r`` and ``track`` (north and east together); 100 is perfect.
+    t : numpy.ndarray, shape (N,)
+        Time in s from the run's first thrust sample (smoothed-state grid).
+    measured : numpy.ndarray, shape (N, 6)
+        n (m), e (m), psi (rad), u (m/s), v (m/s), r (rad/s) from the smoothed
+        measurements (u, v relative to the water for ``current``).
+    simulated : numpy.ndarray, shape (N, 6)
+        The model's free run, same columns.
+    current : (float, float)
+        Current north, east in m/s used (fitted with the initial state).
+    init_window_s : float
+        Initial state (and current) fitted on [0, init_window_s] s of the run.
+    """
+
+    fit_percent: dict            # "u", "v", "r", "track": 100 (1 - |y - yhat| / |y - mean y|)
+    t: np.ndarray                # s from the run's start (smoothed-state grid)
+    measured: np.ndarray         # (N, 6) n, e, psi, u, v, r from the smoothed measurements
+    simulated: np.ndarray        # (N, 6) the model's free run
+    current: tuple[float, float]  # current used (fitted with the initial state)
+    init_window_s: float         # initial state (and current) fitted on [0, init_window_s]
+
+    def to_dataframe(self) -> pd.DataFrame:
+        """Measured and simulated states side by side, indexed by ``t_s`` (s).
+
+        Columns n_m, n_sim_m, e_m, e_sim_m, psi_rad, psi_sim_rad, u_mps, u_sim_mps, v_mps,
+        v_sim_mps, r_radps, r_sim_radps.
+        """
+        cols = {}
+        for i, (name, unit) in enumerate((("n", "m"), ("e", "m"), ("psi", "rad"), ("u", "mps"),
+                                          ("v", "mps"), ("r", "radps"))):
+            cols[f"{name}_{unit}"] = self.measured[:, i]
+            cols[f"{name}_sim_{unit}"] = self.simulated[:, i]
+        return pd.DataFrame(cols, index=pd.Index(self.t, name="t_s"))
+
+    @property
+    def diverged(self) -> bool:
+        """True when the free run left the finite range (a failed model, not a fit %)."""
+        return bool(not np.all(np.isfinite(self.simulated)) or
+                    np.any(np.abs(self.simulated[:, 3:]) > 1e3))
+
+    @property
+    def score(self) -> float:
+        """The figure candidates are compared by: mean fit % of the track and of r (-inf when
+        diverged). The track (smoothed GPS positions, whose errors are small beside the
+        track's extent) judges u and v: a free run's position error integrates their errors.
+        The smoothed u and v themselves carry errors of the smoother that are partly
+        systematic, so a candidate fitted to them would be favoured for copying them."""
+        if self.diverged:
+            return -math.inf
+        s = 0.5 * (self.fit_percent["track"] + self.fit_percent["r"])
+        return float(s) if math.isfinite(s) else -math.inf
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary: fit_percent, current_ne_mps, init_window_s, duration_s, diverged."""
+        return {"fit_percent": _finite_dict(self.fit_percent), "current_ne_mps": list(self.current),
+                "init_window_s": self.init_window_s, "duration_s": float(self.t[-1] - self.t[0]),
+                "diverged": self.diverged}
+
+
+def _mean_score(vals: list) -> float:
+    """Mean :attr:`Validation.score` of a list (a None, a fit that was not a boat, counts -inf)."""
+    return float(np.mean([v.score if v is not None else -math.inf for v in vals])) if vals else -math.inf
+
+
+def _finite_dict(d: dict) -> dict:
+    """Values as floats, None where not finite (JSON has no NaN)."""
+    return {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in d.items()}
+
+
+def _validation(t, meas, sim, cur, t0: float, t_init: float) -> Validation:
+    """A free run against the measured states: heading unwrapped onto the measurement, fit %
+    of u, v, r and the track after the initial-state window."""
+    sim[:, 2] = meas[:, 2] + ssa(sim[:, 2] - meas[:, 2])
+    after = t > t_init
+    fp = {"u": fit_percent(meas[after, 3], sim[after, 3]), "v": fit_percent(meas[after, 4], sim[after, 4]),
+          "r": fit_percent(meas[after, 5], sim[after, 5]),
+          "track": fit_percent(meas[after, :2], sim[after, :2])}
+    return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
+                      current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0))
+
+
+def validation_fit_percent_(self: Identifier) -> dict:
+    """Mean validation fit % of u, v, r and track over ``validations_`` (NaN without)."""
+    if not self.validations_:
+        return {k: float("nan") for k in ("u", "v", "r", "track")}
+    return {k: float(np.mean([v.fit_percent[k] for v in self.validations_])) for k in ("u", "v", "r", "track")}
+
+
+def use_validation(self: Identifier, validations: list[Validation]) -> None:
+    """Judge the fit by these validations (e.g. on logs it was not fitted on) and redo the verdict.
+
+    Parameters
+    ----------
+    validations : list of Validation
+        From :meth:`validate`.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If the identifier is not fitted.
+    """
+    self._check_fitted()
+    self.validations_ = list(validations)
+    self.validation_ = self.validations_[0] if self.validations_ else None
+    self.validation_mode_ = "logs" if self.validations_ else "none"
+    self.reasons_, self.verdict_ = self._verdict(self.vessel_in_, self.runs_, self._kin)
+    self.usable_ = self.verdict_ != "unusable"
+
+
+def validate(self: Identifier, log: FieldLog, *, init_window_s: float = 60.0) -> Validation:
+    """Free run of the identified model from ``log``'s thrust (a run it was not fitted on).
+
+    The initial state (and the current, if the identifier fits currents) is fitted to
+    the first ``init_window_s`` seconds with the parameters held; the fit % is scored
+    after that window.
+
+    Parameters
+    ----------
+    log : FieldLog
+        A run with the same channels as for :meth:`fit`.
+    init_window_s : float, default 60.0
+        Length in s of the initial-state window (at most half the run).
+
+    Returns
+    -------
+    Validation
+        Measured and simulated states and the fit % of u, v, r and the track.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        If the identifier is not fitted.
+    usvlog.errors.InputError
+        If the log lacks a channel or has too few samples.
+    """
+    self._check_fitted()
+    run = run_data(log, self.vessel_in_)
+    return self._validate_run(run, kinematic_states(log, run, self.vessel_in_), init_window_s=init_window_s)
+
+
+def _validate_run(self: Identifier, run: RunData, ks: KinStates, theta=None, current=None,
+                  init_window_s: float = 60.0) -> Validation:
+    """Free run of ``theta`` (default ``theta_``) through a run: the initial state (and,
+    when ``current`` is None and currents are fitted, the current, within its bound)
+    fitted on the first ``init_window_s``; ``current`` (north, east, m/s) given: held."""
+    if theta is None:
+        theta = self.theta_ if self.extended_ is None else self.extended_.as_array()
+    theta = np.asarray(theta, float)
+    t0 = max(run.t_thrust[0], ks.t[0])
+    t_init = t0 + min(init_window_s, 0.5 * (run.t_thrust[-1] - t0))
+    if len(theta) == len(EXTENDED_PARAM_NAMES):
+        return self._validate_ext(run, ks, theta, current, t0, t_init)
+    if current is None:
+        x0, cur = fit_initial_state(run, theta, ks.at(t0), t0, t_init, fit_current=self.current)
+        cur = np.clip(cur, -self.max_current_mps, self.max_current_mps)
+    else:
+        x0, cur = fit_initial_state(run, theta, ks.at(t0), t0, t_init, fit_current=False, current0=current)
+    t = ks.free_run_times(t0, run.t_thrust[-1])
+    with np.errstate(over="ignore", invalid="ignore"):
+        sim = simulate_run(run, theta, cur, x0, t0, t)
+    meas = ks.at(t, cur)
+    return _validation(t, meas, sim, cur, t0, t_init)
+
+
+def _validate_ext(self: Identifier, run: RunData, ks: KinStates, theta, current, t0: float,
+                  t_init: float) -> Validation:
+    """:meth:`_validate_run` for the extended model: the initial state fitted on [t0, t_init]
+    with the current held (None: the equation-error model's zero current)."""
+    from .extended_oe import fit_initial_state_ext, free_run_full  # lazy: the extended model only
+
+    cur = np.zeros(2) if current is None else np.clip(np.asarray(current, float), -self.max_current_mps,
+                                                      self.max_current_mps)
+    x0 = fit_initial_state_ext(run, theta, ks.at(t0, tuple(cur)), t0, t_init, cur)
+    t = ks.free_run_times(t0, run.t_thrust[-1])
+    with np.errstate(over="ignore", invalid="ignore"):
+        sim = free_run_full(run, theta, cur, x0, t0, t)
+    meas = ks.at(t, tuple(cur))
+    return _validation(t, meas, sim, cur, t0, t_init)
