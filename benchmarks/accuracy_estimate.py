@@ -1,4 +1,4 @@
-"""RMS errors of the estimator against simulated truth (the figures in the README).
+"""RMS errors of the estimator against simulated truth (the figures in docs/estimation.md).
 
     python benchmarks/accuracy_estimate.py [--duration-s 300]
 
@@ -6,7 +6,7 @@ Runs (seeded, as in tests/unit/test_estimate.py): kinematic, without (``sway_dam
 ``--no-sway-damping``) and with sway damping (the default), on a still-water excitation run
 (seed 3); dynamic with current states on a run with a 0.2 m/s current towards 60 deg (seed 4);
 kinematic without sway damping on a run with four 30 m GPS jumps and a 20 s dropout (seed 6),
-as the README's table rows say; GNSS only (no compass channel): speed and course over ground of
+as the table rows of docs/estimation.md say; GNSS only (no compass channel): speed and course over ground of
 the kinematic model on turning runs (seeds 3, 5, 11) and on the excitation zig-zag (seed 3), at
 10 and 1 Hz, and the dynamic model's (true vessel) heading, course and speed at both rates; per
 run and rate the course of the best linear time-invariant smoother of the fixes fitted to the

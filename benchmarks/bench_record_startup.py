@@ -1,7 +1,7 @@
-"""The README's loopback recipe for ``usvlog record``, timed from a cold start.
+"""The loopback recipe of docs/recording.md for ``usvlog record``, timed from a cold start.
 
 Starts ``usvlog record`` and, at once, without waiting for it to be ready, the
-stand-in boat (``python -m usvlog.io.record.loopback``), exactly as README
+stand-in boat (``python -m usvlog.io.record.loopback``), exactly as docs/recording.md
 "Recording live" does with ``&``. Reports the fixes stored against the fixes sent,
 and how late the receive time of the first thrust messages is (receive time minus
 the sender's own ``t``) against the steady state: datagrams that arrive while the
@@ -64,7 +64,7 @@ def run_recipe(tmp: Path, duration_s: float) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration-s", type=float, default=30.0, help="the boat's run (README: 30 s, 300 fixes)")
+    ap.add_argument("--duration-s", type=float, default=30.0, help="the boat's run (the docs: 30 s, 300 fixes)")
     ap.add_argument("--repeat", type=int, default=1)
     a = ap.parse_args()
     for i in range(a.repeat):

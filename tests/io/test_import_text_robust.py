@@ -53,7 +53,7 @@ def test_real_logger_prefixed_nmea_imports_every_fix_on_rmc_utc():
     gga = [m for _, m in truth if m.sentence_type == "GGA" and int(m.gps_qual or 0) > 0]
     hdt = [m for _, m in truth if m.sentence_type == "HDT"]
     epochs = sorted({_epoch_ns(m.datetime) for m in rmc})
-    assert len(rmc) == 129 and len(gga) == 16 and len(epochs) == 129   # the README's measured facts
+    assert len(rmc) == 129 and len(gga) == 16 and len(epochs) == 129   # the measured facts of docs/importing.md
     res = import_file(REAL)
     log, rep = res.log, res.report
     g = log["/gnss/fix"]

@@ -543,11 +543,11 @@ def test_tcp_source_reconnects_after_the_link_drops(tmp_path):
 
 
 # -----------------------------------------------------------------------------
-# start-up: the README's loopback recipe, sender started without waiting
+# start-up: the loopback recipe of docs/recording.md, sender started without waiting
 # -----------------------------------------------------------------------------
 
 def _recipe(tmp_path, duration_s: float, gnss_hz: float):
-    """``usvlog record ... &`` then at once the loopback boat, both as subprocesses (README
+    """``usvlog record ... &`` then at once the loopback boat, both as subprocesses (docs/recording.md
     "Recording live"); the boat does not wait for the recorder to be ready."""
     out = tmp_path / "run.mcap"
     p_nmea, p_json = free_udp_port(), free_udp_port()
@@ -596,7 +596,7 @@ def test_loopback_recipe_started_at_once_keeps_299_of_300_fixes(tmp_path):
 
 @pytest.mark.slow
 def test_readme_loopback_recipe_30s(tmp_path):
-    fig = _recipe_figures(*_recipe(tmp_path, 30.0, 10.0))  # exactly the README's: 300 fixes at 10 Hz
+    fig = _recipe_figures(*_recipe(tmp_path, 30.0, 10.0))  # exactly the recipe's: 300 fixes at 10 Hz
     assert not fig["damaged"] and fig["fixes_sent"] == 300
     assert fig["fixes_kept"] >= 299, fig
     assert fig["thrust_kept"] >= fig["thrust_sent"] - 10, fig
