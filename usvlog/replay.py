@@ -14,12 +14,10 @@ Pure: no file I/O.
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, fields
 
 import numpy as np
 
-from ._cpu import spare_cpu
 from .control.gains import Gains
 from .control.law import COL, Controller, speed_at
 from .errors import InputError, UnusableResultError
@@ -29,12 +27,7 @@ from .log.summary import propulsion_from_provenance
 from .model.frames import ssa
 from .model.stats import rms
 from .model.vessel import Vessel, default_vessel
-from .sim.closed_loop import (
-    closed_loop,
-    command_unit,
-    controller_frame,
-    prepare_threads,
-)
+from .sim.closed_loop import closed_loop, command_unit, controller_frame
 from .sim.scenario import META_PATH, Scenario
 
 # -----------------------------------------------------------------------------
@@ -373,18 +366,9 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     t_rel = (t_tick - t_tick[0]) / 1e9
     dt = np.diff(t_rel, append=t_rel[-1] + (t_rel[-1] - t_rel[-2]))
     ctl = Controller(path, ves, gains, scen.guidance, full=ctl_name == "full")
-    ctl.reset(Xt[0])   # (here: the path's kernels are loaded before the what-if thread uses them)
-    wif_run = None
-    if whatif:
-        wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")
-        wif_args = (path, ves, wctl)
-        wif_kw = {"duration_s": float(t_rel[-1] + dt[-1]), "dt_s": 1.0 / rate, "integrator": scen.sim.integrator,
-                  "current_ne": cur, "eta0": Xt[0, :3], "nu0": Xt[0, 3:], "schedule": scen.schedule, "rate_hz": rate}
-        if spare_cpu():   # the what-if closed loop on a second thread while the replay runs here (no GIL)
-            prepare_threads()
-            pool = ThreadPoolExecutor(1, thread_name_prefix="usvlog-whatif")
-            wif_run = pool.submit(closed_loop, *wif_args, **wif_kw)
-            pool.shutdown(wait=False)   # the thread ends with its one run
+    ctl.reset(Xt[0])
+    # (the what-if closed loop below once ran on a second thread beside this replay: no faster
+    # on a 1-hour log, so it runs after it; docs/performance.md)
     rows = ctl.run(Xt, speed_at(scen.schedule, t_rel), dt, speed_at(scen.schedule, t_rel, 2))
     m_replay = tracking_metrics(rows, t_rel, scen.metrics_start_s)
     carrot = float(np.max(scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
@@ -417,8 +401,10 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
     rec_lr = rec_f = rec_dec = None
     m_whatif = None
     if whatif:
-        run = wif_run.result() if wif_run is not None else closed_loop(*wif_args, **wif_kw)
-        wif_run = None
+        wctl = Controller(path, ves, gains, scen.guidance, full=wif_name == "full")
+        run = closed_loop(path, ves, wctl, duration_s=float(t_rel[-1] + dt[-1]), dt_s=1.0 / rate,
+                          integrator=scen.sim.integrator, current_ne=cur, eta0=Xt[0, :3], nu0=Xt[0, 3:],
+                          schedule=scen.schedule, rate_hz=rate)
         tw = t_tick[0] + np.round(run.t * 1e9).astype(np.int64)
         m_whatif = tracking_metrics(run.ctrl, run.t[run.tick], scen.metrics_start_s)
         s = run.states

@@ -23,7 +23,6 @@ from ..control.law import (
     OUT_TAU_U,
     Controller,
     control_tick,
-    run_open_loop,
     speed_at,
 )
 from ..control.paths import Path
@@ -119,15 +118,6 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
         applied[k, 0] = au
         applied[k, 1] = ar
     return states.T, tau.T, ctrl.T, applied
-
-
-def prepare_threads() -> None:
-    """Make the numba dispatchers of the open-loop replay and the closed-loop kernels now,
-    in the calling thread, so that both can then run on two threads at once (a dispatcher
-    is made once, on its kernel's first use, and that is not safe on two threads at once;
-    loading their machine code then is: numba holds its compiler lock)."""
-    for kernel in (run_open_loop, _closed_loop_kernel):
-        getattr(kernel, "dispatcher", None)   # a usvlog lazy kernel makes its dispatcher here
 
 
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
