@@ -1,8 +1,8 @@
 """Whether a verb may use a second CPU core.
 
-Some verbs run GIL-free work on a second thread (the smoother's block re-runs, identify's
-shooting segments, replay's what-if closed loop) or draw the report's figures in a forked copy;
-the results are bit-identical to one thread. That pays only when a core is free: a process
+Some verbs run GIL-free work on a second thread (the MCAP writer's chunk compression; still,
+until their modules drop them: the smoother's block re-runs, identify's candidate fits and
+shooting segments, see docs/performance.md); the results are bit-identical to one thread. That pays only when a core is free: a process
 pinned to one CPU, or a campaign whose workers already fill every core, runs them in one.
 """
 
