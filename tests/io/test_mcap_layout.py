@@ -101,9 +101,8 @@ def test_a_copy_refuses_a_source_chunk_damaged_since_reading(tmp_path, small_fil
 
 
 def test_without_a_spare_cpu_reading_and_writing_start_no_thread(tmp_path, small_file, monkeypatch):
-    """USVLOG_THREADS=1 (a campaign's worker, a process pinned to one CPU): the copy's
-    read-ahead and the chunks' compression run in the calling thread; the file is byte for
-    byte the one written with threads."""
+    """USVLOG_THREADS=1 (a campaign's worker, a process pinned to one CPU): the chunks'
+    compression runs in the calling thread; the file is byte for byte the one written with threads."""
     import threading
 
     outs = {}
@@ -120,6 +119,6 @@ def test_without_a_spare_cpu_reading_and_writing_start_no_thread(tmp_path, small
         names = {n.split("_")[0] for n in started}
         if threads == "1":
             assert names == set(), names
-        else:   # the check can fail: with threads allowed, the copy's read-ahead and compression use them
+        else:   # the check can fail: with threads allowed, the compression uses them
             assert any(n.startswith("usvlog-mcap") for n in names), names
     assert outs["1"].read_bytes() == outs["2"].read_bytes()

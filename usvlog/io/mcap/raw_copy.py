@@ -3,17 +3,14 @@
 :class:`_RawFeed` walks the canonical file a log's deferred channels were read from and
 hands their messages as they are stored to the :class:`~usvlog.io.mcap.file_writer.McapWriter`:
 chunks holding one copied channel whole, other messages payload by payload. The walk runs
-on a read-ahead thread (:class:`_ReadAhead`) when a CPU is spare. A channel whose messages
-are not in (time, row) order raises :class:`_OutOfOrder` (the caller decodes it instead).
+in the calling thread (a read-ahead thread saved nothing on a 1-hour replay; docs/performance.md).
+A channel whose messages are not in (time, row) order raises :class:`_OutOfOrder` (the caller decodes it instead).
 """
 
 from __future__ import annotations
 
-import threading
-
 import numpy as np
 
-from ..._cpu import spare_cpu
 from ...errors import InputError
 from ...log.fieldlog import DeferredSource
 from . import kernels as K
@@ -23,63 +20,6 @@ from .stream import ChunkStream
 
 class _OutOfOrder(Exception):
     """The source's messages of a copied channel are not in (time, row) order."""
-
-
-_READ_AHEAD = 16    # batches (chunks) of a copied file read (decompressed, CRC-checked) ahead by a thread:
-                    # a slice's worth (~1.5 MB each), read while the slice is encoded
-
-
-class _ReadAhead:
-    """The items of iterator ``it``, produced by a thread up to ``depth`` ahead of the
-    caller (zstd decompression and the CRC release the GIL: the copied file's chunks are
-    unpacked on another core while the caller encodes). An exception of ``it`` is raised
-    by the :func:`next` that would have returned its item; :meth:`close` stops the thread
-    (it must be called before the source ``it`` reads is closed)."""
-
-    _END = object()
-
-    def __init__(self, it, depth: int = _READ_AHEAD):
-        import queue
-
-        self._q: queue.Queue = queue.Queue(depth)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, args=(it,), name="usvlog-mcap-read", daemon=True)
-        self._thread.start()
-
-    def _run(self, it) -> None:
-        try:
-            for item in it:
-                self._q.put((item, None))
-                if self._stop.is_set():
-                    return
-            self._q.put((self._END, None))
-        except BaseException as err:  # noqa: BLE001 - handed to the caller's next()
-            self._q.put((None, err))
-
-    def __iter__(self):
-        return self
-
-    def __next__(self):
-        item, err = self._q.get()
-        if err is not None:
-            self._stop.set()
-            raise err
-        if item is self._END:
-            self._stop.set()
-            raise StopIteration
-        return item
-
-    def close(self) -> None:
-        """Stop the thread (waits for the item it is producing) and drop what it read."""
-        import queue
-
-        self._stop.set()
-        while self._thread.is_alive():
-            try:   # make room: the thread may be waiting to put an item
-                self._q.get(timeout=0.05)
-            except queue.Empty:
-                pass
-        self._thread.join()
 
 
 def _only_messages(records: np.ndarray, ps: np.ndarray, pe: np.ndarray) -> bool:
@@ -92,14 +32,14 @@ class _RawFeed:
     """The messages of channels of a canonical file, as they are stored, handed to a
     :class:`McapWriter` for :func:`write_log` to copy without decoding.
 
-    The file is walked in its order (every chunk decompressed and its CRC checked, on a
-    read-ahead thread; chunks holding none of the channels skipped). A chunk holding
+    The file is walked in its order (every chunk decompressed and its CRC checked; chunks
+    holding none of the channels skipped). A chunk holding
     messages of one copied channel only, nothing else, in the order and with the
     sequence numbers the writer gives them, under the same channel id, is copied whole:
     its record's bytes as they are (compressed data, CRC), its message index rebuilt
     (:meth:`McapWriter.add_chunk`). Other messages of the channels (chunks holding
     several channels, messages outside chunks) are copied payload by payload into the
-    writer's own chunks. Memory: the chunks read ahead.
+    writer's own chunks. Memory: the chunk being copied.
     """
 
     def __init__(self, src: DeferredSource, topics: list[str], ids: dict[str, int]):
@@ -115,7 +55,7 @@ class _RawFeed:
 
     def _batches(self):
         """The walk's batches, each with the bytes of its chunk record when it may be copied
-        whole (one channel; runs on the read-ahead thread)."""
+        whole (one channel)."""
         m = self._stream._map
         for b in self._stream._batches():
             at, cid = b[1], b[4]
@@ -125,9 +65,9 @@ class _RawFeed:
             yield b, rec
 
     def start(self) -> None:
-        """Start reading ahead (else the first :meth:`take` does)."""
-        if self._it is None:   # on a second thread when a CPU is spare, else here as it is taken
-            self._it = _ReadAhead(self._batches()) if spare_cpu() else self._batches()
+        """Start the walk (else the first :meth:`take` does)."""
+        if self._it is None:
+            self._it = self._batches()
 
     def _peek(self):
         if self._next is None and not self._done:
@@ -196,5 +136,5 @@ class _RawFeed:
 
     def close(self) -> None:
         if self._it is not None:
-            self._it.close()   # the thread stops before the file it reads is closed
+            self._it.close()   # the walk's generator ends before the file it reads is closed
         self._stream.close()

@@ -94,8 +94,7 @@ def _write(log: FieldLog, tmp, chunk_size: int, compression: str, zstd_level: in
                 cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
                 feed.start()
                 for k, batch in enumerate(_cut(frames, cuts)):
-                    # the slice encoded while the read-ahead thread reads the source's chunks
-                    # ending in it, then both into chunks
+                    # the slice encoded, then the source's chunks ending in it read, both into chunks
                     per = w._encode_frames(batch, log.schemas)
                     w._add_encoded(per, *feed.take(int(cuts[k]) if k < len(cuts) else None))
                 feed.finish()
