@@ -411,7 +411,7 @@ def _held(sample: pd.DataFrame, t_s: np.ndarray, mapping: dict, report) -> Held 
     if "lat_deg" not in mapping or "lon_deg" not in mapping:
         return None
     lat, lon = _num(sample, mapping["lat_deg"]), _num(sample, mapping["lon_deg"])
-    m = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(t_s)
+    m = np.isfinite(lat) & np.isfinite(lon) & np.isfinite(t_s) & (np.abs(t_s) < 9e9)   # a time in int64 ns
     held = detect_held(np.round(t_s[m] * 1e9).astype(np.int64), lat[m], lon[m])
     if held is not None:
         report.guesses["gnss_held"] = held.describe()
