@@ -4,7 +4,7 @@ The paper (Section II-A) parameterises the path by a scalar theta. Here theta is
 metres: arc length for circles, lines and waypoint splines (chord-length knots), and
 distance along the axis for a sinusoid, so the carrot ``delta_theta`` is a distance.
 
-Kinds (TOML ``[path]``, see README):
+Kinds (TOML ``[path]``, see docs/replay.md):
 
 * ``circle``: ``center_ne``, ``radius_m``, ``direction`` ("cw" or "ccw" as seen on a
   north-up map, i.e. cw = heading increases along the path), ``start_deg`` (bearing from

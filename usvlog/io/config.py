@@ -51,7 +51,7 @@ def load_vessel(path=None) -> Vessel:
     Parameters
     ----------
     path : str or os.PathLike, optional
-        Vessel file (``name``, ``[model]`` or ``[extended]``, ``[thrusters]``; see README),
+        Vessel file (``name``, ``[model]`` or ``[extended]``, ``[thrusters]``; see docs/vessels.md),
         or the name of a vessel shipped with usvlog (``catamaran`` or ``catamaran.toml``)
         when no such file exists.
 

@@ -259,7 +259,7 @@ def _toml_float(v: float) -> str:
 
 
 def vessel_from_toml(text: str, source: str = "<vessel>") -> Vessel:
-    """Parse a vessel TOML document (see README) into a :class:`Vessel`.
+    """Parse a vessel TOML document (see docs/vessels.md) into a :class:`Vessel`.
 
     Parameters
     ----------

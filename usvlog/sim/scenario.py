@@ -1,4 +1,4 @@
-"""Closed-loop scenarios: the ``replay/*.toml`` files (see README) as :class:`Scenario` objects.
+"""Closed-loop scenarios: the ``replay/*.toml`` files (see docs/replay.md) as :class:`Scenario` objects.
 
 :func:`scenario_from_dict` checks a parsed document; :func:`load_scenario` reads a file (or a
 name of a shipped scenario) through :mod:`usvlog.io.config`.
@@ -31,7 +31,7 @@ SECTIONS = {"scenario", "simulation", "vessel", "path", "gains", "guidance", "sp
 
 @dataclass(frozen=True, kw_only=True)
 class Scenario:
-    """A closed-loop scenario (TOML in ``replay/``; see README).
+    """A closed-loop scenario (TOML in ``replay/``; see docs/replay.md).
 
     Usually built by :func:`load_scenario` or :func:`scenario_from_dict`.
 

@@ -36,7 +36,7 @@ if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never ne
 ZSTD_LEVEL = 1
 """zstd level of the chunks :func:`write_log` writes: on canonical JSON logs level 1 is
 2-2.5x faster than the library's level 3 and compresses better (ratio 4.3 vs 3.7 on a
-replay log); see the README's "Output encoding and compression"."""
+replay log); see docs/performance.md, "Output encoding and compression"."""
 
 
 _MSG_HEAD = 9 + 22   # a Message record's bytes before its payload: opcode, length, channel, sequence, times

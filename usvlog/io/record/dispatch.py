@@ -94,7 +94,7 @@ class LineInput:
                 self._write_fix(*fix)
 
     def json_line(self, text: str, *, source: str = "json", t_ns: int | None = None) -> bool:
-        """One JSON line (see the README for the message forms).
+        """One JSON line (see docs/recording.md for the message forms).
 
         Parameters
         ----------
