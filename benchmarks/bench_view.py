@@ -12,11 +12,13 @@ benchmark does not take ten minutes. Run: ``python benchmarks/bench_view.py``.
 
 ``--cli LOG`` instead runs ``usvlog view LOG`` and ``usvlog report LOG`` as a user would
 (separate processes, ``--repeat`` times each) and prints per run the wall time, the CPU of
-the main thread, of the rest of the process (rerun's threads) and of any child process, the
-peak RSS of the process and of its largest child, and the load average: what the two cores do.
+the main thread, of the rest of the process (rerun's threads) and of its forked copies (the one
+reading a channel while the process imports rerun or matplotlib, the report's figure drawer),
+the peak RSS of the process and of the largest copy, and the load average: what the two cores do.
 
 ``--figures LOG`` prints the CPU seconds each report figure of LOG takes to draw (best of
-``--repeat``) and the page's text.
+``--repeat``) and the page's text, which ``usvlog.view.report.FIGURE_COST`` holds for a 1-hour
+log (the report shares the figures between two processes by these), and how it shares them.
 """
 
 from __future__ import annotations
@@ -128,8 +130,8 @@ def cli(log: Path, repeat: int) -> None:
                 wall, cpu, main, kids, rss, kid_rss = p.stderr.strip().splitlines()[-1].split()
                 rest = float(cpu) - float(main)
                 print(f"{name:6s} {float(wall):5.2f} s wall; CPU {cpu} s in the process (main thread {main}, "
-                      f"other threads {rest:.2f}) + {kids} s child processes; "
-                      f"peak RSS {rss} MB (children {kid_rss} MB); load {load:.2f}", flush=True)
+                      f"other threads {rest:.2f}) + {kids} s forked copies (reader, figure drawer); "
+                      f"peak RSS {rss} MB (copies {kid_rss} MB); load {load:.2f}", flush=True)
 
 
 def figure_costs(log_path: Path, repeat: int) -> None:
@@ -152,7 +154,11 @@ def figure_costs(log_path: Path, repeat: int) -> None:
         rp._page_head(log, None)
         best["(page)"] = min(best.get("(page)", math.inf), time.process_time() - t)
     for name, s in best.items():
-        print(f"{name:24s} {s:6.3f} CPU s")
+        print(f"{name:24s} {s:6.3f} CPU s   (table: {rp.FIGURE_COST.get(name, rp.PAGE_COST):.2f})")
+    costs = rp.figure_costs(figs, log)
+    theirs = rp.share(costs, rp.PAGE_COST)
+    mine = [figs[i][0] for i in range(len(figs)) if costs[i] > 0 and i not in theirs]
+    print(f"this process: {mine} + the page; the forked copy: {[figs[i][0] for i in theirs]}")
 
 
 def main() -> None:

@@ -60,12 +60,66 @@ def test_chunk_spans_of_a_file_without_a_usable_summary_is_none(tmp_path, sim_lo
     assert chunk_spans(tmp_path / "x.mcap") is None
 
 
+SPLIT_SCRIPT = r'''
+import json, os, sys
+from usvlog.io.mcap import read_log
+from usvlog.view import source
+from usvlog.view.forked import two_cores
+
+path, parent, fork = sys.argv[1], os.getpid(), two_cores()
+ref = source.read_drawn(path, source.VIEW_TOPICS, read_log)
+out = {"fork": fork}
+for fail in (False, True):   # a copy that fails leaves the channel to this process
+    calls = []
+
+    def read(p, topics=None):
+        if fail and os.getpid() != parent:
+            raise RuntimeError("the copy fails")
+        return read_log(p, topics=topics)
+
+    got = source.read_drawn(path, source.Drawn(source.VIEW_TOPICS, late=("/no/such", "/thrust/command"),
+                                               meanwhile=lambda: calls.append(os.getpid())), read)
+    out[f"fail={fail}"] = {
+        "same": sorted(ref.channels) == sorted(got.channels) and ref.time_range() == got.time_range()
+        and all(ref[t].equals(got[t]) and ref[t].index.equals(got[t].index)
+                and list(ref[t].dtypes) == list(got[t].dtypes) for t in ref.channels)
+        and all(ref.schemas.get(t) == got.schemas.get(t) for t in ref.channels),
+        "meanwhile once": calls == [parent], "thrust": "/thrust/command" in got.channels}
+print(json.dumps(out))
+'''
+
+
+def test_channel_read_by_a_forked_copy_gives_the_same_log(tmp_path, sim_log):
+    """A channel read by a forked copy while this process does other work (``Drawn.late``) gives
+    the log read in one go; a copy that fails leaves the channel to this process. In a fresh
+    interpreter: a copy is forked only when no other thread runs (a test worker has threads)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import usvlog
+
+    path = _with_yaw_rate(sim_log, tmp_path / "a.mcap", 0.0)
+    root = Path(usvlog.__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    r = subprocess.run([sys.executable, "-c", SPLIT_SCRIPT, str(path)], capture_output=True, text=True, env=env,
+                       cwd=root, timeout=300)
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    for case in ("fail=False", "fail=True"):
+        assert got[case] == {"same": True, "meanwhile once": True, "thrust": True}, got
+    if not got["fork"]:
+        pytest.skip("no forked copy here (one CPU, USVLOG_THREADS=1 or not Linux): compared in-process only")
+
+
 def test_compass_read_only_for_a_log_without_a_state(tmp_path, sim_log):
     """The view draws the compass only when no state channel is there: a log holding one is read
     without it (its time range still the whole file's), one without a state reads it."""
     from usvlog.view.source import VIEW_READ, Drawn
 
-    drawn = Drawn(VIEW_TOPICS, unless=VIEW_READ.unless)
+    drawn = Drawn(VIEW_TOPICS, unless=VIEW_READ.unless)   # no forked copy, no rerun import
     raw = sim_log.copy()
     del raw.channels["/truth/state"]
     for log, name, compass in ((sim_log, "a.mcap", False), (raw, "b.mcap", True)):

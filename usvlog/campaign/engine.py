@@ -142,7 +142,7 @@ class Runner:
             # (500 ms) run every 1, 1 and 2 s: a run takes seconds, and on a small machine the
             # scheduler, nannies and client share the cores with the workers (40 ten-minute runs
             # on 2 cores: 3.5-3.9 s of CPU in this process instead of 5.8-6.1 s). Each worker is one
-            # core: its verbs keep their second-core work (threads: the MCAP writer's compression) in
+            # core: its verbs keep their second-core work (threads, the report's forked drawer) in
             # one, unless USVLOG_THREADS is set in the environment. (Given as the workers' own
             # environment: Dask's pre-spawn variables are also written into this process's.)
             with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,

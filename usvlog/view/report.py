@@ -24,7 +24,7 @@ The report is written by :func:`write_report` here, from parts each in a module 
 * :mod:`usvlog.view.report_figures`: one function per figure (the paper's figures, the
   estimate's series, the identification's fit), listed in page order by :func:`figures`;
 * :mod:`usvlog.view.report_plot`: matplotlib's set-up, the axes and legend helpers, a figure's PNG;
-* :mod:`usvlog.view.report_draw`: every figure drawn;
+* :mod:`usvlog.view.report_draw`: every figure drawn, shared with a forked copy on two CPUs;
 * :mod:`usvlog.view.report_page`: the HTML page.
 """
 
@@ -53,7 +53,7 @@ from .report_plot import _Axes, _plt
 # isort: split
 # names other modules import from here, their code now in the report_* modules: usvlog.campaign.report
 # and usvlog.view.source take _plt and _render, the tests and benchmarks/bench_view.py the others
-from .report_draw import _drawn  # noqa: F401
+from .report_draw import FIGURE_COST, PAGE_COST, _drawn, _Forked, _two_cores, figure_costs, share  # noqa: F401
 from .report_page import _html  # noqa: F401
 from .report_plot import _band, _render, band_envelope  # noqa: F401
 
@@ -177,8 +177,8 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
     out = check_report_outputs(out_dir, force)
     shown, missing, pngs = [], [], []
     figs = figures(log, baseline=baseline, axes=axes)
-    drawn_all = draw_all(figs)
-    head = _page_head(log, baseline, links)
+    head: list[str] = []
+    drawn_all = draw_all(figs, log=log, meanwhile=lambda: head.extend(_page_head(log, baseline, links)))
     for (name, title, _make, needs), drawn in zip(figs, drawn_all):
         if drawn is None:
             missing.append((title, needs))

@@ -8,9 +8,12 @@ starts and ends inside it (a chunk's start and end are its messages' first and l
 times). The ones in a chunk past that range are read as well, and the file whole when it
 has no usable summary or is damaged.
 
-(A forked copy of the process once read one channel while this one imported rerun or
-matplotlib: no faster on a 1-hour log, so the drawn channels are read in one go;
-docs/performance.md.)
+While the view imports rerun (~0.5 s, holding the GIL), a forked copy of the process reads one
+more channel (:class:`Drawn`), one that costs about as much to read; the log is the same as read
+in one go, and read in one go when no second CPU is free (``USVLOG_THREADS=1``). It earns its
+place (issue 32): a 1-hour ``usvlog view`` 10.8 % faster with it (median of 4 paired on/off runs,
+9.1-11.7 %, load 1.1-1.2; docs/performance.md). The report reads in one go: the same copy beside
+its matplotlib import saved 3.3 %.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from dataclasses import dataclass, field
 from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
+from .forked import Forked, two_cores
 
 # what view/rrd.py draws; the report draws the same but the recorded thrust commands (it reads them to find
 # the standard manoeuvres)
@@ -33,18 +37,26 @@ VIEW_TOPICS = tuple(dict.fromkeys((*REPORT_TOPICS, "/thrust/command")))
 
 @dataclass(frozen=True)
 class Drawn:
-    """What :func:`read_drawn` reads.
+    """What :func:`read_drawn` reads and what this process does meanwhile.
 
     Parameters
     ----------
     topics : tuple of str
         The channels drawn.
+    late : tuple of str, default ()
+        Channels of ``topics`` in order of preference: the first the file holds is read by a
+        forked copy of the process (:class:`usvlog.view.forked.Forked`) while this one runs
+        ``meanwhile``, once the others are read (here when no copy can run).
+    meanwhile : callable, optional
+        Work for this process while the copy reads (e.g. importing what draws the log).
     unless : dict, optional
         Channel of ``topics`` -> channels that, when the file holds any of them, keep it from
         being drawn (it is then left like a channel never drawn).
     """
 
     topics: tuple[str, ...]
+    late: tuple[str, ...] = ()
+    meanwhile: Callable[[], object] | None = None
     unless: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
@@ -57,7 +69,8 @@ def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldL
     path : str or os.PathLike
         A canonical MCAP file.
     topics : tuple of str or Drawn
-        The channels drawn (a :class:`Drawn`: with the channels that keep one from being drawn).
+        The channels drawn; a :class:`Drawn` also names those a forked copy reads while this
+        process runs its ``meanwhile`` (the log is the same either way).
     read : callable
         ``read(path, topics=None | list)`` loads the file (:func:`usvlog.io.mcap.read_log`).
 
@@ -68,17 +81,52 @@ def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldL
         ``recovery`` report is the whole file's).
     """
     drawn = topics if isinstance(topics, Drawn) else Drawn(tuple(topics))
+    ran: list[bool] = []
+
+    def meanwhile() -> None:   # once: while the copy reads, or after the read
+        if not ran and drawn.meanwhile is not None:
+            ran.append(True)
+            drawn.meanwhile()
+    log = _read_drawn(path, drawn, meanwhile, read)
+    meanwhile()
+    return log
+
+
+def _frames(log: FieldLog) -> tuple[dict, dict, bool]:
+    """(frames, schemas, damaged) of a log read in a forked copy: what pickles back."""
+    return dict(log.channels), {t: log.schemas[t] for t in log.channels if t in log.schemas}, log.recovery is not None
+
+
+def _read_drawn(path, drawn: Drawn, meanwhile: Callable[[], None], read: Callable[..., FieldLog]) -> FieldLog:
+    topics = drawn.topics
     spans = chunk_spans(path)
     if spans is None:
         return read(path, topics=None)
     present = {t for _a, _b, ts in spans for t in ts}
-    topics = tuple(t for t in drawn.topics if not present.intersection(drawn.unless.get(t, ())))
+    topics = tuple(t for t in topics if not present.intersection(drawn.unless.get(t, ())))
     others = sorted(present - set(topics))
-    if not others:
+    late = [t for t in drawn.late if t in present][:1]
+    if not others and not late:
         return read(path, topics=None)
-    log = read(path, topics=list(topics))
+    log = read(path, topics=[t for t in topics if t not in late])
     if log.recovery is not None:   # a damaged file: as it reads whole
         return read(path, topics=None)
+    if late:
+        copy = Forked(lambda: _frames(read(path, topics=late))) if two_cores() else None
+        try:
+            meanwhile()   # the caller's work now, not after the read
+        except BaseException:
+            if copy is not None:
+                copy.stop()
+            raise
+        got = copy.result() if copy is not None else None
+        frames, schemas, damaged = got if got is not None else _frames(read(path, topics=late))
+        if damaged:
+            return read(path, topics=None)
+        for t, frame in frames.items():
+            log.channels[t] = frame
+            if t in schemas:
+                log.schemas[t] = schemas[t]
     tr = log.time_range()
     if tr is None:
         return read(path, topics=None)
@@ -98,7 +146,13 @@ def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldL
                 log.schemas[t] = rest.schemas[t]
 
 
-# what the view and the report read
+def _import_rerun() -> None:
+    from . import rrd  # noqa: F401  heavy: rerun, imported while a forked copy reads a channel
+
+
+# what the view and the report read (for the view a forked copy reads the channel that costs about
+# as much as importing rerun, while this process imports it; 1-hour log: ~0.5 s each)
 # the view draws the compass only for a log without a state channel (rrd._Writer.draw_series)
-VIEW_READ = Drawn(VIEW_TOPICS, unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)})
+VIEW_READ = Drawn(VIEW_TOPICS, late=("/thrust/command", "/truth/state", "/estimate/state"), meanwhile=_import_rerun,
+                  unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)})
 REPORT_READ = Drawn(REPORT_TOPICS)
