@@ -116,11 +116,13 @@ class _Stages:
 
 
 def run(args) -> int:
-    from ..estimate import EstimateSettings, estimate  # heavy: imported only when the verb runs
+    from ..check import check_log  # heavy: imported only when the verb runs
+    from ..estimate import EstimateSettings, estimate
     from ..io.export import export_log
     from ..io.mcap import read_log, write_log
     from ..log.summary import format_summary, summarize
     from ..sim.simulate import SimSettings, simulate
+    from ..trials import find_manoeuvres
 
     out = Path(args.out)
     settings = SimSettings(duration_s=args.duration_s, current_mps=0.2, current_dir_deg=60.0)  # checked first
@@ -140,6 +142,8 @@ def run(args) -> int:
     step("inspect")
     log = raw_log = read_log(raw)   # read once: identification fits this same run below
     print(format_summary(summarize(log)))
+    step("check: sensors, heading, thrusters and run content (usvlog check)")
+    print(check_log(log).table())
     _import_stage(log, out, step)
     own.claim("merged.csv", "imported.mcap")
     est_path = out / "estimate.mcap"
@@ -149,6 +153,9 @@ def run(args) -> int:
     log = result.to_log(log)
     write_log(log, est_path, force=True)
     own.claim("estimate.mcap")
+    step("manoeuvres: the standard manoeuvres found in the run (usvlog manoeuvres)")
+    tr = log.time_range()
+    print(find_manoeuvres(result.state, log["/thrust/command"], int(tr[0]) if tr else 0).format())
     step(f"export -> {out / 'csv'}")
     export_log(log, out / "csv", fmt="csv", force=True)
     own.claim("csv")
