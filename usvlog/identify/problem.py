@@ -232,6 +232,8 @@ class Problem:
             shoot(self.tg, self.tau_u, self.tau_r, self.seg_i0[a:b], self.seg_i1[a:b], x0s[a:b], theta,
                   seg_cur[a:b], self.meas_t, self.meas_ptr[a:b + 1], dt, sens, out_x, *args)
 
+        # earns its place (issue 32): a 1-hour `usvlog identify` 14 % faster with the second thread
+        # (median of 4 paired on/off runs, -6 to 20 %, load 2.3-2.9); docs/performance.md
         threads = self.threads
         if threads is None or callable(threads):
             threads = (threads is None or threads()) and spare_cpu() and self.n_seg > 1
