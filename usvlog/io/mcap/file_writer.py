@@ -78,8 +78,8 @@ def _workers() -> int:
     compression is the write's largest work and when the caller waits for it (chunks pending,
     or the last ones) every core compresses; none (compression in the calling thread) without a
     spare CPU (``USVLOG_THREADS=1``, a process pinned to one CPU)."""
-    # earns its place (issue 32): `usvlog estimate` of a 1-hour log 11.5 % faster with these threads
-    # (median of 4 paired on/off runs, load 2.6-7.6; replay 4 %, simulate 7 %); docs/performance.md
+    # issue 32 measured these threads below its 10 % bar (1-hour estimate: 11.5 % at load 2.6-7.6,
+    # -5.5 % at load 2.3-2.9; replay 6.4 %, simulate 2.5 %): to be removed; docs/performance.md
     if not spare_cpu():
         return 0
     try:
