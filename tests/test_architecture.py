@@ -41,7 +41,7 @@ PACKAGE = "usvlog"
 # package name matches only usvlog/__init__.py).
 UNITS: dict[str, tuple[str, ...]] = {
     "cli":      ("usvlog.cli", "usvlog.__main__"),
-    "api":      ("usvlog", "usvlog.api"),         # usvlog/__init__.py (+ usvlog/api.py)
+    "api":      ("usvlog", "usvlog.api"),         # usvlog/__init__.py (+ the usvlog/api/ package)
     "campaign": ("usvlog.campaign",),
     "view":     ("usvlog.view",),
     "regress":  ("usvlog.regress",),

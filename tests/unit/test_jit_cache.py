@@ -133,14 +133,13 @@ def test_source_hash_leaves_out_only_what_kernels_cannot_reach(tmp_path):
     from usvlog._jit import UNREACHABLE, source_hash
 
     pkg = tmp_path / "p"
-    for d in ("cli", "view", "control", "sim"):
+    for d in ("cli", "view", "control", "sim", "api"):
         (pkg / d).mkdir(parents=True)
         (pkg / d / "m.py").write_text("x = 1\n")
-    (pkg / "api.py").write_text("")
     h0 = source_hash(str(pkg))
     (pkg / "cli" / "m.py").write_text("x = 2\n")          # above the kernels: same hash
     (pkg / "view" / "m.py").write_text("x = 2\n")
-    (pkg / "api.py").write_text("y = 1\n")
+    (pkg / "api" / "m.py").write_text("y = 1\n")
     assert source_hash(str(pkg)) == h0
     (pkg / "control" / "m.py").write_text("x = 2\n")      # reachable: a new hash
     assert source_hash(str(pkg)) != h0
