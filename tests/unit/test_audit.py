@@ -17,7 +17,8 @@ from usvlog.io.importers.audit import (
     health_from_provenance,
     raw_topic,
 )
-from usvlog.io.importers.core import STREAMS, Assembler, ImportReport, guess_thrust
+from usvlog.io.importers.core import STREAMS, Assembler, ImportReport
+from usvlog.io.importers.thrust_guess import guess_thrust
 from usvlog.model.vessel import Thrusters
 
 S = 1_000_000_000

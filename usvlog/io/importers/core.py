@@ -12,7 +12,7 @@ equal). :class:`Assembler` turns batches into canonical frames, one batch at a t
   stream (backwards or duplicated time stamps).
 
 * headings beyond +-360 deg and thrust commands outside their unit's range
-  (:data:`THRUST_LIMITS`; newtons beyond +-:data:`THRUST_ABSURD_N`);
+  (:data:`~.thrust_guess.THRUST_LIMITS`; newtons beyond +-:data:`~.thrust_guess.THRUST_ABSURD_N`);
 * republished copies of a sample (same sensor stamp, or a GNSS fix identical to the
   one before it): collapsed, see :mod:`usvlog.io.importers.audit`;
 * held repeats a reader marked (a ``held`` column: sample-and-hold resampling, see
@@ -61,6 +61,7 @@ from ...log.channels import channel_spec, frame_from_columns
 from ...model.frames import Datum, ssa
 from ...model.vessel import THRUST_UNITS, Vessel
 from .audit import DEAD_CAPABLE, HealthAudit
+from .thrust_guess import THRUST_GUESS_ROWS, THRUST_LIMITS, guess_thrust
 
 # stream -> (topic, value columns that must be finite)
 STREAMS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -75,19 +76,6 @@ QUALITY_TOPIC = "/gnss/quality"
 """GGA fix quality and HDOP of the fixes that carry them (``fix_quality``, ``hdop`` columns of the gnss stream)."""
 _COV = ("cov_ee_m2", "cov_en_m2", "cov_eu_m2", "cov_ne_m2", "cov_nn_m2", "cov_nu_m2",
         "cov_ue_m2", "cov_un_m2", "cov_uu_m2")
-THRUST_ABSURD_N = 1e5
-"""Thrust commands in newtons beyond +- this are impossible for a small USV (skipped)."""
-THRUST_LIMITS: dict[str, tuple[float, float]] = {
-    "newton": (-THRUST_ABSURD_N, THRUST_ABSURD_N),
-    "normalized": (-1.0 - 1e-9, 1.0 + 1e-9),
-    "pwm_us": (800.0, 2200.0),
-}
-"""Commands accepted per unit (``counts``: the ``--thrust-range``, given or guessed)."""
-COUNT_FULL_SCALES = (100, 127, 200, 255, 500, 1000, 1023, 1024, 2047, 2048, 4095, 4096, 10000, 32767,
-                     32768, 65535)
-"""Full scales of integer command counts the guess picks from (the smallest that holds the bulk)."""
-THRUST_GUESS_ROWS = 500
-"""A guessed thrust unit is guessed from at least this many commands (or all, if fewer)."""
 _TWO_PI = 2.0 * math.pi
 USABLE_SHARE = 0.5
 """A stream keeping less than this share of its samples (copies collapsed on purpose apart) is unusable."""
@@ -773,87 +761,6 @@ class Assembler:
         cols = {"stamp_ns": c["stamp_ns"].astype(np.int64), "sog_mps": c["sog_mps"].astype(float),
                 "cog_rad": cog}
         return frame_from_columns(cols, c["t_ns"], channel_spec("/gnss/velocity"))
-
-
-@dataclass(frozen=True)
-class ThrustGuess:
-    """A thrust unit guessed from the commands: unit, accepted range and why.
-
-    Attributes
-    ----------
-    unit : str
-        One of ``THRUST_UNITS``.
-    lo, hi : float
-        Commands accepted (in ``unit``); ``counts``: the range whose larger magnitude is
-        the full scale.
-    reason : str
-        One line for the user.
-    """
-
-    unit: str
-    lo: float
-    hi: float
-    reason: str
-
-
-def guess_thrust(left, right) -> ThrustGuess:
-    """Unit of thruster commands from their range, robust to a few outliers.
-
-    The bulk is the commands between the 0.5 % and 99.5 % quantiles, after dropping gross
-    outliers -- magnitudes over 10 times the 95th percentile of the non-zero magnitudes --
-    so a stray -99360 among +-255 does not decide even in a short log: within 800..2200 -> ``pwm_us``; within
-    +-1 -> ``normalized``; whole numbers (99 % of the bulk) -> ``counts`` with the
-    smallest full scale F of :data:`COUNT_FULL_SCALES` that holds the bulk (range
-    -F..F); anything else -> ``newton``.
-
-    Parameters
-    ----------
-    left, right : array_like
-        Commands of the two thrusters (any unit); non-finite values are ignored.
-
-    Returns
-    -------
-    ThrustGuess
-    """
-    v = np.concatenate([np.asarray(left, float).ravel(), np.asarray(right, float).ravel()])
-    v = v[np.isfinite(v)]
-    if len(v) == 0:
-        return ThrustGuess("newton", *THRUST_LIMITS["newton"], "no finite command: newtons assumed")
-    v_all = v
-    mag = np.abs(v[v != 0])
-    if len(mag):
-        v = v[np.abs(v) <= 10.0 * float(np.quantile(mag, 0.95, method="nearest"))]
-    q_lo, q_hi = (float(x) for x in np.quantile(v, [0.005, 0.995], method="nearest"))
-    bulk = v[(v >= q_lo) & (v <= q_hi)]
-    span = f"{q_lo:g}..{q_hi:g}" + (f" (all: {float(v_all.min()):g}..{float(v_all.max()):g})"
-                                   if v_all.min() < q_lo or v_all.max() > q_hi else "")
-    if q_lo >= 800.0 and q_hi <= 2200.0:
-        return ThrustGuess("pwm_us", *THRUST_LIMITS["pwm_us"], f"commands {span}: RC pulse widths (us)")
-    if q_lo >= -1.0 and q_hi <= 1.0:
-        return ThrustGuess("normalized", *THRUST_LIMITS["normalized"], f"commands {span}: within +-1")
-    if np.mean(bulk == np.round(bulk)) >= 0.99:
-        top = max(abs(q_lo), abs(q_hi))
-        fs = next((float(f) for f in COUNT_FULL_SCALES if f >= top), float(math.ceil(top)))
-        lo = -fs   # symmetric: a stretch of forward-only commands says nothing of reverse
-        return ThrustGuess("counts", lo, fs, f"whole-number commands {span}: counts, full scale {fs:g} "
-                                             f"(range {lo:g}:{fs:g}; give --thrust-range LO:HI if not)")
-    return ThrustGuess("newton", *THRUST_LIMITS["newton"], f"commands {span} beyond +-1, not whole numbers: newtons")
-
-
-def guess_thrust_unit(left: np.ndarray, right: np.ndarray) -> str:
-    """Unit of thruster commands from their range (:func:`guess_thrust`'s unit).
-
-    Parameters
-    ----------
-    left, right : array_like
-        Commands of the two thrusters.
-
-    Returns
-    -------
-    str
-        ``pwm_us``, ``normalized``, ``counts`` or ``newton``.
-    """
-    return guess_thrust(left, right).unit
 
 
 def yaw_from_quaternion_enu(x, y, z, w):

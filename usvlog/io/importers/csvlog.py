@@ -35,11 +35,12 @@ import pandas as pd
 
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import ImportReport, guess_thrust_unit, listing, text_column
+from .core import ImportReport, listing, text_column
 from .held import Held, detect_held, held_mask
 from .infer import TimeVerdict, angle_unit, judge_time, rate_scale
 from .probe import Series, course_agreement
 from .sniff import check_gzip
+from .thrust_guess import guess_thrust_unit
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {

@@ -40,8 +40,9 @@ import numpy as np
 
 from ...errors import FormatError, InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import clock_offset_fallback, foreign, guess_thrust_unit, listing
+from .core import clock_offset_fallback, foreign, listing
 from .sniff import DATAFLASH_MAGIC, file_head
+from .thrust_guess import guess_thrust_unit
 from .ulog import spike_mask
 
 GPS_EPOCH_UNIX_S = 315_964_800

@@ -44,7 +44,7 @@ import numpy as np
 from ...errors import ConfigError, FormatError, InputError
 from .audit import RAW_PREFIX
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import foreign, guarded, guess_thrust_unit, yaw_from_quaternion_enu
+from .core import foreign, guarded, yaw_from_quaternion_enu
 from .mapping import (
     ALT_NAMES,
     LAT_NAMES,
@@ -58,6 +58,7 @@ from .mapping import (
 )
 from .probe import Series
 from .sniff import MCAP_MAGIC, ROS1_MAGIC, SQLITE_MAGIC, file_head
+from .thrust_guess import guess_thrust_unit
 
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4   # rosbags' Nodetype values
 _MAX_EXPAND = 16                               # elements of a message array listed in the catalog

@@ -38,8 +38,9 @@ import numpy as np
 
 from ...errors import FormatError, InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import clock_offset_fallback, foreign, guess_thrust_unit, listing
+from .core import clock_offset_fallback, foreign, listing
 from .sniff import ULOG_MAGIC, file_head
+from .thrust_guess import guess_thrust_unit
 
 GNSS_TOPICS = ("vehicle_gps_position", "sensor_gps")
 HEADING_TOPICS = ("vehicle_attitude",)
