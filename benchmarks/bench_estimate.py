@@ -7,8 +7,7 @@ frames and report included), side by side.
                                         [--reference-s SECONDS] [--[no-]sway-damping]
                                      [--gps-only] [--gps-rate-hz 10]
 
-The compiled kernels are timed as they run (the smoother's two halves in two threads when
-the machine has two CPUs) and in one thread. Default: both models, the CLI default first
+The compiled kernels are timed as they run (one thread). Default: both models, the CLI default first
 (``usvlog estimate``: kinematic, 10 states, sway damping on), then the dynamic model.
 ``--reference-s`` times the filterpy loop on the
 first SECONDS only and scales its time to the whole run (the loop's cost is linear in the
@@ -90,11 +89,6 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
     t, c = time.perf_counter(), time.process_time()
     fast = run_fast(pb, q, s.max_consecutive_rejects, True)
     t_fast, c_fast = time.perf_counter() - t, time.process_time() - c
-    t, c = time.perf_counter(), time.process_time()
-    one = run_fast(pb, q, s.max_consecutive_rejects, True, threads=False)
-    t_one, c_one = time.perf_counter() - t, time.process_time() - c
-    same = all(np.array_equal(a, b, equal_nan=True) for a, b in ((fast.XS, one.XS), (fast.SDs, one.SDs),
-                                                                (fast.PBs, one.PBs)))
 
     t, c = time.perf_counter(), time.process_time()
     estimate(log, s)
@@ -114,8 +108,6 @@ def bench(log, s: EstimateSettings, reference_s: float | None) -> None:
           f"  ({real / t_ref:6.0f}x [{real / c_ref:6.0f}x] real time)")
     print(f"compiled kernels only     : {t_fast:8.2f} s [{c_fast:7.2f} s]"
           f"  ({real / t_fast:6.0f}x [{real / c_fast:6.0f}x] real time)")
-    print(f"  the same, one thread    : {t_one:8.2f} s [{c_one:7.2f} s]"
-          f"  ({real / t_one:6.0f}x [{real / c_one:6.0f}x] real time; {'bit-identical' if same else 'DIFFERENT'})")
     print(f"whole estimate() call     : {t_all:8.2f} s [{c_all:7.2f} s]"
           f"  ({real / t_all:6.0f}x [{real / c_all:6.0f}x] real time)")
     print(f"speed-up, kernels         : {t_ref / t_fast:8.1f}x [{c_ref / c_fast:6.1f}x]")

@@ -509,19 +509,15 @@ def test_chi2_quantile_closed_form_equals_scipy():
 def test_output_rows_are_the_all_step_run_bit_for_bit():
     """The memory-bounded run (some rows, the first states, the smoother re-making the forward
     posteriors block by block from checkpoints) gives exactly those rows of the all-step run,
-    across several blocks and at the same first unusable step; the smoother with the blocks
-    made again in a second thread gives the very numbers of the one-thread run, and both the
-    filterpy reference's across the block boundaries (each block's last step smoothed with
-    the prior carried over from the block after it)."""
+    across several blocks and at the same first unusable step, and the smoother gives the
+    filterpy reference's numbers across the block boundaries (each block's last step smoothed
+    with the prior carried over from the block after it)."""
     log = simulate("excitation", SimSettings(duration_s=50.0), seed=4)
     s = EstimateSettings(sway_damping=False)
     pb = build_problem(log, s, default_vessel())
     assert len(pb.dts) > 2 * kernels.SMOOTH_BLOCK
     q = process_noise(s)
-    every = run_fast(pb, q, s.max_consecutive_rejects, True, threads=True)
-    one = run_fast(pb, q, s.max_consecutive_rejects, True, threads=False)
-    for a, b in ((every.XS, one.XS), (every.SDs, one.SDs), (every.PBs, one.PBs), (every.innov, one.innov)):
-        np.testing.assert_array_equal(a, b)
+    every = run_fast(pb, q, s.max_consecutive_rejects, True)
     ref = run_reference_path(pb, q, s.max_consecutive_rejects, True)
     for a, b in ((every.XS, ref.XS), (every.SDs, ref.SDs), (every.PBs, ref.PBs)):
         d = np.abs(a - b)
@@ -553,49 +549,3 @@ def test_output_rows_are_the_all_step_run_bit_for_bit():
             np.testing.assert_array_equal(frame[c + "_std"].to_numpy(), SD[g, i])
     assert res.forward is res.forward   # made once
     pd.testing.assert_frame_equal(copied.forward, res.forward, check_exact=True)
-
-
-@pytest.mark.parametrize("slow", ["rerun", "back"])
-def test_two_thread_smoother_schedule_keeps_the_order_and_the_buffers(slow):
-    """The two threads' schedule of the blocks (run._shared_blocks): every block re-run once
-    and smoothed once, from the last down, each after its re-run, and no re-run into a buffer
-    whose block is not smoothed yet; with slow re-runs the smoothing thread takes some itself.
-    A re-run that fails is raised in the calling thread."""
-    import threading
-    import time
-
-    from usvlog.estimate.run import _shared_blocks
-
-    blocks, nbuf = 23, 4
-    lock = threading.Lock()
-    events, holder, who = [], {}, {}
-
-    def rerun(c):
-        with lock:
-            assert c not in who and holder.get(c % nbuf) is None, (c, holder)
-            holder[c % nbuf] = c
-            who[c] = threading.current_thread() is threading.main_thread()
-        time.sleep(0.004 if slow == "rerun" else 0.0005)
-        with lock:
-            events.append(("rerun", c))
-
-    def back(c):
-        with lock:
-            assert ("rerun", c) in events and holder[c % nbuf] == c
-        time.sleep(0.004 if slow == "back" else 0.0005)
-        with lock:
-            events.append(("back", c))
-            holder[c % nbuf] = None
-
-    _shared_blocks(blocks, nbuf, rerun, back)
-    assert [c for e, c in events if e == "back"] == list(range(blocks - 1, -1, -1))
-    assert sorted(who) == list(range(blocks))
-    if slow == "rerun":
-        assert any(who.values())   # the smoothing thread re-ran blocks while waiting
-
-    def failing(c):
-        if c == blocks - 3:
-            raise RuntimeError("re-run failed")
-
-    with pytest.raises(RuntimeError, match="re-run failed"):
-        _shared_blocks(blocks, nbuf, failing, lambda c: None)

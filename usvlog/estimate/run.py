@@ -1,8 +1,8 @@
 """Running the filter and the smoother over a :class:`~usvlog.estimate.layout.Problem`.
 
 :func:`run_fast` is the numba-compiled forward EKF and extended RTS smoother
-(:mod:`usvlog.estimate.kernels`), the smoother's blocks re-run from checkpoints and shared
-between two threads (:func:`smooth`, :func:`_shared_blocks`); :func:`run_reference_path` is
+(:mod:`usvlog.estimate.kernels`), the smoother's blocks re-run from checkpoints
+(:func:`smooth`); :func:`run_reference_path` is
 the same on the filterpy reference (:mod:`usvlog.estimate.reference`), slow, for checks. Both
 return a :class:`RawRun` of arrays. :func:`forward_loglik` is the forward pass's likelihood
 alone, which :func:`tune_process_noise` maximises and the latency search and the filter-error
@@ -12,14 +12,10 @@ identifier use.
 from __future__ import annotations
 
 import math
-import threading
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
-from .._cpu import spare_cpu
 from ..model.vessel import VesselParams
 from . import kernels
 from .kernels import (
@@ -60,8 +56,7 @@ class RawRun:
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-             covariance_block: bool = True, columns: int | None = None, threads: bool | None = None,
-             forward: bool = True) -> RawRun:
+             covariance_block: bool = True, columns: int | None = None, forward: bool = True) -> RawRun:
     """Forward EKF (and RTS smoother) with the numba-compiled kernels.
 
     Memory is that of the rows asked for, not of the steps: the smoother makes the forward
@@ -83,8 +78,6 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
         Return the covariance block of states 2..4 (``PBf``, ``PBs``).
     columns : int, optional
         Return the first ``columns`` states (and their one-sigma) only; default all.
-    threads : bool, optional
-        The smoother's two halves in two threads (:func:`smooth`; default: with more than one CPU).
     forward : bool
         Return the forward posteriors (``X``, ``SDf``, ``PBf``); False (with the smoother
         only): not stored, they have no rows (memory and time, when only the smoothed
@@ -120,29 +113,21 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
                          CX, CP, CI, CF, bad_f)
     if smoother:
         XS, SDs, PBs = np.empty((R, nc)), np.empty((R, nc)), np.empty((npb, 3, 3))
-        smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s, threads)
+        smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s)
     else:
         XS, SDs, PBs = X, SDf, PBf
     bad = [int(b[0]) for b in (bad_f, bad_s) if b[0] >= 0]
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, min(bad) if bad else -1)
 
 
-SMOOTH_BUFFERS = 4
-"""Blocks' buffers the two-thread smoother holds (about 4.5 MB each for the 10-state model):
-the re-runs may run this many blocks minus one ahead of the smoothing."""
-
-
 def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndarray, PB: np.ndarray,
-           bad: np.ndarray, threads: bool | None = None) -> None:
+           bad: np.ndarray) -> None:
     """The extended RTS smoother after ``kernels.forward``, block by block from the end.
 
     Each block's forward posteriors are made again from its checkpoint
-    (``kernels.smooth_rerun``) and smoothed backwards (``kernels.smooth_back``). With
-    ``threads`` (default: when the machine has more than one CPU) two threads share the
-    work: the smoothing goes block by block down the run in the calling thread, and the
-    re-runs of the blocks before it (they depend only on their checkpoints) are taken by
-    whichever thread is free, up to :data:`SMOOTH_BUFFERS` - 1 blocks ahead. The same
-    numbers in the same order; the wall time of about half the work.
+    (``kernels.smooth_rerun``) and smoothed backwards (``kernels.smooth_back``), in the
+    calling thread. (A second thread taking the re-runs was measured in issue 32: a 1-hour
+    ``usvlog estimate`` 2.2 % slower with it, so it was taken out; docs/performance.md.)
 
     Parameters
     ----------
@@ -157,8 +142,6 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
         or (0, 3, 3).
     bad : numpy.ndarray
         (1,) int64: the first step whose smoothed state is unusable, -1 for none.
-    threads : bool, optional
-        Share the blocks' re-runs and the smoothing between two threads (see above).
     """
     x0, dts, pos_var_limit = args[0], args[2], args[14]
     N, nx = len(dts), len(x0)
@@ -166,89 +149,13 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
     bad[0] = -1
     if not blocks:
         return
-    if threads is None:
-        threads = spare_cpu() and blocks > 1
-    buf = [kernels.SmoothBuffers(nx) for _ in range(min(SMOOTH_BUFFERS, blocks) if threads else 1)]
+    b = kernels.SmoothBuffers(nx)
     xs, Ps, xpn, Ppn, Cn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
     resets = run[2]
-
-    def rerun(c: int) -> None:
-        b = buf[c % len(buf)]
+    for c in range(blocks - 1, -1, -1):
         kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
-
-    def back(c: int) -> None:
-        b = buf[c % len(buf)]
         kernels.smooth_back(c, N, resets, b.BX, b.BP, b.BXp, b.BPp, b.BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit,
                             row, XS, SD, PB, bad)
-
-    if not threads:
-        for c in range(blocks - 1, -1, -1):
-            rerun(c)
-            back(c)
-        return
-    _shared_blocks(blocks, len(buf), rerun, back)
-
-
-def _shared_blocks(blocks: int, nbuf: int, rerun: Callable[[int], None], back: Callable[[int], None]) -> None:
-    """back(c) for c = blocks - 1 .. 0 in this thread, each after rerun(c); the reruns,
-    from the last block down, taken by a second thread or by this one while the block it
-    is to smooth is still being re-run. Block c uses buffer c % nbuf: its re-run waits for
-    back(c + nbuf)."""
-    cond = threading.Condition()
-    todo = [blocks - 1]       # the next block to re-run
-    low = [blocks]            # the lowest block smoothed so far
-    done: set[int] = set()    # blocks re-run and not smoothed yet
-    failed: list[BaseException] = []
-
-    def take() -> int:        # (under cond) the next re-run whose buffer is free, or -1
-        c = todo[0]
-        if c < 0 or c + nbuf < low[0]:
-            return -1
-        todo[0] = c - 1
-        return c
-
-    def run_one(c: int) -> None:
-        try:
-            rerun(c)
-        except BaseException as e:   # handed to the smoothing thread
-            failed.append(e)
-        with cond:
-            done.add(c)
-            cond.notify_all()
-
-    def worker() -> None:
-        while True:
-            with cond:
-                while (c := take()) < 0 and todo[0] >= 0 and not failed:
-                    cond.wait()
-            if c < 0:
-                return
-            run_one(c)
-
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        helper = pool.submit(worker)
-        try:
-            for c in range(blocks - 1, -1, -1):
-                while True:
-                    with cond:
-                        while c not in done and (own := take()) < 0 and not failed:
-                            cond.wait()
-                        if failed:
-                            raise failed[0]
-                        ready = c in done
-                    if ready:
-                        break
-                    run_one(own)   # this block is still being re-run in the other thread: do one ahead
-                back(c)
-                with cond:
-                    done.discard(c)
-                    low[0] = c
-                    cond.notify_all()
-        finally:
-            with cond:
-                todo[0] = -1   # the helper stops (after the re-run it may be in)
-                cond.notify_all()
-        helper.result()
 
 
 REINIT_GATE_FACTOR = 100.0
