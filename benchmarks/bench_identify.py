@@ -8,8 +8,8 @@ compare, wall seconds grow with the load). BLAS runs in one thread, as the verb 
 their cache) by a warm-up fit on a 2-minute log first, not counted.
 Output error includes everything it does by default: its candidates fitted on the first 70 %,
 their validation on the last 30 %, and the refit of the chosen one on all the data; it is timed
-twice, on one core (``USVLOG_THREADS=1``) and as the verb runs by default (with a spare CPU the
-candidates are fitted two at a time in threads): the same numbers, wall time falls only where
+twice, on one core (``USVLOG_THREADS=1``) and as the verb runs by default (with a spare CPU each
+candidate's shooting segments in two threads): the same numbers, wall time falls only where
 the second core is idle.
 Before them, the shooting kernel alone (:func:`usvlog.identify.shoot.shoot` through
 ``Problem.simulate``) on the whole log in 300 s segments from the true states: one model

@@ -69,10 +69,10 @@ def test_savgol_and_lag_are_scipy_signals_bit_for_bit():
         assert np.array_equal(_lag(f, a), lfilter([0.0, 1.0], [1.0, -a], f))
 
 
-def test_candidates_fitted_in_parallel_threads_give_the_numbers_of_one_thread(monkeypatch):
-    """With a spare CPU the output-error candidates are fitted two at a time in threads (each
-    integrating in one thread, the last in two): every candidate, the returned fit and its
-    verdict are bit for bit those of everything in one thread (USVLOG_THREADS=1)."""
+def test_identify_with_a_spare_cpu_gives_the_numbers_of_one_thread(monkeypatch):
+    """With a spare CPU (USVLOG_THREADS=2) the output-error candidates, fitted one after another,
+    integrate their segments in two threads: every candidate, the returned fit and its verdict
+    are bit for bit those of everything in one thread (USVLOG_THREADS=1)."""
     from usvlog.identify import Identifier
 
     log = simulate("excitation", SimSettings(duration_s=150.0, current_mps=0.2, current_dir_deg=60.0), seed=11)
@@ -81,7 +81,7 @@ def test_candidates_fitted_in_parallel_threads_give_the_numbers_of_one_thread(mo
         monkeypatch.setenv("USVLOG_THREADS", threads)
         idf = Identifier("output-error", segment_s=60.0).fit([log])
         oe = [c for c in idf.candidates_ if c.start.kind == "output-error"]
-        assert len(oe) >= 2 and not any(c.failed for c in oe)   # the parallel path had two fits to run
+        assert len(oe) >= 2 and not any(c.failed for c in oe)
         out[threads] = (repr(idf.to_dict()), [(c.start.name, c.theta.tobytes(), c.currents.tobytes(),
                                                c.score) for c in idf.candidates_], idf.oe_.x0s.tobytes())
     assert out["2"] == out["1"]

@@ -1,5 +1,5 @@
-"""Kernels first called from several threads at once (the smoother's, identify's and replay's
-second threads): each dispatcher is made once, with the cache in usvlog's directory, and
+"""Kernels first called from several threads at once (identify's second shooting thread, a
+log read on a thread): each dispatcher is made once, with the cache in usvlog's directory, and
 numba's global CACHE_DIR, which :func:`usvlog._jit._compile` points there for a moment, is
 left as it was."""
 

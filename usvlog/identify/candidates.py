@@ -5,7 +5,7 @@ Output error fits several candidates (:class:`Start`) and keeps the one that val
 output error from it with and without the smoothed velocities, from the vessel's values, the
 velocity output error from the data's scales, the extended model's fits, and the surge
 candidate (m held at the surge equation's own fit, :func:`_surge_candidate`). They are fitted
-two at a time in threads when a CPU is spare (:func:`_fit_candidates`), picked by validation
+one after another (:func:`_fit_candidates`), picked by validation
 with a tie margin (:func:`_pick`, :data:`PREFER_WITHIN`), refitted on all the data
 (:func:`_refit`) or validated by leaving each log out (:func:`_leave_one_out`). The functions
 taking ``self`` are methods of :class:`~usvlog.identify.identifier.Identifier`, kept here
@@ -15,15 +15,11 @@ with the job they do.
 from __future__ import annotations
 
 import math
-import threading
-from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._cpu import spare_cpu
 from ..choices import EXTENDED_PARAM_NAMES
 from ..errors import UnusableResultError
 from ..estimate import EstimateSettings, estimate
@@ -198,32 +194,6 @@ def _ekf_current(log: FieldLog, vessel: Vessel, theta, current: bool) -> tuple[f
     return (float(np.nanmean(st["current_n_mps"])), float(np.nanmean(st["current_e_mps"])))
 
 
-class _Once:
-    """A computation made at most once, when first run or asked for: :meth:`get` returns its
-    result or raises its exception (at the place that needs it, wherever it was made)."""
-
-    def __init__(self, fn: Callable[[], object]):
-        self._fn = fn
-        self._out: tuple | None = None
-
-    def run(self) -> None:
-        """Make it now (once); an exception is kept for :meth:`get`."""
-        if self._out is None:
-            try:
-                self._out = (True, self._fn())
-            except Exception as err:   # raised where the result is needed
-                self._out = (False, err)
-
-    def get(self):
-        """The result (made now if it was not), or its exception raised."""
-        self.run()
-        assert self._out is not None
-        ok, val = self._out
-        if not ok:
-            raise val
-        return val
-
-
 # -- the candidate list, one fit, the pick by validation -------------------------
 def candidate_starts(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> list[Start]:
     """The candidates to fit, most preferred first (a tie in validation goes to the first).
@@ -341,8 +311,7 @@ def _surge_wanted(self: Identifier) -> bool:
     return not (self.model == "extended" or self.method != "output-error" or "m" in self.fix)
 
 
-def _surge_candidate(self: Identifier, cands, runs, kin, fit_logs, vessel, held, surge: _Once | None = None
-                     ) -> Candidate | None:
+def _surge_candidate(self: Identifier, cands, runs, kin, fit_logs, vessel, held) -> Candidate | None:
     """Output error with m held at the surge equation's own fit, when that m is more than
     SURGE_MASS_RATIO away from the full output-error fit's (None otherwise, and for the
     extended model alone, equation or filter error, a fixed m). It is the most preferred
@@ -353,14 +322,13 @@ def _surge_candidate(self: Identifier, cands, runs, kin, fit_logs, vessel, held,
     The paper's model has one mass for surge, sway and the yaw coupling (m xg); on a boat
     whose sway and yaw are of another form the full fit can move m far from the surge's to
     absorb that mismatch (the track barely sees the surge time constant), and its surge
-    speed is then wrong. The validation judges the two. ``surge``: the surge fit from
-    equation error's start, when made already (:meth:`_fit_candidates`' ``meanwhile``)."""
+    speed is then wrong. The validation judges the two."""
     if not self._surge_wanted():
         return None
     full = [c for c in cands if c.start.model == "paper" and c.start.kind == "output-error"
             and c.start.vel_weight == 0]
     th = self._start(self.equation_error_, vessel)
-    sf = surge.get() if surge is not None else self._surge(runs, kin, th)
+    sf = self._surge(runs, kin, th)
     if full and not full[0].failed and 1 / SURGE_MASS_RATIO < sf.m / full[0].theta[0] < SURGE_MASS_RATIO:
         return None
     th[0] = sf.m
@@ -369,54 +337,26 @@ def _surge_candidate(self: Identifier, cands, runs, kin, fit_logs, vessel, held,
     return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, held_stderr={"m": sf.stderr["m"]})
 
 
-def _fit_candidates(self: Identifier, starts: list[Start], runs, kin, fit_logs, vessel, held,
-                    meanwhile: _Once | None = None) -> list[Candidate]:
-    """:meth:`_fit_candidate` of each start, in their order. With a spare CPU the paper
-    model's output-error candidates are fitted two at a time in threads (the shooting
-    kernel runs without the GIL, and so does much of the arithmetic around it), each
-    integrating its segments in one thread while another fit runs and in two once it is the
-    last; the others here meanwhile, and then ``meanwhile`` (a computation the caller needs
-    next, made here while the threads run). The same numbers as one by one."""
-    par = [i for i, st in enumerate(starts) if st.kind == "output-error" and st.model == "paper"]
-    if len(par) < 2 or not spare_cpu():
-        return [self._fit_candidate(st, runs, kin, fit_logs, vessel, held) for st in starts]
-    unfinished = [len(par)]
-    lock = threading.Lock()
-
-    def fit_one(st: Start) -> Candidate:
-        try:
-            return self._fit_candidate(st, runs, kin, fit_logs, vessel, held, threads=lambda: unfinished[0] == 1)
-        finally:
-            with lock:
-                unfinished[0] -= 1
-
-    out: list[Candidate | None] = [None] * len(starts)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        futures = {i: pool.submit(fit_one, starts[i]) for i in par}
-        for i, st in enumerate(starts):
-            if i not in futures:
-                out[i] = self._fit_candidate(st, runs, kin, fit_logs, vessel, held)
-        if meanwhile is not None:
-            meanwhile.run()
-        for i, f in futures.items():
-            out[i] = f.result()
-    return [c for c in out if c is not None]
+def _fit_candidates(self: Identifier, starts: list[Start], runs, kin, fit_logs, vessel, held) -> list[Candidate]:
+    """:meth:`_fit_candidate` of each start, one after another in their order. (Fitting the
+    paper model's output-error candidates two at a time in threads was measured in issue 32:
+    a 1-hour ``usvlog identify`` 7.4 % faster and 106 MB more at its peak, under the 10 % bar,
+    so it was taken out; docs/performance.md.)"""
+    return [self._fit_candidate(st, runs, kin, fit_logs, vessel, held) for st in starts]
 
 
-def _fit_candidate(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
-                   threads: bool | Callable[[], bool] | None = None) -> Candidate:
+def _fit_candidate(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None) -> Candidate:
     """Fit one candidate and validate it (a failure is a result: ``failed`` says why, also when
-    its fit could not proceed, :class:`~usvlog.errors.FitFailed`); ``threads``: an output-error
-    fit's (:func:`fit_output_error`)."""
+    its fit could not proceed, :class:`~usvlog.errors.FitFailed`)."""
     try:
-        return self._fit_candidate_raw(st, runs, kin, fit_logs, vessel, held, held_stderr, threads)
+        return self._fit_candidate_raw(st, runs, kin, fit_logs, vessel, held, held_stderr)
     except UnusableResultError as err:   # FitFailed, or an estimate inside the fit that diverged
         return Candidate(start=st, theta=np.asarray(st.theta, float), currents=np.zeros((len(runs), 2)),
                          fitted=None, validations=[], failed=str(err))
 
 
-def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None,
-                       threads: bool | Callable[[], bool] | None = None) -> Candidate:
+def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel, held, held_stderr=None
+                       ) -> Candidate:
     """:meth:`_fit_candidate` without the catch."""
     if st.model == "extended":
         return self._fit_ext_candidate(st, runs, kin, held)
@@ -440,8 +380,7 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
         fitted = fit_output_error(runs, st.theta, lambda i, t: kin[i].at(t), free_mask=free,
                                   fit_current=self.current, segment_s=self.segment_s,
                                   warm_segment_s=self.warm_segment_s, warm_span_s=900.0, velocities=vel,
-                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps,
-                                  threads=threads)
+                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
         theta, cur = fitted.theta, np.asarray(fitted.currents, float)
     failed = physical_problem(theta)
     if not failed and isinstance(fitted, (OutputErrorResult, VelocityFitResult)) and fitted.diverged:

@@ -22,7 +22,7 @@ from ..log.summary import health_from_provenance
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
 from . import candidates, report, validation, verdict
 from .ahead import excited_channels, fit_percent_ahead
-from .candidates import Candidate, Start, _Once, _returned
+from .candidates import Candidate, Start, _returned
 from .checks import _excitation_warnings, _refuse_dead_channels, _refuse_outside_model, _refuse_wrong_signs
 from .data import run_data
 from .equation import EquationErrorResult
@@ -315,11 +315,8 @@ class Identifier:
         ee = self._equation_error(runs, kin)
         self.equation_error_ = ee
         self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
-        # the surge equation's own fit needs only equation error's start: made while the candidates are fitted
-        surge = _Once(lambda: self._surge(runs, kin, self._start(ee, vessel))) if self._surge_wanted() else None
-        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held,
-                                     meanwhile=surge)
-        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held, surge)
+        cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held)
+        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
         if sc is not None:   # preferred in a tie: its m also agrees with the surge's own evidence
             cands.insert(0, sc)
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form

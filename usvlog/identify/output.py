@@ -16,7 +16,6 @@ model); here the fit driver :func:`fit_output_error` and its :class:`OutputError
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -143,8 +142,7 @@ def velocity_samples(t, vn, ve, r, step_s: float = VEL_STEP_S):
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
                      currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
                      max_nfev=60, verbose=0, warm_span_s=None, velocities=None, vel_weight=0.0,
-                     max_current_mps=np.inf, threads: bool | Callable[[], bool] | None = None
-                     ) -> OutputErrorResult:
+                     max_current_mps=np.inf) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -185,10 +183,6 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Total weight of the velocity rows relative to the GPS and compass rows (0: not fitted).
     max_current_mps : float, default inf
         Bound on each current component, m/s.
-    threads : bool or callable, optional
-        :attr:`Problem.threads` of its problems: integrate the segments in two threads
-        (default: when a second CPU is spare; a callable is asked before each integration,
-        e.g. by fits running in parallel: True once the others are done).
 
     Returns
     -------
@@ -219,9 +213,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     x0_kin = x0_fn
 
     def problem(rr, seg_s):
-        out = Problem(rr, seg_s, velocities if vel_weight > 0 else None)
-        out.threads = threads
-        return out
+        return Problem(rr, seg_s, velocities if vel_weight > 0 else None)
 
     for si, seg_s in enumerate(stages):
         last = si == len(stages) - 1

@@ -11,7 +11,6 @@ and their Jacobian. The fit itself is :func:`usvlog.identify.output.fit_output_e
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
@@ -175,9 +174,9 @@ class Problem:
         self.v_k = tuple(np.searchsorted(vmeas, self.r_meas[rr]) for rr in self.v_rows)
         self._set_weights(1.0 / self.r_sig0)
         self._rows: np.ndarray | None = None
-        self.threads: bool | Callable[[], bool] | None = None
+        self.threads: bool | None = None
         """Integrate the segments in two threads (the same numbers; default: with more than one
-        CPU and segment); a callable is asked at each :meth:`simulate` (True: with a spare CPU)."""
+        CPU and segment)."""
 
     def set_sensor_scale(self, scales) -> None:
         """Scale each sensor group's stated noise (residual weight 1 / (sigma scale)), e.g. by its
@@ -235,8 +234,8 @@ class Problem:
         # earns its place (issue 32): a 1-hour `usvlog identify` 14 % faster with the second thread
         # (median of 4 paired on/off runs, -6 to 20 %, load 2.3-2.9); docs/performance.md
         threads = self.threads
-        if threads is None or callable(threads):
-            threads = (threads is None or threads()) and spare_cpu() and self.n_seg > 1
+        if threads is None:
+            threads = spare_cpu() and self.n_seg > 1
         if not threads:
             run(0, self.n_seg)
             return out_x, rows
