@@ -36,6 +36,7 @@ from .format import (
     OP_METADATA,
     OP_METADATA_INDEX,
     OP_SCHEMA,
+    OP_STATISTICS,
 )
 from .format import (
     crc32 as _crc32,
@@ -71,6 +72,7 @@ class _Summary:
     chunks: dict = field(default_factory=dict)      # offset -> (record length, t0, t1, channel ids)
     chunk_offsets: list = field(default_factory=list)
     metadata: dict = field(default_factory=dict)    # offset -> (record length, name)
+    counts: dict | None = None                      # channel id -> messages (the Statistics record)
 
 
 @dataclass
@@ -324,11 +326,26 @@ def _read_summary(data: bytes, footer_at: int) -> _Summary | None:
             elif op == OP_METADATA_INDEX:
                 at, size = struct.unpack_from("<QQ", mv, body)
                 s.metadata[at] = (size, _string(mv, body + 16)[0])
+            elif op == OP_STATISTICS:   # the per-channel message counts (sizes for the decode)
+                s.counts = _channel_counts(mv, body, nxt)
             off = nxt
     except (struct.error, UnicodeDecodeError, IndexError, TypeError):
         return None
     s.chunk_offsets = sorted(s.chunks)
     return s
+
+
+def _channel_counts(mv, body: int, end: int) -> dict | None:
+    """A Statistics record's channel message counts (channel id -> count); None when they
+    do not parse (the counts are a hint: a reader decodes without them)."""
+    at = body + 8 + 2 + 4 * 4 + 8 + 8   # message, schema, channel, attachment, metadata, chunk counts; times
+    if at + 4 > end:
+        return None
+    n = _U32.unpack_from(mv, at)[0]
+    at += 4
+    if n % 10 or at + n > end:
+        return None
+    return {int(c): int(k) for c, k in struct.iter_unpack("<HQ", mv[at:at + n])}
 
 
 def _layout(scan: _Scan, data: bytes, find_footer=_find_footer) -> None:

@@ -3,10 +3,12 @@
 :func:`_read_streamed` reads a :class:`.stream.ChunkStream` and decodes each canonical
 channel's messages a group of chunks at a time (:class:`_ChannelParts`), with the codec of
 the schema stored in the file (:func:`_codec_of`), so memory is the decoded frames plus a
-bounded buffer. A message that does not decode costs that message only: the bad ones are
-found by halving (:func:`_decode_bad`) and counted in the recovery report. :func:`_read_log`
-with a ``scanner`` decodes a whole scan at once instead (the tests' reference path, see
-:func:`.reference._scan_reference`).
+bounded buffer: each column is allocated once from the summary's message count of its channel
+and filled group by group, and the frame takes the arrays without a copy (without the
+summary's statistics, the groups' arrays are joined at the end instead). A message that does
+not decode costs that message only: the bad ones are found by halving (:func:`_decode_bad`)
+and counted in the recovery report. :func:`_read_log` with a ``scanner`` decodes a whole
+scan at once instead (the tests' reference path, see :func:`.reference._scan_reference`).
 """
 
 from __future__ import annotations
@@ -69,15 +71,64 @@ def _decode_tolerant(decode, n: int) -> tuple[dict, np.ndarray]:
 _DECODE_BYTES = 16 << 20   # decompressed chunk bytes decoded at a time by read_log
 
 
-class _ChannelParts:
-    """One channel's messages decoded part by part as :func:`read_log` walks the file."""
+class _Column:
+    """One column of a channel as :func:`read_log` decodes it: allocated once (``size``
+    values, from the summary's message count) and filled part by part, or, without a size,
+    or when a part does not fit (another dtype, coded strings, more values than the
+    summary said), its parts kept and joined at the end (:func:`concat_columns`)."""
 
-    def __init__(self, topic: str, schema: dict, codec):
+    __slots__ = ("buf", "parts", "size")
+
+    def __init__(self, size: int | None):
+        self.size = size
+        self.buf: np.ndarray | None = None
+        self.parts: list = []
+
+    def put(self, a, pos: int) -> None:
+        """Add the part ``a``, whose rows start at row ``pos`` of the channel."""
+        k = len(a)
+        b = self.buf
+        if b is None and self.size is not None and not self.parts:
+            if isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype != object and pos + k <= self.size:
+                self.buf = b = np.empty(self.size, dtype=a.dtype)
+            else:
+                self.size = None   # kept as parts from here on
+        if b is not None:
+            if isinstance(a, np.ndarray) and a.ndim == 1 and a.dtype == b.dtype and pos + k <= len(b):
+                b[pos:pos + k] = a
+                return
+            self.parts, self.buf, self.size = [b[:pos]], None, None   # what was filled, as a part
+        self.parts.append(a)
+
+    def take(self, n: int):
+        """The whole column (``n`` rows), its parts dropped: the allocated array trimmed to
+        ``n`` (a damaged file can hold fewer messages than its summary says)."""
+        b, self.buf = self.buf, None
+        if b is None:
+            parts, self.parts = self.parts, []
+            return concat_columns(parts)
+        if len(b) != n:
+            try:
+                b.resize(n, refcheck=True)   # in place (realloc), no copy of the rows kept
+            except ValueError:
+                b = b[:n].copy()
+        return b
+
+
+class _ChannelParts:
+    """One channel's messages decoded part by part as :func:`read_log` walks the file.
+
+    With ``size`` (the summary's message count of the channel), each column is allocated
+    once and filled part by part (:class:`_Column`), and the frame takes the arrays as they
+    are: memory is the frame, not its parts plus their concatenation plus the frame."""
+
+    def __init__(self, topic: str, schema: dict, codec, size: int | None = None):
         self.topic, self.schema, self.codec = topic, schema, codec
-        self.t: list = []
-        self.seq: list = []
-        self.ordinal: list = []
-        self.cols: list = []
+        size = size if size is not None and size > 0 else None
+        self.t, self.seq, self.ordinal = _Column(size), _Column(size), _Column(size)
+        self.cols = {c: _Column(size) for c in codec.spec.columns}
+        self.rows = 0                          # rows kept so far
+        self.added = False                     # a part was added
         self.n = self.n_bad = 0
         self.first: InputError | None = None   # the first decoding error met
         self.mismatch = False                  # a part failed with no message failing alone
@@ -97,31 +148,32 @@ class _ChannelParts:
         keep = sel if not len(bad) else np.delete(sel, bad)
         self.n += len(sel)
         self.n_bad += len(bad)
-        self.t.append(t[keep])
-        self.seq.append(seq[keep])
-        self.ordinal.append(ordinal[keep])
-        self.cols.append(cols)
+        pos = self.rows
+        self.t.put(t[keep], pos)
+        self.seq.put(seq[keep], pos)
+        self.ordinal.put(ordinal[keep], pos)
+        for c, col in self.cols.items():
+            col.put(cols[c], pos)
+        self.rows += len(keep)
+        self.added = True
 
     def frame(self) -> tuple[pd.DataFrame, int]:
         """(the channel's frame in sequence order, messages skipped); the rules of
         :func:`_decode_tolerant` applied to the whole channel."""
         if self.first is not None and (self.mismatch or self.n_bad == self.n > 1):
             raise self.first
-        if not self.t:
+        if not self.added:
             return frame_from_columns(self.codec.empty_columns(), np.zeros(0, dtype=np.int64), self.codec.spec), 0
-
-        def cat(a: list) -> np.ndarray:
-            return a[0] if len(a) == 1 else np.concatenate(a)
-        t, seq, ordinal = cat(self.t), cat(self.seq), cat(self.ordinal)
-        self.t = self.seq = self.ordinal = []
+        n = self.rows
+        t, seq, ordinal = self.t.take(n), self.seq.take(n), self.ordinal.take(n)
         order = None
         if len(seq) > 1 and not np.all(seq[1:] > seq[:-1]):
             order = np.lexsort((ordinal, seq))   # by sequence, file order among equal ones
+        del seq, ordinal
         cols = {}
         for c in self.codec.spec.columns:
-            a = concat_columns([p[c] for p in self.cols])
+            a = self.cols[c].take(n)
             cols[c] = a if order is None else a[order]
-        self.cols = []
         own = len({id(a) for a in cols.values()}) == len(cols)   # fresh arrays, one per column
         return frame_from_columns(cols, t if order is None else t[order], self.codec.spec, copy=not own), self.n_bad
 
@@ -133,6 +185,7 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
     errors: dict[int, InputError] = {}
     with ChunkStream(p, topics=topics) as stream:
         scan = stream._scan
+        counts = None   # messages per channel (the summary's statistics), known once the walk has begun
 
         def channel(c: int) -> _ChannelParts | None:
             if c not in parts:
@@ -141,7 +194,8 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                 sname, senc, sdata = scan.schemas.get(ch.schema_id, ("", "", b""))
                 if (topics is None or ch.topic in topics) and loadable(ch.encoding, senc, sname):
                     try:
-                        part = _ChannelParts(ch.topic, *_codec_of(p, ch.topic, ch.encoding, senc, sname, sdata))
+                        part = _ChannelParts(ch.topic, *_codec_of(p, ch.topic, ch.encoding, senc, sname, sdata),
+                                             size=counts.get(c) if counts else None)
                     except InputError as err:
                         errors[c] = err
                 parts[c] = part
@@ -166,6 +220,8 @@ def _read_streamed(p: Path, topics, strict: bool) -> FieldLog:
                     part.add(buf, sel, t, seq, ordinal, ps, pe)
 
         for records, at, _t0, _t1, cid, seq, t, ps, pe, ordinal in stream._batches():
+            if counts is None:
+                counts = scan.summary.counts if scan.summary is not None and scan.summary.counts else {}
             if at < 0 and group:   # messages outside chunks: their spans in the file's bytes, alone
                 decode_group()
                 held = 0

@@ -13,6 +13,7 @@ MAGIC = b"\x89MCAP0\r\n"
 OP_HEADER, OP_FOOTER, OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK = 0x01, 0x02, 0x03, 0x04, 0x05, 0x06
 OP_METADATA, OP_DATA_END = 0x0C, 0x0F
 OP_MESSAGE_INDEX, OP_CHUNK_INDEX, OP_METADATA_INDEX = 0x07, 0x08, 0x0D
+OP_STATISTICS = 0x0B
 
 # a chunk record's body without its compression name and data: start/end time, uncompressed
 # size, CRC, name length, data length (bytes)
