@@ -9,14 +9,14 @@ on the 1-hour log (468k messages); and the bulk derived channels as JSON vs CDR.
 ``--derived FILE`` (default: the 1-hour simulation's ``/truth/state``) takes the channels of
 FILE that are written as CDR (``usvlog.log.channels.BULK_TOPICS``: estimate states, replay,
 fit, simulation truth) and writes them twice with ``write_log``: as JSON with their JSON
-Schema (as before) and as CDR; CPU time (this process and its compression threads) and wall
+Schema (as before) and as CDR; CPU time (this process, its threads included) and wall
 time of the encoding + compression, best of 3, file sizes, and ``read_log``'s decoding time.
 
 ``--verb replay FILE`` / ``--verb estimate FILE`` read FILE as the verb does (its inputs
 only, the other channels left in the file and copied as whole chunks), run it (replay: the
 paper-sine scenario), then time ``write_log`` of its output: the first write of the process
-(the verb's: nothing warmed) and the best of 3 more; wall, CPU of the process (compression
-and read-ahead threads included) and of the calling thread alone.
+(the verb's: nothing warmed) and the best of 3 more; wall, CPU of the process (its threads
+included) and of the calling thread alone.
 
 Both are timed the same way: one warm-up write each, then best of 3. The library Writer
 compresses at zstd level 3, usvlog at level 1 (smaller and faster on these logs), so the

@@ -1,11 +1,9 @@
 """Whether a verb may use a second CPU core.
 
-Some verbs run GIL-free work on a second thread (identify's shooting segments; until its
-module drops it, docs/performance.md: the MCAP writer's chunk compression) or a forked copy
+Some verbs run GIL-free work on a second thread (identify's shooting segments) or a forked copy
 (the view's read of one channel, the report's drawing of some figures); the results are
-bit-identical to one thread. That pays only
-when a core is free: a process pinned to one CPU, or a campaign whose workers already fill every
-core, runs them in one.
+bit-identical to one thread. That pays only when a core is free: a process pinned to one CPU,
+or a campaign whose workers already fill every core, runs them in one.
 """
 
 from __future__ import annotations

@@ -1,23 +1,20 @@
 """The MCAP file writer: :class:`McapWriter` writes a canonical file incrementally on an open file.
 
 Schema and channel records as channels are registered, metadata records, each channel's
-messages in chunks of its own (records built by compiled loops, :mod:`.kernels`; chunks
-compressed on worker threads), their message indexes, and at the end the summary and
+messages in chunks of its own (records built by compiled loops, :mod:`.kernels`), their
+message indexes, and at the end the summary and
 footer. The bytes are the mcap library's ``Writer``'s for the same messages. A whole log
 is written through it by :func:`usvlog.io.mcap.writer.write_log`.
 """
 
 from __future__ import annotations
 
-import os
 import struct
 import threading
-from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..._cpu import spare_cpu
 from ..._version import __version__
 from ...errors import InputError
 from . import kernels as K
@@ -60,8 +57,7 @@ def _zstd(level: int):
 
 
 def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
-    """(compressed bytes, compression name, CRC-32 of ``data``) of one chunk's records;
-    runs on a worker thread (zstd and lz4 release the GIL; the CRC is ~0.1 ms a megabyte)."""
+    """(compressed bytes, compression name, CRC-32 of ``data``) of one chunk's records."""
     if comp == "zstd":
         packed, cname = _zstd(level).compress(data), "zstd"
     elif comp == "lz4":
@@ -73,23 +69,6 @@ def _pack_chunk(comp: str, level: int, data: bytes) -> tuple[bytes, str, int]:
     return packed, cname, crc32(data)
 
 
-def _workers() -> int:
-    """Chunk compression threads: as many as the CPUs this process may use (1 to 4), since
-    compression is the write's largest work and when the caller waits for it (chunks pending,
-    or the last ones) every core compresses; none (compression in the calling thread) without a
-    spare CPU (``USVLOG_THREADS=1``, a process pinned to one CPU)."""
-    # issue 32 measured these threads below its 10 % bar (1-hour estimate: 11.5 % at load 2.6-7.6,
-    # -5.5 % at load 2.3-2.9; replay 6.4 %, simulate 2.5 %): to be removed; docs/performance.md
-    if not spare_cpu():
-        return 0
-    try:
-        n = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):   # no affinity mask on this system
-        n = os.cpu_count() or 1
-    return max(1, min(4, n))
-
-
-_PENDING_BYTES = 16 << 20   # uncompressed bytes of chunks waiting for (or in) compression at most
 _CHUNK_HEAD = struct.Struct("<QQQII")   # Chunk record: start, end time, size, CRC, compression name length
 
 
@@ -113,18 +92,16 @@ class McapWriter:
     mcap library's for the same messages.
 
     Memory stays flat when streaming: only the open chunks (at most ``chunk_size`` per
-    channel plus one batch: a chunk is a view of the batch's records, not a copy) and
-    the chunks being compressed (at most ``_PENDING_BYTES`` uncompressed) are held.
-    Chunks are compressed on ``threads`` worker threads (default: one per CPU this process
-    may use, 1 to 4, none without a spare CPU (``USVLOG_THREADS=1``); 0 compresses in the
-    calling thread) while the caller encodes the next
-    batch, and written in order; :meth:`flush` and :meth:`finish` wait for them. Each
+    channel plus one batch: a chunk is a view of the batch's records, not a copy) are held.
+    A chunk is compressed in the calling thread as it is closed and written at once.
+    (Compressing on 1-4 worker threads while the caller encoded the next batch was
+    measured in issue 32 under its 10 % bar, 1-hour estimate -5.5 to 11.5 %, replay 6.4 %,
+    simulate 2.5 %, and taken out; docs/performance.md.) Each
     message's ``sequence`` is its row number in its channel over all batches, as
     :func:`read_log` expects; within a chunk messages are in (time, row) order.
     """
 
-    def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = ZSTD_LEVEL,
-                 threads: int | None = None):
+    def __init__(self, fh, *, chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = ZSTD_LEVEL):
         # start-up: the mcap library loads on first write, not on read
         from mcap.records import Header
 
@@ -153,11 +130,6 @@ class McapWriter:
         self._open_msgs: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         self._open_copy: dict[int, tuple] = {}   # channel id -> its last chunk, copied, not yet written
         self._mine: set[int] = set()   # ids of the buffers of the batch being added this writer encoded
-        # chunks being compressed on worker threads, written in order as they are done
-        self._threads = _workers() if threads is None else int(threads)
-        self._pool = None
-        self._pending: deque = deque()
-        self._pending_bytes = 0   # uncompressed bytes of the chunks in self._pending
         self._write(MAGIC)
         self._write(self._record(Header(profile="", library=f"usvlog {__version__}")))
 
@@ -380,8 +352,6 @@ class McapWriter:
         closed = [self._take_open(cid) for cid in list(self._open_msgs)] + list(self._open_copy.values())
         self._open_copy = {}
         self._submit(closed)
-        while self._pending:
-            self._emit(*self._pending.popleft())
 
     def _submit(self, closed: list) -> None:
         """Compress the chunks ``closed`` ((kind, data, times, channel ids, offsets)) and write
@@ -390,27 +360,13 @@ class McapWriter:
         closed.sort(key=lambda c: (int(c[2].max()), int(c[3][0])))
         for kind, data, tc, cc, in_chunk in closed:
             if kind == "copy":
-                self._pending.append((data, 0, tc, cc, in_chunk))
-            elif self._threads <= 0 or self._comp == "none":
-                self._pending.append((_pack_chunk(self._comp, self._zstd_level, data), len(data), tc, cc, in_chunk))
+                self._emit(data, 0, tc, cc, in_chunk)
             else:
-                if self._pool is None:
-                    from concurrent.futures import ThreadPoolExecutor  # only when a chunk is compressed
-
-                    self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="usvlog-mcap-zstd")
-                self._pending.append((self._pool.submit(_pack_chunk, self._comp, self._zstd_level, data),
-                                      len(data), tc, cc, in_chunk))
-                self._pending_bytes += len(data)
-            # at most _PENDING_BYTES in flight (the threads compress while the caller encodes the
-            # next batch): memory stays bounded by them
-            while self._pending and (self._pending_bytes > _PENDING_BYTES or not hasattr(self._pending[0][0], "done")
-                                     or self._pending[0][0].done()):
-                self._emit(*self._pending.popleft())
+                self._emit(_pack_chunk(self._comp, self._zstd_level, data), len(data), tc, cc, in_chunk)
 
     def _emit(self, packed, size: int, tc: np.ndarray, cc: np.ndarray, in_chunk: np.ndarray) -> None:
         """Write one chunk record (``packed``: (bytes, compression, CRC) of ``size``
-        uncompressed bytes, or its future, or a whole chunk record copied) and its
-        message indexes."""
+        uncompressed bytes, or a whole chunk record copied) and its message indexes."""
         # start-up: the mcap library loads on first write, not on read
         from mcap.opcode import Opcode
         from mcap.records import ChunkIndex
@@ -423,9 +379,6 @@ class McapWriter:
             chunk_at = self._write(packed)
             rec_len = len(packed)
         else:
-            if not isinstance(packed, tuple):
-                packed = packed.result()
-                self._pending_bytes -= size
             packed, cname, crc = packed
             t0, t1 = int(tc.min()), int(tc.max())
             # the Chunk record (mcap.records.Chunk's bytes), its compressed records written as they are
@@ -458,13 +411,9 @@ class McapWriter:
             compressed_size=csize, uncompressed_size=size))
 
     def close(self) -> None:
-        """Stop the compression threads (after :meth:`finish`, or to give up a file half
-        written: chunks not yet written are dropped)."""
-        self._pending.clear()
-        self._pending_bytes = 0
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
+        """Nothing left to stop: kept for the callers that close a writer after
+        :meth:`finish` or when they give up a file half written (chunks are written as they
+        are closed, so nothing is pending)."""
 
     # -- the end ------------------------------------------------------------------------
     def finish(self) -> None:
