@@ -212,14 +212,14 @@ def test_otter_runs_against_phase_and_truth(run):
     assert [m.kind for m in est] == [m.kind for m in truth]
     for e, t in zip(est, truth):
         if e.kind == "turning_circle":
-            # the default estimate's track is good to a few per cent on this agile hull (12 deg/s)
-            assert _rel(e.value("tactical_diameter_m"), t.value("tactical_diameter_m")) < 0.06
+            # the issue's figures: tactical diameter and advance within 5 % (the manoeuvres' own estimate)
+            assert _rel(e.value("tactical_diameter_m"), t.value("tactical_diameter_m")) < 0.05
             assert _rel(e.value("steady_turn_rate_degps"), t.value("steady_turn_rate_degps")) < 0.02
-            assert abs(e.value("advance_m") - t.value("advance_m")) < 0.15 * t.value("advance_m")
+            assert abs(e.value("advance_m") - t.value("advance_m")) < 0.05 * t.value("advance_m")
         if e.kind == "zigzag":
             assert e.value("zigzag_angle_deg") == t.value("zigzag_angle_deg") == {"a": 15.0, "b": 25.0}[run]
             assert abs(e.value("period_s") - t.value("period_s")) < 0.2
             for name in ("first_overshoot_deg", "second_overshoot_deg"):
-                assert abs(e.value(name) - t.value(name)) < 2.5   # the smoother rounds the 1 s yaw reversals
+                assert abs(e.value(name) - t.value(name)) < 1.0   # the issue's figure
         if e.kind == "pivot":
             assert _rel(e.value("yaw_rate_degps"), t.value("yaw_rate_degps")) < 0.05

@@ -11,6 +11,14 @@ import pandas as pd
 from .detect import Commands, Settings, Track, commands_from_frame, find, track_from_frame
 from .result import KINDS, TITLES, Manoeuvre, Manoeuvres, Metric
 
+MANOEUVRE_Q_UV = 0.03
+"""Process noise of u and v (m^2/s^3) of the estimate ``usvlog manoeuvres`` makes for a log that has
+none: larger than the general estimate's, so the track follows a fast hull's turns (measured on the
+Otter runs: advance within 4.4 %, tactical diameter within 1 %, zig-zag overshoots within 0.85 deg of
+the truth, against 6-12 %, 5 % and 2.3 deg with the general default)."""
+MANOEUVRE_Q_R = 0.05
+"""Process noise of r (rad^2/s^3) of that estimate (see :data:`MANOEUVRE_Q_UV`)."""
+
 
 def find_manoeuvres(state: pd.DataFrame, thrust: pd.DataFrame, t0_ns: int, *, settings: Settings | None = None,
                     source: str = "/estimate/state") -> Manoeuvres:
@@ -45,5 +53,5 @@ def find_manoeuvres(state: pd.DataFrame, thrust: pd.DataFrame, t0_ns: int, *, se
                 t0_ns=t0_ns, source=source)
 
 
-__all__ = ["KINDS", "TITLES", "Commands", "Manoeuvre", "Manoeuvres", "Metric", "Settings", "Track",
-           "commands_from_frame", "find", "find_manoeuvres", "track_from_frame"]
+__all__ = ["KINDS", "MANOEUVRE_Q_R", "MANOEUVRE_Q_UV", "TITLES", "Commands", "Manoeuvre", "Manoeuvres", "Metric",
+           "Settings", "Track", "commands_from_frame", "find", "find_manoeuvres", "track_from_frame"]
