@@ -516,6 +516,28 @@ def _choose(role: str, cands: list[_Cand], reasons: dict, notes: list) -> _Cand 
     return best
 
 
+# role given as a message -> (its candidates on one topic, what it must have, what to map instead)
+_MESSAGE_ROLES = {
+    "thrust": (lambda c: _thrust_candidates(c, any_topic=True), "left/right fields or 2-element array",
+               "; map thrust_left and thrust_right"),
+    "local": (lambda c: _local_candidates(c), "x/y pose fields", "; map local_n and local_e"),
+    "velocity": (lambda c: _velocity_candidates(c), "speed field", ""),
+}
+
+
+def _requested_message(cat: Catalog, role: str, spec: str, topic: str, path: str) -> _Cand:
+    """The candidate of a message role (``--topic thrust=/motors``) on the topic and below the path given."""
+    t = cat.topic(topic)
+    assert t is not None
+    found, needs, instead = _MESSAGE_ROLES[role]
+    cs = [c for c in found(Catalog(cat.source, cat.format, [t]))
+          if c.topic is t and all(p.startswith(path) for p in c.paths.values())]
+    if not cs:
+        raise InputError(f"{cat.source}: {spec!r} for role {role} has no {needs} (fields: {field_listing(t)})"
+                         + instead)
+    return cs[0]
+
+
 def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple[dict, dict, list]:
     """Choose the topic and field of every role from a catalog.
 
@@ -561,41 +583,14 @@ def map_roles(cat: Catalog, requested: dict | None = None, series=None) -> tuple
         if role not in ROLES:
             raise InputError(f"unknown role {role!r} (roles: {', '.join(ROLES)})")
         topic, path = resolve_spec(cat, role, spec)
-        if role == "thrust":
-            t = cat.topic(topic)
-            assert t is not None
-            cs = [c for c in _thrust_candidates(Catalog(cat.source, cat.format, [t]), any_topic=True) if c.topic is t
-                  and all(p.startswith(path) for p in c.paths.values())]
-            if not cs:
-                raise InputError(f"{cat.source}: {spec!r} for role thrust has no left/right fields or 2-element "
-                                 f"array (fields: {field_listing(t)}); map thrust_left and thrust_right")
-            for r, p in cs[0].paths.items():
+        if role in _MESSAGE_ROLES:   # a message whose fields expand to a pair of roles
+            c = _requested_message(cat, role, spec, topic, path)
+            for r, p in c.paths.items():
                 mapping[r] = _join(topic, p)
-                reasons[r] = "given (--topic thrust)"
-        elif role == "local":
-            t = cat.topic(topic)
-            assert t is not None
-            cs = [c for c in _local_candidates(Catalog(cat.source, cat.format, [t]))
-                  if all(p.startswith(path) for p in c.paths.values())]
-            if not cs:
-                raise InputError(f"{cat.source}: {spec!r} for role local has no x/y pose fields "
-                                 f"(fields: {field_listing(t)}); map local_n and local_e")
-            for r, p in cs[0].paths.items():
-                mapping[r] = _join(topic, p)
-                reasons[r] = f"given (--topic local): {cs[0].why}"
-            reasons["local_frame"] = cs[0].frame  # type: ignore[attr-defined]
-            pose = cs[0]
-        elif role == "velocity":
-            t = cat.topic(topic)
-            assert t is not None
-            cs = [c for c in _velocity_candidates(Catalog(cat.source, cat.format, [t]))
-                  if all(p.startswith(path) for p in c.paths.values())]
-            if not cs:
-                raise InputError(f"{cat.source}: {spec!r} for role velocity has no speed field "
-                                 f"(fields: {field_listing(t)})")
-            for r, p in cs[0].paths.items():
-                mapping[r] = _join(topic, p)
-                reasons[r] = "given (--topic velocity)"
+                reasons[r] = f"given (--topic {role})" + (f": {c.why}" if role == "local" else "")
+            if role == "local":
+                reasons["local_frame"] = c.frame  # type: ignore[attr-defined]
+                pose = c
         else:
             if role == "gnss":
                 t = cat.topic(topic)
