@@ -62,3 +62,22 @@ def test_check_columns_are_the_check_verbs_findings():
     assert bad["check_errors"] > clean["check_errors"] == 0 and "thrusters.swapped" in bad["check_findings"]
     assert all(f"{f.code}@{f.channel}" in bad["check_findings"] for f in res.findings
                if f.severity in ("error", "warning"))
+
+
+def test_identify_columns_carry_the_30_s_ahead_fit():
+    """The campaign's identification columns carry the 30 s-ahead prediction fit % the verdict reads,
+    for u and r, on a simulated run identified with a held-out part."""
+    import math
+
+    from usvlog.campaign.columns import SCHEMA, identify_columns
+    from usvlog.identify.identifier import Identifier
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    log = simulate("excitation", SimSettings(duration_s=200.0), seed=4)
+    idf = Identifier("output-error", holdout=0.3).fit([log])
+    cols = identify_columns(idf)
+    for k in ("u", "r"):
+        name = f"fit_ahead_30s_{k}_pct"
+        assert SCHEMA[name] == "float"
+        assert cols[name] == idf.fit_percent_ahead_["30"][k] and math.isfinite(cols[name])
+    assert cols["fit_ahead_30s_r_pct"] > 50.0   # the paper's model predicts its own simulated boat's yaw

@@ -50,6 +50,7 @@ SCHEMA: dict[str, str] = {
     "identify_method": "str", **{k: "float" for p in PARAM_NAMES for k in (p, f"{p}_se")},
     "verdict": "str", "verdict_reasons": "str", "fit_on": "str", "fit_u_pct": "float", "fit_v_pct": "float",
     "fit_r_pct": "float", "fit_track_pct": "float", "condition_number": "float",
+    "fit_ahead_30s_u_pct": "float", "fit_ahead_30s_r_pct": "float",
     # replay
     "replay_xte_rms_m": "float", "replay_heading_rms_rad": "float", "replay_surge_rms_mps": "float",
     "replay_saturated_s": "float", "replay_command_rms": "float", "whatif_xte_rms_m": "float",
@@ -272,7 +273,8 @@ def identify_columns(idf) -> dict[str, Any]:
     dict
         ``identify_method``; each parameter (SI) and ``<name>_se``; ``verdict``,
         ``verdict_reasons``; ``fit_*_pct`` and ``fit_on`` (``validation``: a held-out part
-        or run, else the fitted runs); ``condition_number``.
+        or run, else the fitted runs); ``condition_number``; ``fit_ahead_30s_u_pct`` and
+        ``fit_ahead_30s_r_pct``, the 30 s-ahead prediction fit % (None when not computed).
     """
     word, reasons = verdict_of(idf)
     out: dict[str, Any] = {"identify_method": idf.method, "verdict": word,
@@ -286,6 +288,9 @@ def identify_columns(idf) -> dict[str, Any]:
     out["fit_on"] = "validation" if val is not None else "fitted runs"
     for k in ("u", "v", "r", "track"):
         out[f"fit_{k}_pct"] = _f(fit.get(k))
+    ahead = (getattr(idf, "fit_percent_ahead_", None) or {}).get("30") or {}   # 30 s-ahead predictions
+    for k in ("u", "r"):
+        out[f"fit_ahead_30s_{k}_pct"] = _f(ahead.get(k))
     return out
 
 
