@@ -172,6 +172,11 @@ def _identification_section(log) -> list[str]:
     fp = res.get("fit_percent") or {}
     if fp:
         parts.append("<p>Fit: " + ", ".join(f"{k} {v:.1f} %" for k, v in fp.items()) + ".</p>")
+    ahead = res.get("fit_percent_ahead") or {}
+    if ahead:   # k-step-ahead: restarted from the measured state every H s (what the verdict's caveat reads)
+        parts.append("<p>Predicted ahead: " + "; ".join(
+            f"{h} s: " + ", ".join(f"{c} {v:.1f} %" for c, v in sorted(ahead[h].items()))
+            for h in sorted(ahead, key=float)) + ".</p>")
     parts.append("<h3>Verdict</h3>")
     parts.append("<ul class='verdict'>" + ("".join(f"<li>{e(r)}</li>" for r in reasons) if reasons else
                                            "<li>no caveat</li>") + "</ul>")
