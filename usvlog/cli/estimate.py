@@ -45,30 +45,27 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def delay_arg(text: str) -> float | str:
-    """``auto`` or a latency in s (a number in [-1, 5]) for --gnss-delay-s / --compass-delay-s."""
+def _auto_or_number(text: str, lo: float, hi: float, unit: str, symbol: str, what: str) -> float | str:
+    """``auto``, or a number in [lo, hi] (argparse's error, naming ``what`` and the unit, otherwise)."""
     if text.strip().lower() == "auto":
         return "auto"
     try:
         v = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor a number of seconds") from None
-    if not (-1.0 <= v <= 5.0):  # also refuses nan
-        raise argparse.ArgumentTypeError(f"{text!r}: a latency must be in [-1, 5] s")
+        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor a number of {unit}") from None
+    if not (lo <= v <= hi):  # also refuses nan
+        raise argparse.ArgumentTypeError(f"{text!r}: {what} must be in [{lo:g}, {hi:g}] {symbol}")
     return v
+
+
+def delay_arg(text: str) -> float | str:
+    """``auto`` or a latency in s (a number in [-1, 5]) for --gnss-delay-s / --compass-delay-s."""
+    return _auto_or_number(text, -1.0, 5.0, "seconds", "s", "a latency")
 
 
 def offset_arg(text: str) -> float | str:
     """``auto`` or a heading mounting offset in degrees (a number in [-360, 360]) for --heading-offset."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is neither auto nor a number of degrees") from None
-    if not (-360.0 <= v <= 360.0):  # also refuses nan
-        raise argparse.ArgumentTypeError(f"{text!r}: a heading offset must be in [-360, 360] deg")
-    return v
+    return _auto_or_number(text, -360.0, 360.0, "degrees", "deg", "a heading offset")
 
 
 def run(args) -> int:

@@ -399,16 +399,19 @@ def health_from_provenance(provenance: list[dict]) -> dict | None:
         The record (layout in :mod:`usvlog.io.importers.audit`), parsed from its JSON text.
     """
     for rec in reversed(list(provenance)):
-        raw = rec.get("health")
-        if not raw:
-            continue
-        try:
-            d = json.loads(raw)
-        except json.JSONDecodeError:
-            continue
-        if isinstance(d, dict):
+        d = _json_dict(rec, "health")
+        if d is not None:
             return d
     return None
+
+
+def _json_dict(rec: dict, key: str) -> dict | None:
+    """A provenance record's JSON text under ``key`` as a dict (None when absent, not JSON or not a dict)."""
+    try:
+        d = json.loads(rec.get(key) or "null")
+    except json.JSONDecodeError:
+        return None
+    return d if isinstance(d, dict) else None
 
 
 def propulsion_from_provenance(provenance: list[dict]) -> dict | None:
@@ -429,11 +432,8 @@ def propulsion_from_provenance(provenance: list[dict]) -> dict | None:
     for rec in reversed(list(provenance)):
         if not rec.get("health") and not rec.get("propulsion"):
             continue
-        try:
-            d = json.loads(rec.get("propulsion") or "null")
-        except json.JSONDecodeError:
-            return None
-        return d if isinstance(d, dict) and d.get("reason") else None
+        d = _json_dict(rec, "propulsion")
+        return d if d is not None and d.get("reason") else None
     return None
 
 
