@@ -209,3 +209,22 @@ def test_excited():
     nu = np.stack([step, 0.03 * rng.standard_normal(1000), 0.004 * rng.standard_normal(1000)], 1)
     assert excited_channels(nu) == {"u": True, "v": False, "r": False}
     assert excited_channels(nu, {"r": NOISE_R_RADPS / 10}) == {"u": True, "v": False, "r": True}
+
+
+def test_a_channel_predicted_worse_than_a_constant_30_s_ahead_is_a_caveat():
+    """A free run that passes does not hide a channel the model cannot predict 30 s ahead: the
+    verdict names the channel and the parameters it leaves unvalidated (u: m, d11)."""
+    import copy
+
+    from usvlog.identify.identifier import Identifier
+    from usvlog.sim.simulate import SimSettings, simulate
+
+    idf = Identifier("output-error", holdout=0.3).fit([simulate("excitation", SimSettings(duration_s=200.0), seed=4)])
+    assert not any("predicted 30 s ahead" in r for r in idf.reasons_)   # the true model's boat: no such caveat
+    bad = copy.copy(idf)
+    bad.fit_percent_ahead_ = {h: dict(v) for h, v in idf.fit_percent_ahead_.items()}
+    bad.fit_percent_ahead_["30"]["u"] = -26.3
+    reasons, verdict = bad._verdict(bad.vessel_in_, bad.runs_, bad._kin)
+    assert "predicted 30 s ahead, u -26.3 % (worse than a constant): m, d11 not validated by the held-out data" \
+        in reasons
+    assert verdict in ("usable with caveats", "unusable")

@@ -117,6 +117,15 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
                 add(2, f"{txt}: the model predicts worse than a constant; it does not describe this boat")
         elif fr < FIT_CAVEAT or fu < FIT_UNUSABLE:
             add(1, f"{txt}: the model explains only part of the motion")
+        if ahead is not None and not (fr < FIT_UNUSABLE or fu < U_FIT_UNUSABLE):
+            # the free run passed, yet restarted from the measured state every 30 s a channel is
+            # predicted worse than a constant: what that channel determines is not validated
+            bad = [ch for ch in ("u", "r") if math.isfinite(ahead[ch]) and ahead[ch] < FIT_UNUSABLE]
+            if bad:
+                which = {"u": "m, d11", "r": "Iz, d33"}
+                add(1, "predicted 30 s ahead, " + " and ".join(f"{ch} {fmt_pct(ahead[ch])} %" for ch in bad)
+                       + " (worse than a constant): " + "; ".join(which[ch] for ch in bad)
+                       + " not validated by the held-out data")
         sw = getattr(self, "loo_switch_", None)
         if sw:
             add(0, f"left out in turn, the logs validate equation error better (score "
