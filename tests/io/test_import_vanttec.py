@@ -106,3 +106,14 @@ def test_a_pose_held_between_ins_updates_is_one_measurement(imported):
         assert 6.0 < rate < 9.0, rate
     else:
         assert rate > 100.0, rate
+
+
+def test_the_pictures_call_local_positions_positions(imported):
+    """The report and the view label what the log measured: an INS pose is not 'GPS fixes'."""
+    from usvlog.sim.simulate import SimSettings, simulate
+    from usvlog.view.data import fixes_name, metrics
+
+    _, res = imported
+    assert fixes_name(res.log) == "positions"
+    assert ("positions", str(len(res.log["/local/position"])), "") in metrics(res.log)
+    assert fixes_name(simulate("straight", SimSettings(duration_s=10.0), seed=1)) == "GPS fixes"

@@ -120,6 +120,12 @@ def gps(log: FieldLog):
     return t, lat, lon, np.asarray(n), np.asarray(e)
 
 
+def fixes_name(log: FieldLog) -> str:
+    """What the log's measured positions are, for labels: ``GPS fixes``, or ``positions`` when they
+    are metres from a local channel (an INS pose, motion capture)."""
+    return "positions" if uses_local(log) else "GPS fixes"
+
+
 def path_polyline(log: FieldLog) -> np.ndarray | None:
     """The desired path as an (k, 2) array of [n, e] metres, from the ``usvlog.path`` record."""
     rec = log.meta.get(META_PATH)
@@ -435,7 +441,7 @@ def metrics(log: FieldLog) -> list[tuple[str, str, str]]:
         rows.append(("duration", f"{(tr[1] - tr[0]) / 1e9:.1f}", "s"))
     g = gps(log)
     if g is not None:
-        rows.append(("GPS fixes", str(len(g[0])), ""))
+        rows.append((fixes_name(log), str(len(g[0])), ""))
         rows.append(("GPS dropouts (> 3 periods)", str(len(gps_dropouts(log))), ""))
     rej = gps_rejections(log)
     if rej is not None:

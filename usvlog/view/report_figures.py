@@ -80,9 +80,10 @@ def _fig_measured(plt, log, path, *, axes: _Axes):
         keep = np.ones(len(g[0]), bool)
         if rej is not None and len(rej[0]):
             keep = ~np.isin(g[0], rej[0])
-        ax.plot(*xy(g[3][keep], g[4][keep]), ".", color="0.55", ms=2.5, alpha=0.6, label="GPS fixes (raw)", zorder=1)
+        what = vd.fixes_name(log)
+        ax.plot(*xy(g[3][keep], g[4][keep]), ".", color="0.55", ms=2.5, alpha=0.6, label=f"{what} (raw)", zorder=1)
         if (~keep).any():
-            ax.plot(*xy(g[3][~keep], g[4][~keep]), "x", color="C3", ms=6, label="GPS fixes rejected", zorder=5)
+            ax.plot(*xy(g[3][~keep], g[4][~keep]), "x", color="C3", ms=6, label=f"{what} rejected", zorder=5)
     tru = vd.nonempty(log, "/truth/state")
     if tru is not None and "n_m" in tru.columns and _finite(_col(tru, "n_m")):
         ax.plot(*xy(_col(tru, "n_m"), _col(tru, "e_m")), "--", color="k", lw=0.9, label="truth (simulated)",
@@ -95,7 +96,8 @@ def _fig_measured(plt, log, path, *, axes: _Axes):
     if path is not None:
         ax.plot(*xy(path[:, 0], path[:, 1]), ":", color="C1", lw=1.4, label="desired path (dotted)", zorder=2)
     axes.label(ax)
-    ax.set_title("Track: raw GPS fixes and the smoothed estimate" if have_est else "Track: raw GPS fixes")
+    raw = f"raw {vd.fixes_name(log)}"
+    ax.set_title(f"Track: {raw} and the smoothed estimate" if have_est else f"Track: {raw}")
     if have_est and "current_n_mps" in est.columns:
         cn_a, ce_a = _col(est, "current_n_mps"), _col(est, "current_e_mps")
         ok_c = np.isfinite(cn_a) & np.isfinite(ce_a)

@@ -41,7 +41,7 @@ def draw_tracks(self: _Writer) -> None:
                                                         radii=rr.Radius.ui_points(1.5), colors=[c]))
         self.static("local", "local/gps", rr.Points2D(np.column_stack([e, -n]), radii=rr.Radius.ui_points(1.5),
                                                       colors=[c], draw_order=5.0))
-        self.tag(e, n, "GPS fixes", self.color("gps"))
+        self.tag(e, n, vd.fixes_name(log), self.color("gps"))
         rej = vd.gps_rejections(log)
         if rej is not None and len(rej[0]):
             k = np.clip(np.searchsorted(t, rej[0]), 0, len(t) - 1)
