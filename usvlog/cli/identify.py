@@ -120,6 +120,24 @@ def format_verdict(d: dict) -> str:
     return "\n".join(lines)
 
 
+def _map_lines(ts: dict) -> list[str]:
+    """The thruster map identified from PWM commands (``thrust_scale.map_from``), in plain words."""
+    if ts.get("map_from") == "equation error profile":
+        lo, hi = ts.get("deadband_ci95_us") or (None, None)
+        q = ts.get("quadratic_share")
+        return [f"thruster map from the PWM commands: no thrust within +-{_num(ts.get('deadband_us'), 3)} us of "
+                f"neutral (95 % interval {_num(lo, 3)}..{_num(hi, 3)} us); beyond it force ~ "
+                f"{_num(1 - q if q is not None else None, 2)} x + {_num(q, 2)} x|x| (x: the command past the edge, "
+                f"1 at full command); reverse/forward gain {_num(ts.get('ratio'), 3)} "
+                f"({ts.get('ratio_from') or 'n/a'})"]
+    if ts.get("map_from") == "vessel":
+        db = ts.get("deadband_us") or 0.0
+        kept = f"the vessel's {ts.get('shape')} map kept" + (f" with its +-{db:g} us deadband" if db else
+                                                             ", no deadband")
+        return [f"thruster deadband not determined by the data: {ts.get('map_note')}; {kept}"]
+    return []
+
+
 def format_report(d: dict) -> str:
     """Text report of ``Identifier.to_dict()``: parameters, intervals, current, fit %, verdict.
 
@@ -151,6 +169,7 @@ def format_report(d: dict) -> str:
     elif ts.get("case") == "gain identified":
         lines.append(f"thrust gain from the fixed {ts['fixed_by']}: {_num(ts['forward_n'], 4)} N forward, "
                      f"{_num(ts['reverse_n'], 4)} N reverse at full command")
+    lines += _map_lines(ts)
     lines.append(f"Iz - m xg^2 = {_num(d['Iz_minus_m_xg2'], 4)} (Theorem 3.1 condition 1 needs > 0)")
     if any(d.get("gnss_delay_s") or ()):
         lines.append("GNSS delay taken off the fix stamps: " + ", ".join(f"{x:.3f} s" for x in d["gnss_delay_s"]))

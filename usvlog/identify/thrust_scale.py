@@ -19,6 +19,14 @@ the physical one; the gains forward_n = g_f and reverse_n = rho g_f come out as 
 rho is estimated by equation error (the per-unit model is linear in it), where the model's
 inertia terms, biased by the smoother, do not enter the ratio of the two input columns
 much; the output-error fit then runs with rho held.
+
+PWM commands (every record in ``pwm_us``) also have their map identified first
+(:mod:`usvlog.identify.thrust_map`): the deadband about the neutral pulse width, the shape's
+quadratic share q and rho, by an equation-error profile over the deadband. When the data
+determine the deadband the fit runs through that map (``map = "mixed"`` with
+``deadband_us`` and ``quadratic_share``, written to the vessel TOML's ``[thrusters]``), rho
+then refined as above; when they do not (the boat never came near neutral, a flat profile)
+the vessel's own map is kept and the record says why.
 """
 
 from __future__ import annotations
@@ -34,10 +42,12 @@ from ..choices import EXTENDED_PARAM_NAMES
 from ..errors import ConfigError, FitFailed
 from ..log.fieldlog import FieldLog
 from ..log.summary import health_from_provenance
+from ..model.thrusters import SHAPED_MAPS
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
 from .data import run_data
 from .equation import regressors
 from .smooth import derivative, kinematic_states, smooth_like, thrust_on_grid
+from .thrust_map import ThrustMapFit, fit_thrust_map
 
 SCALE_FREE = ("xg",)
 """Parameters the thrust gain does not scale (lengths)."""
@@ -74,10 +84,24 @@ class ThrustScale:
         Gains in N at full forward and reverse command (``gain identified``; NaN else).
     forward_stderr_n : float
         Standard error of ``forward_n`` in N (reverse: times ``ratio``).
-    shape : {"linear", "quadratic"}
-        Map shape s(c) the commands went through.
+    shape : {"linear", "quadratic", "mixed"}
+        Map shape s(c) the commands went through (``mixed``: (1 - q) c + q c|c|).
     structure : {"paper", "extended"}
         The model the per-unit values are of (what the message names).
+    deadband_us : float
+        Half-width of the map's deadband about the neutral pulse width, us (the
+        identified one, or the vessel's when the data did not determine it; NaN when the
+        commands are not PWM).
+    deadband_ci95_us : (float, float)
+        Its 95 % profile-likelihood interval, us (NaN when not identified).
+    quadratic_share : float
+        q of the shape (NaN unless ``mixed``).
+    map_from : str
+        ``"equation error profile"`` (deadband, shape and ratio identified), ``"vessel"``
+        (PWM commands whose deadband the data did not determine: the vessel's map kept) or
+        "" (not PWM commands: no map identified).
+    map_note : str
+        Why the deadband was not determined ("" otherwise).
     """
 
     case: str = "known"
@@ -89,6 +113,11 @@ class ThrustScale:
     forward_stderr_n: float = float("nan")
     shape: str = "linear"
     structure: str = "paper"
+    deadband_us: float = float("nan")
+    deadband_ci95_us: tuple[float, float] = (float("nan"), float("nan"))
+    quadratic_share: float = float("nan")
+    map_from: str = ""
+    map_note: str = ""
 
     @property
     def known(self) -> bool:
@@ -97,16 +126,40 @@ class ThrustScale:
 
     def to_dict(self) -> dict:
         """JSON-ready: case, ratio, ratio_from, fixed_by, forward_n, reverse_n, forward_stderr_n, shape,
-        structure (NaN written as None)."""
+        structure, deadband_us, deadband_ci95_us, deadband_determined, quadratic_share, map_from,
+        map_note (NaN written as None)."""
         def num(x):
             return None if x is None or not math.isfinite(x) else float(x)
         return {"case": self.case, "ratio": num(self.ratio), "ratio_from": self.ratio_from or None,
                 "fixed_by": self.fixed_by, "forward_n": num(self.forward_n), "reverse_n": num(self.reverse_n),
                 "forward_stderr_n": num(self.forward_stderr_n), "shape": self.shape,
-                "structure": self.structure}
+                "structure": self.structure, "deadband_us": num(self.deadband_us),
+                "deadband_ci95_us": [num(self.deadband_ci95_us[0]), num(self.deadband_ci95_us[1])],
+                "deadband_determined": self.map_from == "equation error profile",
+                "quadratic_share": num(self.quadratic_share), "map_from": self.map_from or None,
+                "map_note": self.map_note or None}
+
+    def map_message(self) -> str:
+        """The identified thruster map in plain words ("" when the commands were not PWM)."""
+        if self.map_from == "equation error profile":
+            lo, hi = self.deadband_ci95_us
+            return (f"thruster map identified from the PWM commands: no thrust within +-{self.deadband_us:.1f} us "
+                    f"of neutral (95 % interval {lo:.1f}..{hi:.1f} us), shape {self.quadratic_share:.2f} quadratic "
+                    f"and {1 - self.quadratic_share:.2f} linear beyond it")
+        if self.map_from == "vessel":
+            db = self.deadband_us if math.isfinite(self.deadband_us) else 0.0
+            kept = f"the vessel's {self.shape} map kept" + (f" with its +-{db:g} us deadband" if db else
+                                                             " (no deadband)")
+            return f"thruster deadband not determined by the data ({self.map_note}): {kept}"
+        return ""
 
     def message(self) -> str:
         """One plain line for the verdict ("" when known)."""
+        text = self._scale_message()
+        extra = self.map_message()
+        return f"{text}; {extra}" if text and extra else text
+
+    def _scale_message(self) -> str:
         if self.case == "command units":
             what, fix = (("m, Iz and the damping", "a weighed m") if self.structure == "paper" else
                          ("the extended model's inertias m11, m22, m26, m66 and its damping",
@@ -158,7 +211,8 @@ def command_unit_vessel(vessel: Vessel, ratio: float) -> Vessel:
     Parameters
     ----------
     vessel : Vessel
-        Gives the arm, the map shape (``identity`` becomes ``linear``) and PWM settings.
+        Gives the arm, the map shape (``identity`` and a catalogue map become ``linear``),
+        its deadband and PWM settings.
     ratio : float
         Reverse-to-forward gain ratio, > 0.
 
@@ -168,9 +222,11 @@ def command_unit_vessel(vessel: Vessel, ratio: float) -> Vessel:
         Thrusters ``scale = "command"``, ``known = true``; the model unchanged.
     """
     t = vessel.thrusters
-    shape = t.map if t.map in ("linear", "quadratic") else "linear"
-    return replace(vessel, thrusters=replace(t, map=shape, forward_n=1.0, reverse_n=float(ratio), known=True,
-                                             scale="command"))
+    if t.map in SHAPED_MAPS:
+        return replace(vessel, thrusters=replace(t, forward_n=1.0, reverse_n=float(ratio), known=True,
+                                                 scale="command"))
+    return replace(vessel, thrusters=replace(t, map="linear", forward_n=1.0, reverse_n=float(ratio), known=True,
+                                             scale="command", deadband_us=0.0, quadratic_share=None))
 
 
 def without_logged_forces(log: FieldLog) -> FieldLog:
@@ -182,6 +238,79 @@ def without_logged_forces(log: FieldLog) -> FieldLog:
             fr[c] = np.nan
     out.channels["/thrust/command"] = fr
     return out
+
+
+def pwm_commands(logs: list[FieldLog]) -> bool:
+    """True when every ``/thrust/command`` record of every log is a pulse width (``pwm_us``)."""
+    for log in logs:
+        fr = log["/thrust/command"]
+        if "unit" not in fr or len(fr) == 0 or set(fr["unit"].astype(str).unique()) != {"pwm_us"}:
+            return False
+    return True
+
+
+def thrust_map_from_logs(logs: list[FieldLog], vessel: Vessel, *,
+                         quadratic_share: float | None = None) -> ThrustMapFit:
+    """The thruster map of PWM-commanded runs from the data (:func:`usvlog.identify.thrust_map.fit_thrust_map`).
+
+    The smoothed states and their derivatives (the window of :func:`reverse_ratio`), and
+    each thruster's pulse-width offset from the vessel's ``pwm_neutral_us`` as the thruster
+    sees it (reversed channels flipped), held between records.
+
+    Parameters
+    ----------
+    logs : list of FieldLog
+        Runs whose ``/thrust/command`` is in ``pwm_us`` (:func:`pwm_commands`).
+    vessel : Vessel
+        Arm, PWM neutral and span, reversed channels; its ratio reverse_n / forward_n is the
+        one held when the runs have too little reverse thrust.
+    quadratic_share : float, optional
+        Hold the shape's q (default: fitted).
+
+    Returns
+    -------
+    ThrustMapFit
+
+    Raises
+    ------
+    usvlog.errors.FitFailed
+        Too few samples to smooth or fit.
+    usvlog.errors.InputError
+        A log lacks a channel the runs need.
+    """
+    thr = vessel.thrusters
+    grids, nus, nuds, cmds = [], [], [], []
+    for log in logs:
+        log = without_logged_forces(log)
+        r1 = run_data(log, command_unit_vessel(vessel, 1.0))
+        ks = kinematic_states(log, r1, vessel)
+        nu = ks.nu((0.0, 0.0))
+        grids.append(ks.t)
+        nus.append(smooth_like(ks.t, nu, EE_ACC_S))
+        nuds.append(derivative(ks.t, nu, EE_ACC_S))
+        fr = log["/thrust/command"]
+        t_ns = np.asarray(fr.index, dtype=np.int64)
+        left, right = fr["left"].to_numpy(float), fr["right"].to_numpy(float)
+        ok = np.isfinite(left) & np.isfinite(right)   # a bad record is skipped: the one before stays in force
+        t_ns, left, right = t_ns[ok], left[ok], right[ok]
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, left, right = t_ns[order], left[order], right[order]
+        keep = np.concatenate([[True], np.diff(t_ns) > 0])
+        t_ns, left, right = t_ns[keep], left[keep], right[keep]
+        span = thr.pwm_span_us
+        cmds.append(((t_ns - r1.t0_ns) / 1e9, span * thr.normalize(left, "pwm_us", side="left"),
+                     span * thr.normalize(right, "pwm_us", side="right")))
+    return fit_thrust_map(grids, nus, nuds, cmds, arm_m=thr.arm_m, span_us=thr.pwm_span_us,
+                          quadratic_share=quadratic_share, smooth=lambda t, y: smooth_like(t, y, EE_ACC_S),
+                          ratio_prior=thr.reverse_n / thr.forward_n)
+
+
+def with_identified_map(vessel: Vessel, tmap: ThrustMapFit) -> Vessel:
+    """The vessel whose thrusters follow an identified map: ``mixed`` with its deadband and
+    quadratic share (the gains as they were; :func:`command_unit_vessel` sets them)."""
+    t = vessel.thrusters
+    return replace(vessel, thrusters=replace(t, map="mixed", quadratic_share=float(tmap.quadratic_share),
+                                             deadband_us=float(tmap.deadband_us)))
 
 
 def reverse_ratio(logs: list[FieldLog], vessel: Vessel, model: str = "paper") -> tuple[float, str]:
@@ -579,9 +708,12 @@ def scale_results(theta, cov, names, fix: dict, scale_by: str, param_names=PARAM
 def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     """:meth:`usvlog.identify.Identifier.fit` for runs whose thrust has no known force scale.
 
-    The reverse-to-forward ratio first (equation error, then refined by output error for
-    that method: of the paper's model, or with ``model`` extended or both of the extended
-    one, :func:`profile_ratio_ext`), then the identifier's own fit in command units; with one
+    For PWM commands the thruster map first (:func:`thrust_map_from_logs`: deadband, shape
+    and ratio; used when the data determine the deadband, else the vessel's map is kept and
+    ``thrust_scale_`` says why). The reverse-to-forward ratio (equation error, then refined
+    by output error for that method: of the paper's model, or with ``model`` extended or
+    both of the extended one, :func:`profile_ratio_ext`), then the identifier's own fit in
+    command units through that map; with one
     physical value fixed, everything scaled to physical units and the gains found (the
     extended model: every term times the gain, ``m`` standing for m11 and ``Iz`` for m66).
     Sets the fitted attributes of ``ident`` (``thrust_scale_`` says which case it is and of
@@ -616,8 +748,16 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
                               f"gain), not {len(carrying)} ({', '.join(carrying)})")
     else:   # the Identifier allows one scale-setting value (m, Iz, m11, m22, m66) and nothing else
         per_unit_fix, scale_by = {}, next(iter(fix_all), None)
-    shape = vessel.thrusters.map if vessel.thrusters.map in ("linear", "quadratic") else "linear"
-    rho, how = reverse_ratio(logs, vessel)
+    # PWM commands: the map (deadband, shape, ratio) from the data first, when they determine it
+    map_rec = _identify_map(logs, vessel)
+    tmap = map_rec["fit"]
+    if tmap is not None and tmap.determined:
+        vessel = with_identified_map(vessel, tmap)
+    shape = vessel.thrusters.map if vessel.thrusters.map in SHAPED_MAPS else "linear"
+    if tmap is not None and tmap.determined and tmap.ratio_fitted and tmap.ratio > 0:
+        rho, how = tmap.ratio, "equation error"   # the map's own profile solved it at its deadband
+    else:
+        rho, how = reverse_ratio(logs, vessel)
     # the prior in command units: the vessel's values per newton of its (guessed) full forward force
     base = vessel.params.as_array()
     base[[PARAM_NAMES.index(k) for k in PARAM_NAMES if k not in SCALE_FREE]] /= vessel.thrusters.forward_n
@@ -643,7 +783,8 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
     inner.fix = per_unit_fix
     inner._command_units = True
     inner.thrust_scale_ = ThrustScale(case="command units", ratio=rho, ratio_from=how, shape=shape,
-                                      structure="paper" if ident.model == "paper" else "extended")
+                                      structure="paper" if ident.model == "paper" else "extended",
+                                      **map_rec["fields"])
     prior = VesselParams(**dict(zip(PARAM_NAMES, map(float, base))))
     vcmd = command_unit_vessel(replace(vessel, params=prior, extended=ext_prior), rho)
     inner.fit([without_logged_forces(lg) for lg in logs], vcmd)
@@ -671,10 +812,35 @@ def fit_in_command_units(ident, logs: list[FieldLog], vessel: Vessel):
                                                          scale="known"))
     ident.thrust_scale_ = ThrustScale(case="gain identified", ratio=rho, ratio_from=how, fixed_by=scale_by,
                                       forward_n=g, reverse_n=g * rho, forward_stderr_n=g_se, shape=shape,
-                                      structure=structure)
+                                      structure=structure, **map_rec["fields"])
     ident.reasons_, ident.verdict_ = ident._verdict(ident.vessel_in_, ident.runs_, ident._kin)
     ident.usable_ = ident.verdict_ != "unusable"
     return ident
+
+
+def _identify_map(logs: list[FieldLog], vessel: Vessel) -> dict:
+    """The thruster map of PWM-commanded runs (:func:`thrust_map_from_logs`) as ``{"fit":
+    ThrustMapFit or None, "fields": the ThrustScale fields that report it}``; no fit for
+    commands in other units or a vessel whose map has no shape (identity, catalogue)."""
+    t = vessel.thrusters
+    if not pwm_commands(logs):
+        return {"fit": None, "fields": {}}
+    try:
+        fit = thrust_map_from_logs(logs, vessel)
+    except FitFailed as err:   # too short to smooth or fit: the vessel's map, and why
+        return {"fit": None, "fields": {"deadband_us": float(t.deadband_us), "map_from": "vessel",
+                                        "map_note": f"no map could be fitted: {err}",
+                                        "quadratic_share": _share(t)}}
+    if fit.determined:
+        return {"fit": fit, "fields": {"deadband_us": fit.deadband_us, "deadband_ci95_us": fit.ci95_us,
+                                       "quadratic_share": fit.quadratic_share, "map_from": "equation error profile"}}
+    return {"fit": fit, "fields": {"deadband_us": float(t.deadband_us), "map_from": "vessel", "map_note": fit.why,
+                                   "quadratic_share": _share(t)}}
+
+
+def _share(t) -> float:
+    """The quadratic share of a shaped map, NaN for the others."""
+    return t.share if t.map in SHAPED_MAPS else float("nan")
 
 
 def _scale_paper(ident, inner, fix_all: dict, scale_by: str) -> tuple[float, float]:
@@ -724,4 +890,5 @@ def _scale_extended(ident, inner, value: float, key: str) -> tuple[float, float]
 
 
 __all__ = ["ThrustScale", "command_unit_vessel", "fit_in_command_units", "profile_ratio", "profile_ratio_ext",
-           "reverse_ratio", "scale_fix", "scale_results", "thrust_scale_known", "with_ratio", "without_logged_forces"]
+           "pwm_commands", "reverse_ratio", "scale_fix", "scale_results", "thrust_map_from_logs", "thrust_scale_known",
+           "with_identified_map", "with_ratio", "without_logged_forces"]

@@ -31,7 +31,11 @@ CATALOGUE_MAPS = thruster_curves.CATALOGUE_MAPS
 """Thruster maps built from a manufacturer's published curves (``t200``), see
 :mod:`usvlog.model.thruster_curves`."""
 
-THRUSTER_MAPS = ("identity", "linear", "quadratic") + CATALOGUE_MAPS
+SHAPED_MAPS = ("linear", "quadratic", "mixed")
+"""Maps given by a shape s(x) and two gains (``forward_n``, ``reverse_n``); the ones that
+take a ``deadband_us``."""
+
+THRUSTER_MAPS = ("identity",) + SHAPED_MAPS + CATALOGUE_MAPS
 """Every thruster map a vessel's ``[thrusters] map`` may name."""
 
 THRUSTER_SIDES = ("left", "right")
@@ -44,10 +48,20 @@ class Thrusters:
     """Twin-thruster geometry and the map from recorded command to force (N).
 
     ``map``: ``identity`` (commands already newtons), ``linear`` (F = forward_n c for
-    c >= 0, reverse_n c below) or ``quadratic`` (F = forward_n c|c| / reverse_n c|c|),
-    with c the normalized command in [-1, 1]. PWM commands are first normalized with
-    ``pwm_neutral_us`` and ``pwm_span_us`` (full command at neutral +- span).
-    ``forward_n``/``reverse_n`` are also the force limits used for saturation.
+    c >= 0, reverse_n c below), ``quadratic`` (F = forward_n c|c| / reverse_n c|c|) or
+    ``mixed`` (F = forward_n s(c) / reverse_n s(c) with s(c) = (1 - q) c + q c|c|, q =
+    ``quadratic_share``: linear at q = 0, quadratic at q = 1), with c the normalized
+    command in [-1, 1]. PWM commands are first normalized with ``pwm_neutral_us`` and
+    ``pwm_span_us`` (full command at neutral +- span). ``forward_n``/``reverse_n`` are also
+    the force limits used for saturation.
+
+    These three maps may have a deadband (``deadband_us``, a half-width h about neutral,
+    symmetric: an ESC gives no thrust for pulse widths within neutral +- h). With
+    d = h / pwm_span_us the command is then read as x = sign(c) (|c| - d) / (1 - d)
+    beyond the deadband and 0 within it, and F = forward_n s(x) / reverse_n s(x): the
+    force starts at the deadband's edge and full command still gives forward_n / reverse_n.
+    Normalized and counts commands take the same deadband in units of the PWM frame
+    (d = deadband_us / pwm_span_us of full command).
 
     A catalogue map (``t200``, :data:`CATALOGUE_MAPS`) is a manufacturer's published curve
     (:mod:`usvlog.model.thruster_curves`) at the supply voltage ``supply_v``: the command
@@ -65,7 +79,7 @@ class Thrusters:
     ----------
     arm_m : float, default 0.3
         Lateral distance of each thruster from the centre line in m, > 0.
-    map : {"identity", "linear", "quadratic", "t200"}, default "identity"
+    map : {"identity", "linear", "quadratic", "mixed", "t200"}, default "identity"
         Command-to-force map (see above).
     forward_n : float, default 20.0
         Largest forward force of one thruster in N (full positive command), > 0; for a
@@ -92,13 +106,21 @@ class Thrusters:
     reversed_left, reversed_right : bool, default False
         The port / starboard channel is reversed (its command's sign about neutral is
         flipped before the map).
+    deadband_us : float, default 0.0
+        Half-width of the deadband about ``pwm_neutral_us``, us, in [0, pwm_span_us);
+        linear, quadratic and mixed maps only (a catalogue map has its own).
+    quadratic_share : float or None, default None
+        q of the ``mixed`` map's shape, in [0, 1]; required by ``mixed``, refused by the
+        other maps.
 
     Raises
     ------
     usvlog.errors.ConfigError
         If ``map`` is unknown, a length, force or span is not positive, a catalogue map
-        has no ``supply_v`` or one outside its published range, or a reversed flag is not
-        a bool.
+        has no ``supply_v`` or one outside its published range, a reversed flag is not
+        a bool, a deadband is out of range or on a map that takes none, or
+        ``quadratic_share`` is missing, out of range or given to a map other than
+        ``mixed``.
     """
 
     arm_m: float = 0.3
@@ -113,6 +135,8 @@ class Thrusters:
     supply_v: float | None = None  # supply voltage, V (catalogue maps)
     reversed_left: bool = False    # port channel reversed (ESC or propeller)
     reversed_right: bool = False   # starboard channel reversed
+    deadband_us: float = 0.0       # half-width of the deadband about neutral, us (shaped maps)
+    quadratic_share: float | None = None   # q of the mixed map's shape (1 - q) x + q x|x|
 
     def __post_init__(self):
         if self.scale not in ("known", "command"):
@@ -140,6 +164,28 @@ class Thrusters:
             raise ConfigError("thruster forward_n and reverse_n must be > 0")
         if not (self.pwm_span_us > 0):
             raise ConfigError(f"thruster pwm_span_us = {self.pwm_span_us} must be > 0")
+        self._check_shape()
+
+    def _check_shape(self) -> None:
+        """``deadband_us`` and ``quadratic_share`` checked against the map."""
+        db = self.deadband_us
+        if isinstance(db, bool) or not isinstance(db, (int, float)) or not math.isfinite(db):
+            raise ConfigError(f"thruster deadband_us = {db!r} must be a number of us")
+        if db != 0.0:
+            if self.map not in SHAPED_MAPS:
+                own = "has its own deadband" if self.catalogue else "takes commands in newtons"
+                raise ConfigError(f"thruster deadband_us = {db:g}: the {self.map} map {own}; a deadband is for "
+                                  f"the {', '.join(SHAPED_MAPS)} maps")
+            if not (0.0 <= db < self.pwm_span_us):
+                raise ConfigError(f"thruster deadband_us = {db:g} must be >= 0 and below pwm_span_us = "
+                                  f"{self.pwm_span_us:g} (a half-width about the neutral command, us)")
+        q = self.quadratic_share
+        if self.map == "mixed":
+            if isinstance(q, bool) or not isinstance(q, (int, float)) or not (0.0 <= q <= 1.0):
+                raise ConfigError(f"thruster map \"mixed\" needs quadratic_share in [0, 1] (its shape (1 - q) c + "
+                                  f"q c|c|), not {q!r}")
+        elif q is not None:
+            raise ConfigError(f"thruster quadratic_share = {q!r} is for map = \"mixed\", not {self.map!r}")
 
     # -- command <-> force -------------------------------------------------------
     @property
@@ -277,15 +323,16 @@ class Thrusters:
             pwm, f = self.curve()
             pwm_c = thruster_curves.CURVE_NEUTRAL_US + thruster_curves.CURVE_SPAN_US * c
             return np.asarray(thruster_curves.force_from_pwm(pwm_c, pwm, f), dtype=float)
-        shape = c if self.map == "linear" else c * np.abs(c)
+        shape = self.shape(self.beyond_deadband(c))
         return np.where(c >= 0, self.forward_n * shape, self.reverse_n * shape)
 
     def force_to_command(self, force, unit: str, full_scale: float | None = None, side: str | None = None):
         """Force in newtons -> command in ``unit`` (saturated to the thruster limits).
 
-        Inverse of :meth:`command_to_force` within the limits. For a catalogue map, zero
-        force gives the neutral command (the middle of the deadband) and a non-zero force
-        the command at the deadband's edge or beyond.
+        Inverse of :meth:`command_to_force` within the limits. For a catalogue map or a
+        map with a deadband (``deadband_us``), zero force gives the neutral command (the
+        middle of the deadband) and a non-zero force the command at the deadband's edge
+        or beyond.
 
         Parameters
         ----------
@@ -325,14 +372,90 @@ class Thrusters:
             c = (thruster_curves.pwm_from_force(f, pwm, fc) - thruster_curves.CURVE_NEUTRAL_US) \
                 / thruster_curves.CURVE_SPAN_US
         else:
-            x = f / np.where(f >= 0, self.forward_n, self.reverse_n)
-            c = x if self.map == "linear" else np.sign(x) * np.sqrt(np.abs(x))
+            y = f / np.where(f >= 0, self.forward_n, self.reverse_n)
+            c = self._from_beyond(self._inverse_shape(y))
         c = self.direction(side) * np.asarray(c, dtype=float)
         if unit == "normalized":
             return c
         if unit == "pwm_us":
             return self.pwm_neutral_us + self.pwm_span_us * c
         return _full_scale(full_scale) * c
+
+    @property
+    def share(self) -> float:
+        """q of the map's shape (1 - q) x + q x|x|: 0 linear, 1 quadratic, ``quadratic_share`` mixed.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the map has no such shape (identity or a catalogue map).
+        """
+        if self.map == "linear":
+            return 0.0
+        if self.map == "quadratic":
+            return 1.0
+        if self.map == "mixed":
+            return float(self.quadratic_share)   # type: ignore[arg-type]  # checked in __post_init__
+        raise ConfigError(f"thruster map {self.map!r} has no shape of its own ({', '.join(SHAPED_MAPS)} have)")
+
+    def shape(self, x):
+        """The map's shape s(x) = (1 - q) x + q x|x| (q = :attr:`share`), per unit of full command.
+
+        Parameters
+        ----------
+        x : float or array_like
+            Command beyond the deadband, in [-1, 1] (:meth:`beyond_deadband`).
+
+        Returns
+        -------
+        numpy.ndarray
+            s(x), odd, s(1) = 1, of the input's shape.
+        """
+        x = np.asarray(x, dtype=float)
+        q = self.share
+        return (1.0 - q) * x + q * x * np.abs(x)
+
+    def beyond_deadband(self, c):
+        """Normalized command -> the command beyond the deadband, x = sign(c) (|c| - d) / (1 - d).
+
+        d = ``deadband_us`` / ``pwm_span_us``; 0 within the deadband, +-1 at full command.
+
+        Parameters
+        ----------
+        c : float or array_like
+            Normalized command as the thruster sees it (:meth:`normalize`), in [-1, 1].
+
+        Returns
+        -------
+        numpy.ndarray
+            x, of the input's shape (``c`` itself without a deadband).
+        """
+        c = np.asarray(c, dtype=float)
+        d = self.deadband_us / self.pwm_span_us
+        if d == 0.0:
+            return c
+        return np.sign(c) * np.maximum(np.abs(c) - d, 0.0) / (1.0 - d)
+
+    def _inverse_shape(self, y):
+        """x with s(x) = y (y in [-1, 1]): the root of (1 - q)|x| + q x^2 = |y|, signed."""
+        y = np.asarray(y, dtype=float)
+        q = self.share
+        a = np.abs(y)
+        if q == 0.0:
+            x = a
+        else:   # the positive root, written to stay accurate as q -> 0 (0 at a = 0, also for q = 1)
+            den = (1.0 - q) + np.sqrt((1.0 - q) ** 2 + 4.0 * q * a)
+            x = np.divide(2.0 * a, den, out=np.zeros_like(a), where=den > 0)
+        return np.sign(y) * x
+
+    def _from_beyond(self, x):
+        """Inverse of :meth:`beyond_deadband`: zero is the neutral command, any other x the
+        command at the deadband's edge or beyond."""
+        x = np.asarray(x, dtype=float)
+        d = self.deadband_us / self.pwm_span_us
+        if d == 0.0:
+            return x
+        return np.where(x == 0.0, 0.0, np.sign(x) * (d + np.abs(x) * (1.0 - d)))
 
     def saturate(self, force):
         """Clip force(s) of one thruster to [-reverse_n, forward_n] N.

@@ -114,7 +114,8 @@ class Vessel:
             structure, ``structure = "extended"`` and an ``[extended]`` table, and a
             ``[thrusters]`` table; floats are written with ``repr`` (no rounding),
             infinities as ``inf``. Thruster fields at their defaults (``lag_s``,
-            ``scale``, ``supply_v``, the reversed flags) are left out, and so are a
+            ``scale``, ``supply_v``, the reversed flags, ``deadband_us``,
+            ``quadratic_share``) are left out, and so are a
             catalogue map's ``forward_n``/``reverse_n`` (written as a comment: the map
             sets them from ``supply_v``).
         """
@@ -151,7 +152,8 @@ class Vessel:
         dict of str to str
             ``name``, ``model.<symbol>`` (the paper terms), ``extended.<field>`` (extended
             structure only) and ``thrusters.<field>`` entries (``lag_s``, ``scale``,
-            ``supply_v`` and the reversed flags only when not the default);
+            ``supply_v``, the reversed flags, ``deadband_us`` and ``quadratic_share``
+            only when not the default);
             read back by :meth:`from_dict`.
         """
         d = {"name": self.name}
@@ -241,7 +243,7 @@ def extended_vessel(name: str, ext: ExtendedParams, thrusters: Thrusters | None 
 
 
 _THRUSTER_DEFAULTS = (("lag_s", 0.0), ("scale", "known"), ("supply_v", None), ("reversed_left", False),
-                      ("reversed_right", False))
+                      ("reversed_right", False), ("deadband_us", 0.0), ("quadratic_share", None))
 
 
 def _thruster_default(name: str, value) -> bool:
