@@ -128,6 +128,34 @@ def predict_ahead(run: RunData, ks: KinStates, theta, current, horizon_s: float,
     return t, meas, pred
 
 
+def displacement_fit_ahead(run: RunData, ks: KinStates, theta, current, horizon_s: float, *,
+                           t_from: float | None = None, simulate: Simulate = simulate_run) -> float:
+    """Fit % of where the boat goes in the next ``horizon_s``: the model re-initialised every H s
+    from the smoothed state (:func:`predict_ahead`), its displacement (n, e) from each window's
+    start scored against the smoothed one, ``100 (1 - |d - dhat| / |d - mean d|)``.
+
+    A free run's track over minutes is the integral of every small error of speed, heading and
+    current; over one horizon it says how well the model predicts the motion a path follower
+    plans with. NaN when a window's prediction diverged or nothing moved.
+
+    Parameters
+    ----------
+    run, ks, theta, current, horizon_s, t_from, simulate
+        As :func:`predict_ahead`.
+
+    Returns
+    -------
+    float
+    """
+    cur = (float(current[0]), float(current[1]))
+    starts, _, _ = _windows(run, ks, float(horizon_s), t_from)
+    _, meas, pred, ptr = _predict(run, ks, theta, cur, horizon_s, t_from, simulate)
+    if len(pred) == 0 or np.isnan(pred).any():
+        return float("nan")
+    origin = np.repeat(ks.at(starts, cur)[:, :2], np.diff(ptr), axis=0)
+    return float(fit_percent(meas[:, :2] - origin, pred[:, :2] - origin))
+
+
 def fit_percent_ahead(run: RunData, ks: KinStates, theta, current, horizons_s: Sequence[float] = (5.0, 10.0, 30.0),
                       t_from: float | None = None, simulate: Simulate = simulate_run) -> dict:
     """k-step-ahead fit % of u, v, r per horizon (:func:`predict_ahead` scored with ``fit_percent``).
@@ -316,5 +344,5 @@ def residual_whiteness(residuals, max_lag: int = 25) -> WhitenessResult:
                            n=n)
 
 
-__all__ = ["fit_percent_ahead", "predict_ahead", "one_step_residuals", "excited", "excited_channels",
-           "residual_whiteness", "WhitenessResult", "NOISE_U_MPS", "NOISE_V_MPS", "NOISE_R_RADPS"]
+__all__ = ["displacement_fit_ahead", "fit_percent_ahead", "predict_ahead", "one_step_residuals", "excited",
+           "excited_channels", "residual_whiteness", "WhitenessResult", "NOISE_U_MPS", "NOISE_V_MPS", "NOISE_R_RADPS"]

@@ -37,7 +37,7 @@ from .smooth import KinStates, derivative, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S
 from .validation import _finite_dict
-from .velocity import VelocityFitResult, fit_velocity_error
+from .velocity import VelocityFitResult, extended_start, fit_velocity_error
 
 # typing only: the extended model is imported where used (start-up of the default fit); the Identifier
 # imports this module
@@ -53,6 +53,7 @@ PREFER_WITHIN = 1.0         # fit % points: a preferred candidate this close to 
 # the surge equation's own m (fit_surge) this factor away from the full fit's: a candidate holding it
 SURGE_MASS_RATIO = 1.5
 EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
+DEGENERATE_COND = 1e10     # condition number of a fit whose Jacobian is numerically singular
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
@@ -230,7 +231,8 @@ def candidate_starts(self: Identifier, ee: EquationErrorResult, vessel: Vessel) 
 
 
 def _extended_starts(self: Identifier, th_paper) -> list[Start]:
-    """Extended-model candidates: output error from the paper's equation-error start in the
+    """Extended-model candidates: velocity output error from the data's scales (as the paper
+    model's, :mod:`usvlog.identify.velocity`), output error from the paper's equation-error start in the
     extended form (preferred: the extended equation-error fit is biased by the noise of its
     regressors, m11 a third of the truth on a noisy run) and from the extended
     equation-error fit, then that fit itself."""
@@ -240,7 +242,14 @@ def _extended_starts(self: Identifier, th_paper) -> list[Start]:
     assert ext_ee is not None
     paper = ExtendedParams.from_paper(VesselParams(**dict(zip(PARAM_NAMES, map(float, th_paper))))).as_array()
     th_ee = ext_ee.theta
-    return [Start(name="extended output error from the paper's equation error", kind="output-error",
+    scales = getattr(self, "_data_scales", None)
+    voe = ([Start(name="extended velocity output error from the data's scales", kind="velocity-error",
+                  model="extended", theta=extended_start(scales))]
+           if scales is not None and not getattr(self, "_command_units", False) else [])
+    if not ext_physical_problem(th_ee) and not getattr(self, "_command_units", False):
+        voe.append(Start(name="extended velocity output error from extended equation error", kind="velocity-error",
+                         model="extended", theta=th_ee))
+    return voe + [Start(name="extended output error from the paper's equation error", kind="output-error",
                   model="extended", theta=paper),
             Start(name="extended output error from extended equation error", kind="output-error",
                   model="extended", theta=th_ee if not ext_physical_problem(th_ee) else paper),
@@ -406,6 +415,10 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
     fitted: object
     if st.kind == "equation-error":
         theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
+    elif st.kind == "velocity-error":
+        fitted = fit_velocity_error(runs, kin, st.theta, fit_current=self.current, currents0=currents0,
+                                    max_current_mps=self.max_current_mps, model="extended")
+        theta, cur = fitted.theta, np.asarray(fitted.currents, float)
     else:
         # in command units the ratio search's short segments (its optimum stalls with long ones)
         seg = EXT_PROFILE_SEGMENT_S if getattr(self, "_command_units", False) else EXT_SEGMENT_S
@@ -413,7 +426,7 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
                                            max_current_mps=self.max_current_mps, segment_s=seg)
         theta, cur = fitted.theta, fitted.currents
     failed = ext_physical_problem(theta)
-    if not failed and isinstance(fitted, ExtendedOEResult) and fitted.diverged:
+    if not failed and isinstance(fitted, (ExtendedOEResult, VelocityFitResult)) and fitted.diverged:
         failed = "its simulation diverged"
     vals = []
     if not failed:
@@ -473,6 +486,12 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
         if st.kind == "equation-error":
             ext_ee = self._ext_equation_error(runs, kin)
             theta, cur, fitted = ext_ee.theta, np.zeros((len(runs), 2)), ext_ee
+        elif st.kind == "velocity-error":
+            fitted = fit_velocity_error(runs, kin, chosen.theta, fit_current=self.current, currents0=chosen.currents,
+                                        max_current_mps=self.max_current_mps, horizons_s=(120.0,), model="extended")
+            theta, cur = fitted.theta, fitted.currents
+            if fitted.diverged:
+                return chosen
         else:
             fitted = fit_extended_output_error(runs, kin, chosen.theta, fit_current=self.current,
                                                currents0=chosen.currents, max_current_mps=self.max_current_mps,
@@ -515,12 +534,23 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
             return chosen
     if st.model == "paper" and physical_problem(theta):
         return chosen
+    if _degenerate(fitted) and not _degenerate(chosen.fitted):
+        # on all the data the fit ran onto a bound or a cliff (a parameter its data push
+        # outside a boat's range): the validated fit's values stand
+        return chosen
     vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
     again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals,
                       held_stderr=held_se)
     if again.score < chosen.score - PREFER_WITHIN:
         return chosen
     return again
+
+
+def _degenerate(fitted) -> bool:
+    """True when a fit's scaled Jacobian is numerically singular (condition number over
+    :data:`DEGENERATE_COND`, or not finite): its standard errors mean nothing."""
+    cond = getattr(fitted, "cond", None)
+    return cond is not None and not (math.isfinite(cond) and cond <= DEGENERATE_COND)
 
 
 def _leave_one_out(self: Identifier, chosen: Candidate, cands, runs, kin, logs, vessel) -> tuple[list, list]:
@@ -547,9 +577,13 @@ def _leave_one_out(self: Identifier, chosen: Candidate, cands, runs, kin, logs, 
             if st.kind == "equation-error":
                 out.append(ee_out[-1])
                 continue
-            theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
-                                              max_current_mps=self.max_current_mps,
-                                              segment_s=EXT_SEGMENT_S).theta
+            if st.kind == "velocity-error":
+                theta = fit_velocity_error(r_, k_, chosen.theta, fit_current=self.current,
+                                           max_current_mps=self.max_current_mps, model="extended").theta
+            else:
+                theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
+                                                  max_current_mps=self.max_current_mps,
+                                                  segment_s=EXT_SEGMENT_S).theta
             out.append(self._validate_run(runs[i], kin[i], theta, None) if not ext_physical_problem(theta)
                        else None)
             continue

@@ -9,16 +9,21 @@ over-ground motion: positions, heading, ground velocity in NED and yaw rate.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import lstsq
 from scipy.ndimage import convolve1d
 
-from ..errors import FitFailed
+from ..errors import FitFailed, UsvlogError
 from ..estimate import EstimateSettings, estimate
+from ..estimate.problem import build_problem
+from ..estimate.run import tune_process_noise
 from ..model.frames import ssa
+from ..model.vessel import default_vessel
 from .data import RunData
+from .seen import free_run_log
 
 GRID_DT = 0.1
 MIN_SAMPLES = 5   # a local cubic needs a window of at least five samples
@@ -41,6 +46,8 @@ class KinStates:
     ve: np.ndarray
     r: np.ndarray
     source: str
+    # smooths a free run (t, sim, current) as these states were smoothed (None: not possible)
+    smoother: Callable | None = field(default=None, repr=False, compare=False)
     # (current, the six columns :meth:`at` interpolates) of its last call: a fit asks for the
     # states at every segment start with one current
     _cols: tuple | None = field(default=None, init=False, repr=False, compare=False)
@@ -106,7 +113,38 @@ class KinStates:
             raise FitFailed(f"{int(k.sum())} smoothed sample(s) in {span} of the run: its GNSS fixes and compass "
                             "headings do not cover that part (nothing to fit or validate on there)")
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
-                         ve=self.ve[k], r=self.r[k], source=self.source)
+                         ve=self.ve[k], r=self.r[k], source=self.source, smoother=self.smoother)
+
+    def seen(self, t, sim, current=(0.0, 0.0)) -> np.ndarray | None:
+        """A free run as these states' smoother shows it (:mod:`usvlog.identify.seen`).
+
+        The measurements it is compared with are these states themselves, smoothed over the
+        whole run (smoothed again over the free run's span alone, their start-up transient
+        cost the true model of a 60 s run 70 points of u: measured, and not done).
+
+        Parameters
+        ----------
+        t : numpy.ndarray, shape (N,)
+            Times of the free run (s from the run's ``t0_ns``).
+        sim : numpy.ndarray, shape (N, 6)
+            n, e (m), psi (rad), u, v (m/s, relative to the water), r (rad/s).
+        current : (float, float), default (0.0, 0.0)
+            Current north, east (m/s) of the free run.
+
+        Returns
+        -------
+        numpy.ndarray, shape (N, 6) or None
+            The smoothed free run at ``t`` (u, v relative to ``current``); None when these
+            states have no smoother to repeat or it could not smooth the free run (too
+            short, not finite).
+        """
+        if self.smoother is None or len(t) < MIN_SAMPLES or not np.all(np.isfinite(sim)):
+            return None
+        try:
+            ks = self.smoother(np.asarray(t, float), np.asarray(sim, float), current)
+        except UsvlogError:
+            return None
+        return ks.at(t, current) if ks is not None and len(ks.t) >= MIN_SAMPLES else None
 
 
 def _savgol_coeffs(window: int, polyorder: int, deriv: int, delta: float) -> np.ndarray:
@@ -235,16 +273,47 @@ def savgol_states(run: RunData, *, pos_window_s=16.0, psi_window_s=6.0) -> KinSt
                      r=savgol_filter(psi, wh, deriv=1, delta=GRID_DT, **kw), source="savgol")
 
 
-def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
-    """Smoothed over-ground states of a run (the estimator's kinematic EKF + RTS smoother)."""
-    st = estimate(log, EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT,
-                                        gnss_delay_s=run.gnss_delay_s, compass_delay_s=run.compass_delay_s),
-                  vessel).state
+def kinematic_states(log, run: RunData, vessel=None, *, tune: bool = False) -> KinStates:
+    """Smoothed over-ground states of a run (the estimator's kinematic EKF + RTS smoother).
+
+    The smoother's process noise is tuned to the run (``tune``: the innovation likelihood's
+    maximum, :func:`usvlog.estimate.run.tune_process_noise`, where it is above the default):
+    the default suits a gentle boat, and on one that accelerates hard its smoothed speed
+    trails the true one by seconds.
+    The states carry their smoother (:meth:`KinStates.seen`): a free run is smoothed with
+    the same settings, without tuning again.
+    """
+    settings = EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT,
+                                gnss_delay_s=run.gnss_delay_s, compass_delay_s=run.compass_delay_s)
+    if tune:
+        # the velocities' process noise at the innovation likelihood's optimum, never below the
+        # default: that was set for identification on a boat of the paper's size, and a stiffer
+        # smoother lags its speed more (the fit's m comes out high), while an agile boat needs far
+        # more (an 80 kg catamaran: 50x). The yaw rate's keeps its default (tuned, it moved the
+        # paper vessel's fits and not the catamaran's)
+        q = tune_process_noise(build_problem(log, settings, vessel or log.vessel or default_vessel()), settings)
+        settings = replace(settings, q_uv=max(q["q_uv"], settings.q_uv_value))
+    ks, used = _smoothed(log, run, vessel, settings)
+    if len(ks.t) < MIN_SAMPLES:
+        raise FitFailed(f"{run.source or 'run'}: the smoothed states span {len(ks.t) * GRID_DT:.1f} s after the "
+                        "first thrust sample: too short to identify from")
+
+    def smoother(t, sim, current, log=log, run=run, vessel=vessel, used=used):
+        return _smoothed(free_run_log(log, run, t, sim, current), run, vessel, used)[0]
+
+    return replace(ks, smoother=smoother)
+
+
+def _smoothed(log, run: RunData, vessel, settings: EstimateSettings) -> tuple[KinStates, EstimateSettings]:
+    """The estimator's smoothed states on the :data:`GRID_DT` grid from the run's ``t0_ns``, and
+    the settings it ran with (the tuned process noise in place of ``tune``)."""
+    est = estimate(log, settings, vessel)
+    st = est.state
+    used = replace(est.settings, tune=False)
     ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT) if len(ts) else np.zeros(0)
-    if len(t) < MIN_SAMPLES:
-        raise FitFailed(f"{run.source or 'run'}: the smoothed states span {len(t) * GRID_DT:.1f} s after the "
-                        "first thrust sample: too short to identify from")
+    if len(t) == 0:
+        return KinStates(t=t, n=t, e=t, psi=t, vn=t, ve=t, r=t, source="usvlog.estimate"), used
     psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))
     u = np.interp(t, ts, st["u_mps"].to_numpy(float))
     v = np.interp(t, ts, st["v_mps"].to_numpy(float))
@@ -256,7 +325,7 @@ def kinematic_states(log, run: RunData, vessel=None) -> KinStates:
             vn, ve = (vn + add, ve) if arr == "vn" else (vn, ve + add)
     return KinStates(t=t, n=np.interp(t, ts, st["n_m"].to_numpy(float)),
                      e=np.interp(t, ts, st["e_m"].to_numpy(float)), psi=psi, vn=vn, ve=ve,
-                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate")
+                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate"), used
 
 
 def derivative(t, y, window_s=2.0):

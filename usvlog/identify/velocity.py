@@ -25,17 +25,93 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..choices import EXTENDED_PARAM_NAMES
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
+from .extended import MAX_DT as EXT_MAX_DT
+from .extended_oe import ext_physical_problem, simulate_full
 from .output import DIVERGED, MAX_STIFFNESS, coarse_run, max_step, stiffness
 from .shoot import no_rows, shoot
 from .smooth import KinStates, thrust_on_grid
 
 HORIZONS_S = (5.0, 30.0, 120.0)   # window lengths of the stages (s)
 MIN_SIGMA = (0.01, 0.01, 0.002)   # floor of each channel's residual scale: u, v (m/s), r (rad/s)
+MIN_START = 1e-3                  # smallest start of a positive parameter, relative to the largest one
+NFEV_PER_PARAM = 12               # model evaluations per stage per fitted quantity (a dozen Jacobians)
 BIG = 1e3                         # a residual that is not finite counts as this many sigma
-POSITIVE = np.array([k != "xg" for k in PARAM_NAMES])
 MAX_XG = 1.0                      # |xg| bound (m): the centre of gravity stays on a small hull
+# largest share of the yaw inertia Iz the sway-yaw coupling m xg^2 may take (extended: m26^2 of m22 m66).
+# A small hull's is a few % (the paper's vessel 3 %); a fit that drives it towards Iz makes the
+# effective yaw inertia Iz - m xg^2 vanish, the model's sensitivity to m and xg a cliff (a Fossen Otter
+# run: 95 % of Iz, condition number 1e16) and buys an unmodelled yaw effect (quadratic damping, a Munk
+# moment) with a centre of gravity metres off the hull's. The signed parameter is fitted as
+# signed_max * tanh(z), so the bound is approached smoothly instead of hit as a wall
+MAX_COUPLING = 0.5
+WALL_COUPLING = 0.98              # beyond this share a parameter vector is no boat (its simulation a cliff)
+Z_MAX = 6.0                       # bound of the signed parameter's fitted coordinate (tanh(6) = 1 - 1e-5)
+QUADRATIC_START = 0.3             # extended start: each quadratic damping this share of the linear one per unit speed
+
+
+@dataclass(frozen=True)
+class Structure:
+    """A model structure the velocity fit can fit: its parameters, which are positive (fitted as
+    logarithms), the bound of the signed ones, its simulation of windows and what is no boat."""
+
+    name: str
+    names: tuple
+    positive: np.ndarray
+
+    @property
+    def signed(self) -> int:
+        """Index of the one signed parameter (xg, or m26)."""
+        return int(np.flatnonzero(~self.positive)[0])
+
+    def signed_max(self, theta) -> float:
+        """Largest magnitude the signed parameter may take with the others at ``theta``: the
+        coupling at most :data:`MAX_COUPLING` of the yaw (paper: and |xg| <= MAX_XG)."""
+        th = np.asarray(theta, float)
+        if self.name == "paper":
+            return float(min(MAX_XG, math.sqrt(MAX_COUPLING * max(th[1], 0.0) / max(th[0], 1e-12))))
+        return float(math.sqrt(MAX_COUPLING * max(th[1], 0.0) * max(th[3], 0.0)))
+
+    def simulate(self, w: _Windows, theta, cur, x0s, out) -> None:
+        """States (n, e, psi, u, v, r) of every window of ``w`` at its grid times into ``out``."""
+        r = w.run
+        if self.name == "paper":
+            nseg = len(w.i0)
+            shoot(r.t_thrust, r.tau_u, r.tau_r, w.i0, w.i1, x0s, np.ascontiguousarray(theta, dtype=np.float64),
+                  np.tile(np.asarray(cur, float), (nseg, 1)), w.t, w.ptr, max_step(theta), False, out, *no_rows())
+        else:
+            simulate_full(r.t_thrust, r.tau_u, r.tau_r, w.i0, w.i1, x0s, np.ascontiguousarray(theta, dtype=np.float64),
+                          float(cur[0]), float(cur[1]), w.t, w.ptr, EXT_MAX_DT, out)
+
+    def not_a_boat(self, theta) -> bool:
+        """Parameters no boat has (see :func:`_not_a_boat`; the extended model: not a boat by
+        :func:`~usvlog.identify.extended_oe.ext_physical_problem`, or a coupling m26^2 over
+        MAX_COUPLING of m22 m66)."""
+        if self.name == "paper":
+            return _not_a_boat(theta)
+        th = np.asarray(theta, float)
+        if ext_physical_problem(th):
+            return True
+        m22, m26, m66 = th[1], th[2], th[3]
+        return bool(m26 * m26 > WALL_COUPLING * m22 * m66)
+
+
+PAPER = Structure("paper", PARAM_NAMES, np.array([k != "xg" for k in PARAM_NAMES]))
+POSITIVE = PAPER.positive
+EXTENDED = Structure("extended", EXTENDED_PARAM_NAMES, np.array([k != "m26" for k in EXTENDED_PARAM_NAMES]))
+STRUCTURES = {"paper": PAPER, "extended": EXTENDED}
+
+
+def extended_start(theta_paper) -> np.ndarray:
+    """An extended-model start from paper parameters (m, Iz, d11, d22, d33, xg): the paper's
+    dynamics in the extended form, each quadratic damping :data:`QUADRATIC_START` of its linear
+    one per unit speed (a logarithm cannot start from zero) and the linear ones reduced to match
+    at that speed."""
+    m, Iz, d11, d22, d33, xg = (float(x) for x in theta_paper)
+    q = QUADRATIC_START
+    return np.array([m, m, m * xg, Iz, d11 * (1 - q), d11 * q, d22 * (1 - q), d22 * q, d33 * (1 - q), d33 * q])
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -44,7 +120,7 @@ class VelocityFitResult:
 
     Attributes
     ----------
-    theta : numpy.ndarray, shape (6,)
+    theta : numpy.ndarray, shape (6,) or (10,)
         m (kg), Iz (kg m^2), d11, d22 (kg/s), d33 (kg m^2/s), xg (m).
     currents : numpy.ndarray, shape (n_runs, 2)
         Current north, east per run (m/s; zeros when not fitted).
@@ -76,7 +152,8 @@ class VelocityFitResult:
 class _Windows:
     """One run cut into prediction windows of ``H`` s on the smoothed-state grid."""
 
-    def __init__(self, run: RunData, ks: KinStates, H: float):
+    def __init__(self, run: RunData, ks: KinStates, H: float, structure: Structure = PAPER):
+        self.structure = structure
         self.run = coarse_run(run)
         tg = self.run.t_thrust
         t = ks.t[(ks.t >= tg[0]) & (ks.t <= tg[-1])]
@@ -96,19 +173,16 @@ class _Windows:
         """(predicted, smoothed) u, v, r at ``t`` (two (N, 3) arrays) for parameters and a current."""
         x0s = np.ascontiguousarray(self.ks.at(self.t_start, cur), dtype=np.float64)
         ox = np.zeros((len(self.t), 6))
-        nseg = len(self.i0)
         with np.errstate(all="ignore"):
-            shoot(self.run.t_thrust, self.run.tau_u, self.run.tau_r, self.i0, self.i1, x0s,
-                  np.ascontiguousarray(theta, dtype=np.float64), np.tile(np.asarray(cur, float), (nseg, 1)),
-                  self.t, self.ptr, max_step(theta), False, ox, *no_rows())
+            self.structure.simulate(self, theta, cur, x0s, ox)
         return ox[:, 3:], self.ks.at(self.t, cur)[:, 3:]
 
 
 def _not_a_boat(theta) -> bool:
-    """Parameters no boat has: not finite, Iz - m xg^2 (nearly) not positive, or a velocity time
-    constant under 1 / MAX_STIFFNESS (whose simulation would need ever smaller steps)."""
+    """Parameters no boat has: not finite, a sway-yaw coupling m xg^2 over WALL_COUPLING of Iz, or a
+    velocity time constant under 1 / MAX_STIFFNESS (whose simulation would need ever smaller steps)."""
     m, Iz, _, _, _, xg = theta
-    if not np.all(np.isfinite(theta)) or Iz - m * xg * xg <= 0.02 * Iz:
+    if not np.all(np.isfinite(theta)) or m * xg * xg > WALL_COUPLING * Iz:
         return True
     return not stiffness(theta) <= MAX_STIFFNESS
 
@@ -116,8 +190,9 @@ def _not_a_boat(theta) -> bool:
 class _Problem:
     """The stacked residuals of every run's windows, in the fitted (log) coordinates."""
 
-    def __init__(self, runs, kin, H, theta0, free, fit_current, currents0, sigma):
-        self.win = [_Windows(r, k, H) for r, k in zip(runs, kin)]
+    def __init__(self, runs, kin, H, theta0, free, fit_current, currents0, sigma, structure: Structure = PAPER):
+        self.structure = structure
+        self.win = [_Windows(r, k, H, structure) for r, k in zip(runs, kin)]
         self.theta0 = np.asarray(theta0, float)
         self.free = np.asarray(free, bool)
         self.fit_current = fit_current
@@ -126,23 +201,33 @@ class _Problem:
         self.nfev = 0
 
     def unpack(self, p):
+        """(parameters, currents) from the fitted coordinates: logarithms of the positive
+        parameters, z of the signed one (signed_max * tanh(z)), the currents as they are."""
+        st = self.structure
         th = self.theta0.copy()
         q = p[:int(self.free.sum())]
-        th[self.free] = np.where(POSITIVE[self.free], np.exp(np.clip(q, -50, 50)), q)
+        th[self.free] = np.where(st.positive[self.free], np.exp(np.clip(q, -50, 50)), q)
+        if self.free[st.signed]:
+            th[st.signed] = st.signed_max(th) * math.tanh(th[st.signed])
         cur = p[len(q):].reshape(-1, 2) if self.fit_current else self.currents0
         return th, cur
 
     def pack(self, theta, cur) -> np.ndarray:
-        th = np.asarray(theta, float)[self.free]
-        q = np.where(POSITIVE[self.free], np.log(np.maximum(th, 1e-12)), th)
-        return np.concatenate([q, np.asarray(cur, float).ravel() if self.fit_current else []])
+        """The fitted coordinates of (parameters, currents) (see :meth:`unpack`)."""
+        st = self.structure
+        full = np.asarray(theta, float).copy()
+        z = full.copy()
+        z[st.positive] = np.log(np.maximum(full[st.positive], 1e-12))
+        lim = st.signed_max(full)
+        z[st.signed] = math.atanh(float(np.clip(full[st.signed] / lim, -0.999, 0.999))) if lim > 0 else 0.0
+        return np.concatenate([z[self.free], np.asarray(cur, float).ravel() if self.fit_current else []])
 
     def residuals(self, p, by_channel: bool = False):
         self.nfev += 1
         th, cur = self.unpack(p)
         out = []
         for i, w in enumerate(self.win):
-            if _not_a_boat(th):
+            if self.structure.not_a_boat(th):
                 res = np.full((len(w.t), 3), BIG)
             else:
                 pred, meas = w.predict(th, cur[i])
@@ -157,8 +242,11 @@ class _Problem:
 
 def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, free_mask=None,
                        fit_current: bool = True, currents0=None, max_current_mps: float = 0.5,
-                       horizons_s=HORIZONS_S, max_nfev: int = 100) -> VelocityFitResult:
+                       horizons_s=HORIZONS_S, max_nfev: int | None = None, model: str = "paper") -> VelocityFitResult:
     """Fit m, Iz, d11, d22, d33, xg (and a current per run) to the smoothed velocities.
+
+    With ``model="extended"`` the ten parameters of the extended model
+    (EXTENDED_PARAM_NAMES order) instead, the same way.
 
     Parameters
     ----------
@@ -166,10 +254,10 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
         The runs (recorded thrust, times in s from each run's start).
     kin : list of KinStates
         Their smoothed states (the measurements: u, v, r; relative to the water for a current).
-    theta0 : array_like, shape (6,)
-        Starting m, Iz, d11, d22, d33, xg (SI). Any boat-like values; positive ones are fitted
-        as logarithms.
-    free_mask : array_like of bool, shape (6,), optional
+    theta0 : array_like, shape (6,) or (10,)
+        Starting m, Iz, d11, d22, d33, xg (SI), or the extended model's ten. Any boat-like
+        values; positive ones are fitted as logarithms.
+    free_mask : array_like of bool, shape (6,) or (10,), optional
         Which parameters are fitted (default all); the others are held at ``theta0``.
     fit_current : bool, default True
         Fit a constant current (north, east, m/s) per run, each within +-``max_current_mps``.
@@ -179,19 +267,27 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
         Bound on each current component (m/s).
     horizons_s : sequence of float, default (5, 30, 120)
         Window lengths of the stages, each started from the stage before.
-    max_nfev : int, default 100
-        Model evaluations per stage at most.
+    max_nfev : int, optional
+        Model evaluations per stage at most (default :data:`NFEV_PER_PARAM` per fitted
+        quantity: a finite-difference Jacobian costs one evaluation each).
+    model : {"paper", "extended"}, default "paper"
+        The model structure.
 
     Returns
     -------
     VelocityFitResult
     """
+    st = STRUCTURES[model]
+    if max_nfev is None:
+        max_nfev = NFEV_PER_PARAM * (len(st.names) + (2 * len(runs) if fit_current else 0))
     theta = np.array(theta0, float)
-    if theta[5] != 0.0:
-        theta[5] = float(np.clip(theta[5], -MAX_XG, MAX_XG))
-    free = np.ones(6, bool) if free_mask is None else np.asarray(free_mask, bool)
-    if _not_a_boat(theta):   # xg too large for Iz: start from the centre line
-        theta[5] = 0.0
+    # a positive parameter at (or near) zero cannot move as a logarithm: from a thousandth of the largest
+    theta[st.positive] = np.maximum(theta[st.positive], MIN_START * np.max(np.abs(theta[st.positive])))
+    lim = 0.99 * st.signed_max(theta)
+    theta[st.signed] = float(np.clip(theta[st.signed], -lim, lim))
+    free = np.ones(len(st.names), bool) if free_mask is None else np.asarray(free_mask, bool)
+    if st.not_a_boat(theta):   # not a boat for another reason (stiffness): start from the centre line
+        theta[st.signed] = 0.0
     cur = np.zeros((len(runs), 2)) if currents0 is None else np.array(currents0, float).reshape(-1, 2)
     cur = np.clip(cur, -0.99 * max_current_mps, 0.99 * max_current_mps)
     sigma = np.array([max(float(np.std(np.concatenate([k.nu()[:, j] for k in kin]))), MIN_SIGMA[j])
@@ -200,10 +296,10 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
     prob = None
     sol = None
     for H in horizons_s:
-        prob = _Problem(runs, kin, H, theta, free, fit_current, cur, sigma)
+        prob = _Problem(runs, kin, H, theta, free, fit_current, cur, sigma, st)
         p0 = prob.pack(theta, cur)
-        lb = np.where(POSITIVE[free], -np.inf, -MAX_XG)
-        ub = np.where(POSITIVE[free], np.inf, MAX_XG)
+        lb = np.where(st.positive[free], -np.inf, -Z_MAX)
+        ub = np.where(st.positive[free], np.inf, Z_MAX)
         if fit_current:
             lb = np.concatenate([lb, np.full(2 * len(runs), -max_current_mps)])
             ub = np.concatenate([ub, np.full(2 * len(runs), max_current_mps)])
@@ -220,7 +316,7 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
             sigma = np.maximum(np.sqrt(np.mean(res[ok] ** 2, axis=0)), MIN_SIGMA)
     assert prob is not None and sol is not None
     res = prob.residuals(sol.x, by_channel=True)
-    diverged = bool(_not_a_boat(theta) or np.any(np.abs(res) >= BIG))
+    diverged = bool(st.not_a_boat(theta) or np.any(np.abs(res) >= BIG))
     names, cov, cond = _covariance(prob, sol, theta, free, fit_current, len(runs))
     rms_ch = np.sqrt(np.mean((res * prob.sigma) ** 2, axis=0)) if len(res) else np.full(3, np.nan)
     return VelocityFitResult(theta=theta, currents=np.asarray(cur, float).reshape(-1, 2), names=names, cov=cov,
@@ -230,12 +326,12 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
 
 def _covariance(prob: _Problem, sol, theta, free, fit_current: bool, n_runs: int):
     """Names, covariance in the parameters' own units and condition number of the final stage."""
-    names = tuple([k for k, f in zip(PARAM_NAMES, free) if f] +
+    st = prob.structure
+    names = tuple([k for k, f in zip(st.names, free) if f] +
                   ([f"current_{ax}_{i}" for i in range(n_runs) for ax in ("n", "e")] if fit_current else []))
     J = np.asarray(sol.jac, float)
-    # back from log coordinates: d theta = theta d log(theta)
-    scale = np.ones(J.shape[1])
-    scale[:int(free.sum())] = np.where(POSITIVE[free], theta[free], 1.0)
+    # back from the fitted coordinates (logarithms, the signed parameter's z): d theta = T d q
+    T = _coordinate_jacobian(prob, np.asarray(sol.x, float))
     n, k = J.shape
     s2 = float(2 * sol.cost / max(n - k, 1))
     with np.errstate(all="ignore"):
@@ -248,8 +344,22 @@ def _covariance(prob: _Problem, sol, theta, free, fit_current: bool, n_runs: int
             cov_q = np.linalg.pinv(Js.T @ Js) / np.outer(col, col) * s2
         except np.linalg.LinAlgError:
             cov_q = np.full((k, k), np.nan)
-    cov = cov_q * np.outer(scale, scale)
+    cov = T @ cov_q @ T.T
     return names, cov, cond
+
+
+def _coordinate_jacobian(prob: _Problem, x: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """d (free parameters, currents) / d (fitted coordinates) at ``x`` by central differences of
+    :meth:`_Problem.unpack` (the currents' block is the identity)."""
+    k = len(x)
+    nf = int(prob.free.sum())
+    T = np.eye(k)
+    for j in range(nf):
+        e = np.zeros(k)
+        e[j] = h
+        hi, lo = prob.unpack(x + e)[0][prob.free], prob.unpack(x - e)[0][prob.free]
+        T[:nf, j] = (hi - lo) / (2 * h)
+    return T
 
 
 def data_scales(runs: list[RunData], kin: list[KinStates]) -> np.ndarray | None:
@@ -297,4 +407,5 @@ def data_scales(runs: list[RunData], kin: list[KinStates]) -> np.ndarray | None:
     return np.array([2.0 * d11, d33, d11, 2.0 * d11, d33, 0.0])
 
 
-__all__ = ["VelocityFitResult", "fit_velocity_error", "data_scales", "HORIZONS_S"]
+__all__ = ["VelocityFitResult", "fit_velocity_error", "data_scales", "extended_start", "HORIZONS_S", "Structure",
+           "PAPER", "EXTENDED"]

@@ -1,0 +1,122 @@
+"""A model's free run as the sensors would have recorded it: the measurements it would have made.
+
+Validation compares a free run with the smoothed measurements. A smoother trades noise for
+lag: the smoothed surge speed of a boat that accelerates hard (an 80 kg catamaran that
+reaches 1.5 m/s in three seconds) trails the true one, and its fit % against the true speed
+is well under 100 even where GPS and compass are perfect. A free run compared with those
+states directly is charged for the smoother's lag as if it were the model's error.
+
+So the free run is compared like with like (the prefiltered comparison of output-error
+identification): its positions and heading are sampled at the log's own GNSS and compass
+stamps (with the same latencies), its ground velocity and yaw rate at the stamps of those
+channels when the log has them, and the result is smoothed exactly as the data were (the same
+estimator with the same process noise, :func:`usvlog.identify.smooth.kinematic_states`). What
+is left between the two is the model's error plus the smoothed measurement noise, not the
+smoother's lag. The free run's own states are kept for plots (:class:`~usvlog.identify.validation.Validation`).
+
+:func:`free_run_log` builds that log: pure data in, a :class:`~usvlog.log.fieldlog.FieldLog`
+out, no I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..estimate.layout import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
+from ..log.fieldlog import FieldLog
+from ..log.positions import LOCAL_TOPIC
+from ..model.frames import Datum, ned_to_geodetic, ssa
+from .data import RunData
+
+COPIED_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, LOCAL_TOPIC)
+"""The channels the kinematic smoother reads; the others are left out of a free run's log."""
+
+
+def _log_datum(log: FieldLog) -> Datum | None:
+    """The datum :func:`usvlog.identify.data.run_data` put the fixes about: the log's, else its first valid fix."""
+    if log.datum is not None:
+        return log.datum
+    g = log.get(GNSS_TOPIC)
+    if g is None:
+        return None
+    lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
+    ok = np.isfinite(lat) & np.isfinite(lon)
+    return Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0])) if ok.any() else None
+
+
+def free_run_log(log: FieldLog, run: RunData, t, sim=None, current=(0.0, 0.0)) -> FieldLog:
+    """The log ``log`` would have been over ``[t[0], t[-1]]`` had the boat moved as ``sim``
+    (``sim`` None: the log itself over that span, its measurements as recorded).
+
+    Parameters
+    ----------
+    log : FieldLog
+        The recorded run (its stamps, noise columns, thrust and metadata are kept).
+    run : RunData
+        The run's arrays (time origin ``t0_ns`` and the sensor latencies).
+    t : numpy.ndarray, shape (N,)
+        Times of the free run in s from ``run.t0_ns`` (increasing).
+    sim : numpy.ndarray, shape (N, 6), optional
+        The free run: n (m), e (m), psi (rad), u, v (m/s, relative to the water), r (rad/s).
+        None: the recorded measurements are kept (the same span, for a smoother that must
+        start where the free run's starts).
+    current : (float, float), default (0.0, 0.0)
+        Current north, east (m/s) the free run was made with (its ground velocity is the
+        water-relative one plus this).
+
+    Returns
+    -------
+    FieldLog
+        A copy of the smoother's channels restricted to the free run's span, with positions,
+        heading, ground velocity and yaw rate replaced by the free run's at each record's
+        stamp minus that sensor's latency.
+    """
+    t = np.asarray(t, float)
+    lo, hi = run.t0_ns + int(round(t[0] * 1e9)), run.t0_ns + int(round(t[-1] * 1e9))
+    if sim is None:
+        channels = {}
+        for topic in COPIED_TOPICS:
+            frame = log.get(topic)
+            if frame is not None:
+                idx = np.asarray(frame.index, dtype=np.int64)
+                channels[topic] = frame[(idx >= lo) & (idx <= hi)].copy()
+        return FieldLog(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source)
+    sim = np.asarray(sim, float)
+    lo, hi = run.t0_ns + int(round(t[0] * 1e9)), run.t0_ns + int(round(t[-1] * 1e9))
+    psi = sim[:, 2]
+    c, s = np.cos(psi), np.sin(psi)
+    vn = c * sim[:, 3] - s * sim[:, 4] + float(current[0])
+    ve = s * sim[:, 3] + c * sim[:, 4] + float(current[1])
+    delay = {GNSS_TOPIC: run.gnss_delay_s, LOCAL_TOPIC: run.gnss_delay_s, VELOCITY_TOPIC: run.gnss_delay_s,
+             COMPASS_TOPIC: run.compass_delay_s}
+    datum = _log_datum(log)
+    channels = {}
+    for topic in COPIED_TOPICS:
+        frame = log.get(topic)
+        if frame is None:
+            continue
+        idx = np.asarray(frame.index, dtype=np.int64)
+        keep = (idx >= lo) & (idx <= hi)
+        frame = frame[keep].copy()
+        ts = (idx[keep] - run.t0_ns) / 1e9 - delay.get(topic, 0.0)
+
+        def at(y, ts=ts):
+            return np.interp(ts, t, y)
+
+        if topic == GNSS_TOPIC and datum is not None:
+            lat, lon, _ = ned_to_geodetic(at(sim[:, 0]), at(sim[:, 1]), 0.0, datum=datum)
+            frame["lat_deg"], frame["lon_deg"] = lat, lon
+        elif topic == LOCAL_TOPIC:
+            frame["n_m"], frame["e_m"] = at(sim[:, 0]), at(sim[:, 1])
+        elif topic == COMPASS_TOPIC:
+            frame["heading_rad"] = ssa(at(psi))
+        elif topic == YAW_RATE_TOPIC:
+            frame["r_radps"] = at(sim[:, 5])
+        elif topic == VELOCITY_TOPIC:
+            n_, e_ = at(vn), at(ve)
+            frame["sog_mps"], frame["cog_rad"] = np.hypot(n_, e_), np.arctan2(e_, n_)
+        channels[topic] = frame
+    return FieldLog(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source)
+
+
+__all__ = ["COPIED_TOPICS", "free_run_log"]
