@@ -51,6 +51,8 @@ NOISE = {"u": NOISE_U_MPS, "v": NOISE_V_MPS, "r": NOISE_R_RADPS}
 EXCITATION_RATIO = 2.0
 Z99 = 2.58          # two-sided 99 % point of the standard normal (the bounds of MATLAB resid)
 ALARM_RATE = 0.01   # accepted false-alarm rate of the whiteness verdict
+WHITENESS_STEP_S = 5.0   # the identifier's whiteness check: prediction step (s), residuals a smoother window apart
+WHITENESS_LAGS = 25      # ... and its largest lag (residuals), fewer on a short held-out part
 CHANNELS = ("u", "v", "r")
 
 Simulate = Callable[..., np.ndarray]   # (run, theta, current, x0, t0, times) -> (len(times), 6)
@@ -344,5 +346,6 @@ def residual_whiteness(residuals, max_lag: int = 25) -> WhitenessResult:
                            n=n)
 
 
-__all__ = ["displacement_fit_ahead", "fit_percent_ahead", "predict_ahead", "one_step_residuals", "excited",
-           "excited_channels", "residual_whiteness", "WhitenessResult", "NOISE_U_MPS", "NOISE_V_MPS", "NOISE_R_RADPS"]
+__all__ = ["WHITENESS_LAGS", "WHITENESS_STEP_S", "displacement_fit_ahead", "fit_percent_ahead", "predict_ahead",
+           "one_step_residuals", "excited", "excited_channels", "residual_whiteness", "WhitenessResult",
+           "NOISE_U_MPS", "NOISE_V_MPS", "NOISE_R_RADPS"]

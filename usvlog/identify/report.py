@@ -17,6 +17,7 @@ import numpy as np
 
 from ..model.frames import ssa
 from ..model.stats import fit_percent
+from .ahead import WHITENESS_STEP_S
 from .output import (
     predict_segments,
     simulate_run,
@@ -126,7 +127,10 @@ def to_dict(self: Identifier, validation: Validation | None = None) -> dict:
          "model": self.model,
          "structure": "paper" if self.extended_ is None else "extended",
          "fit_percent_ahead": {h: _finite_dict(v) for h, v in getattr(self, "fit_percent_ahead_", {}).items()},
-         "sign_checks": list(getattr(self, "sign_checks_", []))}
+         "sign_checks": list(getattr(self, "sign_checks_", [])),
+         "whiteness": {ch: {"step_s": WHITENESS_STEP_S, "lags": len(w.lags), "outside": w.outside,
+                            "allowed": w.allowed, "white": w.white, "p_value": w.p_value}
+                       for ch, w in (getattr(self, "whiteness_", {}) or {}).items()}}
     if self.extended_ is not None:
         d["extended"] = {"params": self.extended_.to_dict(), "stderr": dict(self.extended_stderr_)}
     if self.model_comparison_ is not None:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from ..choices import EXTENDED_PARAM_NAMES
 from ..model.vessel import PARAM_NAMES
+from .ahead import WHITENESS_STEP_S
 from .checks import _excitation_warnings, _why_dead
 
 # typing only: the class whose methods these are (it imports this module)
@@ -126,6 +127,11 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
                 add(1, "predicted 30 s ahead, " + " and ".join(f"{ch} {fmt_pct(ahead[ch])} %" for ch in bad)
                        + " (worse than a constant): " + "; ".join(which[ch] for ch in bad)
                        + " not validated by the held-out data")
+        wh = (getattr(self, "whiteness_", {}) or {}).get("r")
+        if wh is not None and not wh.white:
+            add(1, f"the yaw rate predicted {WHITENESS_STEP_S:g} s ahead leaves correlated residuals ({wh.outside} of "
+                   f"{len(wh.lags)} lags outside the 99 % bounds, {wh.allowed} allowed): yaw dynamics the model does "
+                   "not explain (quadratic damping, a thruster lag; --model extended may)")
         sw = getattr(self, "loo_switch_", None)
         if sw:
             add(0, f"left out in turn, the logs validate equation error better (score "
