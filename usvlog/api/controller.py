@@ -130,7 +130,7 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
     """
     _check_paths([log], out, force)
     from ..io.config import load_vessel_or_scenario_vessel, read_toml  # heavy: numpy, numba kernels
-    from ..replay import replay_log
+    from ..replay import replay_file, replay_log
     from ..sim.scenario import load_gains, load_scenario
 
     scen = load_scenario(scenario)
@@ -144,6 +144,13 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
     read_here = _is_path(log)
     if read_here:
         _say(progress, f"reading {log}")
+    if read_here and out is not None:   # file to file: a time window at a time (memory flat in the run)
+        _say(progress, f"replaying with scenario {scen.name}")
+        res = replay_file(log, scen, out, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
+                          whatif_controller=whatif_controller, force=force)
+        if res is not None:
+            _say(progress, f"wrote {out}")
+            return res
     log = _read(log, progress, topics=_REPLAY_READS, defer=True)
     _say(progress, f"replaying with scenario {scen.name}")
     # memory: a log read here gives its channels back to the file once replay has used them

@@ -74,8 +74,8 @@ class ClosedLoopRun:
 
 
 @njit(nogil=True)   # replay runs it beside the open-loop replay (two cores)
-def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, current_n, current_e, rk4, ctrl_state,
-                        path_kind, path_prm, gains, params, settings, thrusters, ext, ext_prm):
+def _closed_loop_kernel(state0, force0, n_steps, every, dt, u_ref, dtheta, plant_prm, current_n, current_e, rk4,
+                        ctrl_state, path_kind, path_prm, gains, params, settings, thrusters, ext, ext_prm):
     """Plant (``plant_step``) + controller (``control_tick``) on the true state, compiled.
 
     ``state0``: the initial plant state (6-tuple); the controller ticks every ``every`` plant
@@ -83,16 +83,18 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
     parameters (PARAM_NAMES order), ``current_n``, ``current_e`` the current (m/s, NED);
     the controller arguments as :func:`usvlog.control.law.control_tick`; ``ext`` True steps
     the plant with ``plant_step_ext`` and ``ext_prm`` (extended model and thruster lag)
-    instead. Returns the plant states (n_steps, 6), the commanded (tau_u, tau_r)
-    (n_steps, 2), the controller rows and the applied (lagged) force (n_steps, 2); states,
-    commands and controller rows stored by column (transposed arrays: a column's values
-    are contiguous, for the channel frames).
+    instead; ``force0`` the thruster lag's force at the start ((0, 0) at rest). Returns the
+    plant states (n_steps, 6), the commanded (tau_u, tau_r) (n_steps, 2), the controller rows
+    and the applied (lagged) force (n_steps, 2); states, commands and controller rows stored
+    by column (transposed arrays: a column's values are contiguous, for the channel frames);
+    then the plant state and the lag's force after the last step, from which a run of a
+    multiple of ``every`` steps goes on (:func:`closed_loop_windows`).
     """
     x = state0
     states = np.empty((6, n_steps))
     tau = np.empty((2, n_steps))
     applied = np.empty((n_steps, 2))
-    force = (0.0, 0.0)
+    force = force0
     ctrl = np.empty((NOUT, (n_steps + every - 1) // every))
     row = np.empty(NOUT)
     xa = np.empty(6)
@@ -117,7 +119,7 @@ def _closed_loop_kernel(state0, n_steps, every, dt, u_ref, dtheta, plant_prm, cu
         x, force, au, ar = plant_advance(x, force, tu, tr, ext, plant_prm, ext_prm, dt, current_n, current_e, rk4)
         applied[k, 0] = au
         applied[k, 1] = ar
-    return states.T, tau.T, ctrl.T, applied
+    return states.T, tau.T, ctrl.T, applied, x, force
 
 
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
@@ -139,9 +141,9 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
     controller.reset(x)
     if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
         c = controller
-        states, tau, ctrl, applied = _closed_loop_kernel(
-            x, n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs, c.path.kind,
-            c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm if ext else (0.0,) * 11)
+        states, tau, ctrl, applied, _x, _f = _closed_loop_kernel(
+            x, (0.0, 0.0), n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs,
+            c.path.kind, c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm if ext else (0.0,) * 11)
         return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth", applied if ext else None)
     # the controller on an estimate: plant and controller stepped from Python
     states = np.empty((n, 6))
@@ -163,6 +165,39 @@ def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s
         x = plant_step_of(x, tu, tr)
         applied[k] = plant_step_of.applied
     return ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf", applied if ext else None)
+
+
+def closed_loop_windows(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
+                        integrator: str, current_ne, eta0, nu0, schedule: np.ndarray, rate_hz: float,
+                        window_ticks: int | None = None):
+    """:func:`closed_loop` on the true state a window at a time (memory: a window, not the run).
+
+    The same arguments (no estimator); ``window_ticks`` controller ticks a window (None: the
+    whole run in one). Yields ``(k0, run)`` per window: the plant-step index of its first step
+    and a :class:`ClosedLoopRun` of its steps (``t`` from the run's start, ``tick`` indexes
+    into the window); the windows joined are :func:`closed_loop`'s run, number for number.
+    """
+    n = int(round(duration_s / dt_s))
+    every = max(1, int(round(1.0 / (rate_hz * dt_s))))
+    step = n if window_ticks is None else max(1, int(window_ticks)) * every
+    prm = tuple(plant.params.as_array().tolist())
+    ext, ext_prm = plant_form(plant)
+    ext_prm = ext_prm if ext else (0.0,) * 11
+    cn, ce = float(current_ne[0]), float(current_ne[1])
+    rk4 = integrator == "rk4"
+    x = tuple(float(a) for a in (*eta0, *nu0))
+    force = (0.0, 0.0)
+    controller.reset(x)
+    c = controller
+    for k0 in range(0, max(n, 1), max(step, 1)):
+        k1 = min(n, k0 + step)
+        t = np.arange(k0, k1) * dt_s
+        u_ref = speed_at(schedule, t)
+        dtheta = speed_at(schedule, t, 2) if schedule.shape[1] > 2 else np.full(k1 - k0, c.guidance.delta_theta)
+        states, tau, ctrl, applied, x, force = _closed_loop_kernel(
+            x, force, k1 - k0, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs,
+            c.path.kind, c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm)
+        yield k0, ClosedLoopRun(t, states, tau, np.arange(0, k1 - k0, every), ctrl, "truth", applied if ext else None)
 
 
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):

@@ -18,13 +18,15 @@ from ...log.fieldlog import Channels, DeferredSource, FieldLog
 from ..atomic import atomic_path
 from .file_writer import ZSTD_LEVEL, McapWriter
 from .raw_copy import _OutOfOrder, _RawFeed
+from .reader import read_log
 from .schema_records import _codec_for, _compression, _schema_record
-from .stream import channel_ids
+from .stream import channel_ids, chunk_spans
+from .windows import NotWindowed
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
     import pandas as pd
 
-__all__ = ["SLICE_MESSAGES", "ZSTD_LEVEL", "McapWriter", "time_slices", "write_log"]
+__all__ = ["SLICE_MESSAGES", "ZSTD_LEVEL", "McapWriter", "time_slices", "merged_ids", "write_log", "write_log_merged"]
 
 
 SLICE_MESSAGES = 1 << 16
@@ -199,3 +201,118 @@ def time_slices(frames: dict[str, pd.DataFrame], size: int):
     for batch in _cut(frames, cuts):
         if batch:
             yield batch
+
+
+
+def merged_ids(log: FieldLog, topics: list[str]) -> dict[str, int]:
+    """Topic -> channel id in the file :func:`write_log_merged` writes for ``log`` plus the new
+    channels ``topics``: the ids :func:`write_log` gives the log with those channels set (the
+    source file's ids kept, the lowest free ones taken in the log's channel order)."""
+    src = log.deferred
+    known = {t: c for t, c in channel_ids(src.path).items() if t in log.channels or t in topics} \
+        if src is not None else {}
+    free = (c for c in range(1, 1 << 16) if c not in known.values())
+    return {t: known[t] if t in known else next(free)
+            for t in [*log.channels, *(t for t in topics if t not in log.channels)]}
+
+
+def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[str], *, force: bool = False,
+                     chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = ZSTD_LEVEL,
+                     cut_ns: int = 30_000_000_000) -> None:
+    """Write ``log`` plus the channels of other canonical files, all copied undecoded, atomically.
+
+    ``log`` is a log read with every channel deferred (:func:`read_log` with ``defer``);
+    ``spools`` are logs read so from files :class:`McapWriter` wrote with the ids of
+    :func:`merged_ids` (of ``topics``: the spools' channels in the order they take new ids)
+    and this writer's chunk size and compression (a producer writes its new channels there
+    as it makes them, in time order). A channel of a spool replaces the log's of that topic.
+    The file is the one :func:`write_log` writes for ``log`` with the spools' channels set
+    in it, byte for byte (metadata records first: ``log.meta``; chunks in order of
+    their last message's time), but every source is walked once in time slices of ``cut_ns``
+    (memory: a slice, not the log).
+
+    Raises
+    ------
+    NotWindowed
+        A channel cannot be copied as it is stored (decoded, another schema, messages out of
+        order, a damaged or changed source): nothing is written; write the log whole instead.
+    """
+    _compression(compression)
+    new = list(topics)
+    if sorted(new) != sorted(t for sp in spools for t in sp.topics):
+        raise ValueError("topics must list the spools' channels")
+    srcs = [(log, [t for t in log.topics if t not in new])] + [(sp, sp.topics) for sp in spools]
+    for lg, tops in srcs:
+        src, ch = lg.deferred, lg.channels
+        if src is None or not isinstance(ch, Channels) or lg.recovery is not None \
+                or set(ch.deferred_topics()) != set(lg.topics):
+            raise NotWindowed("not a log read with its channels deferred")
+        if src.changed() is not None:
+            raise NotWindowed(f"{src.path} changed")
+        for topic in tops:
+            schema, codec = _codec_for(topic, lg.schemas.get(topic))
+            if (codec.message_encoding, *_schema_record(topic, schema, codec)) != tuple(src.topics[topic]):
+                raise NotWindowed(f"{topic} stored otherwise")
+    ids = merged_ids(log, new)
+    spans = [sp for lg, _ in srcs for sp in (chunk_spans(lg.deferred.path) or [])]
+    with atomic_path(path, force=force) as tmp, open(tmp, "wb", buffering=1 << 20) as fh:
+        w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        feeds: list[_RawFeed] = []
+        try:
+            for name in sorted(log.meta):
+                w.add_metadata(name, log.meta[name])
+            for topic, cid in sorted(ids.items(), key=lambda kv: kv[1]):   # records in id order
+                sp = next((sp for sp in spools if topic in sp.topics), log)
+                w.add_channel(topic, sp.schemas.get(topic), channel_id=cid)
+            feeds = [_RawFeed(lg.deferred, tops, {t: ids[t] for t in tops}) for lg, tops in srcs]
+            for f in feeds:
+                f.start()
+            cuts = [] if not spans else list(range(min(s[0] for s in spans) + cut_ns,
+                                                   max(s[1] for s in spans) + 1, cut_ns))
+            for upto in [*cuts, None]:
+                raw: dict[str, list] = {}
+                chunks: list[tuple] = []
+                for f in feeds:
+                    r, c = f.take(upto)
+                    raw.update(r)
+                    chunks.extend(c)
+                w._add_encoded({}, raw, chunks)
+            for f in feeds:
+                f.finish()
+            w.finish()
+        except _OutOfOrder as err:
+            raise NotWindowed("a channel's messages out of order") from err
+        finally:
+            w.close()
+            for f in feeds:
+                f.close()
+
+
+class Spool:
+    """New channels written to a file of their own as a producer makes them, for
+    :func:`write_log_merged` to copy into the file it writes (chunks copied whole).
+
+    ``ids`` (:func:`merged_ids`) gives each channel its id in that file; :meth:`add` appends a
+    batch of frames (each channel's rows in time order over the batches); :meth:`close`
+    finishes the file and returns it read with its channels deferred (None after an error).
+    The file is the caller's to remove.
+    """
+
+    def __init__(self, path, topics: list[str], ids: dict[str, int], *, chunk_size: int = 1 << 20,
+                 compression: str = "zstd", zstd_level: int = ZSTD_LEVEL):
+        self.path = path
+        self._fh = open(path, "wb", buffering=1 << 20)  # noqa: SIM115 - closed by close()
+        self._w = McapWriter(self._fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
+        for t in sorted(topics, key=ids.__getitem__):
+            self._w.add_channel(t, channel_id=ids[t])
+
+    def add(self, frames: dict[str, pd.DataFrame]) -> None:
+        self._w.add_frames(frames)
+
+    def close(self) -> FieldLog:
+        try:
+            self._w.finish()
+        finally:
+            self._w.close()
+            self._fh.close()
+        return read_log(self.path, topics=[], defer=True)
