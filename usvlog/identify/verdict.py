@@ -30,6 +30,7 @@ FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
 U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of points
 REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
 COND_CAVEAT = 1e5
+NOTABLE_CURRENT_MPS = 0.1   # a current another candidate fitted that a returned equation-error fit lacks
 
 
 def fmt_num(x: float, digits: int = 4) -> str:
@@ -181,6 +182,19 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
             add(1, f"current of run {i} at its bound ({speed:.2f} m/s, bound {self.max_current_mps:g} m/s "
                    "per axis): the fit wanted more current than allowed; a model mismatch or a real strong "
                    "current (--max-current-mps)")
+    if self.current and self.final_.start.kind == "equation-error":
+        # equation error fits no current: say so when the fits that do found one
+        others = [c for c in getattr(self, "candidates_", []) if not c.failed and c.start.kind != "equation-error"
+                  and len(c.currents)]
+        if others:
+            best = max(others, key=lambda c: c.score)
+            for i, cur in enumerate(best.currents):
+                speed = math.hypot(*cur)
+                if speed >= NOTABLE_CURRENT_MPS:
+                    toward = math.degrees(math.atan2(cur[1], cur[0])) % 360.0
+                    add(1, f"the returned fit (equation error) has no water current, and run {i} has one: "
+                           f"{best.start.name} found {speed:.2f} m/s toward {toward:.0f} deg; the parameters "
+                           "absorb it (identify a run without current, or --model extended)")
     # -- the data -------------------------------------------------------------------
     for lg_h, run in zip(self.health_, runs):
         dead = [t for t in (lg_h.get("dead") or []) if t in ("/compass/heading", "/gnss/fix", "/thrust/command")]
