@@ -24,6 +24,7 @@ from .control.gains import Gains
 from .control.law import COL, Controller, speed_at
 from .errors import InputError, UnusableResultError
 from .io.mcap import read_log
+from .io.mcap.stream import chunk_spans
 from .io.mcap.windows import NotWindowed, iter_windows, topic_counts
 from .io.mcap.writer import Spool, merged_ids, write_log_merged
 from .log.channels import channel_spec, frame_from_columns
@@ -120,21 +121,31 @@ _METRIC_COLS = ("cross_track_m", "psi_e_rad", "u_e_mps", "saturated")   # the co
 def _tracking(cols: dict[str, np.ndarray], t_s: np.ndarray, start_s: float) -> TrackingMetrics:
     """:func:`tracking_metrics` of the controller's columns ``cols`` (:data:`_METRIC_COLS`)."""
     t_s = np.asarray(t_s, float)
-    dt = np.diff(t_s, append=t_s[-1] + (t_s[-1] - t_s[-2] if len(t_s) > 1 else 0.0))
+    n = len(t_s)
+    dt = np.empty(n)   # np.diff(t_s, append=...) without joining a copy
+    np.subtract(t_s[1:], t_s[:-1], out=dt[:-1])
+    dt[-1] = (t_s[-1] + (t_s[-1] - t_s[-2] if n > 1 else 0.0)) - t_s[-1]
     sel = t_s - t_s[0] >= start_s
     if not sel.any():  # a run shorter than the transient: measure all of it
         start_s = 0.0
-        sel = np.ones(len(t_s), bool)
+        sel = np.ones(n, bool)
+    i0 = int(np.argmax(sel))
+    part = slice(i0, None) if sel[i0:].all() else sel   # rising times: the window is the run's tail (views)
+    del sel
+
     def col(name: str) -> np.ndarray:   # one column of the selected rows
-        return cols[name][sel]
+        return cols[name][part]
     xt = np.abs(col("cross_track_m"))
     # NaN kept (omit_nonfinite=False): a diverged closed loop must show in the metrics
-    return TrackingMetrics(n_ticks=int(sel.sum()), start_s=float(start_s), duration_s=float(dt[sel].sum()),
-                           cross_track_rms_m=rms(xt), cross_track_p95_m=float(np.percentile(xt, 95)),
-                           cross_track_max_m=float(xt.max()),
+    xt_rms, xt_max = rms(xt), float(xt.max())
+    p95 = float(np.percentile(xt, 95, overwrite_input=True))   # (xt reordered: used last)
+    del xt
+    dts = dt[part]
+    return TrackingMetrics(n_ticks=len(dts), start_s=float(start_s), duration_s=float(dts.sum()),
+                           cross_track_rms_m=xt_rms, cross_track_p95_m=p95, cross_track_max_m=xt_max,
                            heading_error_rms_rad=rms(col("psi_e_rad")),
                            surge_error_rms_mps=rms(col("u_e_mps")),
-                           time_saturated_s=float(dt[sel][col("saturated") != 0].sum()))
+                           time_saturated_s=float(dts[col("saturated") != 0].sum()))
 
 
 OFF_PATH = "the run does not follow the scenario's path"
@@ -264,6 +275,27 @@ class ReplayResult:
 STATE_COLS = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"]
 _DEC_COLS = ["tau_u_n", "tau_r_nm", "thrust_left_n", "thrust_right_n"]
 _KEEP = ("t_rel", *_METRIC_COLS, "d_left", "d_right", "f_left", "f_right")
+
+
+class _Buf:
+    """A 1-D array filled part by part: room for ``hint`` values allocated once (pages not yet
+    written take no memory), grown by doubling past it (no list of parts joined at the end)."""
+
+    def __init__(self, hint: int, dtype=float):
+        self.a = np.empty(max(int(hint), 16), dtype)
+        self.n = 0
+
+    def put(self, x: np.ndarray) -> None:
+        m = self.n + len(x)
+        if m > len(self.a):
+            b = np.empty(max(m, 2 * len(self.a)), self.a.dtype)
+            b[:self.n] = self.a[:self.n]
+            self.a = b
+        self.a[self.n:m] = x
+        self.n = m
+
+    def view(self) -> np.ndarray:
+        return self.a[:self.n]
 WHATIF_WINDOW_TICKS = 6000
 """Controller ticks of the what-if run simulated (and written) at a time: a minute at 100 Hz."""
 
@@ -326,7 +358,7 @@ class _Replay:
     """
 
     def __init__(self, src: str, topic: str, scen: Scenario, ves: Vessel, gains: Gains, ctl_name: str, path,
-                 with_cmd: bool, whatif: bool):
+                 with_cmd: bool, whatif: bool, hints: tuple[int, int] = (0, 0)):
         self.src, self.topic, self.scen, self.ves, self.gains, self.path = src, topic, scen, ves, gains, path
         self.thr = ves.thrusters
         self.ctl = Controller(path, ves, gains, scen.guidance, full=ctl_name == "full")
@@ -339,7 +371,8 @@ class _Replay:
         self.st_u = np.zeros(0)
         self.psi_prev: float | None = None
         self.psi_carry = 0.0
-        self.cur: list[tuple[np.ndarray, np.ndarray]] = []
+        n_ticks, n_states = hints   # at most (about) this many ticks and state rows: room kept for them
+        self.cur = (_Buf(n_states), _Buf(n_states)) if whatif else None
         self.tk_t = np.zeros(0, np.int64)     # ticks waiting, their recorded commands and units
         self.tk_rec: dict[str, np.ndarray] = {}
         self.tk_unit: np.ndarray | None = None
@@ -351,7 +384,7 @@ class _Replay:
         self.any_cs = False
         self.t0: int | None = None            # the first tick
         self.x0: np.ndarray | None = None
-        self.keep: dict[str, list[np.ndarray]] = {k: [] for k in _KEEP}
+        self.keep: dict[str, _Buf] = {k: _Buf(n_ticks, bool if k == "saturated" else float) for k in _KEEP}
         self.n_ticks = 0
         self.units: set[str] = set()
         self.unit: str | None = None
@@ -372,7 +405,8 @@ class _Replay:
                 cn = f["current_n_mps"].to_numpy(dtype=float)
                 ce = f["current_e_mps"].to_numpy(dtype=float)
                 ok = np.isfinite(cn) & np.isfinite(ce)
-                self.cur.append((cn[ok], ce[ok]))
+                self.cur[0].put(cn[ok])
+                self.cur[1].put(ce[ok])
             ok = np.all(np.isfinite(X), axis=1)
             t, X = np.asarray(f.index, dtype=np.int64)[ok], X[ok]
             if len(t):
@@ -456,14 +490,14 @@ class _Replay:
         self.unit = unit
         frame = controller_frame(rows, tk, "/replay/controller", self.thr, unit)
         keep = self.keep
-        keep["t_rel"].append(t_rel)
-        for c in _METRIC_COLS:
-            keep[c].append(np.array(rows[:, COL[c]]))
+        keep["t_rel"].put(t_rel)
+        for c in _METRIC_COLS:   # (saturated kept as its test != 0: the same ticks)
+            keep[c].put(rows[:, COL[c]] != 0 if c == "saturated" else rows[:, COL[c]])
         if self.with_cmd:
             for side in ("left", "right"):
-                keep[f"d_{side}"].append(frame[f"cmd_{side}"].to_numpy() - self.tk_rec[side][:n])
+                keep[f"d_{side}"].put(frame[f"cmd_{side}"].to_numpy() - self.tk_rec[side][:n])
                 if self.rec_f:
-                    keep[f"f_{side}"].append(frame[f"thrust_{side}_n"].to_numpy() - self.tk_rec[f"thrust_{side}_n"][:n])
+                    keep[f"f_{side}"].put(frame[f"thrust_{side}_n"].to_numpy() - self.tk_rec[f"thrust_{side}_n"][:n])
         if len(self.cs_t):
             j = np.clip(np.searchsorted(self.cs_t, tk), 0, len(self.cs_t) - 1)
             hit = self.cs_t[j] == tk
@@ -487,31 +521,41 @@ class _Replay:
         self.cs_t, self.cs_x = self.cs_t[c:], self.cs_x[c:]
         return {"/replay/controller": frame}
 
-    def _kept(self, name: str) -> np.ndarray:
-        parts = self.keep[name]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts) if parts else np.zeros(0)
-
-    def replay_metrics(self) -> tuple[TrackingMetrics, str | None, tuple]:
-        """(the replay's tracking metrics, the off-path warning, the command comparison:
-        ticks compared, RMS, max |difference|, forces RMS)."""
-        t_rel = self._kept("t_rel")
-        start = self.scen.metrics_start_s
-        m = _tracking({c: self._kept(c) for c in _METRIC_COLS}, t_rel, start)
-        carrot = float(np.max(self.scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
-        off = path_following_warning(self._kept("cross_track_m"), t_rel, start, carrot)
+    def end_replay(self) -> None:
+        """After the last tick: the replay's metrics, the command comparison and the mean current
+        (``replay_metrics``, ``off_path``, ``comparison``, ``current_ne``), the kept numbers let go
+        one after another (memory: the peak is the kept numbers, not copies of them)."""
+        self.st_x = self.st_u = self.st_t = self.cs_x = self.cs_t = None   # the states are used
+        self.current_ne = (0.0, 0.0)
+        if self.cur is not None:
+            cn, ce = self.cur[0].view(), self.cur[1].view()
+            if len(cn):
+                self.current_ne = (float(np.mean(cn)), float(np.mean(ce)))
+            self.cur = None
+        keep = self.keep
         n_cmp, c_rms, c_max, f_rms = 0, None, None, None
         if self.with_cmd:
-            d = np.concatenate([self._kept("d_left"), self._kept("d_right")])
+            d = np.concatenate([keep.pop("d_left").view(), keep.pop("d_right").view()])
             ok = np.isfinite(d)
             n_cmp = int(ok.sum() // 2)
-            if ok.any():
+            if ok.all():   # (the same numbers as over d[ok], without its copy)
+                c_rms, c_max = rms(d), float(np.max(np.abs(d)))
+            elif ok.any():
                 c_rms = rms(d, omit_nonfinite=True)   # over the ticks both sides have
                 c_max = float(np.max(np.abs(d[ok])))
+            del d, ok
             if self.rec_f:
-                df = np.concatenate([self._kept("f_left"), self._kept("f_right")])
+                df = np.concatenate([keep.pop("f_left").view(), keep.pop("f_right").view()])
                 if np.isfinite(df).any():
                     f_rms = rms(df, omit_nonfinite=True)
-        return m, off, (n_cmp, c_rms, c_max, f_rms)
+                del df
+        self.comparison = (n_cmp, c_rms, c_max, f_rms)
+        self.keep = {}
+        t_rel = keep.pop("t_rel").view()
+        start = self.scen.metrics_start_s
+        carrot = float(np.max(self.scen.schedule[:, 2]))   # the largest look-ahead (m) of the speed schedule
+        self.off_path = path_following_warning(keep["cross_track_m"].view(), t_rel, start, carrot)
+        self.replay_metrics = _tracking({c: keep[c].view() for c in _METRIC_COLS}, t_rel, start)
 
     def decisions(self) -> tuple[int, float | None]:
         """(ticks matched with a recorded /control/state, max |replayed - recorded| there)."""
@@ -520,32 +564,24 @@ class _Replay:
         return self.n_dec, self.dec_max if self.dec_any else float("nan")
 
     # -- the what-if run ------------------------------------------------------------------
-    def current(self) -> tuple[float, float]:
-        """The mean current of the state channel's finite rows (0, 0 without one)."""
-        if not self.cur:
-            return 0.0, 0.0
-        cn = np.concatenate([c[0] for c in self.cur])
-        ce = np.concatenate([c[1] for c in self.cur])
-        self.cur = []
-        return (float(np.mean(cn)), float(np.mean(ce))) if len(cn) else (0.0, 0.0)
-
     def whatif_frames(self, wif_name: str, window_ticks: int | None):
         """Yield the what-if run's ``/replay/whatif/*`` frames a window at a time; its metrics
         are in :attr:`whatif_metrics` after."""
         scen, rate, thr, unit = self.scen, self.scen.guidance.rate_hz, self.thr, self.unit
-        cur = self.current()
+        cur = self.current_ne
         t_rel_end = self.t_rel_last[1]
         dt_end = (t_rel_end + (t_rel_end - self.t_rel_last[0])) - t_rel_end
         wctl = Controller(self.path, self.ves, self.gains, scen.guidance, full=wif_name == "full")
-        t_tick, tc = [], {c: [] for c in _METRIC_COLS}
+        n = int(round(float(t_rel_end + dt_end) * rate))   # the run's ticks (about): room for their numbers
+        t_tick, tc = _Buf(n + 2), {c: _Buf(n + 2, bool if c == "saturated" else float) for c in _METRIC_COLS}
         for _k0, run in closed_loop_windows(self.path, self.ves, wctl, duration_s=float(t_rel_end + dt_end),
                                             dt_s=1.0 / rate, integrator=scen.sim.integrator, current_ne=cur,
                                             eta0=self.x0[:3], nu0=self.x0[3:], schedule=scen.schedule, rate_hz=rate,
                                             window_ticks=window_ticks):
             tw = self.t0 + np.round(run.t * 1e9).astype(np.int64)
-            t_tick.append(run.t[run.tick])
+            t_tick.put(run.t[run.tick])
             for c in _METRIC_COLS:
-                tc[c].append(np.array(run.ctrl[:, COL[c]]))
+                tc[c].put(run.ctrl[:, COL[c]] != 0 if c == "saturated" else run.ctrl[:, COL[c]])
             s = run.states
             st_cols = {"n_m": s[:, 0], "e_m": s[:, 1], "psi_rad": ssa(s[:, 2]), "u_mps": s[:, 3], "v_mps": s[:, 4],
                        "r_radps": s[:, 5], "current_n_mps": np.full(len(s), cur[0]),
@@ -557,12 +593,12 @@ class _Replay:
                    "/replay/whatif/controller": controller_frame(run.ctrl, tw[run.tick], "/replay/whatif/controller",
                                                                  thr, unit)}
             del s, st_cols, run
-        cat = (lambda a: a[0] if len(a) == 1 else np.concatenate(a))   # noqa: E731
-        self.whatif_metrics = _tracking({c: cat(v) for c, v in tc.items()}, cat(t_tick), scen.metrics_start_s)
+        self.whatif_metrics = _tracking({c: v.view() for c, v in tc.items()}, t_tick.view(), scen.metrics_start_s)
 
 
-def _setup(log: FieldLog, scen: Scenario, vessel, gains, controller, whatif, whatif_controller, count):
-    """What :func:`replay_log` and :func:`replay_file` decide before reading the run."""
+def _setup(log: FieldLog, scen: Scenario, vessel, gains, controller, whatif, whatif_controller, count, span):
+    """What :func:`replay_log` and :func:`replay_file` decide before reading the run (``count``:
+    topic -> its messages, ``span``: topic -> (first, last) time in ns or None)."""
     src = log.source or "log"
     prop = propulsion_from_provenance(log.provenance)
     if prop is not None:   # the controller commands two thrusters: nothing to compare on a rudder boat
@@ -577,14 +613,18 @@ def _setup(log: FieldLog, scen: Scenario, vessel, gains, controller, whatif, wha
     path = scen.path(datum)
     topic = _state_topic(log, count)
     with_cmd = "/thrust/command" in log.channels and bool(count("/thrust/command"))
-    rep = _Replay(src, topic, scen, ves, gains, ctl_name, path, with_cmd, whatif)
+    n_ticks = count("/thrust/command")
+    if not with_cmd:
+        sp = span(topic)
+        n_ticks = 0 if sp is None else (sp[1] - sp[0]) // int(round(1e9 / scen.guidance.rate_hz)) + 2
+    rep = _Replay(src, topic, scen, ves, gains, ctl_name, path, with_cmd, whatif, (n_ticks, count(topic)))
     return rep, ctl_name, wif_name
 
 
 def _finish(rep: _Replay, out: FieldLog, scen: Scenario, ctl_name: str, wif_name: str, whatif: bool,
             m_whatif) -> ReplayMetrics:
     """The metrics, the path metadata and the provenance entry into ``out``."""
-    m_replay, off, (n_cmp, c_rms, c_max, f_rms) = rep.replay_metrics()
+    m_replay, off, (n_cmp, c_rms, c_max, f_rms) = rep.replay_metrics, rep.off_path, rep.comparison
     n_dec, dec_max = rep.decisions()
     out.meta[META_PATH] = rep.path.metadata()
     metrics = ReplayMetrics(state_source=rep.topic, controller=ctl_name, replay=m_replay,
@@ -625,13 +665,17 @@ def replay_log(log: FieldLog, scen: Scenario, *, vessel: Vessel | None = None, g
         f = log.get(topic)
         return 0 if f is None else len(f)
 
-    rep, ctl_name, wif_name = _setup(log, scen, vessel, gains, controller, whatif, whatif_controller, count)
+    def span(topic: str) -> tuple[int, int] | None:
+        f = log.get(topic)
+        return None if f is None or not len(f) else (int(f.index.min()), int(f.index.max()))
+
+    rep, ctl_name, wif_name = _setup(log, scen, vessel, gains, controller, whatif, whatif_controller, count, span)
     rep.feed({t: log.get(t) for t in (rep.topic, "/thrust/command", "/control/state") if t in log.channels})
     if release_inputs:
         log.redefer([rep.topic, "/thrust/command", "/control/state"])
     out = log.copy()   # (the inputs released above stay in the file in the copy too)
     out.set("/replay/controller", rep.ticks(final=True)["/replay/controller"])
-    rep.st_x = rep.st_u = rep.st_t = rep.cs_x = rep.cs_t = None   # memory: the states are used
+    rep.end_replay()
     m_whatif = None
     if whatif:
         for frames in rep.whatif_frames(wif_name, None):   # one window: the whole run
@@ -666,8 +710,14 @@ def replay_file(path, scen: Scenario, out, *, vessel: Vessel | None = None, gain
     if log.recovery is not None or log.deferred is None:
         return None
     counts = topic_counts(path)
+    spans = chunk_spans(path) or []
+
+    def span(topic: str) -> tuple[int, int] | None:
+        mine = [(t0, t1) for t0, t1, topics in spans if topic in topics]
+        return (min(a for a, _ in mine), max(b for _, b in mine)) if mine else None
+
     rep, ctl_name, wif_name = _setup(log, scen, vessel, gains, controller, whatif, whatif_controller,
-                                     lambda t: counts.get(t, 0))
+                                     lambda t: counts.get(t, 0), span)
     wif_topics = ["/replay/whatif/state", "/replay/whatif/controller"] if whatif else []
     new = ["/replay/controller", *wif_topics]
     ids = merged_ids(log, new)
@@ -683,7 +733,7 @@ def replay_file(path, scen: Scenario, out, *, vessel: Vessel | None = None, gain
                 sp.add(frames)
         sp.add(rep.ticks(final=True))
         spools.append(sp.close())
-        rep.st_x = rep.st_u = rep.st_t = rep.cs_x = rep.cs_t = None   # memory: the states are used
+        rep.end_replay()
         m_whatif = None
         if whatif:
             sp = Spool(spool_paths[1], wif_topics, ids)

@@ -259,6 +259,8 @@ class McapWriter:
                 pieces = []
                 if cid in self._open_msgs:   # the channel's earlier messages first
                     closed.append(self._take_open(cid))
+                if cid in self._open_copy:   # its last copied chunk, followed by this one: closed now (it was lost)
+                    closed.append(self._open_copy.pop(cid))
                 self._seq[cid] += len(t)
                 self._count(cid, len(t), int(t[0]), int(t[-1]))
                 done = ("copy", record, t, np.full(len(t), cid, dtype=np.int64), ps - _MSG_HEAD)

@@ -20,7 +20,7 @@ from .file_writer import ZSTD_LEVEL, McapWriter
 from .raw_copy import _OutOfOrder, _RawFeed
 from .reader import read_log
 from .schema_records import _codec_for, _compression, _schema_record
-from .stream import channel_ids, chunk_spans
+from .stream import ChunkStream, by_channel, channel_ids
 from .windows import NotWindowed
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
@@ -218,7 +218,7 @@ def merged_ids(log: FieldLog, topics: list[str]) -> dict[str, int]:
 
 def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[str], *, force: bool = False,
                      chunk_size: int = 1 << 20, compression: str = "zstd", zstd_level: int = ZSTD_LEVEL,
-                     cut_ns: int = 30_000_000_000) -> None:
+                     slice_messages: int = SLICE_MESSAGES) -> None:
     """Write ``log`` plus the channels of other canonical files, all copied undecoded, atomically.
 
     ``log`` is a log read with every channel deferred (:func:`read_log` with ``defer``);
@@ -227,9 +227,10 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
     and this writer's chunk size and compression (a producer writes its new channels there
     as it makes them, in time order). A channel of a spool replaces the log's of that topic.
     The file is the one :func:`write_log` writes for ``log`` with the spools' channels set
-    in it, byte for byte (metadata records first: ``log.meta``; chunks in order of
-    their last message's time), but every source is walked once in time slices of ``cut_ns``
-    (memory: a slice, not the log).
+    in it, byte for byte (metadata records first: ``log.meta``; the same time slices: cut from
+    the spools' message times as :func:`write_log` cuts the frames it encodes), but no channel
+    is decoded: every file is walked once, a slice at a time (memory: a slice and the spools'
+    message times, not the log).
 
     Raises
     ------
@@ -254,7 +255,8 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
             if (codec.message_encoding, *_schema_record(topic, schema, codec)) != tuple(src.topics[topic]):
                 raise NotWindowed(f"{topic} stored otherwise")
     ids = merged_ids(log, new)
-    spans = [sp for lg, _ in srcs for sp in (chunk_spans(lg.deferred.path) or [])]
+    cuts = _slice_cuts(_spool_times(spools), slice_messages)
+    cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
     with atomic_path(path, force=force) as tmp, open(tmp, "wb", buffering=1 << 20) as fh:
         w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
         feeds: list[_RawFeed] = []
@@ -267,9 +269,7 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
             feeds = [_RawFeed(lg.deferred, tops, {t: ids[t] for t in tops}) for lg, tops in srcs]
             for f in feeds:
                 f.start()
-            cuts = [] if not spans else list(range(min(s[0] for s in spans) + cut_ns,
-                                                   max(s[1] for s in spans) + 1, cut_ns))
-            for upto in [*cuts, None]:
+            for upto in [*cuts.tolist(), None]:
                 raw: dict[str, list] = {}
                 chunks: list[tuple] = []
                 for f in feeds:
@@ -286,6 +286,18 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
             w.close()
             for f in feeds:
                 f.close()
+
+
+def _spool_times(spools: list[FieldLog]) -> dict[str, np.ndarray]:
+    """Topic -> the log times (int64 ns) of its messages in the spool files, in file order."""
+    out: dict[str, list] = {}
+    for sp in spools:
+        with ChunkStream(sp.deferred.path) as stream:
+            for _records, _at, _t0, _t1, cid, _seq, t, _ps, _pe, _ordinal in stream._batches():
+                chans = stream._scan.channels
+                for c, sel in by_channel(cid):
+                    out.setdefault(chans[c].topic, []).append(t[sel])
+    return {k: np.concatenate(v) for k, v in out.items()}
 
 
 class Spool:
