@@ -22,6 +22,7 @@ from .reader import read_log
 from .schema_records import _codec_for, _compression, _schema_record
 from .stream import ChunkStream, by_channel, channel_ids
 from .windows import NotWindowed
+from .windows import topic_counts as topic_counts_of
 
 if TYPE_CHECKING:   # pandas is imported where a frame is made (inspect never needs it)
     import pandas as pd
@@ -159,8 +160,17 @@ def _slice_cuts(times: dict[str, np.ndarray], size: int) -> np.ndarray | None:
     if total <= size:
         return np.zeros(0, dtype=np.int64)
     # boundaries at quantiles of every message's time (from a sample: boundaries need not be exact)
-    step = max(1, total // (64 * (total // size + 1)))
-    sample = np.sort(np.concatenate([v[::step] for v in times.values()]))
+    step = _sample_step(total, size)
+    return _cuts_from_sample(np.sort(np.concatenate([v[::step] for v in times.values()])), total, size)
+
+
+def _sample_step(total: int, size: int) -> int:
+    """Every how many messages :func:`_slice_cuts` samples a channel's times."""
+    return max(1, total // (64 * (total // size + 1)))
+
+
+def _cuts_from_sample(sample: np.ndarray, total: int, size: int) -> np.ndarray:
+    """The cuts of :func:`_slice_cuts` from its sorted sample of ``total`` messages' times."""
     return np.unique(sample[np.linspace(0, len(sample), total // size + 1, endpoint=False).astype(np.int64)[1:]])
 
 
@@ -230,7 +240,7 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
     in it, byte for byte (metadata records first: ``log.meta``; the same time slices: cut from
     the spools' message times as :func:`write_log` cuts the frames it encodes), but no channel
     is decoded: every file is walked once, a slice at a time (memory: a slice and the spools'
-    message times, not the log).
+    message times' sample, not the log).
 
     Raises
     ------
@@ -255,7 +265,7 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
             if (codec.message_encoding, *_schema_record(topic, schema, codec)) != tuple(src.topics[topic]):
                 raise NotWindowed(f"{topic} stored otherwise")
     ids = merged_ids(log, new)
-    cuts = _slice_cuts(_spool_times(spools), slice_messages)
+    cuts = _spool_cuts(spools, slice_messages)
     cuts = np.zeros(0, dtype=np.int64) if cuts is None else cuts
     with atomic_path(path, force=force) as tmp, open(tmp, "wb", buffering=1 << 20) as fh:
         w = McapWriter(fh, chunk_size=chunk_size, compression=compression, zstd_level=zstd_level)
@@ -288,16 +298,29 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
                 f.close()
 
 
-def _spool_times(spools: list[FieldLog]) -> dict[str, np.ndarray]:
-    """Topic -> the log times (int64 ns) of its messages in the spool files, in file order."""
-    out: dict[str, list] = {}
+def _spool_cuts(spools: list[FieldLog], size: int) -> np.ndarray:
+    """:func:`_slice_cuts` of the spools' messages, from their times' sample alone (the walk
+    keeps every ``step``-th time of a channel, as :func:`_slice_cuts` samples them)."""
+    counts = [n for sp in spools for n in topic_counts_of(sp.deferred.path).values()]
+    total = sum(counts)
+    if total <= size:
+        return np.zeros(0, dtype=np.int64)
+    step = _sample_step(total, size)
+    sample: list[np.ndarray] = []
     for sp in spools:
+        pos: dict[int, int] = {}
+        last: dict[int, int] = {}
         with ChunkStream(sp.deferred.path) as stream:
             for _records, _at, _t0, _t1, cid, _seq, t, _ps, _pe, _ordinal in stream._batches():
-                chans = stream._scan.channels
                 for c, sel in by_channel(cid):
-                    out.setdefault(chans[c].topic, []).append(t[sel])
-    return {k: np.concatenate(v) for k, v in out.items()}
+                    tc = t[sel]
+                    if (len(tc) > 1 and np.any(tc[1:] < tc[:-1])) or tc[0] < last.get(c, tc[0]):
+                        return np.zeros(0, dtype=np.int64)   # times that do not rise: one slice
+                    last[c] = int(tc[-1])
+                    at = pos.get(c, 0)
+                    sample.append(tc[(-at) % step::step])
+                    pos[c] = at + len(tc)
+    return _cuts_from_sample(np.sort(np.concatenate(sample)), total, size)
 
 
 class Spool:
