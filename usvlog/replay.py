@@ -22,7 +22,8 @@ import numpy as np
 
 from .control.gains import Gains
 from .control.law import COL, Controller, speed_at
-from .errors import InputError, UnusableResultError
+from .errors import InputError, StorageError, UnusableResultError, UsvlogError
+from .io.atomic import check_output
 from .io.mcap import read_log
 from .io.mcap.stream import chunk_spans
 from .io.mcap.windows import NotWindowed, iter_windows, topic_counts
@@ -706,6 +707,7 @@ def replay_file(path, scen: Scenario, out, *, vessel: Vessel | None = None, gain
         changing along the run...): nothing is written, and the caller replays it whole
         (:func:`replay_log`).
     """
+    check_output(out, force, parent=True)
     log = read_log(path, topics=[], defer=True)
     if log.recovery is not None or log.deferred is None:
         return None
@@ -745,6 +747,10 @@ def replay_file(path, scen: Scenario, out, *, vessel: Vessel | None = None, gain
         write_log_merged(log, out, spools, new, force=force)
     except NotWindowed:
         return None
+    except UsvlogError:
+        raise
+    except OSError as err:   # a spool beside the output that cannot be written
+        raise StorageError(f"{out_p}: cannot write beside it ({err.strerror or err})") from err
     finally:
         for p in spool_paths:
             p.unlink(missing_ok=True)

@@ -5,6 +5,7 @@ write_log), over many windows of the input, of the ticks and of the what-if run.
 import importlib
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from usvlog.io.mcap import read_log, write_log
@@ -25,7 +26,7 @@ def test_windows_joined_are_the_channels_read_whole(tmp_path, excitation_log):
     last = -1
     for topic in topics:
         parts = [w[topic] for w in wins if topic in w]
-        joined = parts[0] if len(parts) == 1 else __import__("pandas").concat(parts)
+        joined = parts[0] if len(parts) == 1 else pd.concat(parts)
         assert joined.equals(whole[topic]), topic
     for w in wins:   # windows in time order: every row of a window before every row of the next
         lo = min(int(f.index[0]) for f in w.values())
@@ -120,3 +121,11 @@ def test_small_chunks_copied_whole_are_all_kept(tmp_path, excitation_log):
     back = read_log(tmp_path / "out.mcap")
     for topic in excitation_log.topics:
         assert back[topic].equals(excitation_log[topic]), topic
+
+
+def test_replay_file_refuses_an_output_directory_that_is_missing(tmp_path, excitation_file):
+    from usvlog.errors import StorageError
+
+    with pytest.raises(StorageError):
+        R.replay_file(excitation_file, load_scenario("paper-sine"), tmp_path / "no" / "r.mcap")
+

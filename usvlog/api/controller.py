@@ -144,15 +144,18 @@ def replay(log, scenario: PathLike, out: PathLike | None = None, *, gains=None, 
     read_here = _is_path(log)
     if read_here:
         _say(progress, f"reading {log}")
+    said = False
     if read_here and out is not None:   # file to file: a time window at a time (memory flat in the run)
         _say(progress, f"replaying with scenario {scen.name}")
+        said = True
         res = replay_file(log, scen, out, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
                           whatif_controller=whatif_controller, force=force)
         if res is not None:
             _say(progress, f"wrote {out}")
             return res
-    log = _read(log, progress, topics=_REPLAY_READS, defer=True)
-    _say(progress, f"replaying with scenario {scen.name}")
+    log = _read(log, progress, topics=_REPLAY_READS, defer=True)   # (else the whole log, as before)
+    if not said:
+        _say(progress, f"replaying with scenario {scen.name}")
     # memory: a log read here gives its channels back to the file once replay has used them
     res = replay_log(log, scen, vessel=vessel, gains=gains, controller=controller, whatif=whatif,
                      whatif_controller=whatif_controller, release_inputs=read_here)

@@ -342,9 +342,11 @@ class Spool:
             self._w.add_channel(t, channel_id=ids[t])
 
     def add(self, frames: dict[str, pd.DataFrame]) -> None:
+        """Append one batch: topic -> frame (index: int64 log time ns), rows after the last batch's."""
         self._w.add_frames(frames)
 
     def close(self) -> FieldLog:
+        """Finish the file (summary and footer) and return it read with its channels deferred."""
         try:
             self._w.finish()
         finally:
