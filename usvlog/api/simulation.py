@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..errors import ConfigError
+from ..errors import ConfigError, StorageError, UsvlogError
 from ._common import PathLike, Progress, _check_paths, _say, _vessel_file
 from .data_in import save
 
@@ -78,7 +78,10 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
     -------
     FieldLog
         GNSS, compass, thrust and truth channels (closed loop also ``/control/state`` and the
-        path), with the vessel, datum and provenance.
+        path), with the vessel, datum and provenance. An open-loop run with ``out`` is
+        simulated and written a time window at a time (memory flat in its length; the file
+        is the one :func:`save` writes for the whole log) and the log returned is ``out``
+        read with its channels deferred (decoded when first touched).
     """
     _check_paths([], out, force)   # fail before the work (and the imports), not after
     from ..resources import replay_dir  # heavy: the sim/io stack pulls numpy, pandas, numba
@@ -101,11 +104,49 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
                                  compass_bias_deg=compass_bias_deg, truth_rate_hz=truth_rate_hz)
         seed = 0 if seed is None else seed
         _say(progress, f"simulating {name} ({settings.duration_s:.0f} s, seed {seed})")
+        if out is not None:   # written a time window at a time: memory flat in the run's length
+            log = _write_windows(name, settings, seed, out, force)
+            _say(progress, f"wrote {out}")
+            return log
         log = simulate_open_loop(name, settings, seed=seed)
     if out is not None:
         save(log, out, force=force)
         _say(progress, f"wrote {out}")
     return log
+
+
+def _write_windows(name: str, settings, seed: int, out: PathLike, force: bool) -> FieldLog:
+    """An open-loop run simulated and written to ``out`` a time window at a time; returns ``out``
+    read with its channels deferred.
+
+    The windows' channels go to a spool beside ``out`` as they are made, then ``out`` is
+    written from the log's metadata and the spool, undecoded: the file :func:`save` writes for
+    the whole run's log, byte for byte (:func:`usvlog.io.mcap.writer.write_log_merged`).
+    """
+    from ..io.mcap import read_log  # heavy: the compiled MCAP reader and writer
+    from ..io.mcap.windows import NotWindowed  # heavy: with the reader
+    from ..io.mcap.writer import Spool, merged_ids, write_log_merged  # heavy: the compiled MCAP writer
+    from ..sim.simulate import simulate as simulate_open_loop  # heavy: numpy, pandas, numba
+    from ..sim.simulate import simulate_windows  # heavy: numpy, pandas, numba
+
+    header, windows = simulate_windows(name, settings, seed=seed)
+    topics = ["/truth/state", "/thrust/command", "/gnss/fix", "/compass/heading"]   # the run's channel order
+    out_p = Path(out)
+    spool = out_p.parent / f".{out_p.name}.sim.spool"
+    try:
+        sp = Spool(spool, topics, merged_ids(header, topics))
+        for frames in windows:
+            sp.add({t: f for t, f in frames.items() if len(f)})
+        write_log_merged(header, out, [sp.close()], topics, force=force)
+    except NotWindowed:   # the spool cannot be copied as it is stored (not expected): the whole run at once
+        save(simulate_open_loop(name, settings, seed=seed), out, force=force)
+    except UsvlogError:
+        raise
+    except OSError as err:   # a spool beside the output that cannot be written
+        raise StorageError(f"{out_p}: cannot write beside it ({err.strerror or err})") from err
+    finally:
+        spool.unlink(missing_ok=True)
+    return read_log(out, topics=[], defer=True)
 
 
 def _sim_settings(*, duration_s, current_mps, current_dir_deg, vessel, gps_noise_m, compass_noise_deg,

@@ -442,7 +442,8 @@ def ieee_remainder(x, y):
 
 
 @njit
-def _open_loop_kernel(x0, tau_u, tau_r, prm, ext, ext_prm, dt, cn, ce, rk4, zigzag, zz_prm):
+def _open_loop_kernel(x0, force0, sign0, base0, k0, tau_u, tau_r, prm, ext, ext_prm, dt, cn, ce, rk4, zigzag,
+                      zz_prm):
     """The open-loop plant (:func:`plant_step`, or :func:`plant_step_ext` with ``ext``, at every
     step, as :class:`PlantStepper` steps it), compiled; the same kernel for every open-loop
     scenario.
@@ -455,21 +456,27 @@ def _open_loop_kernel(x0, tau_u, tau_r, prm, ext, ext_prm, dt, cn, ce, rk4, zigz
     ``zz_prm`` = (steps per 90 deg turn of the base course, zig-zag angle rad, yaw moment
     N m, thruster arm m, forward limit N, reverse limit N). Returns the states at every
     step (N, 6), the commanded tau_u, tau_r (the inputs as given without ``zigzag``) and
-    the force and moment the plant felt (N, 2) (lagged by the thrusters).
+    the force and moment the plant felt (N, 2) (lagged by the thrusters), then the state to go on
+    from: the state, the lagged force, the zig-zag's sign and base course after the last step.
+
+    A run in time windows: ``force0`` (0, 0), ``sign0`` 1, ``base0`` the initial heading and
+    ``k0`` 0 at the start, then each window from the state the one before ended in, ``k0`` its
+    first step's number in the run (the same numbers as the whole run at once).
     """
     n = len(tau_u)
     states = np.empty((n, 6))
     tu_out = np.empty(n)
     tr_out = np.empty(n)
     applied = np.empty((n, 2))
-    force = (0.0, 0.0)
+    force = force0
     period_steps, zz, yaw_moment, arm, fwd, rev = zz_prm
     x = x0
-    sign = 1.0
-    base = x0[2]
-    for k in range(n):
-        tu = tau_u[k]
-        tr = tau_r[k]
+    sign = sign0
+    base = base0
+    for j in range(n):
+        k = k0 + j
+        tu = tau_u[j]
+        tr = tau_r[j]
         if zigzag:
             if k and k % period_steps == 0:
                 base += math.pi / 2
@@ -485,30 +492,67 @@ def _open_loop_kernel(x0, tau_u, tau_r, prm, ext, ext_prm, dt, cn, ce, rk4, zigz
             fr = min(max(0.5 * (tu - d), -rev), fwd)
             tu = fl + fr
             tr = arm * (fl - fr)
-        tu_out[k] = tu
-        tr_out[k] = tr
+        tu_out[j] = tu
+        tr_out[j] = tr
         for i in range(6):
-            states[k, i] = x[i]
+            states[j, i] = x[i]
         x, force, au, ar = plant_advance(x, force, tu, tr, ext, prm, ext_prm, dt, cn, ce, rk4)
-        applied[k, 0] = au
-        applied[k, 1] = ar
-    return states, tu_out, tr_out, applied
+        applied[j, 0] = au
+        applied[j, 1] = ar
+    return states, tu_out, tr_out, applied, x, force, sign, base
 
 
-def _run_kernel(st: SimSettings, tau_u, tau_r, zigzag: bool, zz_prm):
-    """:func:`_open_loop_kernel` on a run's vessel, current, step and integrator."""
+def _start_state(st: SimSettings) -> tuple:
+    """The open-loop kernel's state at the start of a run: (x, lagged force, zig-zag sign, base course)."""
+    x0 = (*map(float, st.eta0), *map(float, st.nu0))
+    return x0, (0.0, 0.0), 1.0, x0[2]
+
+
+def _run_kernel(st: SimSettings, tau_u, tau_r, zigzag: bool, zz_prm, state: tuple | None = None, k0: int = 0):
+    """:func:`_open_loop_kernel` on a run's vessel, current, step and integrator: (states, tau_u,
+    tau_r, applied), from the start of the run; with ``state`` (:func:`_start_state`, or the
+    one a window ended in) and ``k0`` (the window's first step), a window of the run:
+    (states, tau_u, tau_r, applied, state at its end)."""
     ext, ext_prm = plant_form(st.vessel)
     cn, ce = st.current_ne
-    x0 = (*map(float, st.eta0), *map(float, st.nu0))
-    return _open_loop_kernel(x0, np.ascontiguousarray(tau_u, float), np.ascontiguousarray(tau_r, float),
-                             tuple(st.vessel.params.as_array().tolist()), ext, ext_prm if ext else (0.0,) * 11,
-                             float(st.dt_s), float(cn), float(ce), st.integrator == "rk4", zigzag, zz_prm)
+    x0, f0, s0, b0 = _start_state(st) if state is None else state
+    *out, x, force, sign, base = _open_loop_kernel(
+        x0, f0, float(s0), float(b0), int(k0), np.ascontiguousarray(tau_u, float), np.ascontiguousarray(tau_r, float),
+        tuple(st.vessel.params.as_array().tolist()), ext, ext_prm if ext else (0.0,) * 11,
+        float(st.dt_s), float(cn), float(ce), st.integrator == "rk4", zigzag, zz_prm)
+    return tuple(out) if state is None else (*out, (x, force, sign, base))
 
 
 def _multisine(t: np.ndarray, freqs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     phases = rng.uniform(0, 2 * np.pi, len(freqs))
-    y = np.sin(2 * np.pi * freqs[None, :] * t[:, None] + phases[None, :]).sum(1)
+    y = _sines(t, freqs, phases)
     return y / np.max(np.abs(y))
+
+
+def _sines(t: np.ndarray, freqs: np.ndarray, phases: np.ndarray) -> np.ndarray:
+    """The sum of the sines of ``freqs`` (Hz) and ``phases`` (rad) at ``t`` (s), not scaled."""
+    return np.sin(2 * np.pi * freqs[None, :] * t[:, None] + phases[None, :]).sum(1)
+
+
+WINDOW_STEPS = 1 << 16
+"""Plant steps :func:`simulate_windows` simulates at a time (about 11 minutes at 0.01 s)."""
+
+
+def _step_windows(n: int, dt: float, size: int):
+    """(first step, step times in s) of consecutive windows of ``size`` of a run's ``n`` steps."""
+    for a in range(0, n, size):
+        yield a, np.arange(a, min(n, a + size)) * dt
+
+
+def _multisine_plan(n: int, dt: float, freqs: list[float], rng: np.random.Generator):
+    """:func:`_multisine` of a run's ``n`` steps a window at a time: its phases drawn now, its
+    scale (the largest magnitude over the run) from a pass over the run in windows; returns
+    t -> the multisine at ``t`` (the numbers :func:`_multisine` gives there)."""
+    f = np.array(freqs)
+    phases = rng.uniform(0, 2 * np.pi, len(f))
+    top = max((float(np.max(np.abs(_sines(t, f, phases)))) for _a, t in _step_windows(n, dt, WINDOW_STEPS)),
+              default=1.0)
+    return lambda t: _sines(t, f, phases) / top
 
 
 def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
@@ -530,21 +574,28 @@ def excitation_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     FieldLog
         See :func:`field_log_from_run` for the channels.
     """
-    rng = np.random.default_rng(seed)
-    st = settings
+    return _whole("excitation", settings, seed)
+
+
+def _excitation_plan(st: SimSettings, rng: np.random.Generator):
+    """The excitation run's commands (its random draws made now): (window's step times ->
+    (tau_u, tau_r extra), zig-zag, its parameters) for :func:`_open_loop_kernel`."""
     n = st.n_steps
-    t = np.arange(n) * st.dt_s
     su, sr = excitation_scale(st.vessel)
-    tau_u = 3.0 + 1.5 * _multisine(t, np.array([0.004, 0.011, 0.023, 0.041, 0.07, 0.12]), rng)
-    tau_r_extra = 0.25 * _multisine(t, np.array([0.05, 0.13, 0.29]), rng)
-    if su != 1.0 or sr != 1.0:
-        tau_u, tau_r_extra = su * tau_u, sr * tau_r_extra
+    ms_u = _multisine_plan(n, st.dt_s, [0.004, 0.011, 0.023, 0.041, 0.07, 0.12], rng)
+    ms_r = _multisine_plan(n, st.dt_s, [0.05, 0.13, 0.29], rng)
+
+    def tau(t):
+        tau_u = 3.0 + 1.5 * ms_u(t)
+        tau_r_extra = 0.25 * ms_r(t)
+        if su != 1.0 or sr != 1.0:
+            tau_u, tau_r_extra = su * tau_u, sr * tau_r_extra
+        return tau_u, tau_r_extra
+
     thr = st.vessel.thrusters
     zz_prm = (int(round(150.0 / st.dt_s)), math.radians(20.0), 1.2 * sr, float(thr.arm_m), float(thr.forward_n),
               float(thr.reverse_n))
-    states, tau_u, tr, applied = _run_kernel(st, tau_u, tau_r_extra, True, zz_prm)
-    return field_log_from_run(st, t, states, tau_u, tr, rng, producer="usvlog simulate excitation",
-                              scenario="excitation", seed=seed, tau_applied=applied)
+    return tau, True, zz_prm
 
 
 # -----------------------------------------------------------------------------
@@ -648,28 +699,80 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
         ``/compass/heading`` (true heading), timestamps in ns since the Unix epoch;
         the datum, the vessel and a provenance record.
     """
-    t0 = start_ns(st.start_utc)
-    t_ns = t0 + np.round(t * 1e9).astype(np.int64)
+    if noise is None:
+        noise = draw_sensor_noise(st, t, rng)
+    log = _header_log(st, producer=producer, scenario=scenario, seed=seed, extra_settings=extra_settings)
+    for topic, frame in window_frames(st, 0, t, states, tau_u, tau_r, noise, tau_applied).items():
+        log.set(topic, frame)
+    return log
+
+
+def _header_log(st: SimSettings, *, producer: str, scenario: str, seed: int,
+                extra_settings: dict | None = None) -> FieldLog:
+    """A simulated run's log without its channels: the datum, the vessel and the provenance record."""
     sn = st.sensors
-    cn, ce = st.current_ne
     log = FieldLog()
     log.datum = st.datum
     log.vessel = st.vessel
+    settings = {"scenario": scenario, "seed": seed, "duration_s": st.duration_s, "dt_s": st.dt_s,
+                "integrator": st.integrator, "current_mps": st.current_mps,
+                "current_dir_deg": st.current_dir_deg, "start_utc": st.start_utc,
+                "sensors": {k: getattr(sn, k) for k in sn.__dataclass_fields__}}
+    settings.update(extra_settings or {})
+    log.add_provenance(producer=producer, source="simulation", settings=settings)
+    return log
+
+
+def _in_window(a: int, m: int, rate_hz: float, dt: float) -> np.ndarray:
+    """The steps of a window (m steps from the run's step a, numbered from 0 in the window) at
+    which a sensor of ``rate_hz`` samples: those :func:`_every` picks from the whole run."""
+    step = max(1, int(round(1.0 / (rate_hz * dt))))
+    return np.arange((-a) % step, m, step)
+
+
+def window_frames(st: SimSettings, a: int, t: np.ndarray, states: np.ndarray, tau_u: np.ndarray,
+                  tau_r: np.ndarray, noise: dict, tau_applied: np.ndarray | None = None) -> dict:
+    """The channels of :func:`field_log_from_run` over a window of a run: its steps a, a+1, ...
+
+    Parameters
+    ----------
+    st : SimSettings
+    a : int
+        The window's first step in the run (0: the whole run, or its first window).
+    t, states, tau_u, tau_r, tau_applied
+        As :func:`field_log_from_run`, over the window's steps alone (``t`` in s from the
+        start of the run).
+    noise : dict
+        :func:`draw_sensor_noise` of the whole run (its indices are the run's steps).
+
+    Returns
+    -------
+    dict
+        Topic -> frame (``/truth/state``, ``/thrust/command``, ``/gnss/fix``,
+        ``/compass/heading``): the rows of the whole run's frames in the window, the same
+        numbers (windows one after another give the whole run's frames).
+    """
+    t0 = start_ns(st.start_utc)
+    t_ns = t0 + np.round(t * 1e9).astype(np.int64)
+    m = len(t)
+    sn = st.sensors
+    cn, ce = st.current_ne
+    out = {}
 
     # every column below is a fresh array of its own: the frames take them as they are (copy=False)
     # truth at every step (or thinned to truth_rate_hz)
-    si = np.arange(len(t)) if sn.truth_rate_hz is None else _every(t, sn.truth_rate_hz, st.dt_s)
+    si = np.arange(m) if sn.truth_rate_hz is None else _in_window(a, m, sn.truth_rate_hz, st.dt_s)
     truth = {"n_m": states[si, 0], "e_m": states[si, 1], "psi_rad": ssa(states[si, 2]),
              "u_mps": states[si, 3], "v_mps": states[si, 4], "r_radps": states[si, 5],
              "current_n_mps": np.full(len(si), cn), "current_e_mps": np.full(len(si), ce),
              "tau_u_n": np.asarray(tau_u, float)[si], "tau_r_nm": np.asarray(tau_r, float)[si]}
     if tau_applied is not None:
         truth["tau_u_n"], truth["tau_r_nm"] = tau_applied[si, 0], tau_applied[si, 1]
-    log.set("/truth/state", frame_from_columns(truth, t_ns[si], channel_spec("/truth/state"), copy=False))
+    out["/truth/state"] = frame_from_columns(truth, t_ns[si], channel_spec("/truth/state"), copy=False)
 
     # thrust commands as recorded
     thr = st.vessel.thrusters
-    ti = _every(t, sn.thrust_rate_hz, st.dt_s)
+    ti = _in_window(a, m, sn.thrust_rate_hz, st.dt_s)
     fl, fr = thr.forces_from_tau(np.asarray(tau_u)[ti], np.asarray(tau_r)[ti])
     unit = "newton" if thr.map == "identity" else "normalized"
     cmd_l = thr.force_to_command(fl, unit, side="left")
@@ -678,18 +781,18 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
     thrust = {"stamp_ns": t_ns[ti], "left": np.round(np.asarray(cmd_l, float), q),
               "right": np.round(np.asarray(cmd_r, float), q), "unit": StrCodes.repeat(unit, len(ti)),
               "thrust_left_n": np.round(fl, _QUANTUM["thrust"]), "thrust_right_n": np.round(fr, _QUANTUM["thrust"])}
-    log.set("/thrust/command", frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command"), copy=False))
+    out["/thrust/command"] = frame_from_columns(thrust, t_ns[ti], channel_spec("/thrust/command"), copy=False)
 
-    # GPS
-    if noise is None:
-        noise = draw_sensor_noise(st, t, rng)
-    gi = noise["gps_index"]
-    pn = states[gi, 0] + noise["gps_noise"][:, 0] + noise["gps_bias"][:, 0]
-    pe = states[gi, 1] + noise["gps_noise"][:, 1] + noise["gps_bias"][:, 1]
-    keep = noise["gps_keep"]
+    # GPS: the run's fixes in the window
+    j0, j1 = (int(j) for j in np.searchsorted(noise["gps_index"], [a, a + m]))
+    gi = noise["gps_index"][j0:j1] - a
+    pn = states[gi, 0] + noise["gps_noise"][j0:j1, 0] + noise["gps_bias"][j0:j1, 0]
+    pe = states[gi, 1] + noise["gps_noise"][j0:j1, 1] + noise["gps_bias"][j0:j1, 1]
+    keep = noise["gps_keep"][j0:j1]
     for k, dn, de in noise["gps_jumps"]:
-        pn[k] += dn
-        pe[k] += de
+        if j0 <= k < j1:
+            pn[k - j0] += dn
+            pe[k - j0] += de
     lat, lon, alt = ned_to_geodetic(pn, pe, np.zeros_like(pn), datum=st.datum)
     var = sn.gps_noise_m ** 2
     z = np.zeros(len(gi))
@@ -701,45 +804,69 @@ def field_log_from_run(st: SimSettings, t: np.ndarray, states: np.ndarray, tau_u
            "cov_nu_m2": z, "cov_ue_m2": z, "cov_un_m2": z, "cov_uu_m2": z + 4 * var,
            "cov_type": np.full(len(gi), 2, dtype=np.int64)}
     gps = {k: v[keep] for k, v in gps.items()}
-    log.set("/gnss/fix", frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix"), copy=False))
+    out["/gnss/fix"] = frame_from_columns(gps, tg_ns[keep], channel_spec("/gnss/fix"), copy=False)
 
     # compass
-    ci = noise["compass_index"]
+    c0, c1 = (int(j) for j in np.searchsorted(noise["compass_index"], [a, a + m]))
+    ci = noise["compass_index"][c0:c1] - a
     std = math.radians(sn.compass_noise_deg)
-    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"])
+    hd = ssa(states[ci, 2] + math.radians(sn.compass_bias_deg) + noise["compass_noise"][c0:c1])
     tc_ns = t_ns[ci] + int(round(sn.compass_delay_s * 1e9))
     comp = {"stamp_ns": tc_ns.copy(), "heading_rad": np.round(hd, _QUANTUM["heading"]),
             "reference": StrCodes.repeat("true", len(ci)),
             "std_rad": np.full(len(ci), std)}
-    log.set("/compass/heading", frame_from_columns(comp, tc_ns, channel_spec("/compass/heading"), copy=False))
+    out["/compass/heading"] = frame_from_columns(comp, tc_ns, channel_spec("/compass/heading"), copy=False)
+    return out
 
-    settings = {"scenario": scenario, "seed": seed, "duration_s": st.duration_s, "dt_s": st.dt_s,
-                "integrator": st.integrator, "current_mps": st.current_mps,
-                "current_dir_deg": st.current_dir_deg, "start_utc": st.start_utc,
-                "sensors": {k: getattr(sn, k) for k in sn.__dataclass_fields__}}
-    settings.update(extra_settings or {})
-    log.add_provenance(producer=producer, source="simulation", settings=settings)
-    return log
+
+def _open_loop_plan(st: SimSettings, tau_of_t):
+    """The plan of an open-loop run through thrust ``tau_of_t(t) -> (tau_u, tau_r)`` (realised by
+    the thrusters: forces saturated), as :func:`_excitation_plan` returns it."""
+    su, sr = excitation_scale(st.vessel)
+    thr = st.vessel.thrusters
+
+    def tau(t):
+        tu_cmd, tr_cmd = tau_of_t(t)
+        if su != 1.0 or sr != 1.0:
+            tu_cmd, tr_cmd = su * tu_cmd, sr * tr_cmd
+        fl, fr = thr.forces_from_tau(tu_cmd, tr_cmd)
+        fl, fr = thr.saturate(fl), thr.saturate(fr)
+        return thr.tau_from_forces(fl, fr)
+
+    return tau, False, (1, 0.0, 0.0, 1.0, 0.0, 0.0)
 
 
 def _open_loop(settings: SimSettings, seed: int, tau_of_t, scenario: str) -> FieldLog:
-    """Integrate the plant through thrust ``tau_of_t(t) -> (tau_u, tau_r)`` (realised by the
-    thrusters: forces saturated) and sample the sensors."""
+    """Integrate the plant through thrust ``tau_of_t(t, rng) -> (tau_u, tau_r)`` (realised by the
+    thrusters: forces saturated) and sample the sensors, the whole run at once."""
     rng = np.random.default_rng(seed)
     st = settings
-    n = st.n_steps
-    t = np.arange(n) * st.dt_s
-    tu_cmd, tr_cmd = tau_of_t(t, rng)
-    su, sr = excitation_scale(st.vessel)
-    if su != 1.0 or sr != 1.0:
-        tu_cmd, tr_cmd = su * tu_cmd, sr * tr_cmd
-    thr = st.vessel.thrusters
-    fl, fr = thr.forces_from_tau(tu_cmd, tr_cmd)
-    fl, fr = thr.saturate(fl), thr.saturate(fr)
-    tau_u, tau_r = thr.tau_from_forces(fl, fr)
-    states, _, _, applied = _run_kernel(st, tau_u, tau_r, False, (1, 0.0, 0.0, 1.0, 0.0, 0.0))
+    t = np.arange(st.n_steps) * st.dt_s
+    tau, _, zz_prm = _open_loop_plan(st, lambda t: tau_of_t(t, rng))
+    tau_u, tau_r = tau(t)
+    states, _, _, applied = _run_kernel(st, tau_u, tau_r, False, zz_prm)
     return field_log_from_run(st, t, states, tau_u, tau_r, rng, producer=f"usvlog simulate {scenario}",
                               scenario=scenario, seed=seed, tau_applied=applied)
+
+
+def _segments(st: SimSettings, seconds: float) -> int:
+    """Segments of ``seconds`` a run's steps fall in (the last step's segment + 1)."""
+    return int(max(st.n_steps - 1, 0) * st.dt_s // seconds) + 1
+
+
+def _turns_plan(st: SimSettings, rng: np.random.Generator):
+    tu = rng.uniform(1.5, 4.5, _segments(st, 40.0))
+    tr = rng.choice([-0.9, -0.4, 0.0, 0.4, 0.9], len(tu))
+
+    def tau(t):
+        k = (t // 40.0).astype(int)
+        return tu[k], tr[k]
+    return _open_loop_plan(st, tau)
+
+
+def _straight_plan(st: SimSettings, rng: np.random.Generator):
+    tu = rng.uniform(1.5, 4.5, _segments(st, 30.0))
+    return _open_loop_plan(st, lambda t: (tu[(t // 30.0).astype(int)], np.zeros_like(t)))
 
 
 def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
@@ -748,13 +875,7 @@ def turns_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     yaw moment (0, +-0.4 or +-0.9 N m), held.
 
     Parameters and return as :func:`excitation_run`."""
-    def tau(t, rng):
-        k = (t // 40.0).astype(int)
-        nseg = int(k.max()) + 1
-        tu = rng.uniform(1.5, 4.5, nseg)
-        tr = rng.choice([-0.9, -0.4, 0.0, 0.4, 0.9], nseg)
-        return tu[k], tr[k]
-    return _open_loop(settings, seed, tau, "turns")
+    return _whole("turns", settings, seed)
 
 
 def straight_run(settings: SimSettings, seed: int = 0) -> FieldLog:
@@ -762,11 +883,66 @@ def straight_run(settings: SimSettings, seed: int = 0) -> FieldLog:
     (the yaw dynamics are not excited: identification must say so).
 
     Parameters and return as :func:`excitation_run`."""
-    def tau(t, rng):
-        k = (t // 30.0).astype(int)
-        tu = rng.uniform(1.5, 4.5, int(k.max()) + 1)
-        return tu[k], np.zeros_like(t)
-    return _open_loop(settings, seed, tau, "straight")
+    return _whole("straight", settings, seed)
+
+
+_PLANS = {"excitation": _excitation_plan, "turns": _turns_plan, "straight": _straight_plan}
+
+
+def simulate_windows(scenario: str, settings: SimSettings | None = None, seed: int = 0, *,
+                     window_steps: int | None = None):
+    """A built-in open-loop scenario simulated a time window at a time (memory flat in the run's length).
+
+    The plant's state (and the zig-zag's) goes on from window to window, every random draw
+    is made before the first window in the order of the whole run: the windows' frames one
+    after another are :func:`simulate`'s channels, the same numbers.
+
+    Parameters
+    ----------
+    scenario : {"excitation", "turns", "straight"}
+    settings : SimSettings, optional
+    seed : int, default 0
+    window_steps : int, optional
+        Plant steps per window (default :data:`WINDOW_STEPS`).
+
+    Returns
+    -------
+    log : FieldLog
+        The run's log without its channels (datum, vessel, provenance).
+    windows : iterator of dict
+        Topic -> frame of the window (:func:`window_frames`), windows in time order.
+
+    Raises
+    ------
+    usvlog.errors.ConfigError
+        On an unknown scenario name.
+    """
+    if scenario not in _PLANS:
+        raise ConfigError(f"unknown scenario {scenario!r} (known: {', '.join(sorted(SCENARIOS))})")
+    st = settings or SimSettings()
+    rng = np.random.default_rng(seed)
+    tau, zigzag, zz_prm = _PLANS[scenario](st, rng)
+    n = st.n_steps
+    noise = draw_sensor_noise(st, np.arange(n) * st.dt_s, rng)   # small: the sensors' samples only
+    log = _header_log(st, producer=f"usvlog simulate {scenario}", scenario=scenario, seed=seed)
+
+    def windows():
+        state = _start_state(st)
+        for a, t in _step_windows(n, st.dt_s, max(1, int(window_steps or WINDOW_STEPS))):
+            tu, tr = tau(t)
+            states, tu, tr, applied, state = _run_kernel(st, tu, tr, zigzag, zz_prm, state, a)
+            yield window_frames(st, a, t, states, tu, tr, noise, applied)
+
+    return log, windows()
+
+
+def _whole(scenario: str, st: SimSettings, seed: int) -> FieldLog:
+    """:func:`simulate_windows` in one window: the whole run's log."""
+    log, windows = simulate_windows(scenario, st, seed, window_steps=max(1, st.n_steps))
+    for frames in windows:
+        for topic, frame in frames.items():
+            log.set(topic, frame)
+    return log
 
 
 SCENARIOS = {"excitation": excitation_run, "turns": turns_run, "straight": straight_run}
@@ -810,5 +986,5 @@ def simulate(scenario: str, settings: SimSettings | None = None, seed: int = 0) 
 
 __all__ = ["SensorSettings", "SimSettings", "excitation_run", "turns_run", "straight_run",
            "field_log_from_run", "draw_sensor_noise", "plant_step", "plant_step_ext", "plant_form",
-           "PlantStepper", "excitation_scale",
+           "PlantStepper", "excitation_scale", "window_frames", "simulate_windows", "WINDOW_STEPS",
            "simulate", "start_ns", "SCENARIOS", "replace", "pd"]

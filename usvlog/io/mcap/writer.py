@@ -231,7 +231,8 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
                      slice_messages: int = SLICE_MESSAGES) -> None:
     """Write ``log`` plus the channels of other canonical files, all copied undecoded, atomically.
 
-    ``log`` is a log read with every channel deferred (:func:`read_log` with ``defer``);
+    ``log`` is a log read with every channel deferred (:func:`read_log` with ``defer``), or a
+    log without channels (its metadata alone: a producer's spools hold every channel);
     ``spools`` are logs read so from files :class:`McapWriter` wrote with the ids of
     :func:`merged_ids` (of ``topics``: the spools' channels in the order they take new ids)
     and this writer's chunk size and compression (a producer writes its new channels there
@@ -252,7 +253,8 @@ def write_log_merged(log: FieldLog, path, spools: list[FieldLog], topics: list[s
     new = list(topics)
     if sorted(new) != sorted(t for sp in spools for t in sp.topics):
         raise ValueError("topics must list the spools' channels")
-    srcs = [(log, [t for t in log.topics if t not in new])] + [(sp, sp.topics) for sp in spools]
+    srcs = [(log, [t for t in log.topics if t not in new])] if log.topics else []   # (no channels: metadata)
+    srcs += [(sp, sp.topics) for sp in spools]
     for lg, tops in srcs:
         src, ch = lg.deferred, lg.channels
         if src is None or not isinstance(ch, Channels) or lg.recovery is not None \
