@@ -81,7 +81,8 @@ def _windows(run: RunData, ks: KinStates, horizon_s: float, t_from: float | None
 
 
 def _predict(run, ks, theta, current, horizon_s, t_from, simulate):
-    """(t, measured, predicted, ptr) of :func:`predict_ahead`; window k predicts rows ptr[k]:ptr[k + 1]."""
+    """(t, measured, predicted, ptr, x0s) of :func:`predict_ahead`; window k predicts rows
+    ptr[k]:ptr[k + 1] from the smoothed state x0s[k]."""
     cur = (float(current[0]), float(current[1]))
     starts, t, ptr = _windows(run, ks, float(horizon_s), t_from)
     x0s = ks.at(starts, cur)
@@ -94,7 +95,7 @@ def _predict(run, ks, theta, current, horizon_s, t_from, simulate):
             if b > a:
                 pred[a:b] = simulate(run, theta, cur, x0s[k], float(t_k), t[a:b])
     pred[~np.all(np.isfinite(pred), axis=1)] = np.nan
-    return t, ks.at(t, cur), pred, ptr
+    return t, ks.at(t, cur), pred, ptr, x0s
 
 
 def predict_ahead(run: RunData, ks: KinStates, theta, current, horizon_s: float, *, t_from: float | None = None,
@@ -126,7 +127,7 @@ def predict_ahead(run: RunData, ks: KinStates, theta, current, horizon_s: float,
     measured, predicted : numpy.ndarray, shape (N, 6)
         Smoothed and predicted [n, e, psi, u, v, r] there (prediction NaN where it diverged).
     """
-    t, meas, pred, _ = _predict(run, ks, theta, current, horizon_s, t_from, simulate)
+    t, meas, pred, _, _ = _predict(run, ks, theta, current, horizon_s, t_from, simulate)
     return t, meas, pred
 
 
@@ -149,12 +150,10 @@ def displacement_fit_ahead(run: RunData, ks: KinStates, theta, current, horizon_
     -------
     float
     """
-    cur = (float(current[0]), float(current[1]))
-    starts, _, _ = _windows(run, ks, float(horizon_s), t_from)
-    _, meas, pred, ptr = _predict(run, ks, theta, cur, horizon_s, t_from, simulate)
+    _, meas, pred, ptr, x0s = _predict(run, ks, theta, current, horizon_s, t_from, simulate)
     if len(pred) == 0 or np.isnan(pred).any():
         return float("nan")
-    origin = np.repeat(ks.at(starts, cur)[:, :2], np.diff(ptr), axis=0)
+    origin = np.repeat(x0s[:, :2], np.diff(ptr), axis=0)
     return float(fit_percent(meas[:, :2] - origin, pred[:, :2] - origin))
 
 
@@ -213,7 +212,7 @@ def one_step_residuals(run: RunData, ks: KinStates, theta, current, step_s: floa
     residuals : numpy.ndarray, shape (N, 3)
         Smoothed minus predicted u (m/s), v (m/s), r (rad/s).
     """
-    t, meas, pred, ptr = _predict(run, ks, theta, current, step_s, t_from, simulate)
+    t, meas, pred, ptr, _ = _predict(run, ks, theta, current, step_s, t_from, simulate)
     last = ptr[1:][ptr[1:] > ptr[:-1]] - 1      # each window's last predicted time
     return t[last], meas[last, 3:] - pred[last, 3:]
 

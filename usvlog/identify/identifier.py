@@ -33,7 +33,7 @@ from .candidates import Candidate, Start, _returned
 from .checks import _excitation_warnings, _refuse_dead_channels, _refuse_outside_model, _refuse_wrong_signs
 from .data import run_data
 from .equation import EquationErrorResult
-from .output import OutputErrorResult
+from .output import OutputErrorResult, simulate_run
 from .smooth import kinematic_states
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
 from .validation import Validation, _mean_score
@@ -388,25 +388,27 @@ class Identifier:
         self.usable_ = self.verdict_ != "unusable"
         return self
 
+    def _predictor(self):
+        """(parameters, free-run function) of the returned model for predictions ahead: the paper
+        model's :func:`~usvlog.identify.output.simulate_run`, or the extended model's
+        :func:`~usvlog.identify.extended_oe.free_run_full`."""
+        if self.extended_ is None:
+            return self.theta_, simulate_run
+        from .extended_oe import free_run_full  # lazy: the extended model only
+
+        return self.extended_.as_array(), free_run_full
+
     def _ahead(self, held) -> tuple[dict, dict]:
         """k-step-ahead fit % (:func:`~usvlog.identify.ahead.fit_percent_ahead`, H = AHEAD_S) of the
         returned model on the held-out parts (mean over them), and which of u, v, r those parts
         excite at all; empty without held-out data."""
         if not held:
             return {}, {}
-        simulate = None
-        theta = self.theta_
-        if self.extended_ is not None:
-            from .extended_oe import free_run_full  # lazy: the extended model only
-
-            simulate, theta = free_run_full, self.extended_.as_array()
+        theta, simulate = self._predictor()
         per = []
         for i, (r, k) in enumerate(held):
             cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
-            if simulate is not None:
-                per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S, simulate=simulate))
-            else:
-                per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S))
+            per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S, simulate=simulate))
         ahead = {h: {c: float(np.mean([p[h][c] for p in per])) for c in ("u", "v", "r")} for h in per[0]}
         nu = np.concatenate([k.nu(self.current_[i] if i < len(self.current_) else (0.0, 0.0))
                              for i, (_, k) in enumerate(held)])
@@ -421,19 +423,13 @@ class Identifier:
         for r the true model was white (0 of 25) and a d33 50 % off was not (15 of 25)."""
         if not held:
             return {}
-        simulate = None
-        theta = self.theta_
-        if self.extended_ is not None:
-            from .extended_oe import free_run_full  # lazy: the extended model only
-
-            simulate, theta = free_run_full, self.extended_.as_array()
+        theta, simulate = self._predictor()
         res = []
         for i, (r, k) in enumerate(held):
             cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
             t0 = max(r.t_thrust[0], k.t[0])
             try:
-                kw = {"simulate": simulate} if simulate is not None else {}
-                _, e = one_step_residuals(r, k, theta, cur, WHITENESS_STEP_S, t_from=t0, **kw)
+                _, e = one_step_residuals(r, k, theta, cur, WHITENESS_STEP_S, t_from=t0, simulate=simulate)
             except (FitFailed, ValueError):
                 continue
             res.append(e[:, 2])

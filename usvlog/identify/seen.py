@@ -44,9 +44,8 @@ def _log_datum(log: FieldLog) -> Datum | None:
     return Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0])) if ok.any() else None
 
 
-def free_run_log(log: FieldLog, run: RunData, t, sim=None, current=(0.0, 0.0)) -> FieldLog:
-    """The log ``log`` would have been over ``[t[0], t[-1]]`` had the boat moved as ``sim``
-    (``sim`` None: the log itself over that span, its measurements as recorded).
+def free_run_log(log: FieldLog, run: RunData, t, sim, current=(0.0, 0.0)) -> FieldLog:
+    """The log ``log`` would have been over ``[t[0], t[-1]]`` had the boat moved as ``sim``.
 
     Parameters
     ----------
@@ -56,10 +55,8 @@ def free_run_log(log: FieldLog, run: RunData, t, sim=None, current=(0.0, 0.0)) -
         The run's arrays (time origin ``t0_ns`` and the sensor latencies).
     t : numpy.ndarray, shape (N,)
         Times of the free run in s from ``run.t0_ns`` (increasing).
-    sim : numpy.ndarray, shape (N, 6), optional
+    sim : numpy.ndarray, shape (N, 6)
         The free run: n (m), e (m), psi (rad), u, v (m/s, relative to the water), r (rad/s).
-        None: the recorded measurements are kept (the same span, for a smoother that must
-        start where the free run's starts).
     current : (float, float), default (0.0, 0.0)
         Current north, east (m/s) the free run was made with (its ground velocity is the
         water-relative one plus this).
@@ -72,15 +69,6 @@ def free_run_log(log: FieldLog, run: RunData, t, sim=None, current=(0.0, 0.0)) -
         stamp minus that sensor's latency.
     """
     t = np.asarray(t, float)
-    lo, hi = run.t0_ns + int(round(t[0] * 1e9)), run.t0_ns + int(round(t[-1] * 1e9))
-    if sim is None:
-        channels = {}
-        for topic in COPIED_TOPICS:
-            frame = log.get(topic)
-            if frame is not None:
-                idx = np.asarray(frame.index, dtype=np.int64)
-                channels[topic] = frame[(idx >= lo) & (idx <= hi)].copy()
-        return FieldLog(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source)
     sim = np.asarray(sim, float)
     lo, hi = run.t0_ns + int(round(t[0] * 1e9)), run.t0_ns + int(round(t[-1] * 1e9))
     psi = sim[:, 2]
