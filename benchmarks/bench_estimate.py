@@ -146,7 +146,7 @@ def smoother_parts(pb, q: np.ndarray, s: EstimateSettings, repeat: int = 3) -> N
         kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
 
     def back(c):
-        kernels.smooth_back(c, N, run[2], b.BX, b.BP, b.BXp, b.BPp, b.BC, *carry, args[14], row, XS, SD, PB, bad)
+        kernels.smooth_back(c, N, run[2], b.BX, b.BP, b.BXp, b.BPp, b.BC, *carry, args[14], row, 0, XS, SD, PB, bad)
 
     def best(parts):
         cpu, wall = [], []

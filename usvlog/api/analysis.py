@@ -102,10 +102,20 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
                                 **offset)
     read_here = _is_path(log)
     src = log if read_here else log.source
-    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)
     ves = _vessel_file(vessel)
-    _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
-                   f"{''.join(f', estimating the {k} delay' for k in auto)})")
+    doing = (f"estimating {src} ({model} model{', tuning' if tune else ''}"
+             f"{''.join(f', estimating the {k} delay' for k in auto)})")
+    if read_here and out is not None:   # file to file: a time window at a time (memory flat in the log's length)
+        from .estimate_file import estimate_file  # heavy: the estimator and the MCAP reader and writer
+
+        _say(progress, doing)
+        done = estimate_file(log, out, settings, ves, force=force)
+        if done is not None:
+            return done
+        doing = ""   # (said: the whole log, as before)
+    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)
+    if doing:
+        _say(progress, doing)
     result = run_estimate(log, settings, ves)
     if out is not None:
         out_log = result.to_log(log)

@@ -12,7 +12,7 @@ from the modules that define them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 
@@ -22,6 +22,7 @@ import pandas as pd
 from ..log.channels import StrCodes, channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
 from ..log.status import EstimateStatus, set_estimate_status
+from ..model.heading_offset import HeadingOffset
 from ..model.vessel import Vessel, default_vessel
 from . import kernels
 from .kernels import (
@@ -49,9 +50,9 @@ from .layout import (
     state_size,
 )
 from .modes import COURSE_MIN_SPEED_MPS, _compass_disagrees, apply_heading_offset, course_as_heading, heading_offset_of
-from .problem import build_problem
+from .problem import ThrustFrames, build_problem
 from .report import EstimateReport, SensorReport, _check_finite, _reinits, heading_blocking, sideslip_figures
-from .run import RawRun, forward_loglik, run_fast, run_reference_path, tune_process_noise
+from .run import RawRun, RowSink, forward_loglik, run_fast, run_reference_path, tune_process_noise
 from .settings import Q_R_KINEMATIC_NO_JUMPS, EstimateSettings
 
 # what other units import from here, defined in .layout (the channels and the state layout)
@@ -59,7 +60,8 @@ __all__ = ["COMPASS_TOPIC", "GNSS_TOPIC", "INPUT_TOPICS", "THRUST_TOPIC", "VELOC
            "state_size", "EstimateResult", "estimate"]
 
 
-def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb: Problem) -> Problem:
+def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb: Problem,
+                   thrust: ThrustFrames | None = None) -> Problem:
     """``pb`` with a better start heading for the dynamic model run on GNSS alone.
 
     Without a compass the dynamic model's heading is observed only through the track, and
@@ -78,6 +80,8 @@ def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb
         The settings ``pb`` was built with (latencies applied as they say).
     vessel : Vessel
     pb : Problem
+    thrust : callable, optional
+        The log's thrust in time windows, as :func:`build_problem` takes it.
 
     Returns
     -------
@@ -88,7 +92,7 @@ def gps_only_start(log: FieldLog, settings: EstimateSettings, vessel: Vessel, pb
         return pb
     ks = gps_only_settings(replace(settings, model="kinematic", current=None, sway_damping=False, tune=False,
                                    estimate_delays=(), gps_only=True, q_uv=None, q_r=None))
-    kp = build_problem(log, ks, vessel)
+    kp = build_problem(log, ks, vessel, thrust)
     runner = run_fast if ks.fast else run_reference_path
     q = process_noise(ks)
     # smoothed over a head of the run reaching START_MARGIN_S beyond the first moving step
@@ -145,15 +149,25 @@ class EstimateResult:
     first asked for, see :attr:`forward`); ``innovations``: one row per measurement;
     ``report``: counts and consistency. For the kinematic model u, v are body velocities
     over ground; for the dynamic model they are the model's nu, relative to the water when
-    current states are estimated.
+    current states are estimated. (An estimate written to a file a time window at a time
+    holds neither frame: they are decoded from the file when first asked for.)
     """
 
-    state: pd.DataFrame
-    innovations: pd.DataFrame
     report: EstimateReport
     settings: EstimateSettings
     vessel: Vessel | None = None
+    _frames: Mapping[str, pd.DataFrame] = field(default_factory=dict, repr=False, compare=False)
     _make_forward: Callable[[], pd.DataFrame] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def state(self) -> pd.DataFrame:
+        """The state frame (see the class): columns as :meth:`to_dataframe`, indexed by ``t_ns``."""
+        return self._frames[STATE_TOPIC]
+
+    @property
+    def innovations(self) -> pd.DataFrame:
+        """One row per measurement: sensor, res_0, res_1, nis, accepted, indexed by ``t_ns``."""
+        return self._frames[INNOVATION_TOPIC]
 
     @cached_property
     def forward(self) -> pd.DataFrame:
@@ -185,29 +199,40 @@ class EstimateResult:
         return self.state
 
     def to_log(self, log: FieldLog) -> FieldLog:
-        """A copy of ``log`` plus /estimate/state, /estimate/innovations, provenance and the
-        estimate's status record (:mod:`usvlog.log.status`: ok or degraded, with reasons) and the
-        sensor delays applied (metadata record ``usvlog.latency``, see
-        :func:`usvlog.estimate.latency.stored_delays`)."""
+        """A copy of ``log`` plus /estimate/state, /estimate/innovations and the records of
+        :meth:`add_records`."""
         out = log.copy()
         out.set(STATE_TOPIC, self.state)
         out.set(INNOVATION_TOPIC, self.innovations)
-        out.add_provenance(producer="usvlog estimate", source=log.source or "",
+        self.add_records(out, log.source or "")
+        return out
+
+    def add_records(self, out: FieldLog, source: str) -> None:
+        """Add to ``out`` (the log estimated from ``source``) the estimate's provenance, its
+        status record (:mod:`usvlog.log.status`: ok or degraded, with reasons) and the sensor
+        delays applied (metadata record ``usvlog.latency``, see
+        :func:`usvlog.estimate.latency.stored_delays`)."""
+        out.add_provenance(producer="usvlog estimate", source=source,
                            settings=self.report.settings,
                            vessel=self.vessel.name if self.vessel else "",
                            report={k: v for k, v in self.report.to_dict().items() if k != "settings"})
         set_estimate_status(out, EstimateStatus(status=self.report.status, mode=self.report.mode,
                                                 reasons=tuple(self.report.status_reasons())))
         out.meta[META_LATENCY] = latency_record(self.settings, self.report.latency)
-        return out
 
 
-def _grid_frame(pb: Problem, X: np.ndarray, SD: np.ndarray, PB: np.ndarray) -> pd.DataFrame:
-    """The state frame of a run's output rows (the grid's: X, SD, PB hold those rows only);
-    a GNSS-only kinematic run's heading is its course (:func:`course_as_heading`)."""
-    if pb.mode == "gps-only" and pb.model == KINEMATIC:
+def _grid_frame(pb: Problem, X: np.ndarray, SD: np.ndarray, PB: np.ndarray, steps: slice = slice(None)) -> pd.DataFrame:
+    """The state frame of a run's output rows (the grid's: X, SD, PB hold those rows only; of the
+    steps ``steps``, default all); a GNSS-only kinematic run's heading is its course
+    (:func:`course_as_heading`: of all the rows at once, it holds the course from row to row)."""
+    if course_held(pb):
         X, SD, PB = course_as_heading(X, SD, PB, bool((pb.mkind == YAW_RATE).any()))
-    return _state_frame(X, SD, PB, pb.t_ns[pb.is_grid], pb.model)
+    return _state_frame(X, SD, PB, pb.t_ns[steps][pb.is_grid[steps]], pb.model)
+
+
+def course_held(pb: Problem) -> bool:
+    """A GNSS-only kinematic run: its heading is its course, held where the boat is still."""
+    return pb.mode == "gps-only" and pb.model == KINEMATIC
 
 
 @dataclass(frozen=True)
@@ -224,12 +249,14 @@ class _ForwardFrame:
         return _grid_frame(self.pb, fwd.X, fwd.SDf, fwd.PBf)
 
 
-def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vessel
-           ) -> tuple[EstimateSettings, RawRun, dict | None, tuple[DelayEstimate, ...], Problem, np.ndarray]:
+def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vessel, thrust: ThrustFrames | None,
+           sink: RowSink | None) -> tuple[EstimateSettings, RawRun, dict | None, tuple[DelayEstimate, ...], Problem,
+                                          np.ndarray]:
     """Settings in effect, the filter (and smoother) run, the tuning result, the sensor delays
     searched, the problem they give and the process noise, for one run (``pb`` built from
-    ``log`` with ``settings``). With the smoother the run holds no forward posteriors
-    (:func:`_output_run` makes them again when asked for)."""
+    ``log`` (its thrust ``thrust``) with ``settings``). With the smoother the run holds no forward
+    posteriors (:func:`_output_run` makes them again when asked for); with a ``sink`` its output
+    rows went there (:func:`_output_run`)."""
     if pb.mode == "gps-only":
         settings = gps_only_settings(settings)
     if settings.model == "kinematic" and settings.q_r is None and not pb.qjump.any():
@@ -240,9 +267,9 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     def search_delays(st: EstimateSettings, q: np.ndarray):
         lat, st = find_delays(log, st, lambda lg, s_: forward_loglik(build_problem(lg, s_, vessel), q,
                                                                        s_.max_consecutive_rejects), given=given)
-        return lat, st, gps_only_start(log, st, vessel, build_problem(log, st, vessel))
+        return lat, st, gps_only_start(log, st, vessel, build_problem(log, st, vessel, thrust), thrust)
 
-    pb = gps_only_start(log, settings, vessel, pb)
+    pb = gps_only_start(log, settings, vessel, pb, thrust)
     tuned = None
     if settings.tune:
         if settings.estimate_delays:   # first the delays, so that the tuned noise does not absorb them
@@ -253,19 +280,32 @@ def _solve(pb: Problem, settings: EstimateSettings, log: FieldLog, vessel: Vesse
     q = process_noise(settings)
     if settings.estimate_delays:   # (again) with the noise in effect
         latency, settings, pb = search_delays(settings, q)
-    raw = _output_run(pb, q, settings, smoother=settings.smoother)
+    raw = _output_run(pb, q, settings, smoother=settings.smoother, sink=sink)
     return settings, raw, tuned, latency, pb, q
 
 
-def _output_run(pb: Problem, q: np.ndarray, settings: EstimateSettings, smoother: bool) -> RawRun:
+def _output_run(pb: Problem, q: np.ndarray, settings: EstimateSettings, smoother: bool,
+                sink: RowSink | None = None) -> RawRun:
     """The run of the output frames: with the smoother, the smoothed states only (the forward
-    posteriors not stored); without it, the forward ones."""
+    posteriors not stored); without it, the forward ones. With a ``sink`` the output rows go
+    there (:func:`run_fast`; the forward ones at once) and the run returned has none."""
     runner = run_fast if settings.fast else run_reference_path
     # only what the output needs (memory): the grid's rows, the frame's states (the kinematic
     # model's accelerations too, for course_as_heading) and the covariance block of the NED model
     kinematic = pb.model == KINEMATIC
-    return runner(pb, q, settings.max_consecutive_rejects, smoother, rows=pb.is_grid, covariance_block=kinematic,
-                  columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6, forward=not smoother)
+    raw = runner(pb, q, settings.max_consecutive_rejects, smoother, rows=pb.is_grid, covariance_block=kinematic,
+                 columns=8 if kinematic or pb.nx == kernels.NX_DYNAMIC_CURRENT else 6, forward=not smoother,
+                 sink=sink if smoother else None)
+    if sink is not None and not smoother:
+        sink(0, raw.XS, raw.SDs, raw.PBs)
+        raw = _without_rows(raw)
+    return raw
+
+
+def _without_rows(raw: RawRun) -> RawRun:
+    """``raw`` without its state rows (memory: they are in a frame or a sink already)."""
+    gone = np.zeros((0, 0))
+    return replace(raw, X=gone, SDf=gone, PBf=gone, XS=gone, SDs=gone, PBs=gone)
 
 
 def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
@@ -318,54 +358,99 @@ def estimate(log: FieldLog, settings: EstimateSettings = EstimateSettings(),
     """
     if vessel is None:
         vessel = log.vessel or default_vessel()
+    run = solve_log(log, settings, vessel)
+    pb, raw = run.pb, run.raw
+    state = _grid_frame(pb, raw.XS, raw.SDs, raw.PBs)
+    run = replace(run, raw=_without_rows(raw))   # the step arrays already in a frame are let go (memory)
+    # the forward frame when first asked for: the forward pass made again, or (no smoother) the state's
+    make_forward = _ForwardFrame(pb, run.q, run.settings) if run.settings.smoother else state.copy
+    slip = sideslip_figures(state) if pb.mode == "gnss+compass" else None
+    return EstimateResult(report=run.report(slip), settings=run.settings, vessel=vessel,
+                          _frames={STATE_TOPIC: state, INNOVATION_TOPIC: run.innovations()},
+                          _make_forward=make_forward)
+
+
+@dataclass(frozen=True)
+class SolvedRun:
+    """An estimate's filter and smoother run, before its frames (:func:`solve_log`).
+
+    ``pb`` the problem run, ``raw`` the run (its state rows in a frame or handed on),
+    ``settings`` those in effect, ``q`` the process noise, ``vessel``, ``tuned`` and ``latency``
+    the tuning and delay search results, ``found`` the heading offset detected and
+    ``offset_source`` where the one applied came from, ``reinits`` the divergence guard's restarts.
+    """
+
+    pb: Problem
+    raw: RawRun
+    settings: EstimateSettings
+    q: np.ndarray
+    vessel: Vessel
+    tuned: dict | None
+    latency: tuple[DelayEstimate, ...]
+    found: HeadingOffset | None
+    offset_source: str
+    reinits: tuple[tuple[int, str], ...]
+
+    def innovations(self, j0: int = 0, j1: int | None = None) -> pd.DataFrame:
+        """The /estimate/innovations frame of measurements ``j0`` .. ``j1`` (default all)."""
+        pb, raw, sel = self.pb, self.raw, slice(j0, j1)
+        return frame_from_columns(
+            {"sensor": StrCodes.of(SENSORS, pb.mkind[sel]),
+             "res_0": raw.innov[sel, 0].copy(), "res_1": raw.innov[sel, 1].copy(), "nis": raw.innov[sel, 2].copy(),
+             "accepted": raw.accepted[sel] > 0},
+            pb.m_t_ns[sel], channel_spec(INNOVATION_TOPIC), copy=False)   # (fresh arrays: taken as they are)
+
+    def report(self, sideslip: dict | None) -> EstimateReport:
+        """The estimate's report, with the sideslip figures of its state (:func:`sideslip_figures`)."""
+        pb, raw, settings, vessel, found = self.pb, self.raw, self.settings, self.vessel, self.found
+        reps = []
+        for k in range(len(SENSORS)):
+            sel = pb.mkind == k
+            if not sel.any():
+                continue
+            acc = raw.accepted[sel] > 0
+            nis = raw.innov[sel, 2][acc]
+            reps.append(SensorReport(sensor=SENSORS[k], dim=SENSOR_DIM[k], accepted=int(acc.sum()),
+                                     rejected=int((~acc).sum()), forced=int((raw.accepted[sel] == 2).sum()),
+                                     mean_nis=float(nis.mean()) if len(nis) else float("nan"),
+                                     skipped=pb.skipped.get(SENSORS[k], 0)))
+        sd = settings.to_dict()
+        sd["vessel"] = vessel.name if settings.model == "dynamic" else None
+        if settings.model == "dynamic":
+            sd["vessel_params"] = vessel.params.to_dict()
+        offset = {"detected": found.to_dict() if found is not None else None,
+                  "text": found.describe() if found is not None else "",
+                  "applied_deg": math.degrees(settings.compass_offset_rad), "source": self.offset_source}
+        return EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
+                              duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
+                              dropouts=pb.dropouts, loglik=raw.loglik,
+                              thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=self.tuned,
+                              mode=pb.mode, mode_reason=pb.mode_reason, reinits=self.reinits, latency=self.latency,
+                              heading_offset=offset, sideslip=sideslip, gnss_noise=pb.gnss_noise,
+                              blocking=heading_blocking(found, settings.compass_offset_rad, pb.mode, sideslip))
+
+
+def solve_log(log: FieldLog, settings: EstimateSettings, vessel: Vessel, thrust: ThrustFrames | None = None,
+              sink: RowSink | None = None) -> SolvedRun:
+    """The run of :func:`estimate` up to its frames: the heading offset and mode, the problem,
+    tuning and delays, the filter and smoother (again from GNSS alone when the compass
+    contradicts the track), the divergence checks.
+
+    ``thrust``: the log's thrust in time windows (:func:`build_problem`); ``sink``: takes the
+    output rows a block at a time instead of the run (:func:`run_fast`). Raises as :func:`estimate`.
+    """
     found = heading_offset_of(log, settings) if not settings.gps_only else None
     settings, offset_source = apply_heading_offset(settings, found, vessel)
-    pb = build_problem(log, settings, vessel)
-    run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel)
+    pb = build_problem(log, settings, vessel, thrust)
+    run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel, thrust, sink)
     why = _compass_disagrees(pb, raw)
     if why:   # a heading source the track contradicts: GNSS only
         settings = replace(settings, gps_only=True)
-        pb = build_problem(log, settings, vessel)
-        run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel)
+        pb = build_problem(log, settings, vessel, thrust)
+        run_settings, raw, tuned, latency, pb, q = _solve(pb, settings, log, vessel, thrust, sink)
         pb = replace(pb, mode_reason=why)
     settings = run_settings
     reinits = _reinits(raw, pb, settings, log.source or "log")
     _check_finite(raw, pb, settings, log.source or "log")
-    state = _grid_frame(pb, raw.XS, raw.SDs, raw.PBs)
-    gone = np.zeros((0, 0))   # the step arrays already in a frame are let go (memory): only innov is used below
-    raw = replace(raw, X=gone, SDf=gone, PBf=gone, XS=gone, SDs=gone, PBs=gone)
-    # the forward frame when first asked for: the forward pass made again, or (no smoother) the state's
-    make_forward = _ForwardFrame(pb, q, settings) if settings.smoother else state.copy
-    innov = frame_from_columns(
-        {"sensor": StrCodes.of(SENSORS, pb.mkind),
-         "res_0": raw.innov[:, 0].copy(), "res_1": raw.innov[:, 1].copy(), "nis": raw.innov[:, 2].copy(),
-         "accepted": raw.accepted > 0},
-        pb.m_t_ns, channel_spec(INNOVATION_TOPIC), copy=False)   # (fresh arrays: taken as they are)
-    reps = []
-    for k in range(len(SENSORS)):
-        sel = pb.mkind == k
-        if not sel.any():
-            continue
-        acc = raw.accepted[sel] > 0
-        nis = raw.innov[sel, 2][acc]
-        reps.append(SensorReport(sensor=SENSORS[k], dim=SENSOR_DIM[k], accepted=int(acc.sum()),
-                                 rejected=int((~acc).sum()), forced=int((raw.accepted[sel] == 2).sum()),
-                                 mean_nis=float(nis.mean()) if len(nis) else float("nan"),
-                                 skipped=pb.skipped.get(SENSORS[k], 0)))
-    sd = settings.to_dict()
-    sd["vessel"] = vessel.name if settings.model == "dynamic" else None
-    if settings.model == "dynamic":
-        sd["vessel_params"] = vessel.params.to_dict()
-    slip = sideslip_figures(state) if pb.mode == "gnss+compass" else None
-    offset = {"detected": found.to_dict() if found is not None else None,
-              "text": found.describe() if found is not None else "",
-              "applied_deg": math.degrees(settings.compass_offset_rad), "source": offset_source}
-    report = EstimateReport(model=settings.model, states=pb.nx, steps=len(pb.t_ns),
-                            duration_s=float((pb.t_ns[-1] - pb.t_ns[0]) * 1e-9), sensors=tuple(reps),
-                            dropouts=pb.dropouts, loglik=raw.loglik,
-                            thrust_skipped=pb.skipped.get("thrust", 0), settings=sd, tuned=tuned,
-                            mode=pb.mode, mode_reason=pb.mode_reason, reinits=reinits, latency=latency,
-                            heading_offset=offset, sideslip=slip, gnss_noise=pb.gnss_noise,
-                            blocking=heading_blocking(found, settings.compass_offset_rad, pb.mode, slip))
-    return EstimateResult(state=state, innovations=innov, report=report, settings=settings, vessel=vessel,
-                          _make_forward=make_forward)
+    return SolvedRun(pb=pb, raw=raw, settings=settings, q=q, vessel=vessel, tuned=tuned, latency=latency,
+                     found=found, offset_source=offset_source, reinits=reinits)

@@ -578,7 +578,7 @@ def smooth_rerun(c, x0, P0, dts, taus, qjump, mstep, mkind, mz, mR, prm, model, 
 
 
 @njit(nogil=True)
-def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit, row, XS, SD, PB, bad):
+def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit, row, r0, XS, SD, PB, bad):
     """Extended RTS smoother over block ``c`` of an N-step run, backwards, from the buffers
     :func:`smooth_rerun` filled for it.
 
@@ -586,7 +586,8 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_va
     the last block) and leave as that of the block's first step; ``xpn``, ``Ppn``, ``Cn``
     enter as the prior and gain (BXp, BPp, BC) of the step after the block and leave as
     those of the block's first step (the carry to block c - 1). Writes the smoothed state of step k in
-    row ``row[k]`` of XS (its first XS.shape[1] states; skipped when ``row[k] < 0``), their
+    row ``row[k] - r0`` of XS (its first XS.shape[1] states; skipped when ``row[k] < 0``; ``r0`` 0 for
+    XS of every row, the block's first row for XS of the block's rows alone), their
     one-sigma in SD and the covariance block of states PB_FIRST.. (PB_SIZE) in PB (PB may
     have no rows: not stored); ``bad[0]`` becomes any step of the block whose smoothed
     state is unusable (as in :func:`forward`; going backwards, the last one set is the
@@ -614,7 +615,7 @@ def smooth_back(c, N, resets, BX, BP, BXp, BPp, BC, xs, Ps, xpn, Ppn, Cn, pos_va
         else:
             _smooth_step(xk, Pk, xs, Ps, BXp[k + 1 - k0], BPp[k + 1 - k0], BC[k + 1 - k0], tmp, Pn, d, acc)
         if row[k] >= 0:
-            _store_row(row[k], xs, Ps, XS, SD, PB)
+            _store_row(row[k] - r0, xs, Ps, XS, SD, PB)
         if _bad_step(xs, Ps, sd_limit):
             bad[0] = k
     for a in range(nx):

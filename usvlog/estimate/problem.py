@@ -11,6 +11,8 @@ where it came from (:func:`gnss_noise_source`), and the sensors' latencies
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable
+
 import numpy as np
 import pandas as pd
 
@@ -54,23 +56,20 @@ PWM_NEUTRAL_US = 1500.0
 """RC pulse width (us) of a stopped thruster: the centre of a pwm_us command."""
 
 
-def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free: bool = False):
+def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, command_units: bool = False):
     """(tau_u, tau_r, ok): forces from thrust_*_n, else from the command through the
     thruster map; ``ok`` marks the usable records (tau has one entry per usable one).
 
-    ``vessel_free`` (the kinematic model, which uses the yaw moment only to find its steps,
-    scale-free): commands that the vessel's map cannot turn into newtons give a moment in
+    ``command_units`` (the kinematic model, which uses the yaw moment only to find its steps,
+    scale-free, when the vessel's map cannot turn the commands into newtons): a moment in
     command units instead, port minus starboard about the neutral command (pwm_us: 1500),
     so no thruster map is needed."""
-    if vessel_free:
-        try:
-            return _thrust_tau(log, frame, vessel)
-        except InputError:
-            left, right = _col(frame, "left"), _col(frame, "right")
-            units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "")
-            mid = np.where(units == "pwm_us", PWM_NEUTRAL_US, 0.0)
-            ok = np.isfinite(left) & np.isfinite(right)
-            return np.zeros(int(ok.sum())), (left - mid)[ok] - (right - mid)[ok], ok
+    if command_units:
+        left, right = _col(frame, "left"), _col(frame, "right")
+        units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "")
+        mid = np.where(units == "pwm_us", PWM_NEUTRAL_US, 0.0)
+        ok = np.isfinite(left) & np.isfinite(right)
+        return np.zeros(int(ok.sum())), (left - mid)[ok] - (right - mid)[ok], ok
     thr = vessel.thrusters
     fl, fr = _col(frame, "thrust_left_n"), _col(frame, "thrust_right_n")
     need = ~(np.isfinite(fl) & np.isfinite(fr))
@@ -85,6 +84,60 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, vessel_free:
     # a bad record is skipped: the command before it stays in force
     tu, tr = thr.tau_from_forces(fl[ok], fr[ok])
     return tu, tr, ok
+
+
+ThrustFrames = Callable[[], Iterable[pd.DataFrame]]
+"""Gives a log's ``/thrust/command`` frames in time order, each time it is called: the whole
+channel, or its consecutive time windows (a long log's channel read from its file a window at a
+time; see :func:`build_problem`)."""
+
+
+def held_thrust(log: FieldLog, t_prev: np.ndarray, frames: ThrustFrames, vessel: Vessel,
+                vessel_free: bool = False) -> tuple[np.ndarray, int]:
+    """(tau_u, tau_r) of each step held from the thrust record in force at its start, and the
+    records skipped.
+
+    Zero-order hold: a step that starts at ``t_prev[k]`` (ns, rising) uses the last usable
+    record at or before it, 0 before the first; a bad record is skipped (the command before
+    it stays in force). The frames are taken one at a time (memory: a frame, not the
+    channel), the numbers the same for any cut of the channel into frames. ``vessel_free``
+    (the kinematic model): commands the vessel's map cannot turn into newtons give every
+    record's moment in command units instead (:func:`_thrust_tau`).
+
+    Returns
+    -------
+    tuple
+        (len(t_prev), 2) array in N and N m (or command units), and the count of records skipped.
+    """
+    if vessel_free:
+        try:
+            return _hold(log, t_prev, frames(), vessel, False)
+        except InputError:
+            return _hold(log, t_prev, frames(), vessel, True)
+    return _hold(log, t_prev, frames(), vessel, False)
+
+
+def _hold(log: FieldLog, t_prev: np.ndarray, frames: Iterable[pd.DataFrame], vessel: Vessel,
+          command_units: bool) -> tuple[np.ndarray, int]:
+    """:func:`held_thrust` of the frames given, with forces or command units."""
+    out = np.zeros((len(t_prev), 2))
+    skipped, k, last = 0, 0, None
+    for frame in frames:
+        tu, tr, ok = _thrust_tau(log, frame, vessel, command_units)
+        skipped += int((~ok).sum())
+        tt = np.asarray(frame.index, dtype=np.int64)[ok]
+        if not len(tt):
+            continue
+        # the steps starting up to this frame's last record: its records, or the one in force before it
+        end = int(np.searchsorted(t_prev, tt[-1], side="right"))
+        i = np.searchsorted(tt, t_prev[k:end], side="right") - 1
+        before = (0.0, 0.0) if last is None else last
+        out[k:end, 0] = np.where(i >= 0, tu[i], before[0])
+        out[k:end, 1] = np.where(i >= 0, tr[i], before[1])
+        k, last = end, (tu[-1], tr[-1])
+    if last is not None:
+        out[k:] = last
+    return out, skipped
 
 
 DELAYED_TOPICS = {GNSS_TOPIC: "gnss_delay_s", "/gnss/velocity": "gnss_delay_s", COMPASS_TOPIC: "compass_delay_s"}
@@ -109,7 +162,8 @@ def delayed_log(log: FieldLog, settings: EstimateSettings) -> FieldLog:
     return out
 
 
-def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> Problem:
+def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel,
+                  thrust: ThrustFrames | None = None) -> Problem:
     """Collect the filter's inputs from a log: measurements, step grid, thrust, gates.
 
     GNSS fixes become NED positions about the log's datum (else its first valid fix),
@@ -133,6 +187,10 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     settings : EstimateSettings
     vessel : Vessel
         Thruster map for commands not in newtons and the model parameters.
+    thrust : callable, optional
+        The log's ``/thrust/command`` in time windows (:data:`ThrustFrames`), for a log that
+        does not hold it decoded (the same problem as from the channel whole); default the
+        log's channel.
 
     Returns
     -------
@@ -147,7 +205,9 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
     s = settings
     log = delayed_log(log, s)   # latency: stamps -> the times the measurements describe
     comp = _channel(log, COMPASS_TOPIC, required=False)
-    thrust = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
+    if thrust is None:
+        frame = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
+        thrust = None if frame is None else (lambda: [frame])
     if uses_local(log):   # positions in metres (an INS pose, motion capture): measured like fixes
         tg, n, e, Rg, gnss_noise, nbad = _local_measurements(log, s)
         skipped = {"gnss": nbad}
@@ -215,18 +275,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel) -> 
 
     taus = np.zeros((len(t_ns), 2))
     skipped["thrust"] = 0
-    if thrust is not None:
-        tu, tr, ok = _thrust_tau(log, thrust, vessel, vessel_free=s.model == "kinematic")
-        tt = np.asarray(thrust.index, dtype=np.int64)[ok]
-        skipped["thrust"] = int((~ok).sum())
-        # zero-order hold: the step ending at k uses the command in force at t[k-1]
-        i = np.searchsorted(tt, t_ns[:-1], side="right") - 1
-        has = (i >= 0) & (len(tt) > 0)
-        i = np.clip(i, 0, max(len(tt) - 1, 0))
-        if not len(tt):
-            tu = tr = np.zeros(1)
-        taus[1:, 0] = np.where(has, tu[i], 0.0)
-        taus[1:, 1] = np.where(has, tr[i], 0.0)
+    if thrust is not None:   # zero-order hold: the step ending at k uses the command in force at t[k-1]
+        taus[1:], skipped["thrust"] = held_thrust(log, t_ns[:-1], thrust, vessel, vessel_free=s.model == "kinematic")
 
     qjump = yaw_jump_variance(taus[:, 1], s)
 

@@ -319,15 +319,59 @@ SIDESLIP_MIN_MOVING_S = 10.0
 def sideslip_figures(state: pd.DataFrame) -> dict | None:
     """Median |atan2(v, u)| (deg), u and |v| (m/s) where the speed exceeds
     :data:`SIDESLIP_MIN_SPEED_MPS`, and how long that was (s); None when never."""
-    u, v = state["u_mps"].to_numpy(), state["v_mps"].to_numpy()
-    moving = np.hypot(u, v) > SIDESLIP_MIN_SPEED_MPS
-    if not moving.any():
-        return None
-    t = np.asarray(state.index, np.int64)
-    dt = float(np.median(np.diff(t))) * 1e-9 if len(t) > 1 else 0.0
-    beta = np.degrees(np.abs(np.arctan2(v[moving], u[moving])))
-    return {"median_abs_deg": float(np.median(beta)), "median_u_mps": float(np.median(u[moving])),
-            "median_abs_v_mps": float(np.median(np.abs(v[moving]))), "moving_s": float(moving.sum() * dt)}
+    slip = Sideslip()
+    slip.add(state)
+    return slip.figures()
+
+
+class Sideslip:
+    """:func:`sideslip_figures` of a state frame given in consecutive time windows (:meth:`add`
+    each, then :meth:`figures`): the same numbers, keeping only the moving rows' u and v and
+    the counts of the time steps."""
+
+    def __init__(self):
+        self._u: list[np.ndarray] = []
+        self._v: list[np.ndarray] = []
+        self._steps: dict[int, int] = {}   # time step (ns) -> how often
+        self._last: int | None = None
+
+    def add(self, state: pd.DataFrame) -> None:
+        """The next rows of the state frame (columns u_mps, v_mps; index t_ns)."""
+        u, v = state["u_mps"].to_numpy(), state["v_mps"].to_numpy()
+        moving = np.hypot(u, v) > SIDESLIP_MIN_SPEED_MPS
+        self._u.append(u[moving])
+        self._v.append(v[moving])
+        t = np.asarray(state.index, np.int64)
+        if len(t):
+            steps, counts = np.unique(np.diff(t, prepend=t[:1] if self._last is None else self._last),
+                                      return_counts=True)
+            if self._last is None:   # (the first row has no step before it)
+                counts[np.searchsorted(steps, 0)] -= 1
+            for d, c in zip(steps.tolist(), counts.tolist()):
+                self._steps[d] = self._steps.get(d, 0) + c
+            self._last = int(t[-1])
+
+    def figures(self) -> dict | None:
+        """The figures of every row added (as :func:`sideslip_figures`)."""
+        u, v = np.concatenate(self._u), np.concatenate(self._v)
+        if not len(u):
+            return None
+        dt = _median_of_counts(self._steps) * 1e-9
+        beta = np.degrees(np.abs(np.arctan2(v, u)))
+        return {"median_abs_deg": float(np.median(beta)), "median_u_mps": float(np.median(u)),
+                "median_abs_v_mps": float(np.median(np.abs(v))), "moving_s": float(len(u) * dt)}
+
+
+def _median_of_counts(counts: dict[int, int]) -> float:
+    """``numpy.median`` of integers given as value -> how often (0.0 for none)."""
+    values = sorted(v for v, c in counts.items() if c > 0)
+    n = sum(counts[v] for v in values)
+    if not n:
+        return 0.0
+    ends = np.cumsum([counts[v] for v in values])
+    lo, hi = values[int(np.searchsorted(ends, (n - 1) // 2, side="right"))], \
+        values[int(np.searchsorted(ends, n // 2, side="right"))]
+    return float(np.median(np.array([lo, hi], dtype=np.int64)))   # (the mean of the middle two, as numpy takes it)
 
 
 def heading_blocking(found: HeadingOffset | None, applied_rad: float, mode: str,

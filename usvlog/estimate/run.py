@@ -12,6 +12,7 @@ identifier use.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,9 @@ from .kernels import (
 )
 from .layout import POSITION_STD_LIMIT_M, Problem, head_problem, process_noise
 from .settings import EstimateSettings
+
+RowSink = Callable[[int, np.ndarray, np.ndarray, np.ndarray], None]
+"""Takes a block of smoothed rows: ``sink(r0, XS, SD, PB)``, rows r0 .. r0 + len(XS) (see :func:`run_fast`)."""
 
 
 @dataclass(frozen=True)
@@ -56,7 +60,8 @@ class RawRun:
 
 
 def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-             covariance_block: bool = True, columns: int | None = None, forward: bool = True) -> RawRun:
+             covariance_block: bool = True, columns: int | None = None, forward: bool = True,
+             sink: RowSink | None = None) -> RawRun:
     """Forward EKF (and RTS smoother) with the numba-compiled kernels.
 
     Memory is that of the rows asked for, not of the steps: the smoother makes the forward
@@ -82,6 +87,11 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
         Return the forward posteriors (``X``, ``SDf``, ``PBf``); False (with the smoother
         only): not stored, they have no rows (memory and time, when only the smoothed
         states are wanted; every other output is the same).
+    sink : callable, optional
+        With the smoother and ``forward`` False: the smoothed rows are handed to
+        ``sink(r0, XS, SD, PB)`` a block of rows at a time (rows r0 .., from the last block
+        to the first; the arrays are reused after the call) instead of being returned
+        (``XS``, ``SDs``, ``PBs`` have no rows): memory of a block, not of the rows.
 
     Returns
     -------
@@ -89,6 +99,8 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
     """
     if not (forward or smoother):
         raise ValueError("run_fast: without the smoother the forward posteriors are the result (forward=True)")
+    if sink is not None and forward:
+        raise ValueError("run_fast: a sink takes the smoothed rows only (smoother=True, forward=False)")
     N, nx, M = len(pb.dts), pb.nx, len(pb.mstep)
     nc = nx if columns is None else columns
     if rows is None:
@@ -112,8 +124,10 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
     ll = kernels.forward(*args, row if forward else np.empty(0, np.int64), X, SDf, PBf, innov, acc, resets,
                          CX, CP, CI, CF, bad_f)
     if smoother:
-        XS, SDs, PBs = np.empty((R, nc)), np.empty((R, nc)), np.empty((npb, 3, 3))
-        smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s)
+        Rs = R if sink is None else 0
+        XS, SDs, PBs = np.empty((Rs, nc)), np.empty((Rs, nc)), np.empty((min(npb, Rs), 3, 3))
+        smooth(args, (innov, acc, resets, CX, CP, CI, CF), row, XS, SDs, PBs, bad_s,
+               None if sink is None else (sink, nc, npb > 0))
     else:
         XS, SDs, PBs = X, SDf, PBf
     bad = [int(b[0]) for b in (bad_f, bad_s) if b[0] >= 0]
@@ -121,7 +135,7 @@ def run_fast(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.
 
 
 def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndarray, PB: np.ndarray,
-           bad: np.ndarray) -> None:
+           bad: np.ndarray, sink: tuple[RowSink, int, bool] | None = None) -> None:
     """The extended RTS smoother after ``kernels.forward``, block by block from the end.
 
     Each block's forward posteriors are made again from its checkpoint
@@ -142,6 +156,9 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
         or (0, 3, 3).
     bad : numpy.ndarray
         (1,) int64: the first step whose smoothed state is unusable, -1 for none.
+    sink : tuple, optional
+        (sink, columns, covariance block wanted): each block's rows go to ``sink`` (see
+        :func:`run_fast`) instead of XS, SD, PB.
     """
     x0, dts, pos_var_limit = args[0], args[2], args[14]
     N, nx = len(dts), len(x0)
@@ -152,10 +169,21 @@ def smooth(args: tuple, run: tuple, row: np.ndarray, XS: np.ndarray, SD: np.ndar
     b = kernels.SmoothBuffers(nx)
     xs, Ps, xpn, Ppn, Cn = np.zeros(nx), np.zeros((nx, nx)), np.zeros(nx), np.zeros((nx, nx)), np.zeros((nx, nx))
     resets = run[2]
+    if sink is not None:   # a block's rows at a time, handed on
+        give, nc, cov = sink
+        n = kernels.SMOOTH_BLOCK
+        XS, SD, PB = np.empty((n, nc)), np.empty((n, nc)), np.empty((n if cov else 0, 3, 3))
     for c in range(blocks - 1, -1, -1):
         kernels.smooth_rerun(c, *args, *run, b.BX, b.BP, b.BXp, b.BPp, b.BC)
+        r0, r1 = 0, 0
+        if sink is not None:
+            mine = row[c * kernels.SMOOTH_BLOCK:(c + 1) * kernels.SMOOTH_BLOCK]
+            mine = mine[mine >= 0]
+            r0, r1 = (int(mine[0]), int(mine[-1]) + 1) if len(mine) else (0, 0)
         kernels.smooth_back(c, N, resets, b.BX, b.BP, b.BXp, b.BPp, b.BC, xs, Ps, xpn, Ppn, Cn, pos_var_limit,
-                            row, XS, SD, PB, bad)
+                            row, r0, XS, SD, PB, bad)
+        if sink is not None and r1 > r0:
+            give(r0, XS[:r1 - r0], SD[:r1 - r0], PB[:r1 - r0])
 
 
 REINIT_GATE_FACTOR = 100.0
@@ -182,8 +210,10 @@ def forward_loglik(pb: Problem, q: np.ndarray, max_rej: int) -> float:
 
 
 def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool, rows: np.ndarray | None = None,
-                       covariance_block: bool = True, columns: int | None = None, forward: bool = True) -> RawRun:
-    """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks."""
+                       covariance_block: bool = True, columns: int | None = None, forward: bool = True,
+                       sink: RowSink | None = None) -> RawRun:
+    """As :func:`run_fast`, on the filterpy reference path (:mod:`.reference`): slow, for checks (a
+    ``sink`` takes every row at once)."""
     from .reference import run_reference  # heavy: filterpy and scipy.stats, only for the reference path
 
     params = VesselParams(**dict(zip(("m", "Iz", "d11", "d22", "d33", "xg"), map(float, pb.prm))))
@@ -197,6 +227,9 @@ def run_reference_path(pb: Problem, q: np.ndarray, max_rej: int, smoother: bool,
     PBf, PBs = (PBf[keep], PBs[keep]) if covariance_block else (PBf[:0], PBs[:0])
     if not forward and smoother:
         X, SDf, PBf = X[:0], SDf[:0], PBf[:0]
+    if sink is not None:
+        sink(0, XS, SDs, PBs)
+        XS, SDs, PBs = XS[:0], SDs[:0], PBs[:0]
     return RawRun(X, SDf, PBf, XS, SDs, PBs, innov, acc, float(ll), resets, int(bad[0]) if len(bad) else -1)
 
 
