@@ -80,8 +80,9 @@ class WindowedEstimate:
         self.settings = run.settings
         self._report: EstimateReport | None = None
 
-    def frames(self, steps: int = WINDOW_STEPS) -> Iterator[dict[str, pd.DataFrame]]:
-        """The output frames in consecutive time windows of ``steps`` filter steps.
+    def frames(self, steps: int | None = None) -> Iterator[dict[str, pd.DataFrame]]:
+        """The output frames in consecutive time windows of ``steps`` filter steps (default
+        :data:`WINDOW_STEPS`).
 
         Yields
         ------
@@ -95,7 +96,7 @@ class WindowedEstimate:
             raise RuntimeError("WindowedEstimate.frames: taken already")
         pb = run.pb
         N = len(pb.t_ns)
-        steps = N if course_held(pb) else max(1, steps)
+        steps = N if course_held(pb) else max(1, steps or WINDOW_STEPS)
         slip = Sideslip() if pb.mode == "gnss+compass" else None
         r0 = j0 = 0
         for k0 in range(0, N, steps):
