@@ -14,6 +14,7 @@ import pytest
 from usvlog.identify.ahead import (
     NOISE_R_RADPS,
     NOISE_U_MPS,
+    Excitation,
     excited,
     excited_channels,
     fit_percent_ahead,
@@ -224,7 +225,19 @@ def test_a_channel_predicted_worse_than_a_constant_30_s_ahead_is_a_caveat():
     bad = copy.copy(idf)
     bad.fit_percent_ahead_ = {h: dict(v) for h, v in idf.fit_percent_ahead_.items()}
     bad.fit_percent_ahead_["30"]["u"] = -26.3
+    moving = Excitation(spread=0.3, noise=0.05, excited=True)
+    bad.excitation_ = {"u": moving, "v": moving, "r": moving}   # held-out data that move u
     reasons, verdict = bad._verdict(bad.vessel_in_, bad.runs_, bad._kin)
     assert "predicted 30 s ahead, u -26.3 % (worse than a constant): m, d11 not validated by the held-out data" \
         in reasons
     assert verdict in ("usable with caveats", "unusable")
+    # held-out data that barely move u: its 30 s figure is noise, not judged; the verdict says so
+    bad.excitation_ = {**bad.excitation_, "u": Excitation(spread=0.05, noise=0.05, excited=False)}
+    reasons, verdict = bad._verdict(bad.vessel_in_, bad.runs_, bad._kin)
+    assert not any("predicted 30 s ahead" in r for r in reasons), reasons
+    assert "the held-out data barely excite u (spread 0.05, its noise 0.05 m/s): m, d11 not validated there" \
+        in reasons
+    # neither u nor r moved: nothing validates the model, a caveat
+    bad.excitation_ = {**bad.excitation_, "r": Excitation(spread=0.01, noise=0.01, excited=False)}
+    reasons, verdict = bad._verdict(bad.vessel_in_, bad.runs_, bad._kin)
+    assert verdict != "usable" and any("barely excite u" in r and "and r" in r for r in reasons), reasons

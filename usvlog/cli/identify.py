@@ -178,10 +178,19 @@ def format_report(d: dict) -> str:
     if d.get("condition_number") is not None:
         lines.append(f"condition number {_num(d['condition_number'], 3)}")
     fp = d["fit_percent"]
-    lines.append(f"fit % ({d['fit_percent_on']}): u {_pct(fp['u'])}, v {_pct(fp['v'])}, r {_pct(fp['r'])}, "
+    quiet = {ch for ch, e in (d.get("excitation") or {}).items() if not e["excited"]}
+
+    def fit(ch: str, v: dict) -> str:   # a channel the validation barely moves: its fit % is noise
+        return f"{ch} not excited there" if ch in quiet else f"{ch} {_pct(v[ch])}"
+
+    lines.append(f"fit % ({d['fit_percent_on']}): {fit('u', fp)}, {fit('v', fp)}, {fit('r', fp)}, "
                  f"track {_pct(fp['track'])}")
     for h, v in (d.get("fit_percent_ahead") or {}).items():   # k-step-ahead (re-started every h s)
-        lines.append(f"fit % {h} s ahead: u {_pct(v['u'])}, v {_pct(v['v'])}, r {_pct(v['r'])}")
+        lines.append(f"fit % {h} s ahead: {fit('u', v)}, {fit('v', v)}, {fit('r', v)}")
+    for ch, e in (d.get("excitation") or {}).items():
+        if not e["excited"]:
+            lines.append(f"{ch} not excited there: its spread {_num(e['spread'], 2)} against its noise "
+                         f"{_num(e['noise'], 2)} (one sigma of the smoothed states)")
     mc = d.get("model_comparison")
     if mc:
         for m in ("paper", "extended"):

@@ -24,7 +24,6 @@ from . import candidates, report, validation, verdict
 from .ahead import (
     WHITENESS_LAGS,
     WHITENESS_STEP_S,
-    excited_channels,
     fit_percent_ahead,
     one_step_residuals,
     residual_whiteness,
@@ -36,7 +35,7 @@ from .equation import EquationErrorResult
 from .output import OutputErrorResult, simulate_run
 from .smooth import kinematic_states
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
-from .validation import Validation, _mean_score
+from .validation import Validation, _mean_score, excitation_of
 from .velocity import VelocityFitResult, data_scales
 from .verdict import VERDICTS
 
@@ -380,9 +379,10 @@ class Identifier:
         self.validation_ = self.validations_[0] if self.validations_ else None
         self._held = held
         try:
-            self.fit_percent_ahead_, self.excited_ = self._ahead(held)
+            self.fit_percent_ahead_ = self._ahead(held)
         except FitFailed:   # too short a held-out part to predict ahead: the free run alone judges
-            self.fit_percent_ahead_, self.excited_ = {}, {}
+            self.fit_percent_ahead_ = {}
+        self.excitation_ = excitation_of(self.validations_)
         self.whiteness_ = self._whiteness(held)
         self.reasons_, self.verdict_ = self._verdict(vessel, runs, kin)
         self.usable_ = self.verdict_ != "unusable"
@@ -398,21 +398,18 @@ class Identifier:
 
         return self.extended_.as_array(), free_run_full
 
-    def _ahead(self, held) -> tuple[dict, dict]:
+    def _ahead(self, held) -> dict:
         """k-step-ahead fit % (:func:`~usvlog.identify.ahead.fit_percent_ahead`, H = AHEAD_S) of the
-        returned model on the held-out parts (mean over them), and which of u, v, r those parts
-        excite at all; empty without held-out data."""
+        returned model on the held-out parts (mean over them); empty without held-out data."""
         if not held:
-            return {}, {}
+            return {}
         theta, simulate = self._predictor()
         per = []
         for i, (r, k) in enumerate(held):
             cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
             per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S, simulate=simulate))
-        ahead = {h: {c: float(np.mean([p[h][c] for p in per])) for c in ("u", "v", "r")} for h in per[0]}
-        nu = np.concatenate([k.nu(self.current_[i] if i < len(self.current_) else (0.0, 0.0))
-                             for i, (_, k) in enumerate(held)])
-        return ahead, excited_channels(nu)
+        return {h: {c: float(np.mean([p[h][c] for p in per])) for c in ("u", "v", "r")} for h in per[0]}
+
 
     def _whiteness(self, held) -> dict:
         """Whiteness of the yaw rate's residuals predicted WHITENESS_STEP_S ahead on the held-out

@@ -127,6 +127,7 @@ def to_dict(self: Identifier, validation: Validation | None = None) -> dict:
          "model": self.model,
          "structure": "paper" if self.extended_ is None else "extended",
          "fit_percent_ahead": {h: _finite_dict(v) for h, v in getattr(self, "fit_percent_ahead_", {}).items()},
+         "excitation": {ch: e.to_dict() for ch, e in (getattr(self, "excitation_", {}) or {}).items()},
          "sign_checks": list(getattr(self, "sign_checks_", [])),
          "whiteness": {ch: {"step_s": WHITENESS_STEP_S, "lags": len(w.lags), "outside": w.outside,
                             "allowed": w.allowed, "white": w.white, "p_value": w.p_value}

@@ -35,7 +35,9 @@ class KinStates:
 
     ``t``: s from the run's ``t0_ns``; ``n``, ``e``: position in m; ``psi``: heading in
     rad, unwrapped; ``vn``, ``ve``: ground velocity north, east in m/s; ``r``: yaw rate in
-    rad/s; ``source``: the smoother used (``usvlog.estimate`` or ``savgol``).
+    rad/s; ``source``: the smoother used (``usvlog.estimate`` or ``savgol``); ``sd``: the
+    smoother's own one-sigma of u, v, r (N, 3) where it reports one (the estimator does, its
+    RTS covariance; ``savgol`` does not: None).
     """
 
     t: np.ndarray       # s from the run's t0, uniform grid
@@ -46,6 +48,7 @@ class KinStates:
     ve: np.ndarray
     r: np.ndarray
     source: str
+    sd: np.ndarray | None = field(default=None, repr=False, compare=False)   # (N, 3) one-sigma of u, v, r
     # smooths a free run (t, sim, current) as these states were smoothed (None: not possible)
     smoother: Callable | None = field(default=None, repr=False, compare=False)
     # (current, the six columns :meth:`at` interpolates) of its last call: a fit asks for the
@@ -113,7 +116,8 @@ class KinStates:
             raise FitFailed(f"{int(k.sum())} smoothed sample(s) in {span} of the run: its GNSS fixes and compass "
                             "headings do not cover that part (nothing to fit or validate on there)")
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
-                         ve=self.ve[k], r=self.r[k], source=self.source, smoother=self.smoother)
+                         ve=self.ve[k], r=self.r[k], source=self.source, smoother=self.smoother,
+                         sd=None if self.sd is None else self.sd[k])
 
     def seen(self, t, sim, current=(0.0, 0.0)) -> np.ndarray | None:
         """A free run as these states' smoother shows it (:mod:`usvlog.identify.seen`).
@@ -323,9 +327,12 @@ def _smoothed(log, run: RunData, vessel, settings: EstimateSettings) -> tuple[Ki
         if col in st and np.isfinite(st[col].to_numpy(float)).all():
             add = np.interp(t, ts, st[col].to_numpy(float))
             vn, ve = (vn + add, ve) if arr == "vn" else (vn, ve + add)
+    sd_cols = ("u_mps_std", "v_mps_std", "r_radps_std")
+    sd = (np.stack([np.interp(t, ts, st[c].to_numpy(float)) for c in sd_cols], -1)
+          if all(c in st for c in sd_cols) else None)
     return KinStates(t=t, n=np.interp(t, ts, st["n_m"].to_numpy(float)),
                      e=np.interp(t, ts, st["e_m"].to_numpy(float)), psi=psi, vn=vn, ve=ve,
-                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate"), used
+                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate", sd=sd), used
 
 
 def derivative(t, y, window_s=2.0):

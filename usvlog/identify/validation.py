@@ -22,7 +22,7 @@ from ..choices import EXTENDED_PARAM_NAMES
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
 from ..model.stats import fit_percent
-from .ahead import displacement_fit_ahead
+from .ahead import displacement_fit_ahead, excitation, smoother_noise
 from .data import RunData, run_data
 from .output import (
     fit_initial_state,
@@ -67,6 +67,10 @@ class Validation:
         Fit % of the displacement the model predicts :data:`TRACK_AHEAD_S` ahead, re-initialised
         from the smoothed state (:func:`~usvlog.identify.ahead.displacement_fit_ahead`), after
         the initial window; NaN when not made.
+    sd : numpy.ndarray, shape (N, 3), or None
+        The smoother's one-sigma of the measured u, v, r at ``t`` (None: the smoother reports
+        none); with ``measured`` it says which channels the scored part excites
+        (:func:`excitation_of`).
     """
 
     fit_percent: dict            # "u", "v", "r", "track": 100 (1 - |y - yhat| / |y - mean y|)
@@ -77,6 +81,7 @@ class Validation:
     init_window_s: float         # initial state (and current) fitted on [0, init_window_s]
     seen: np.ndarray | None = None  # (N, 6) the free run smoothed as the measurements were (None: not made)
     track_ahead: float = float("nan")  # fit % of the displacement predicted TRACK_AHEAD_S ahead
+    sd: np.ndarray | None = None  # (N, 3) the smoother's one-sigma of the measured u, v, r (None: not reported)
 
     def to_dataframe(self) -> pd.DataFrame:
         """Measured and simulated states side by side, indexed by ``t_s`` (s).
@@ -145,9 +150,23 @@ def _validation(t, meas, sim, cur, t0: float, t_init: float, ks: KinStates | Non
     fp = {"u": fit_percent(meas[after, 3], vel[after, 3]), "v": fit_percent(meas[after, 4], vel[after, 4]),
           "r": fit_percent(meas[after, 5], vel[after, 5]),
           "track": fit_percent(meas[after, :2], sim[after, :2])}
+    sd = None if ks is None or ks.sd is None else np.stack([np.interp(t, ks.t, c) for c in ks.sd.T], -1)
     return Validation(fit_percent=fp, t=t, measured=meas, simulated=sim,
                       current=(float(cur[0]), float(cur[1])), init_window_s=float(t_init - t0), seen=seen,
-                      track_ahead=track_ahead)
+                      track_ahead=track_ahead, sd=sd)
+
+
+def excitation_of(validations: list[Validation]) -> dict:
+    """Which of u, v, r the scored parts of these validations excite beyond the smoother's
+    noise (:func:`~usvlog.identify.ahead.excitation` over their samples together, the noise
+    from the smoother's own one-sigma there): ``{channel: Excitation}``, empty without any."""
+    if not validations:
+        return {}
+    scored = [v.t > v.t[0] + v.init_window_s for v in validations]
+    nu = np.concatenate([v.measured[k, 3:6] for v, k in zip(validations, scored)])
+    sd = (None if any(v.sd is None for v in validations)
+          else np.concatenate([np.asarray(v.sd)[k] for v, k in zip(validations, scored)]))
+    return excitation(nu, smoother_noise(sd))
 
 
 def validation_fit_percent_(self: Identifier) -> dict:
@@ -174,6 +193,7 @@ def use_validation(self: Identifier, validations: list[Validation]) -> None:
     self.validations_ = list(validations)
     self.validation_ = self.validations_[0] if self.validations_ else None
     self.validation_mode_ = "logs" if self.validations_ else "none"
+    self.excitation_ = excitation_of(self.validations_)
     self.reasons_, self.verdict_ = self._verdict(self.vessel_in_, self.runs_, self._kin)
     self.usable_ = self.verdict_ != "unusable"
 

@@ -98,10 +98,23 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
         fp = self.validation_fit_percent_()
         on = {"holdout": "the held-out data", "leave-one-out": "the left-out logs"}.get(
             self.validation_mode_, "the validation log(s)")
-        fu = fp["u"] if math.isfinite(fp["u"]) else -math.inf
-        fr = fp["r"] if math.isfinite(fp["r"]) else -math.inf
-        excited: dict = {}   # which channels are excited there: not judged yet (the noise floor is not calibrated)
-        txt = f"validation fit on {on}: u {fmt_pct(fp['u'])} %, r {fmt_pct(fp['r'])} %"
+        exc = getattr(self, "excitation_", {}) or {}
+        excited = {ch: e.excited for ch, e in exc.items()}
+        # a channel the held-out data move no more than its noise has a fit % of noise: not judged
+        # (its figure is shown as "not excited there"), and what it determines is not validated
+        quiet = [ch for ch in ("u", "r") if excited.get(ch) is False]
+        fu = math.inf if "u" in quiet else fp["u"] if math.isfinite(fp["u"]) else -math.inf
+        fr = math.inf if "r" in quiet else fp["r"] if math.isfinite(fp["r"]) else -math.inf
+        txt = f"validation fit on {on}: " + ", ".join(
+            f"{ch} not excited there" if ch in quiet else f"{ch} {fmt_pct(fp[ch])} %" for ch in ("u", "r"))
+        if quiet:
+            # a note while the other channel validates the model (what the quiet one determines is
+            # judged by its standard errors above the fit); nothing validated at all is a caveat
+            which = {"u": "m, d11", "r": "Iz, d33"}
+            add(1 if len(quiet) == 2 else 0, f"{on} barely excite " + " and ".join(
+                f"{ch} (spread {fmt_num(exc[ch].spread, 2)}, its noise {fmt_num(exc[ch].noise, 2)} "
+                f"{'m/s' if ch == 'u' else 'rad/s'})" for ch in quiet)
+                + ": " + "; ".join(which[ch] for ch in quiet) + " not validated there")
         ahead = (getattr(self, "fit_percent_ahead_", {}) or {}).get("30")
         # the measured u, v, r are smoothed GPS and compass: their own noise caps the fit %
         # of u (slow, small changes) far below 100 even for the true model; r is the sharp test.
@@ -122,7 +135,7 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
         if ahead is not None and not (fr < FIT_UNUSABLE or fu < U_FIT_UNUSABLE):
             # the free run passed, yet restarted from the measured state every 30 s a channel is
             # predicted worse than a constant: what that channel determines is not validated
-            bad = [ch for ch in ("u", "r") if math.isfinite(ahead[ch]) and ahead[ch] < FIT_UNUSABLE]
+            bad = [ch for ch in ("u", "r") if ch not in quiet and math.isfinite(ahead[ch]) and ahead[ch] < FIT_UNUSABLE]
             if bad:
                 which = {"u": "m, d11", "r": "Iz, d33"}
                 add(1, "predicted 30 s ahead, " + " and ".join(f"{ch} {fmt_pct(ahead[ch])} %" for ch in bad)
