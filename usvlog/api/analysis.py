@@ -83,6 +83,9 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
         ``state`` (n_m, e_m, psi_rad, u_mps, v_mps, r_radps, ... and their std on a 0.01 s
         grid), ``forward`` (the forward filter, made on first access), ``innovations``, ``report``
         (consistency, ``format()``, ``to_dict()``); ``to_log(log)`` adds them to a copy of the log.
+        From a file to a file the log is estimated and written a time window at a time (memory
+        flat in its length, ``usvlog.api.estimate_file``; the same file):
+        ``state`` and ``innovations`` are then decoded from ``out`` when first asked for.
     """
     _check_paths([log], out, force)   # before the heavy imports: a mistyped path fails at once
     from ..estimate import EstimateSettings  # heavy: numpy, numba kernels
@@ -103,19 +106,22 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
     read_here = _is_path(log)
     src = log if read_here else log.source
     ves = _vessel_file(vessel)
-    doing = (f"estimating {src} ({model} model{', tuning' if tune else ''}"
-             f"{''.join(f', estimating the {k} delay' for k in auto)})")
+    said = []
+
+    def start() -> None:   # once the log is read
+        _say(progress, f"estimating {src} ({model} model{', tuning' if tune else ''}"
+                       f"{''.join(f', estimating the {k} delay' for k in auto)})")
+        said.append(True)
+
     if read_here and out is not None:   # file to file: a time window at a time (memory flat in the log's length)
         from .estimate_file import estimate_file  # heavy: the estimator and the MCAP reader and writer
 
-        _say(progress, doing)
-        done = estimate_file(log, out, settings, ves, force=force)
+        done = estimate_file(log, out, settings, ves, force=force, started=start)
         if done is not None:
             return done
-        doing = ""   # (said: the whole log, as before)
-    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)
-    if doing:
-        _say(progress, doing)
+    log = _read(log, progress, topics=list(INPUT_TOPICS), defer=True)   # (else the whole log, as before)
+    if not said:
+        start()
     result = run_estimate(log, settings, ves)
     if out is not None:
         out_log = result.to_log(log)

@@ -7,6 +7,7 @@ imported inside the functions.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,7 +23,7 @@ THRUST = "/thrust/command"
 
 
 def estimate_file(path: PathLike, out: PathLike, settings: EstimateSettings, vessel: Vessel | None,
-                  force: bool = False) -> EstimateResult | None:
+                  force: bool = False, started: Callable[[], None] | None = None) -> EstimateResult | None:
     """The estimate of a canonical MCAP file written to ``out`` (the file plus ``/estimate/*``),
     a time window at a time.
 
@@ -33,7 +34,8 @@ def estimate_file(path: PathLike, out: PathLike, settings: EstimateSettings, ves
     into a spool beside ``out`` (:class:`usvlog.io.mcap.writer.Spool`); then ``out`` is written
     from the input's channels and the spool, copied undecoded
     (:func:`usvlog.io.mcap.writer.write_log_merged`). The numbers and the file's bytes are those
-    of :func:`usvlog.estimate.estimate` saved with :func:`usvlog.io.mcap.write_log`.
+    of :func:`usvlog.estimate.estimate` saved with :func:`usvlog.io.mcap.write_log`. ``started`` is
+    called once the file is read, as the work starts (a progress line).
 
     Returns
     -------
@@ -62,6 +64,8 @@ def estimate_file(path: PathLike, out: PathLike, settings: EstimateSettings, ves
     log = read_log(path, topics=[t for t in INPUT_TOPICS if t != THRUST], defer=True)
     if log.recovery is not None or log.deferred is None:
         return None
+    if started is not None:
+        started()
 
     def thrust():
         for window in iter_windows(path, [THRUST]):
