@@ -36,6 +36,7 @@ STATES = (
     ("/replay/whatif/state", "whatif", "what-if run"),
 )
 
+OVERLAY_HZ = 10.0             # the view's tracks and per-tick overlays are thinned to this rate (Hz)
 SPEED_STEP_MIN_MPS = 0.05      # a change of u_d at least this big is a "speed step" event
 DROPOUT_FACTOR = 3.0           # a GPS gap longer than this many nominal periods is a dropout
 
@@ -68,12 +69,18 @@ def thin_indices(t_ns: np.ndarray, max_hz: float) -> np.ndarray:
     """
     if len(t_ns) < 3:
         return np.arange(len(t_ns))
-    dt = float(np.median(np.diff(t_ns))) / 1e9
-    step = max(1, int(round((1.0 / max_hz) / dt))) if dt > 0 else 1
+    step = thin_step(float(np.median(np.diff(t_ns))), max_hz)
     k = np.arange(0, len(t_ns), step)
     if k[-1] != len(t_ns) - 1:
         k = np.append(k, len(t_ns) - 1)
     return k
+
+
+def thin_step(median_dt_ns: float, max_hz: float) -> int:
+    """Every how many samples :func:`thin_indices` keeps one, for a series whose median time step is
+    ``median_dt_ns`` (ns): at most ``max_hz`` samples per second, at least every sample."""
+    dt = median_dt_ns / 1e9
+    return max(1, int(round((1.0 / max_hz) / dt))) if dt > 0 else 1
 
 
 def _col(frame, name):
@@ -207,8 +214,24 @@ def course_over_ground(frame) -> np.ndarray:
     return np.arctan2(s * u + c * v + ce, c * u - s * v + cn)
 
 
-def recorded_tau(log: FieldLog):
-    """(t_ns, tau_u, tau_r) from the recorded thrust commands and the vessel's geometry."""
+def mean_current(frame) -> tuple[float, float] | None:
+    """(north, east) m/s: the mean estimated water current over the rows where both are finite
+    (the report's current arrow); None without a finite one."""
+    cn, ce = _col(frame, "current_n_mps"), _col(frame, "current_e_mps")
+    if cn is None or ce is None:
+        return None
+    ok = np.isfinite(cn) & np.isfinite(ce)
+    if not ok.any():
+        return None
+    return float(cn[ok].mean()), float(ce[ok].mean())
+
+
+def recorded_tau(log: FieldLog, *, unit: str | None = None, forces: bool | None = None):
+    """(t_ns, tau_u, tau_r) from the recorded thrust commands and the vessel's geometry: from the
+    forces when any is recorded, else from the commands in the unit of the first row.
+
+    ``unit`` and ``forces`` (whether any force is finite) are the whole channel's when ``log``
+    holds a block of its rows (default: the frame's own)."""
     f = nonempty(log, "/thrust/command")
     if f is None:
         return None
@@ -216,10 +239,13 @@ def recorded_tau(log: FieldLog):
     vessel = log.vessel
     if fl is None or fr is None:
         return None
-    if vessel is None or not (np.isfinite(fl).any() or np.isfinite(fr).any()):
+    if forces is None:
+        forces = bool(np.isfinite(fl).any() or np.isfinite(fr).any())
+    if vessel is None or not forces:
         if vessel is None:
             return None
-        unit = str(f["unit"].iloc[0]) if "unit" in f.columns else "newton"
+        if unit is None:
+            unit = str(f["unit"].iloc[0]) if "unit" in f.columns else "newton"
         fl = vessel.thrusters.command_to_force(_col(f, "left"), unit, side="left")
         fr = vessel.thrusters.command_to_force(_col(f, "right"), unit, side="right")
     tu, tr = vessel.thrusters.tau_from_forces(fl, fr)

@@ -54,8 +54,16 @@ def of_log(log: FieldLog) -> CheckResult | None:
     """The findings about ``log`` (None for an empty log or when the checks cannot run)."""
     if log.time_range() is None:
         return None
+    return checked(_with_checked_channels(log))
+
+
+def checked(log: FieldLog) -> CheckResult | None:
+    """The findings about ``log`` as it is, no channel read from its file (None for an empty log or
+    when the checks cannot run)."""
+    if log.time_range() is None:
+        return None
     try:
-        return check_log(_with_checked_channels(log))
+        return check_log(log)
     except UsvlogError:
         return None
 
@@ -98,4 +106,4 @@ def rerun_parts(log: FieldLog, res: CheckResult | None = None):
     return np.asarray([t for t, _ in rows], np.int64), texts, [LEVELS[f.severity] for _, f in rows]
 
 
-__all__ = ["ENTITY", "LEVELS", "html_section", "of_log", "rerun_parts"]
+__all__ = ["ENTITY", "LEVELS", "checked", "html_section", "of_log", "rerun_parts"]

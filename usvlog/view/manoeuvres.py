@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import UsvlogError
 from ..log.fieldlog import FieldLog
-from ..trials import Manoeuvres, find_manoeuvres
+from ..trials import Manoeuvres, commands_from_frame, find, track_from_frame
 
 ENTITY = "manoeuvres"
 """Rerun entity of the manoeuvres' text log under a run (``/runs/<name>/manoeuvres``)."""
@@ -24,17 +24,33 @@ TRACK_ENTITY = "local/manoeuvres"
 """Rerun entity of the manoeuvres' stretches of the track under a run (local 2D view)."""
 
 
+STATE, THRUST = "/estimate/state", "/thrust/command"
+
+
 def of_log(log: FieldLog) -> Manoeuvres | None:
     """The manoeuvres measured on ``/estimate/state`` with ``/thrust/command``, or None when the
     log lacks either (or they hold too little to measure)."""
-    state, thrust = log.get("/estimate/state"), log.get("/thrust/command")
     tr = log.time_range()
-    if state is None or thrust is None or len(state) < 10 or len(thrust) < 2 or tr is None:
+    return measure({STATE: log.get(STATE), THRUST: log.get(THRUST)}, None if tr is None else int(tr[0]))
+
+
+def measure(frames: dict, t0_ns: int | None) -> Manoeuvres | None:
+    """The manoeuvres measured on ``frames[STATE]`` with ``frames[THRUST]`` (:func:`usvlog.trials.find_manoeuvres`),
+    or None when either is missing (or they hold too little to measure).
+
+    Each frame is taken out of ``frames`` once made into what the measurement uses (the commands,
+    then the track): a caller holding them only there has their memory back before the next.
+    ``t0_ns`` is the log's start (None for an empty log).
+    """
+    state, thrust = frames.get(STATE), frames.get(THRUST)
+    if state is None or thrust is None or len(state) < 10 or len(thrust) < 2 or t0_ns is None:
         return None
     if "n_m" not in state.columns or not np.isfinite(state["n_m"].to_numpy(float)).any():
         return None
+    del state, thrust
     try:
-        return find_manoeuvres(state, thrust, int(tr[0]))
+        commands = commands_from_frame(frames.pop(THRUST), t0_ns)
+        return find(track_from_frame(frames.pop(STATE), t0_ns), commands, None, t0_ns=t0_ns, source=STATE)
     except UsvlogError:
         return None
 
@@ -79,19 +95,27 @@ def html_section(found: Manoeuvres | None) -> list[str]:
 
 
 def _stretch(log: FieldLog, t0_ns: int, a_s: float, b_s: float) -> tuple[np.ndarray, np.ndarray]:
-    est = log["/estimate/state"]
+    est = log[STATE]
     t = (est.index.to_numpy().astype(np.int64) - t0_ns) * 1e-9
     k = (t >= a_s) & (t <= b_s)
     return est["n_m"].to_numpy(float)[k], est["e_m"].to_numpy(float)[k]
 
 
-def draw_on_track(ax, xy, log: FieldLog, found: Manoeuvres | None) -> None:
-    """Mark each manoeuvre on a track figure: its stretch of the estimated track, thick, numbered
-    as in the report's table. ``xy(n, e)`` maps north/east to the figure's axes."""
+def stretches(log: FieldLog, found: Manoeuvres | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each manoeuvre's stretch of the estimated track: (north m, east m), in the order of ``found``
+    (empty without manoeuvres)."""
+    if not found:
+        return []
+    return [_stretch(log, found.t0_ns, m.start_s, m.end_s) for m in found]
+
+
+def draw_on_track(ax, xy, found: Manoeuvres | None, parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    """Mark each manoeuvre on a track figure: its stretch of the estimated track (``parts``, from
+    :func:`stretches`), thick, numbered as in the report's table. ``xy(n, e)`` maps north/east to the
+    figure's axes."""
     if not found:
         return
-    for i, m in enumerate(found):
-        n, e = _stretch(log, found.t0_ns, m.start_s, m.end_s)
+    for i, (m, (n, e)) in enumerate(zip(found, parts)):
         if not len(n):
             continue
         ax.plot(*xy(n, e), "-", color=f"C{(i % 8) + 2}", lw=3.0, alpha=0.55, zorder=5,
@@ -99,8 +123,9 @@ def draw_on_track(ax, xy, log: FieldLog, found: Manoeuvres | None) -> None:
         ax.annotate(str(i + 1), xy(n[0], e[0]), fontsize=9, fontweight="bold", zorder=7)
 
 
-def rerun_parts(log: FieldLog, found: Manoeuvres | None = None):
-    """What the Rerun recording shows of the manoeuvres (the recording's writer sends it).
+def rerun_parts(log: FieldLog, found: Manoeuvres | None = None, parts: list | None = None):
+    """What the Rerun recording shows of the manoeuvres (the recording's writer sends it): those
+    ``found`` (default: :func:`of_log`), their stretches ``parts`` (default: :func:`stretches`).
 
     Returns
     -------
@@ -113,18 +138,19 @@ def rerun_parts(log: FieldLog, found: Manoeuvres | None = None):
     found = of_log(log) if found is None else found
     if not found:
         return None
+    parts = stretches(log, found) if parts is None else parts
     t_ns, texts, levels, strips, labels = [], [], [], [], []
-    for i, m in enumerate(found):
+    for i, (m, (n, e)) in enumerate(zip(found, parts)):
         head = f"{i + 1}. {m.title}" + (f" to {m.direction}" if m.direction else "")
         t_ns += [found.t0_ns + round(m.start_s * 1e9), found.t0_ns + round(m.end_s * 1e9)]
         texts += [head + f": {m.start_s:.1f} s to {m.end_s:.1f} s; "
                   + "; ".join(f"{x.name} {_fmt(x.value, x.std)}" for x in m.metrics), f"{head}: end"]
         levels += ["INFO", "DEBUG"]
-        n, e = _stretch(log, found.t0_ns, m.start_s, m.end_s)
         if len(n) > 1:
             strips.append(np.column_stack([e, -n])[::max(1, len(n) // 2000)])
             labels.append(f"{i + 1}. {m.title}")
     return np.asarray(t_ns, np.int64), texts, levels, strips, labels
 
 
-__all__ = ["ENTITY", "TRACK_ENTITY", "draw_on_track", "html_section", "of_log", "rerun_parts"]
+__all__ = ["ENTITY", "STATE", "THRUST", "TRACK_ENTITY", "draw_on_track", "html_section", "measure", "of_log",
+           "rerun_parts", "stretches"]

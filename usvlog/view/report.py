@@ -25,7 +25,9 @@ The report is written by :func:`write_report` here, from parts each in a module 
   estimate's series, the identification's fit), listed in page order by :func:`figures`;
 * :mod:`usvlog.view.report_plot`: matplotlib's set-up, the axes and legend helpers, a figure's PNG;
 * :mod:`usvlog.view.report_draw`: every figure drawn, shared with a forked copy on two CPUs;
-* :mod:`usvlog.view.report_page`: the HTML page.
+* :mod:`usvlog.view.report_page`: the HTML page;
+* :mod:`usvlog.view.report_windows`: a long log's big channels decimated as they are read, for the
+  figures (a :class:`usvlog.view.windowed.WindowedLog`: its numbers come from its survey).
 """
 
 from __future__ import annotations
@@ -49,6 +51,8 @@ from .report_figures import (
 )
 from .report_page import _page_figures, _page_head
 from .report_plot import _Axes, _plt
+from .report_windows import decimated
+from .windowed import NotWindowed, WindowedLog, whole
 
 # isort: split
 # names other modules import from here, their code now in the report_* modules: usvlog.campaign.report
@@ -175,6 +179,11 @@ def write_report(log: FieldLog | list[FieldLog], out_dir, force: bool = False, *
             raise ConfigError(f"a report takes one log and at most one baseline, got {len(log)} logs")
         log, baseline = log[0], (log[1] if len(log) == 2 else baseline)
     out = check_report_outputs(out_dir, force)
+    if isinstance(log, WindowedLog):   # its big channels read a block at a time, decimated for the figures
+        try:
+            log = decimated(log)
+        except NotWindowed:
+            log = whole(log)
     shown, missing, pngs = [], [], []
     figs = figures(log, baseline=baseline, axes=axes)
     head: list[str] = []

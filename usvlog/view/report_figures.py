@@ -24,6 +24,7 @@ from . import data as vd
 from . import manoeuvres as vman
 from .report_plot import _Axes, _band, _col, _finite, _legend, _seconds, _wrap_deg
 from .report_runs import _comparison, _main_controller, _run_label, _steered_track, path_metrics
+from .windowed import WindowedLog, manoeuvres_of
 
 # -----------------------------------------------------------------------------
 # the paper's figures: Fig. 1, 4, 2 and 5
@@ -92,20 +93,18 @@ def _fig_measured(plt, log, path, *, axes: _Axes):
         n, e = _col(est, "n_m"), _col(est, "e_m")
         ax.plot(*xy(n, e), "-", color="C0", lw=1.4, label="smoothed estimate", zorder=4)
         _start_marker(ax, xy, n, e, "C0")
-        vman.draw_on_track(ax, xy, log, vman.of_log(log))   # each standard manoeuvre, numbered as in its table
+        vman.draw_on_track(ax, xy, *manoeuvres_of(log))   # each standard manoeuvre, numbered as in its table
     if path is not None:
         ax.plot(*xy(path[:, 0], path[:, 1]), ":", color="C1", lw=1.4, label="desired path (dotted)", zorder=2)
     axes.label(ax)
     raw = f"raw {vd.fixes_name(log)}"
     ax.set_title(f"Track: {raw} and the smoothed estimate" if have_est else f"Track: {raw}")
-    if have_est and "current_n_mps" in est.columns:
-        cn_a, ce_a = _col(est, "current_n_mps"), _col(est, "current_e_mps")
-        ok_c = np.isfinite(cn_a) & np.isfinite(ce_a)
-        if ok_c.any():
-            cn, ce = float(cn_a[ok_c].mean()), float(ce_a[ok_c].mean())
-            sp = math.hypot(cn, ce)
-            if sp > 0.01:
-                _current_arrow(fig, ax, *xy(cn, ce), sp)
+    current = (log.survey.current if isinstance(log, WindowedLog) else vd.mean_current(est)) if have_est else None
+    if current is not None:   # a windowed log's current is the mean over the whole estimate, not the figure's rows
+        cn, ce = current
+        sp = math.hypot(cn, ce)
+        if sp > 0.01:
+            _current_arrow(fig, ax, *xy(cn, ce), sp)
     _legend(ax)
     return fig
 

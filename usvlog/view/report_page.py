@@ -34,6 +34,7 @@ from .report_runs import (
     replay_record,
     same_track,
 )
+from .windowed import findings_of, manoeuvres_of
 
 PARAM_UNITS = {"m": "kg", "Iz": "kg m^2", "d11": "kg/s", "d22": "kg/s", "d33": "kg m^2/s", "xg": "m"}
 
@@ -217,8 +218,8 @@ def _page_head(log, baseline, links=()) -> list[str]:
     parts += _metrics_section(log, baseline)
     parts += _estimate_section(log)
     parts += _identification_section(log)
-    parts += vfind.html_section(vfind.of_log(log))
-    parts += vman.html_section(vman.of_log(log))
+    parts += vfind.html_section(findings_of(log))
+    parts += vman.html_section(manoeuvres_of(log)[0])
     ev = vd.events_once(log)
     if ev:
         parts.append(f"<h2>Events ({len(ev)})</h2><ul class='events'>")

@@ -99,6 +99,25 @@ class _Axes:
             ax.set_ylabel("North (m)")
 
 
+def bucket_runs(b: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last) row of each run of samples in one bucket ``b`` and of one finiteness ``ok``.
+
+    Parameters
+    ----------
+    b : numpy.ndarray
+        Each sample's bucket (int, non-decreasing), at least one sample.
+    ok : numpy.ndarray
+        Whether each sample is finite (bool).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        The first and the last row index of each run, in order.
+    """
+    first = np.nonzero(np.r_[True, (b[1:] != b[:-1]) | (ok[1:] != ok[:-1])])[0]
+    return first, np.r_[first[1:] - 1, len(b) - 1]
+
+
 def band_envelope(t, lo, hi, n_bins: int):
     """The band between ``lo`` and ``hi`` over ``t`` reduced to its envelope in ``n_bins`` equal
     slices of ``t``'s span: per slice, the lowest ``lo`` and the highest ``hi`` at its first and
@@ -125,9 +144,7 @@ def band_envelope(t, lo, hi, n_bins: int):
     ok = np.isfinite(t) & np.isfinite(lo) & np.isfinite(hi)
     span = t[-1] - t[0]
     b = np.minimum((n_bins * (t - t[0]) / span).astype(np.int64), n_bins - 1) if span > 0 else np.zeros(len(t), int)
-    start = np.r_[True, (b[1:] != b[:-1]) | (ok[1:] != ok[:-1])]
-    first = np.nonzero(start)[0]
-    last = np.r_[first[1:] - 1, len(t) - 1]
+    first, last = bucket_runs(b, ok)
     g_ok = ok[first]
     g_lo = np.minimum.reduceat(np.where(ok, lo, np.inf), first)
     g_hi = np.maximum.reduceat(np.where(ok, hi, -np.inf), first)

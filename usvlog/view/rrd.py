@@ -16,7 +16,9 @@ Entity tree, one subtree per log (``name`` defaults to the log file's stem)::
 recorded run) or ``whatif``. The local 2D view draws x = east and y = -north, so with
 the viewer's y axis pointing down north is up and east is right. Timeline ``time`` (UTC); with
 several logs also ``elapsed`` (since each log's start, so runs recorded on different days overlay).
-Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep every sample.
+Tracks and per-tick overlays are thinned to at most 10 Hz; time series keep every sample. A long log
+read a time window at a time (:mod:`usvlog.view.windowed`) is drawn a block of rows at a time
+(:mod:`usvlog.view.rrd_windows`): the same recording, its memory flat in the log's length.
 
 This module writes the .rrd (:func:`to_rrd`) and opens it in a viewer (:func:`spawn_viewer`,
 :func:`serve`); what goes into it is drawn by a writer per log (:mod:`usvlog.view.rrd_writer`,
@@ -45,6 +47,7 @@ from ..log.fieldlog import FieldLog
 from .rrd_blueprint import build_blueprint
 from .rrd_style import _safe, default_names
 from .rrd_writer import _Writer
+from .windowed import NotWindowed, whole
 
 # isort: split
 # names other modules import from here (the tests), their code now in the rrd_* modules
@@ -146,6 +149,13 @@ def to_rrd(logs: list[FieldLog] | FieldLog, out_path, *, names: list[str] | None
     """
     logs, names = _prepare(logs, names)
     out = check_output(out_path, force)
+    try:
+        return _write(logs, names, out, force)
+    except NotWindowed:   # a log's file could not be read in windows after all: drawn from the whole log
+        return _write([whole(lg) for lg in logs], names, out, force)
+
+
+def _write(logs: list[FieldLog], names: list[str], out: Path, force: bool) -> Path:
     rec = _recording(logs, names)
     with atomic_path(out, force=force) as tmp:
         rec.save(tmp)

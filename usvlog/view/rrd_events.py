@@ -16,6 +16,7 @@ import rerun as rr
 from . import data as vd
 from . import findings as vfind
 from . import manoeuvres as vman
+from .windowed import findings_of, manoeuvres_of
 
 if TYPE_CHECKING:
     from .rrd_writer import _Writer
@@ -37,7 +38,8 @@ def draw_events(self: _Writer) -> None:
 def draw_manoeuvres(self: _Writer) -> None:
     """The standard manoeuvres (measured on the stored estimate): a text entry at each one's start
     (its metrics) and end in the events view, and its stretch of the track in the local view."""
-    part = vman.rerun_parts(self.log)
+    found, parts = manoeuvres_of(self.log)
+    part = vman.rerun_parts(self.log, found, parts) if found else None
     if part is None:
         return
     t, text, level, strips, labels = part
@@ -52,7 +54,8 @@ def draw_manoeuvres(self: _Writer) -> None:
 
 def draw_findings(self: _Writer) -> None:
     """The findings of ``usvlog check``: one text entry per finding at its start, with its level."""
-    part = vfind.rerun_parts(self.log)
+    res = findings_of(self.log)
+    part = vfind.rerun_parts(self.log, res) if res is not None else None
     if part is None:
         return
     t, text, level = part

@@ -1,7 +1,7 @@
 """The time series of one log: speeds, heading, yaw rate, forces, cross-track error, fit, NIS.
 
-:func:`draw_series` sends every state track's u, v, r and heading (and the estimated water
-current), the recorded forces, each controller's desired speed and heading, forces,
+:func:`draw_state_series` sends every state track's u, v, r and heading (and the estimated water
+current) and the recorded forces, :func:`draw_series` each controller's desired speed and heading, forces,
 cross-track error and saturation (a replay that decides exactly as the closed loop did is
 drawn once), the identification's measured and simulated velocities, and the estimator's
 NIS per sensor; each goes to the plot of its quantity (``/runs/<name>/ts/<quantity>/<series>``)
@@ -22,11 +22,11 @@ if TYPE_CHECKING:
     from .rrd_writer import _Writer
 
 
-def draw_series(self: _Writer) -> None:
-    """Every time series of the log, each to the plot of its quantity."""
+def draw_state_series(self: _Writer) -> None:
+    """The time series of the state channels and the recorded forces (of a block of them, for a log
+    drawn a block at a time), each to the plot of its quantity."""
     log = self.log
-    states = vd.state_tracks(log)
-    for _topic, label, f in states:
+    for _topic, label, f in vd.state_tracks(log):
         t = np.asarray(f.index.to_numpy(), dtype=np.int64)
         var = {"truth": "dark", "whatif": "light"}.get(label, "")
         c = self.color(label, var)
@@ -51,7 +51,19 @@ def draw_series(self: _Writer) -> None:
                 if q in f.columns:
                     self.scalars(sub, f"{sub}/whatif_state", t, f[q].to_numpy(), name=f"{sub} what-if run",
                                  color=c, width=1.0)
-    if not states:
+    rec = vd.recorded_tau(log, **self.tau_facts)
+    if rec is not None:
+        t, tu, tr = rec
+        c = self.color("recorded", "dark")
+        self.scalars("tau_u", "tau_u/recorded", t, tu, name="tau_u recorded", color=c, step=True)
+        self.scalars("tau_r", "tau_r/recorded", t, tr, name="tau_r recorded", color=c, step=True)
+
+
+def draw_series(self: _Writer) -> None:
+    """The other time series (after :func:`draw_state_series`: the compass when no state is drawn,
+    the controllers, the identification's fit, the NIS), each to the plot of its quantity."""
+    log = self.log
+    if not vd.state_tracks(log):
         comp = vd.nonempty(log, "/compass/heading")
         if comp is not None:
             t = np.asarray(comp.index.to_numpy(), dtype=np.int64)
@@ -59,12 +71,6 @@ def draw_series(self: _Writer) -> None:
             ok = np.isfinite(h)
             self.scalars("psi", "psi/compass", t[ok], heading_deg(h[ok]), name="compass heading",
                          color=self.color("compass"), gaps=True)
-    rec = vd.recorded_tau(log)
-    if rec is not None:
-        t, tu, tr = rec
-        c = self.color("recorded", "dark")
-        self.scalars("tau_u", "tau_u/recorded", t, tu, name="tau_u recorded", color=c, step=True)
-        self.scalars("tau_r", "tau_r/recorded", t, tr, name="tau_r recorded", color=c, step=True)
     ctls = vd.controllers(log)
     for i, (_topic, label, f, _sf, desc) in enumerate(ctls):
         t = np.asarray(f.index.to_numpy(), dtype=np.int64)

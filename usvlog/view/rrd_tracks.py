@@ -24,7 +24,7 @@ from .rrd_style import _col
 if TYPE_CHECKING:
     from .rrd_writer import _Writer
 
-OVERLAY_HZ = 10.0
+OVERLAY_HZ = vd.OVERLAY_HZ
 TRACK_LABELS = {"estimate": "smoothed estimate", "truth": "truth (simulated)", "whatif": "what-if run"}
 
 
@@ -63,7 +63,7 @@ def draw_tracks(self: _Writer) -> None:
         self.tag(path[:, 1], path[:, 0], "desired path", c)
     for _topic, label, f in vd.state_tracks(log):
         t = np.asarray(f.index.to_numpy(), dtype=np.int64)
-        k = vd.thin_indices(t, OVERLAY_HZ)
+        k = self.thin(t)
         n, e = np.asarray(f["n_m"].to_numpy(), float)[k], np.asarray(f["e_m"].to_numpy(), float)[k]
         ok = np.isfinite(n) & np.isfinite(e)
         n, e = n[ok], e[ok]
@@ -87,7 +87,7 @@ def draw_tracks(self: _Writer) -> None:
         t, n, e = g[0], g[3], g[4]
     else:
         return
-    k = vd.thin_indices(t, OVERLAY_HZ)
+    k = self.thin(t)
     k = k[np.isfinite(n[k]) & np.isfinite(e[k])]
     if not len(k):
         return
@@ -114,7 +114,7 @@ def draw_controllers(self: _Writer) -> None:
     shown = next((c[1] for c in ctls if c[1] != "whatif"), ctls[0][1] if ctls else None)
     for _topic, label, f, sf, desc in ctls:
         t = np.asarray(f.index.to_numpy(), dtype=np.int64)
-        k = vd.thin_indices(t, OVERLAY_HZ)
+        k = self.thin(t)
         tk = t[k]
         cols = self.index_cols(tk)
         if label != shown:   # one controller's overlays in sight; the others toggled off in the blueprint

@@ -6,7 +6,9 @@ and what the blueprint (:mod:`usvlog.view.rrd_blueprint`) needs afterwards: the 
 each view, the series names, their ranges, the overlays hidden by default, the map's extent.
 :meth:`_Writer.draw` draws the log part by part; each part is a method written in a module of
 its own: the map and local view (:mod:`usvlog.view.rrd_tracks`), the time series
-(:mod:`usvlog.view.rrd_series`) and the text entries (:mod:`usvlog.view.rrd_events`).
+(:mod:`usvlog.view.rrd_series`) and the text entries (:mod:`usvlog.view.rrd_events`). A log read a
+time window at a time (:class:`usvlog.view.windowed.WindowedLog`) has its big channels' series sent
+a block at a time first (:mod:`usvlog.view.rrd_windows`), then the rest drawn as for a whole log.
 """
 
 from __future__ import annotations
@@ -19,8 +21,9 @@ import rerun as rr
 from ..log.fieldlog import FieldLog
 from ..model.frames import Datum, ned_to_geodetic
 from . import data as vd
-from . import rrd_events, rrd_series, rrd_tracks
+from . import rrd_events, rrd_series, rrd_tracks, rrd_windows
 from .rrd_style import ROLE, RUN_COLORS, SERIES_PALETTE, _mix, break_wraps, scalar_column
+from .windowed import WindowedLog
 
 
 class _Writer:
@@ -36,6 +39,12 @@ class _Writer:
         self.colors: dict[str, list] = defaultdict(list)          # view -> colours its series use
         self.tags: list[tuple] = []                               # (x, y, label, colour) of the local view's layers
         self.geo_box: list[np.ndarray] = []   # [lat_min, lon_min, lat_max, lon_max] of what went on the map
+        # a log drawn a block at a time (rrd_windows): each series' plot, colour and range settled at the end
+        self.pending: dict[str, dict] | None = None   # series path -> its settings and range, in the order called
+        self.dry = False                              # only note the series called (their order), send nothing
+        self.carry: dict[str, tuple] = {}             # series path -> its last sample sent (where a wrap breaks)
+        self.thinned = False                          # the tracks' frames are thinned to OVERLAY_HZ already
+        self.tau_facts: dict = {}                     # the whole thrust channel's unit and forces (vd.recorded_tau)
         tr = log.time_range()
         self.t0 = tr[0] if tr else 0
         self.datum = log.datum
@@ -68,21 +77,30 @@ class _Writer:
     def scalars(self, view: str, sub: str, t_ns, y, *, name: str, color=None, width: float = 1.5,
                 step: bool = False, gaps: bool = False) -> None:
         """One time series; ``color`` None picks the next distinct colour of the view; ``gaps``
-        keeps NaN samples that follow a finite one (a break in the line, e.g. where a heading wraps)."""
+        keeps NaN samples that follow a finite one (a break in the line, e.g. where a heading wraps).
+
+        In a log drawn a block at a time (:attr:`pending` not None) each call sends the block's
+        samples; the series' plot, colour and range are settled by :meth:`settle` at the end, in
+        the order of the calls, as the whole log's drawing settles them."""
+        path = f"{self.prefix}/ts/{sub}"
+        if self.pending is not None:
+            entry = self.pending.setdefault(path, {"args": (view, name, color, width, step)})
+            if self.dry:
+                return
         y = np.asarray(y, dtype=float)
         t_ns = np.asarray(t_ns, dtype=np.int64)
         ok = np.isfinite(y)
         if not ok.any():
             return
-        if gaps:   # a wrapped angle: a NaN sample breaks the line where it wraps
-            t_ns, y = break_wraps(t_ns[ok], y[ok])
+        if gaps:   # a wrapped angle: a NaN sample breaks the line where it wraps (after the last block's too)
+            last = self.carry.get(path)
+            if last is None:
+                t_ns, y = break_wraps(t_ns[ok], y[ok])
+            else:
+                t_ns, y = (a[1:] for a in break_wraps(np.r_[last[0], t_ns[ok]], np.r_[last[1], y[ok]]))
+            if self.pending is not None:
+                self.carry[path] = (t_ns[-1], y[-1])
             ok = np.ones(len(y), bool)
-        used = self.colors[view]
-        if color is None or tuple(color) in used:   # every series of a plot in its own colour
-            free = [c for c in SERIES_PALETTE if c not in used]
-            color = free[0] if free else SERIES_PALETTE[len(used) % len(SERIES_PALETTE)]
-        path = f"{self.prefix}/ts/{sub}"
-        kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
         if not ok.all():
             t_ns, y = t_ns[ok], y[ok]
         index, column = self.index_cols(t_ns), scalar_column(y)
@@ -90,16 +108,43 @@ class _Writer:
         # was built; every sample of the log is a series sample, and rerun's pipeline would otherwise hold
         # them all until the end (1-hour log: 80 MB less at the peak)
         self.rec.flush()
+        if self.pending is None:
+            self._series_lines(view, path, name, color, width, step)
+        self.rec.send_columns(path, indexes=index, columns=column)
+        fin = y[np.isfinite(y)]
+        lo, hi = float(fin.min()), float(fin.max())
+        r = self.ranges.setdefault(view, [lo, hi]) if self.pending is None else entry.setdefault("range", [lo, hi])
+        r[0], r[1] = min(r[0], lo), max(r[1], hi)
+
+    def _series_lines(self, view: str, path: str, name: str, color, width: float, step: bool) -> None:
+        """A series' plot, name, colour (the next distinct one of its plot when ``color`` is None or
+        taken) and line style."""
+        used = self.colors[view]
+        if color is None or tuple(color) in used:   # every series of a plot in its own colour
+            free = [c for c in SERIES_PALETTE if c not in used]
+            color = free[0] if free else SERIES_PALETTE[len(used) % len(SERIES_PALETTE)]
+        kw = {"interpolation_mode": rr.components.InterpolationMode.StepAfter} if step else {}
         self.rec.log(path, rr.SeriesLines(colors=[color], names=[self.label(name)], widths=[width], **kw),
                      static=True)
-        self.rec.send_columns(path, indexes=index, columns=column)
         self.views[view].append(path)
         self.series[view].append(name)
         used.append(tuple(color))
-        fin = y[np.isfinite(y)]
-        lo, hi = float(fin.min()), float(fin.max())
-        r = self.ranges.setdefault(view, [lo, hi])
-        r[0], r[1] = min(r[0], lo), max(r[1], hi)
+
+    def settle(self) -> None:
+        """The series sent a block at a time given their plots, colours and ranges, in the order called."""
+        for path, entry in (self.pending or {}).items():
+            if "range" in entry:   # a series with no finite sample is not drawn
+                view, name, color, width, step = entry["args"]
+                self._series_lines(view, path, name, color, width, step)
+                lo, hi = entry["range"]
+                r = self.ranges.setdefault(view, [lo, hi])
+                r[0], r[1] = min(r[0], lo), max(r[1], hi)
+        self.pending, self.carry = None, {}
+
+    def thin(self, t_ns: np.ndarray) -> np.ndarray:
+        """The rows of a track or an overlay drawn: at most :data:`usvlog.view.data.OVERLAY_HZ` a second
+        (all of a frame thinned already)."""
+        return np.arange(len(t_ns)) if self.thinned else vd.thin_indices(t_ns, vd.OVERLAY_HZ)
 
     def geo(self, n, e):
         lat, lon, _ = ned_to_geodetic(np.asarray(n, float), np.asarray(e, float), 0.0, datum=self.datum)
@@ -135,6 +180,11 @@ class _Writer:
 
     # -- the drawing -------------------------------------------------------------
     def draw(self) -> None:
+        """Draw the log: its big channels a block at a time for a windowed log (:mod:`usvlog.view.rrd_windows`)."""
+        if isinstance(self.log, WindowedLog):
+            self.draw_blocks()
+        else:
+            self.draw_state_series()
         self.draw_tracks()
         self.draw_tags()
         self.draw_controllers()
@@ -144,8 +194,10 @@ class _Writer:
         self.draw_manoeuvres()
 
     # each part in a module of its own, a method all the same
+    draw_blocks = rrd_windows.draw_blocks
     draw_tracks = rrd_tracks.draw_tracks
     draw_controllers = rrd_tracks.draw_controllers
+    draw_state_series = rrd_series.draw_state_series
     draw_series = rrd_series.draw_series
     draw_events = rrd_events.draw_events
     draw_manoeuvres = rrd_events.draw_manoeuvres

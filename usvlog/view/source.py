@@ -14,6 +14,11 @@ in one go, and read in one go when no second CPU is free (``USVLOG_THREADS=1``).
 place (issue 32): a 1-hour ``usvlog view`` 10.8 % faster with it (median of 4 paired on/off runs,
 9.1-11.7 %, load 1.1-1.2; docs/performance.md). The report reads in one go: the same copy beside
 its matplotlib import saved 3.3 %.
+
+A long log (:data:`usvlog.view.windowed.MIN_ROWS` rows in a big channel) whose file allows it is
+not read whole at all: :func:`read_drawn` gives a :class:`usvlog.view.windowed.WindowedLog` (its
+channels :attr:`Drawn.small` decoded, the big ones drawn a time window at a time), surveyed before
+the caller's import (no forked copy then: there is no channel to read whole).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from ..io.mcap.reader import chunk_spans
 from ..log.fieldlog import FieldLog
 from . import data as vd
 from .forked import Forked, two_cores
+from .windowed import open_windowed
 
 # what view/rrd.py draws; the report draws the same but the recorded thrust commands (it reads them to find
 # the standard manoeuvres)
@@ -52,12 +58,16 @@ class Drawn:
     unless : dict, optional
         Channel of ``topics`` -> channels that, when the file holds any of them, keep it from
         being drawn (it is then left like a channel never drawn).
+    small : tuple of str, default ()
+        Channels of ``topics`` decoded whole when the others can be drawn a time window at a
+        time (:func:`usvlog.view.windowed.open_windowed`); () reads every channel whole.
     """
 
     topics: tuple[str, ...]
     late: tuple[str, ...] = ()
     meanwhile: Callable[[], object] | None = None
     unless: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    small: tuple[str, ...] = ()
 
 
 def read_drawn(path, topics: tuple[str, ...] | Drawn, read: Callable[..., FieldLog]) -> FieldLog:
@@ -104,6 +114,10 @@ def _read_drawn(path, drawn: Drawn, meanwhile: Callable[[], None], read: Callabl
         return read(path, topics=None)
     present = {t for _a, _b, ts in spans for t in ts}
     topics = tuple(t for t in topics if not present.intersection(drawn.unless.get(t, ())))
+    if drawn.small:
+        windowed = open_windowed(path, topics, tuple(t for t in drawn.small if t in topics), read)
+        if windowed is not None:
+            return windowed
     others = sorted(present - set(topics))
     late = [t for t in drawn.late if t in present][:1]
     if not others and not late:
@@ -153,6 +167,10 @@ def _import_rerun() -> None:
 # what the view and the report read (for the view a forked copy reads the channel that costs about
 # as much as importing rerun, while this process imports it; 1-hour log: ~0.5 s each)
 # the view draws the compass only for a log without a state channel (rrd._Writer.draw_series)
+# a log long enough is drawn a time window at a time (usvlog.view.windowed): these channels decoded whole,
+# the big ones (the states, the thrust commands) from the file as they are drawn; the rerun import then
+# follows the survey of the log, whose whole-run analyses are the read's peak
+SMALL = ("/gnss/fix", "/local/position", "/compass/heading", "/estimate/innovations")
 VIEW_READ = Drawn(VIEW_TOPICS, late=("/thrust/command", "/truth/state", "/estimate/state"), meanwhile=_import_rerun,
-                  unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)})
-REPORT_READ = Drawn(REPORT_TOPICS)
+                  unless={"/compass/heading": tuple(t for t, _label, _desc in vd.STATES)}, small=SMALL)
+REPORT_READ = Drawn(REPORT_TOPICS, small=SMALL)
