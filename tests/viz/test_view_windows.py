@@ -104,6 +104,15 @@ def test_view_windowed_equals_whole(tmp_path, turns_file, small_blocks):
     _assert_same_recording(a, b)
 
 
+def test_view_windowed_overlay_equals_whole(tmp_path, turns_file, small_blocks):
+    """Two runs overlaid (the ``elapsed`` timeline, colours by run): the same recording either way."""
+    win = [read_drawn(turns_file, WINDOWED, read_log) for _ in range(2)]
+    whole = [read_drawn(turns_file, WHOLE, read_log) for _ in range(2)]
+    a = to_rrd(whole, tmp_path / "whole.rrd", names=["a", "b"])
+    b = to_rrd(win, tmp_path / "win.rrd", names=["a", "b"])
+    _assert_same_recording(a, b)
+
+
 def test_view_falls_back_to_the_whole_log(tmp_path, turns_file, small_blocks, monkeypatch):
     """A file that cannot be read in windows after all (here: after the first block) is drawn whole."""
     real = windowed.blocks
