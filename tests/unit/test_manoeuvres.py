@@ -24,7 +24,18 @@ import pytest
 
 import usvlog
 from usvlog.errors import InputError
-from usvlog.trials import Commands, Settings, Track, find, find_manoeuvres
+from usvlog.trials import (
+    Commands,
+    CommandsBuilder,
+    Settings,
+    Track,
+    TrackBuilder,
+    commands_from_frame,
+    find,
+    find_manoeuvres,
+    track_from_frame,
+    uses_forces,
+)
 from usvlog.trials.detect import holds
 from usvlog.trials.metrics import nominal_angle
 
@@ -167,6 +178,67 @@ def test_idle_commands_find_nothing():
     z = np.zeros_like(t)
     track = Track(t, z, z, z, z, z, z, z, z, z, z, z)
     assert len(find(track, Commands(t, z, z))) == 0
+
+
+def _blocks(frame: pd.DataFrame, rng, n: int = 40):
+    """``frame`` cut anywhere into ``n`` + 1 blocks (some of one row or none)."""
+    cuts = np.sort(np.r_[0, 1, 1, rng.integers(0, len(frame), n - 3)])
+    return [frame.iloc[a:b] for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(frame)])]
+
+
+def _same_arrays(a, b) -> bool:
+    return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in a.__dataclass_fields__ if k != "unit")
+
+
+def test_track_made_block_by_block_equals_the_whole_frames():
+    """TrackBuilder over blocks cut anywhere: the track of the whole frame bit for bit (the heading
+    unwrapped across the blocks as np.unwrap does the whole run; non-finite rows dropped)."""
+    rng = np.random.default_rng(5)
+    n = 6000
+    psi = np.cumsum(rng.normal(0.0, 1.2, n))   # steps up to pi and beyond: np.unwrap's every branch
+    psi = (psi + np.pi) % (2 * np.pi) - np.pi
+    psi[[7, 2000]] = np.nan
+    frame = pd.DataFrame({c: rng.normal(size=n) for c in ("n_m", "e_m", "u_mps", "v_mps", "r_radps", "n_m_std",
+                                                          "e_m_std", "psi_rad_std", "u_mps_std", "r_radps_std")},
+                         index=pd.Index(10**18 + np.arange(n, dtype=np.int64) * 10**7, name="t_ns"))
+    frame["psi_rad"], frame.iloc[50, 0] = psi, np.inf
+    frame.iloc[60, frame.columns.get_loc("psi_rad_std")] = np.nan
+    t0 = 10**18 - 5 * 10**8
+    whole = track_from_frame(frame, t0)
+    assert np.array_equal(whole.psi, np.unwrap(psi[np.isfinite(psi) & np.isfinite(frame["n_m"].to_numpy())]))
+    assert len(whole.t) == n - 3 and whole.psi_std[58] == 0.0   # a NaN sigma is zero (rows 7 and 50 dropped)
+    made = TrackBuilder(n, t0)
+    for b in _blocks(frame, rng):
+        made.add(b)
+    assert _same_arrays(made.track(), whole)
+    with pytest.raises(InputError, match="finite rows"):
+        TrackBuilder(n, t0).add(frame.iloc[:12].assign(n_m=np.nan)).track()
+
+
+@pytest.mark.parametrize("forces", [True, False])
+def test_commands_made_block_by_block_equal_the_whole_frames(forces):
+    """CommandsBuilder over blocks: the commands of the whole frame (the forces or the commands,
+    non-finite rows dropped, times out of order sorted as the whole frame's stable sort)."""
+    rng = np.random.default_rng(6)
+    n = 3000
+    t = 10**18 + np.arange(n, dtype=np.int64) * 10**7
+    t[[100, 101, 2500]] = t[[101, 100, 10]]   # out of order, one repeated
+    frame = pd.DataFrame({"left": rng.normal(size=n), "right": rng.normal(size=n),
+                          "unit": pd.array(["normalized"] * n, dtype="str"),
+                          "thrust_left_n": rng.normal(size=n), "thrust_right_n": rng.normal(size=n)},
+                         index=pd.Index(t, name="t_ns"))
+    frame.iloc[3, 0] = frame.iloc[4, 4] = np.nan
+    if not forces:
+        frame.iloc[::5, 3] = np.nan   # forces on 80 % of the rows: the commands are taken
+    whole = commands_from_frame(frame, 10**18)
+    left = int(np.isfinite(frame["thrust_left_n"].to_numpy()).sum())
+    assert uses_forces(frame.columns, left, n) is forces and whole.unit == ("N" if forces else "normalized")
+    made = CommandsBuilder(n, 10**18, forces, "normalized")
+    for b in _blocks(frame, rng):
+        made.add(b)
+    got = made.commands()
+    assert _same_arrays(got, whole) and got.unit == whole.unit and np.all(np.diff(got.t) >= 0)
+    assert commands_from_frame(frame.drop(columns=["unit", "thrust_left_n"]), 0).unit == "command"
 
 
 # -----------------------------------------------------------------------------

@@ -104,6 +104,19 @@ def test_view_windowed_equals_whole(tmp_path, turns_file, small_blocks):
     _assert_same_recording(a, b)
 
 
+def test_channel_gathered_from_its_blocks_equals_the_read(turns_file, small_blocks):
+    """The commands the findings check, gathered a block at a time: the frame read whole (its text
+    column as categories of the same values)."""
+    win = read_drawn(turns_file, WINDOWED, read_log)
+    whole = read_log(turns_file, topics=["/thrust/command"])["/thrust/command"]
+    got = windowed.gathered(win, "/thrust/command", len(whole))
+    assert isinstance(got["unit"].dtype, pd.CategoricalDtype)
+    assert got["unit"].astype(str).tolist() == whole["unit"].astype(str).tolist()
+    pd.testing.assert_frame_equal(got.drop(columns="unit"), whole.drop(columns="unit"))
+    with pytest.raises(windowed.NotWindowed):
+        windowed.gathered(win, "/thrust/command", len(whole) + 1)
+
+
 def test_view_windowed_overlay_equals_whole(tmp_path, turns_file, small_blocks):
     """Two runs overlaid (the ``elapsed`` timeline, colours by run): the same recording either way."""
     win = [read_drawn(turns_file, WINDOWED, read_log) for _ in range(2)]

@@ -8,7 +8,17 @@ from __future__ import annotations
 
 import pandas as pd
 
-from .detect import Commands, Settings, Track, commands_from_frame, find, track_from_frame
+from .detect import (
+    Commands,
+    CommandsBuilder,
+    Settings,
+    Track,
+    TrackBuilder,
+    commands_from_frame,
+    find,
+    track_from_frame,
+    uses_forces,
+)
 from .result import KINDS, TITLES, Manoeuvre, Manoeuvres, Metric
 
 MANOEUVRE_Q_UV = 0.03
@@ -53,5 +63,6 @@ def find_manoeuvres(state: pd.DataFrame, thrust: pd.DataFrame, t0_ns: int, *, se
                 t0_ns=t0_ns, source=source)
 
 
-__all__ = ["KINDS", "MANOEUVRE_Q_R", "MANOEUVRE_Q_UV", "TITLES", "Commands", "Manoeuvre", "Manoeuvres", "Metric",
-           "Settings", "Track", "commands_from_frame", "find", "find_manoeuvres", "track_from_frame"]
+__all__ = ["KINDS", "MANOEUVRE_Q_R", "MANOEUVRE_Q_UV", "TITLES", "Commands", "CommandsBuilder", "Manoeuvre",
+           "Manoeuvres", "Metric", "Settings", "Track", "TrackBuilder", "commands_from_frame", "find",
+           "find_manoeuvres", "track_from_frame", "uses_forces"]

@@ -140,6 +140,83 @@ class Hold:
         return self.end - self.start
 
 
+_POSE = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps")
+_SIGMAS = ("n_m", "e_m", "psi_rad", "u_mps", "r_radps")
+_TRACK_FIELDS = ("t", "n", "e", "psi", "u", "v", "r", "n_std", "e_std", "psi_std", "u_std", "r_std")
+_FORCES = ("thrust_left_n", "thrust_right_n")
+
+
+class TrackBuilder:
+    """A :class:`Track` made from a state channel's frame a block of rows at a time (the blocks in
+    time order, joined the whole frame): the track :func:`track_from_frame` makes of the whole frame,
+    its arrays allocated once and no frame of the whole run held.
+
+    Parameters
+    ----------
+    rows : int
+        The channel's rows (at least those of every block added).
+    t0_ns : int
+        The log's start (ns since the Unix epoch).
+    """
+
+    def __init__(self, rows: int, t0_ns: int):
+        self.t0_ns = int(t0_ns)
+        self.arrays = {k: np.empty(rows) for k in _TRACK_FIELDS}
+        self.n = 0
+        self._psi: float | None = None     # the last raw heading kept and the unwrapping's correction
+        self._carry: float | None = None   # summed so far: np.unwrap of the whole run, carried over
+
+    def add(self, frame: pd.DataFrame) -> TrackBuilder:
+        """Add the next block of rows (rows with a non-finite pose are dropped); returns self."""
+        t = (np.asarray(frame.index.to_numpy(), np.int64) - self.t0_ns) * 1e-9
+
+        def col(name: str) -> np.ndarray:
+            return frame[name].to_numpy(float) if name in frame.columns else np.zeros(len(frame))
+
+        n, e, psi, u, v, r = (col(c) for c in _POSE)
+        ok = np.isfinite(n) & np.isfinite(e) & np.isfinite(psi) & np.isfinite(u) & np.isfinite(v) & np.isfinite(r)
+        a, b = self.n, self.n + int(ok.sum())
+        put = self.arrays
+        for k, x in zip(("t", "n", "e", "u", "v", "r"), (t, n, e, u, v, r)):
+            put[k][a:b] = x[ok]
+        for k, c in zip(_TRACK_FIELDS[7:], _SIGMAS):
+            put[k][a:b] = np.nan_to_num(col(c + "_std")[ok], nan=0.0)
+        self._unwrap(psi[ok], put["psi"][a:b])
+        self.n = b
+        return self
+
+    def _unwrap(self, p: np.ndarray, out: np.ndarray) -> None:
+        """``out`` = the block ``p`` of headings unwrapped as ``np.unwrap`` unwraps the whole run (its
+        steps and their corrections the same; the corrections summed on from the blocks before)."""
+        if not len(p):
+            return
+        q = p if self._psi is None else np.r_[self._psi, p]
+        dd = np.diff(q)
+        lo, period = -np.pi, 2 * np.pi   # as np.unwrap (period 2 pi, discont pi)
+        ddmod = np.mod(dd - lo, period) + lo
+        np.copyto(ddmod, -lo, where=(ddmod == lo) & (dd > 0))
+        fix = ddmod - dd
+        np.copyto(fix, 0, where=np.abs(dd) < -lo)
+        summed = np.cumsum(fix) if self._carry is None else np.cumsum(np.r_[self._carry, fix])[1:]
+        if self._psi is None:
+            out[0] = p[0]
+        out[len(out) - len(summed):] = q[1:] + summed
+        self._psi = float(p[-1])
+        self._carry = float(summed[-1]) if len(summed) else self._carry
+
+    def track(self) -> Track:
+        """The :class:`Track` of the rows added.
+
+        Raises
+        ------
+        usvlog.errors.InputError
+            With fewer than 10 finite rows.
+        """
+        if self.n < 10:
+            raise InputError(f"the state has {self.n} finite rows: too few to find manoeuvres")
+        return Track(*(self.arrays[k][:self.n] for k in _TRACK_FIELDS))
+
+
 def track_from_frame(frame: pd.DataFrame, t0_ns: int) -> Track:
     """A :class:`Track` from an ``/estimate/state`` or ``/truth/state`` frame (indexed by t_ns).
 
@@ -150,42 +227,82 @@ def track_from_frame(frame: pd.DataFrame, t0_ns: int) -> Track:
     usvlog.errors.InputError
         With fewer than 10 finite rows.
     """
-    idx = frame.index.to_numpy()
-    t = (np.asarray(idx, np.int64) - int(t0_ns)) * 1e-9
+    return TrackBuilder(len(frame), t0_ns).add(frame).track()
 
-    def col(name: str) -> np.ndarray:
-        return frame[name].to_numpy(float) if name in frame.columns else np.zeros(len(frame))
 
-    n, e, psi, u, v, r = (col(c) for c in ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps"))
-    ok = np.isfinite(n) & np.isfinite(e) & np.isfinite(psi) & np.isfinite(u) & np.isfinite(v) & np.isfinite(r)
-    if ok.sum() < 10:
-        raise InputError(f"the state has {int(ok.sum())} finite rows: too few to find manoeuvres")
-    stds = [np.nan_to_num(col(c + "_std")[ok], nan=0.0) for c in ("n_m", "e_m", "psi_rad", "u_mps", "r_radps")]
-    return Track(t[ok], n[ok], e[ok], np.unwrap(psi[ok]), u[ok], v[ok], r[ok], *stds)
+def uses_forces(columns, finite_left: int, rows: int) -> bool:
+    """Whether a ``/thrust/command`` channel's commands are taken as its forces: it has the force
+    columns and ``thrust_left_n`` is finite on more than 90 % of its ``rows`` (``finite_left`` of them)."""
+    return set(_FORCES) <= set(columns) and rows > 0 and finite_left / rows > 0.9
+
+
+class CommandsBuilder:
+    """:class:`Commands` made from a ``/thrust/command`` frame a block of rows at a time (the blocks
+    in time order, joined the whole frame): the commands :func:`commands_from_frame` makes of the
+    whole frame, its arrays allocated once.
+
+    Parameters
+    ----------
+    rows : int
+        The channel's rows (at least those of every block added).
+    t0_ns : int
+        The log's start (ns since the Unix epoch).
+    forces : bool
+        Take the forces ``thrust_left_n``/``thrust_right_n`` (:func:`uses_forces`), else the
+        commands ``left``/``right``.
+    unit : str or None
+        The unit of the channel's first row (None: it has no unit column): the commands' unit
+        (``N`` for forces; ``command`` without one).
+    """
+
+    def __init__(self, rows: int, t0_ns: int, forces: bool, unit: str | None):
+        self.t0_ns = int(t0_ns)
+        self.unit = "N" if forces else "command" if unit is None else unit
+        self.names = _FORCES if forces else ("left", "right")
+        self.t, self.left, self.right = np.empty(rows), np.empty(rows), np.empty(rows)
+        self.n = 0
+
+    def add(self, frame: pd.DataFrame) -> CommandsBuilder:
+        """Add the next block of rows (rows without both commands finite are dropped); returns self."""
+        t = (np.asarray(frame.index.to_numpy(), np.int64) - self.t0_ns) * 1e-9
+        left, right = (frame[c].to_numpy(float) for c in self.names)
+        ok = np.isfinite(left) & np.isfinite(right)
+        a, b = self.n, self.n + int(ok.sum())
+        self.t[a:b], self.left[a:b], self.right[a:b] = t[ok], left[ok], right[ok]
+        self.n = b
+        return self
+
+    def commands(self) -> Commands:
+        """The :class:`Commands` of the rows added, in time order.
+
+        Raises
+        ------
+        usvlog.errors.InputError
+            With fewer than 2 finite commands.
+        """
+        if self.n < 2:
+            raise InputError("/thrust/command has fewer than 2 finite commands: no manoeuvre can be found")
+        t, left, right = self.t[:self.n], self.left[:self.n], self.right[:self.n]
+        if np.any(np.diff(t) < 0):   # else the stable sort's order is the rows' own
+            order = np.argsort(t, kind="stable")
+            t, left, right = t[order], left[order], right[order]
+        return Commands(t, left, right, self.unit)
 
 
 def commands_from_frame(frame: pd.DataFrame, t0_ns: int) -> Commands:
     """:class:`Commands` from a ``/thrust/command`` frame: the forces ``thrust_left_n`` and
-    ``thrust_right_n`` when they are finite, else the commands ``left`` and ``right``.
+    ``thrust_right_n`` when they are finite (:func:`uses_forces`), else the commands ``left`` and
+    ``right``.
 
     Raises
     ------
     usvlog.errors.InputError
         With fewer than 2 finite commands.
     """
-    t = (np.asarray(frame.index.to_numpy(), np.int64) - int(t0_ns)) * 1e-9
-    unit = "N"
-    if {"thrust_left_n", "thrust_right_n"} <= set(frame.columns) and \
-            np.isfinite(frame["thrust_left_n"].to_numpy(float)).mean() > 0.9:
-        left, right = frame["thrust_left_n"].to_numpy(float), frame["thrust_right_n"].to_numpy(float)
-    else:
-        left, right = frame["left"].to_numpy(float), frame["right"].to_numpy(float)
-        unit = str(frame["unit"].iloc[0]) if "unit" in frame.columns and len(frame) else "command"
-    ok = np.isfinite(left) & np.isfinite(right)
-    if ok.sum() < 2:
-        raise InputError("/thrust/command has fewer than 2 finite commands: no manoeuvre can be found")
-    order = np.argsort(t[ok], kind="stable")
-    return Commands(t[ok][order], left[ok][order], right[ok][order], unit)
+    finite = int(np.isfinite(frame["thrust_left_n"].to_numpy(float)).sum()) if "thrust_left_n" in frame.columns else 0
+    forces = uses_forces(frame.columns, finite, len(frame))
+    unit = str(frame["unit"].iloc[0]) if "unit" in frame.columns and len(frame) else None
+    return CommandsBuilder(len(frame), t0_ns, forces, unit).add(frame).commands()
 
 
 def full_scale(cmd: Commands) -> float:
@@ -346,5 +463,5 @@ def _speed_steps(track: Track, hs: list[Hold], used: list[bool], d_on: float, ze
     return out
 
 
-__all__ = ["Commands", "Hold", "Settings", "Track", "commands_from_frame", "find", "full_scale", "holds",
-           "track_from_frame"]
+__all__ = ["Commands", "CommandsBuilder", "Hold", "Settings", "Track", "TrackBuilder", "commands_from_frame", "find",
+           "full_scale", "holds", "track_from_frame", "uses_forces"]

@@ -48,9 +48,17 @@ def measure(frames: dict, t0_ns: int | None) -> Manoeuvres | None:
     if "n_m" not in state.columns or not np.isfinite(state["n_m"].to_numpy(float)).any():
         return None
     del state, thrust
+    return find_on(lambda: commands_from_frame(frames.pop(THRUST), t0_ns),
+                 lambda: track_from_frame(frames.pop(STATE), t0_ns), t0_ns)
+
+
+def find_on(commands, track, t0_ns: int) -> Manoeuvres | None:
+    """The manoeuvres of the commands ``commands()`` on the track ``track()`` of ``/estimate/state``
+    (:func:`usvlog.trials.find`; each made when the measurement needs it), or None when either
+    holds too little to measure."""
     try:
-        commands = commands_from_frame(frames.pop(THRUST), t0_ns)
-        return find(track_from_frame(frames.pop(STATE), t0_ns), commands, None, t0_ns=t0_ns, source=STATE)
+        cmd = commands()
+        return find(track(), cmd, None, t0_ns=t0_ns, source=STATE)
     except UsvlogError:
         return None
 
@@ -152,5 +160,5 @@ def rerun_parts(log: FieldLog, found: Manoeuvres | None = None, parts: list | No
     return np.asarray(t_ns, np.int64), texts, levels, strips, labels
 
 
-__all__ = ["ENTITY", "STATE", "THRUST", "TRACK_ENTITY", "draw_on_track", "html_section", "measure", "of_log",
-           "rerun_parts", "stretches"]
+__all__ = ["ENTITY", "STATE", "THRUST", "TRACK_ENTITY", "draw_on_track", "find_on", "html_section", "measure",
+           "of_log", "rerun_parts", "stretches"]

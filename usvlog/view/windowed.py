@@ -33,6 +33,7 @@ from ..io.mcap.decode import _return_freed_memory
 from ..io.mcap.reader import chunk_spans, read_log
 from ..io.mcap.windows import NotWindowed, iter_windows, topic_counts
 from ..log.fieldlog import FieldLog
+from ..trials import CommandsBuilder, TrackBuilder, uses_forces
 from . import data as vd
 from . import findings as vfind
 from . import manoeuvres as vman
@@ -46,11 +47,8 @@ BLOCK_ROWS = 65_536
 MIN_ROWS = BLOCK_ROWS
 """A log whose big channels are all shorter is read whole (one block: nothing to gain)."""
 
-# what the manoeuvres read of the estimate (usvlog.trials.track_from_frame; and its current, for the
-# report's arrow) and of the commands (commands_from_frame)
-_STATE_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "n_m_std", "e_m_std", "psi_rad_std",
-                  "u_mps_std", "r_radps_std", "current_n_mps", "current_e_mps")
-_THRUST_COLUMNS = ("left", "right", "thrust_left_n", "thrust_right_n")
+_CURRENT = ("current_n_mps", "current_e_mps")
+"""The estimate's columns gathered whole in the survey (the report's current arrow, vd.mean_current)."""
 
 
 @dataclass
@@ -213,23 +211,39 @@ class _Steps:
 
 
 class _Gather:
-    """Some columns of a channel gathered from its blocks into arrays allocated once."""
+    """A channel's columns (some, or all) gathered from its blocks into arrays allocated once; its
+    text columns as categories."""
 
-    def __init__(self, rows: int, columns: tuple[str, ...]):
+    def __init__(self, rows: int, head: pd.DataFrame, columns=None):
         self.t = np.empty(rows, np.int64)
-        self.cols = {c: np.empty(rows, float) for c in columns}
+        self.cols: dict[str, np.ndarray] = {}
+        self.cats: dict[str, dict] = {}   # text column -> {value: code}
+        for c in head.columns if columns is None else columns:
+            numeric = pd.api.types.is_numeric_dtype(head[c].dtype)
+            self.cols[c] = np.empty(rows, head[c].dtype if numeric else np.int32)
+            if not numeric:
+                self.cats[c] = {}
         self.n = 0
 
     def add(self, f: pd.DataFrame) -> None:
         k = len(f)
+        if self.n + k > len(self.t):
+            raise NotWindowed("a channel has more rows than the summary counts")
         self.t[self.n:self.n + k] = np.asarray(f.index.to_numpy(), np.int64)
         for c, a in self.cols.items():
-            a[self.n:self.n + k] = f[c].to_numpy(float)
+            if c in self.cats:   # the block's codes mapped to the channel's (a missing value: -1)
+                codes, values = pd.factorize(f[c])
+                known = np.asarray([self.cats[c].setdefault(v, len(self.cats[c])) for v in values] + [-1], np.int32)
+                a[self.n:self.n + k] = known[codes]
+            elif f[c].dtype != a.dtype:
+                raise NotWindowed(f"a column's type changes between blocks ({c})")
+            else:
+                a[self.n:self.n + k] = f[c].to_numpy()
         self.n += k
 
-    def frame(self, **more) -> pd.DataFrame:
-        cols = {c: a[:self.n] for c, a in self.cols.items()}
-        cols.update(more)
+    def frame(self) -> pd.DataFrame:
+        cols = {c: pd.Categorical.from_codes(a[:self.n], list(self.cats[c])) if c in self.cats else a[:self.n]
+                for c, a in self.cols.items()}
         return pd.DataFrame(cols, index=pd.Index(self.t[:self.n], name="t_ns"), copy=False)
 
 
@@ -237,22 +251,23 @@ def survey(log: WindowedLog) -> Survey:
     """One pass over ``log``'s big channels: the :class:`Survey` (see the module's description).
 
     The analyses come one after the other, each letting go of what it read before the next: the
-    pass (the estimate's and the commands' columns the manoeuvres use gathered), the manoeuvres
-    (the commands made from their columns, then the track), only when there are manoeuvres a pass
-    for their stretches of the estimate, and the findings (the sensor channels read whole).
+    pass (the track of the estimate the manoeuvres use made, its current gathered), the manoeuvres
+    (the commands made from a pass over the thrust's blocks), only when there are manoeuvres a pass
+    for their stretches of the estimate, and the findings (the sensor channels read whole, the
+    commands gathered from their blocks).
     """
     s = Survey()
     counts = topic_counts(log.source)
-    steps, gather = _pass(log, s, counts)
+    steps, current, made = _pass(log, s, counts)
     if any(s.rows.get(t, 0) != counts[t] for t in log.windowed):
         raise NotWindowed("a channel's rows and the summary's count differ")
     s.steps = {t: st.thin_step(vd.OVERLAY_HZ) for t, st in steps.items()}
-    if vman.STATE in gather:
-        s.current = vd.mean_current(gather[vman.STATE].frame())
-        for c in ("current_n_mps", "current_e_mps"):
-            gather[vman.STATE].cols.pop(c, None)
+    if current is not None:
+        s.current = vd.mean_current(current.frame())
+    del current
     _return_freed_memory()
-    s.manoeuvres = _manoeuvres(log, gather, s.thrust_unit)
+    s.manoeuvres = _manoeuvres(log, s, *made)
+    del made
     _return_freed_memory()
     s.stretches = _stretches(log, s.manoeuvres)
     s.findings = _findings(log)
@@ -260,52 +275,82 @@ def survey(log: WindowedLog) -> Survey:
     return s
 
 
-def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]) -> tuple[dict, dict]:
+def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
     """The survey's pass over the big channels: fills ``s``'s facts; returns each state channel's
-    :class:`_Steps` and the columns gathered (a function of its own: the last block is let go with it)."""
+    :class:`_Steps`, the estimate's current gathered (or None), and what the manoeuvres take of it
+    (the estimate's track being made, how many forces the commands record) (a function of its own:
+    the last block is let go with it)."""
     steps = {t: _Steps() for t in log.windowed if t != vman.THRUST}
-    gather: dict[str, _Gather] = {}
+    current: _Gather | None = None
+    track: TrackBuilder | None = None
+    forces = 0   # rows of the commands with a finite thrust_left_n (usvlog.trials.uses_forces)
     for blk in blocks(log):
         for t, f in blk.items():
             if t not in s.first:
                 s.first[t], s.heads[t] = int(f.index[0]), f.iloc[:1].copy()
-                cols = _STATE_COLUMNS if t == vman.STATE else _THRUST_COLUMNS if t == vman.THRUST else ()
-                cols = tuple(c for c in cols if c in f.columns)
-                if cols:
-                    gather[t] = _Gather(counts[t], cols)
+                if t == vman.STATE and any(c in f.columns for c in _CURRENT):
+                    current = _Gather(counts[t], f, [c for c in _CURRENT if c in f.columns])
+                if t == vman.STATE and "n_m" in f.columns and log.range_ns is not None:
+                    track = TrackBuilder(counts[t], log.range_ns[0])
                 if t == vman.THRUST:
                     s.thrust_unit = str(f["unit"].iloc[0]) if "unit" in f.columns else None
             s.last[t] = int(f.index[-1])
             s.rows[t] = s.rows.get(t, 0) + len(f)
+            if s.rows[t] > counts[t]:
+                raise NotWindowed("a channel has more rows than the summary counts")
             if t in steps:
                 steps[t].add(np.asarray(f.index.to_numpy(), np.int64))
-            if t in gather:
-                gather[t].add(f)
+            if t == vman.STATE and current is not None:
+                current.add(f)
+            if t == vman.STATE and track is not None:
+                track.add(f)
+            if t == vman.THRUST and "thrust_left_n" in f.columns:
+                forces += int(np.isfinite(f["thrust_left_n"].to_numpy(float)).sum())
             if t == vman.THRUST and not s.thrust_forces and {"thrust_left_n", "thrust_right_n"} <= set(f.columns):
                 s.thrust_forces = bool(np.isfinite(f["thrust_left_n"].to_numpy(float)).any()
                                        or np.isfinite(f["thrust_right_n"].to_numpy(float)).any())
-    return steps, gather
+    return steps, current, (track, forces)
 
 
 def _findings(log: WindowedLog):
-    """``usvlog check``'s findings on the log's sensor channels (read whole), over the whole log's time."""
+    """``usvlog check``'s findings on the log's sensor channels, over the whole log's time: the small
+    ones read whole, the commands gathered from their blocks (the frame read whole, its text as
+    categories; the read's own copies never made)."""
     have = [t for t in vfind.CHECK_TOPICS if t in log.channels]
-    sensors = read_log(log.source, topics=have) if have else FieldLog()
-    checked = WindowedLog(channels=dict(sensors.channels), meta=log.meta, source=log.source, range_ns=log.range_ns)
+    small = [t for t in have if t not in log.windowed]
+    sensors = read_log(log.source, topics=small) if small else FieldLog()
+    channels = dict(sensors.channels)
+    del sensors
+    counts = topic_counts(log.source)
+    for t in have:
+        if t in log.windowed:
+            channels[t] = gathered(log, t, counts[t])
+    checked = WindowedLog(channels=channels, meta=log.meta, source=log.source, range_ns=log.range_ns)
     return vfind.checked(checked)
 
 
-def _manoeuvres(log: WindowedLog, gather: dict, unit: str | None):
-    """The manoeuvres, from the columns gathered in the survey (taken out of ``gather``: their memory
-    goes back as the measurement uses them)."""
-    state, thrust = gather.pop(vman.STATE, None), gather.pop(vman.THRUST, None)
-    if state is None or thrust is None:
+def gathered(log: WindowedLog, topic: str, rows: int) -> pd.DataFrame:
+    """The frame of ``log``'s big channel ``topic`` (of ``rows`` rows) as read whole, gathered from its
+    blocks: its arrays allocated once, its text columns as categories (the read's copies never made)."""
+    g = None
+    for blk in blocks(log, [topic]):
+        g = g or _Gather(rows, blk[topic])
+        g.add(blk[topic])
+    if g is None or g.n != rows:
+        raise NotWindowed(f"{topic}: its rows and the summary's count differ")
+    return g.frame()
+
+
+def _manoeuvres(log: WindowedLog, s: Survey, track: TrackBuilder | None, forces: int):
+    """The manoeuvres (:func:`usvlog.view.manoeuvres.measure`'s of the whole log): on the track made
+    in the survey's pass, with the commands made from a pass over the thrust's blocks."""
+    rows = s.rows.get(vman.THRUST, 0)
+    if track is None or s.rows.get(vman.STATE, 0) < 10 or rows < 2:
         return None
-    # commands_from_frame reads the unit of the first row alone: the column says it on every row
-    more = {} if unit is None else {"unit": pd.Categorical.from_codes(np.zeros(thrust.n, np.int8), [unit])}
-    frames = {vman.STATE: state.frame(), vman.THRUST: thrust.frame(**more)}
-    del state, thrust
-    return vman.measure(frames, None if log.range_ns is None else int(log.range_ns[0]))
+    cmd = CommandsBuilder(rows, track.t0_ns, uses_forces(s.heads[vman.THRUST].columns, forces, rows), s.thrust_unit)
+    for blk in blocks(log, [vman.THRUST]):
+        cmd.add(blk[vman.THRUST])
+    return vman.find_on(cmd.commands, track.track, track.t0_ns)
 
 
 def _stretches(log: WindowedLog, found) -> list:
