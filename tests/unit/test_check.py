@@ -396,3 +396,15 @@ def test_an_estimated_log_shows_the_estimates_status_in_the_estimates_words():
     assert [f.evidence for f in found] == [f"estimate degraded ({st.mode}): {r}" for r in st.reasons]
     assert all(f.severity == "warning" and f.channel == "/estimate/state" for f in found)
     assert not [f for f in check_log(log).findings if f.code.startswith("estimate.")]
+
+
+def test_sorted_unique_keeps_sorted_arrays_and_sorts_the_others():
+    """The arrays themselves when already in time order without repeats; else sorted, the first of
+    each time stamp kept."""
+    from usvlog.check.common import _sorted_unique
+
+    t, x = np.array([0.0, 1.0, 2.0]), np.array([5.0, 6.0, 7.0])
+    a = _sorted_unique(t, x)
+    assert a[0] is t and a[1] is x
+    b = _sorted_unique(np.array([2.0, 0.0, 1.0, 1.0]), np.array([1.0, 2.0, 3.0, 4.0]))
+    assert b[0].tolist() == [0.0, 1.0, 2.0] and b[1].tolist() == [2.0, 3.0, 1.0]

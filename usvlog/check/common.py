@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import UsvlogError
 from ..estimate.core import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, YAW_RATE_TOPIC
-from ..identify.data import RunData, run_data
+from ..identify.data import run_data
 from ..identify.smooth import KinStates, savgol_states, thrust_on_grid
 from ..log.fieldlog import FieldLog
 from ..log.positions import LOCAL_TOPIC, local_positions, uses_local
@@ -30,10 +30,13 @@ SENSOR_TOPICS = (GNSS_TOPIC, LOCAL_TOPIC, COMPASS_TOPIC, YAW_RATE_TOPIC, "/gnss/
 
 
 def _sorted_unique(t: np.ndarray, *cols: np.ndarray):
-    """Sort by time and drop repeated time stamps (the first kept)."""
+    """Sort by time and drop repeated time stamps (the first kept): the arrays themselves when they
+    are so already (no copy)."""
+    if not len(t) or bool((np.diff(t) > 0).all()):
+        return (t, *cols)
     o = np.argsort(t, kind="stable")
     t = t[o]
-    keep = np.concatenate([[True], np.diff(t) > 0]) if len(t) else np.zeros(0, bool)
+    keep = np.concatenate([[True], np.diff(t) > 0])
     return (t[keep], *(c[o][keep] for c in cols))
 
 
@@ -137,33 +140,30 @@ class CheckContext:
         return float(np.degrees(np.abs(np.angle(np.exp(1j * np.diff(course)))).sum()))
 
     @cached_property
-    def run(self) -> RunData | None:
-        """The run as an identification sees it (:func:`usvlog.identify.data.run_data`), None when
-        it cannot be made (a channel missing, too few samples, commands without forces)."""
+    def _smoothed(self) -> tuple[KinStates, tuple[np.ndarray, np.ndarray], int] | None:
+        """(:attr:`states`, :attr:`tau_on_states`, the run's first thrust sample in ns) of the run as an
+        identification sees it (:func:`usvlog.identify.data.run_data`), None when it cannot be made (a
+        channel missing, too few samples, commands without forces) or smoothed. The run's arrays (the
+        thrust at its own rate) are let go once these are made."""
         try:
-            return run_data(self.log, self.vessel)
+            run = run_data(self.log, self.vessel)
+            states = savgol_states(run)
         except UsvlogError:
             return None
+        return states, thrust_on_grid(run, states.t), run.t0_ns
 
-    @cached_property
+    @property
     def states(self) -> KinStates | None:
-        """Smoothed over-ground states of :attr:`run` (local cubic fits, 10 Hz; times from the run's
-        first thrust sample), None without."""
-        if self.run is None:
-            return None
-        try:
-            return savgol_states(self.run)
-        except UsvlogError:
-            return None
+        """Smoothed over-ground states of the run as an identification sees it (local cubic fits,
+        10 Hz; times from the run's first thrust sample), None without."""
+        return None if self._smoothed is None else self._smoothed[0]
 
-    @cached_property
+    @property
     def tau_on_states(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(tau_u N, tau_r N m) on the grid of :attr:`states`."""
-        if self.states is None or self.run is None:
-            return None
-        return thrust_on_grid(self.run, self.states.t)
+        return None if self._smoothed is None else self._smoothed[1]
 
     def run_seconds(self, t_run_s) -> np.ndarray:
-        """Times of :attr:`run`/:attr:`states` (s from the first thrust sample) -> s from the log's start."""
-        assert self.run is not None
-        return np.asarray(t_run_s, float) + (self.run.t0_ns - self.t0_ns) / 1e9
+        """Times of :attr:`states` (s from the run's first thrust sample) -> s from the log's start."""
+        assert self._smoothed is not None
+        return np.asarray(t_run_s, float) + (self._smoothed[2] - self.t0_ns) / 1e9

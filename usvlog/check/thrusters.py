@@ -128,9 +128,12 @@ def deadband(ctx: CheckContext) -> list[Finding]:
     t, left, right, unit = thr
     lim = limits(ctx, unit)
     neutral = ctx.vessel.thrusters.pwm_neutral_us if unit == "pwm_us" else 0.0
-    a, b = np.abs(left - neutral), np.abs(right - neutral)
+    a, b = left - neutral, right - neutral
+    np.abs(a, out=a)
+    np.abs(b, out=b)
+    # the largest command of either (NaN when neither has a finite one): np.nanmax of both together
     full = (max(abs(lim[0] - neutral), abs(lim[1] - neutral)) if lim is not None
-            else float(np.nanmax(np.concatenate([a, b]))))
+            else float(np.fmax(np.fmax.reduce(a), np.fmax.reduce(b))))
     if not full > 0:
         return []
     tg, sog = ctx.run_seconds(ks.t), np.hypot(ks.vn, ks.ve)
@@ -142,7 +145,7 @@ def deadband(ctx: CheckContext) -> list[Finding]:
     still = np.interp(t, tg, sog, left=np.nan, right=np.nan) < STILL_MPS
     small = (np.maximum(a, b) <= SMALL_COMMAND * full) & ((a > 0) | (b > 0)) & still
     out = []
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], small.astype(int), [0]])))
+    edges = np.flatnonzero(np.diff(small.astype(np.int8), prepend=0, append=0))
     for s, f in zip(edges[::2], edges[1::2]):
         t0, t1 = float(t[s]), float(t[f - 1])
         if t1 - t0 < DEADBAND_S:
