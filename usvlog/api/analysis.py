@@ -135,7 +135,8 @@ def estimate(log, out: PathLike | None = None, *, model: str = "kinematic", vess
 def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "output-error",
              validate=None, holdout: float | None = None, fix: dict[str, float] | None = None, current: bool = True,
              out_log: PathLike | None = None, force: bool = False, progress: Progress = None,
-             max_current_mps: float = 0.5, gnss_delay_s: float | None = None, model: str = "paper") -> Identifier:
+             max_current_mps: float = 0.5, gnss_delay_s: float | None = None, model: str = "paper",
+             fit_lag: bool = False, lag_s: float = 0.0) -> Identifier:
     """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
 
     Parameters
@@ -175,6 +176,12 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     model : {"paper", "extended", "both"}
         Model structure: the paper's (default), the extended one (the TOML then has an
         ``[extended]`` table), or both compared on the validation (the better one written).
+    fit_lag : bool
+        Identify a first-order thruster lag too (:mod:`usvlog.identify.lag`; written to the
+        TOML's ``[thrusters] lag_s``).
+    lag_s : float
+        A known first-order thruster lag (s): the thrust goes through it before the fit
+        (the vessel's ``[thrusters] lag_s`` is the simulated plant's and is not applied).
 
     Returns
     -------
@@ -200,7 +207,8 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     if holdout is None and validate is not None:
         holdout = 0.0
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
-                     max_current_mps=max_current_mps, model=model)
+                     max_current_mps=max_current_mps, model=model, fit_lag=fit_lag,
+                     lag_s=lag_s)
     ves = _vessel_file(vessel)
     # the channels the fit reads; every channel only for the first log when a copy of it is written
     topics = list(INPUT_TOPICS)

@@ -35,6 +35,11 @@ def register(sub) -> None:
                         "inertia m11: a weighed mass leaves out the surge added mass) or Iz (m66), or for the "
                         "extended model m11, m22, m66")
     p.add_argument("--no-current", action="store_true", help="do not fit a water current")
+    g2 = p.add_mutually_exclusive_group()
+    g2.add_argument("--fit-lag", action="store_true",
+                    help="identify a first-order thruster lag too (s; written to [thrusters] lag_s)")
+    g2.add_argument("--lag-s", type=float, default=0.0, metavar="SECONDS",
+                    help="a known first-order thruster lag (s) the thrust goes through before the fit")
     p.add_argument("--gnss-delay-s", type=float, default=None, metavar="VALUE",
                    help="GNSS latency in s (a fix stamped t describes the boat at t - delay); default: the one "
                         "`usvlog estimate` stored in the log, else 0")
@@ -80,7 +85,7 @@ def run(args) -> int:
                            validate=args.validate or None, holdout=holdout, fix=fix,
                            current=not args.no_current, out_log=args.out_log or None, force=args.force,
                            progress=stage, max_current_mps=args.max_current_mps, gnss_delay_s=args.gnss_delay_s,
-                           model=args.model)
+                           model=args.model, fit_lag=args.fit_lag, lag_s=args.lag_s)
     except UnusableResultError as err:
         reasons = getattr(err, "reasons", None)
         if reasons is None:
@@ -177,6 +182,12 @@ def format_report(d: dict) -> str:
         lines.append(f"current run {i}: north {c[0]:+.3f} m/s, east {c[1]:+.3f} m/s")
     if d.get("condition_number") is not None:
         lines.append(f"condition number {_num(d['condition_number'], 3)}")
+    lag = d.get("thruster_lag")
+    if lag:
+        hi = "inf" if lag["ci95"][1] is None else f"{lag['ci95'][1]:.2f}"
+        lines.append(f"thruster lag identified: {lag['lag_s']:.2f} s (95 % {lag['ci95'][0]:.2f}..{hi} s)")
+    elif d.get("thruster_lag_s"):
+        lines.append(f"thruster lag {d['thruster_lag_s']:g} s (given, applied to the thrust)")
     fp = d["fit_percent"]
     quiet = {ch for ch, e in (d.get("excitation") or {}).items() if not e["excited"]}
 

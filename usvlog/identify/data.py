@@ -3,6 +3,8 @@
 Thrust -> forces through the vessel's thruster map and geometry (the logged
 ``thrust_left_n``/``thrust_right_n`` when present), GPS fixes -> local NED about the
 log's datum, compass headings; all times in seconds from the run's first thrust sample.
+:func:`lag_thrust` puts the forces through a first-order thruster lag (the identifier's
+``lag_s`` or ``fit_lag``; the vessel's ``[thrusters] lag_s`` is the simulated plant's).
 GNSS and compass times are the stamps minus the sensor latency an estimate stored in the
 log (``usvlog.estimate.latency.stored_delays``; ``with_delays`` sets a known one).
 """
@@ -14,6 +16,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .._jit import njit
 from ..errors import ConfigError, InputError
 from ..estimate.latency import stored_delays
 from ..estimate.layout import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
@@ -209,6 +212,48 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
                    sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
                    sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src,
                    gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))
+
+
+@njit
+def _lag_kernel(t, tau, lag_s, out):
+    """Mean over each step [t[k], t[k+1]) of a first-order lag's response to ``tau[k]`` held
+    there, into ``out``; the lag starts settled on the first command."""
+    f = tau[0]
+    for k in range(len(t)):
+        dt = t[k + 1] - t[k] if k + 1 < len(t) else 0.0
+        if dt <= 0.0:
+            out[k] = f
+            continue
+        a = math.exp(-dt / lag_s)
+        out[k] = tau[k] + (f - tau[k]) * (lag_s / dt) * (1.0 - a)
+        f = tau[k] + (f - tau[k]) * a
+
+
+def lag_thrust(run: RunData, lag_s: float) -> RunData:
+    """The run with its surge force and yaw moment through a first-order lag.
+
+    Parameters
+    ----------
+    run : RunData
+        The run (thrust held over each step of ``t_thrust``).
+    lag_s : float
+        Time constant (s); 0 returns ``run`` itself.
+
+    Returns
+    -------
+    RunData
+        ``run`` with ``tau_u``, ``tau_r`` replaced by the mean over each step of the lagged
+        force and moment (the lag settled on the first command).
+    """
+    if not lag_s > 0.0:
+        return run
+    t = np.ascontiguousarray(run.t_thrust, dtype=np.float64)
+    out = []
+    for tau in (run.tau_u, run.tau_r):
+        y = np.empty(len(t))
+        _lag_kernel(t, np.ascontiguousarray(tau, dtype=np.float64), float(lag_s), y)
+        out.append(y)
+    return replace(run, tau_u=out[0], tau_r=out[1])
 
 
 def coarse_thrust(t, tau_u, tau_r, step_s: float):

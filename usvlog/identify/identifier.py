@@ -11,6 +11,7 @@ functions are the class's methods.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -30,8 +31,9 @@ from .ahead import (
 )
 from .candidates import Candidate, Start, _returned
 from .checks import _excitation_warnings, _refuse_dead_channels, _refuse_outside_model, _refuse_wrong_signs
-from .data import run_data
+from .data import lag_thrust, run_data
 from .equation import EquationErrorResult
+from .lag import LagFit, fit_thruster_lag
 from .output import OutputErrorResult, simulate_run
 from .smooth import kinematic_states
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
@@ -216,7 +218,8 @@ class Identifier:
 
     def __init__(self, method: str = "output-error", *, fix: dict | None = None, current: bool = True,
                  segment_s: float = 300.0, warm_segment_s: float = 60.0, holdout: float | None = None,
-                 max_current_mps: float = MAX_CURRENT_MPS, model: str = "paper"):
+                 max_current_mps: float = MAX_CURRENT_MPS, model: str = "paper", fit_lag: bool = False,
+                 lag_s: float = 0.0):
         if method not in METHODS:
             raise ConfigError(f"method {method!r} is not one of {', '.join(METHODS)}")
         fix = dict(fix or {})
@@ -233,6 +236,13 @@ class Identifier:
             raise ConfigError(f"max_current_mps = {max_current_mps} must be a positive number (m/s)")
         if model not in IDENTIFY_MODELS:
             raise ConfigError(f"model {model!r} is not one of {', '.join(IDENTIFY_MODELS)}")
+        if not (math.isfinite(lag_s) and lag_s >= 0):
+            raise ConfigError(f"lag_s = {lag_s} must be a thruster time constant >= 0 (s)")
+        if fit_lag and lag_s:
+            raise ConfigError("a known thruster lag (lag_s) or one identified (fit_lag), not both")
+        if (fit_lag or lag_s) and method == "filter-error":
+            raise ConfigError("a thruster lag is identified with output error or equation error, not filter error "
+                              "(its filter reads the logs' thrust itself)")
         if model != "paper" and method == "filter-error":
             raise ConfigError("the extended model is fitted by output error or equation error, not filter error")
         scale_keys = EXT_SCALE_FIX if model == "extended" else ("m", "Iz")
@@ -247,6 +257,8 @@ class Identifier:
         self.warm_segment_s = float(warm_segment_s)
         self.holdout = None if holdout is None else float(holdout)
         self.max_current_mps = float(max_current_mps)
+        self.fit_lag = bool(fit_lag)
+        self.lag_s = float(lag_s)
 
     # ------------------------------------------------------------------------------
     def fit(self, logs: list[FieldLog] | FieldLog, vessel: Vessel | None = None) -> Identifier:
@@ -297,10 +309,18 @@ class Identifier:
                 raise ConfigError(f"--fix with --model {self.model} only sets an unknown thrust scale, and these "
                                   "logs' thrust is in newtons (or through a known thruster map)")
             self.thrust_scale_ = ThrustScale()
+        holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
         all_runs = [run_data(lg, vessel) for lg in logs]
         all_kin = [kinematic_states(lg, r, vessel, tune=self._tune_smoother) for lg, r in zip(logs, all_runs)]
         self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin, vessel.thrusters.arm_m)
-        holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
+        # a thruster lag, known or found on the part fitted: the thrust the model is fitted on goes through it
+        self.thruster_lag_ = self._fit_thruster_lag(all_runs, all_kin, holdout, vessel) if self.fit_lag else None
+        lag = self.thruster_lag_.lag_s if self.thruster_lag_ is not None else self.lag_s
+        self.lag_applied_s_ = lag
+        if lag > 0:
+            vessel = replace(vessel, thrusters=replace(vessel.thrusters, lag_s=lag))
+            self.vessel_in_ = vessel
+            all_runs = [lag_thrust(r, lag) for r in all_runs]
         if holdout is None:
             self.validation_mode_ = "leave-one-out"
         else:
@@ -387,6 +407,19 @@ class Identifier:
         self.reasons_, self.verdict_ = self._verdict(vessel, runs, kin)
         self.usable_ = self.verdict_ != "unusable"
         return self
+
+    def _fit_thruster_lag(self, runs, kin, holdout, vessel) -> LagFit:
+        """A first-order thruster lag identified on the part of the runs fitted
+        (:func:`~usvlog.identify.lag.fit_thruster_lag`), from the data's scales (else the
+        vessel's values)."""
+        if holdout:
+            cut = [r.t_thrust[0] + (1 - holdout) * r.duration_s for r in runs]
+            runs = [r.window(-np.inf, c) for r, c in zip(runs, cut)]
+            kin = [k.window(-np.inf, c) for k, c in zip(kin, cut)]
+        start = data_scales(runs, kin)
+        if start is None:
+            start = vessel.params.as_array()
+        return fit_thruster_lag(runs, kin, start, fit_current=self.current, max_current_mps=self.max_current_mps)
 
     def _predictor(self):
         """(parameters, free-run function) of the returned model for predictions ahead: the paper

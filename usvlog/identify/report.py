@@ -128,6 +128,8 @@ def to_dict(self: Identifier, validation: Validation | None = None) -> dict:
          "structure": "paper" if self.extended_ is None else "extended",
          "fit_percent_ahead": {h: _finite_dict(v) for h, v in getattr(self, "fit_percent_ahead_", {}).items()},
          "excitation": {ch: e.to_dict() for ch, e in (getattr(self, "excitation_", {}) or {}).items()},
+         "thruster_lag_s": getattr(self, "lag_applied_s_", 0.0),
+         "thruster_lag": lag.to_dict() if (lag := getattr(self, "thruster_lag_", None)) is not None else None,
          "sign_checks": list(getattr(self, "sign_checks_", [])),
          "whiteness": {ch: {"step_s": WHITENESS_STEP_S, "lags": len(w.lags), "outside": w.outside,
                             "allowed": w.allowed, "white": w.white, "p_value": w.p_value}
@@ -168,6 +170,10 @@ def toml_record(self: Identifier) -> str:
              f"structure = {q('paper' if self.extended_ is None else 'extended')}",
              f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}",
              f"thrust_scale = {q(self.thrust_scale_.case)}"]
+    lag = getattr(self, "lag_applied_s_", 0.0)
+    if lag or getattr(self, "thruster_lag_", None) is not None:
+        lines.append(f"thruster_lag_s = {lag:.4g}"
+                     + ("   # identified" if getattr(self, "thruster_lag_", None) is not None else "   # given"))
     lines += [f"fit_{k}_pct = {fp[k]:.2f}" for k in ("u", "v", "r", "track") if math.isfinite(fp[k])]
     for h, v in getattr(self, "fit_percent_ahead_", {}).items():   # k-step-ahead fit % per horizon (s)
         lines += [f"fit_ahead_{h}s_{k}_pct = {v[k]:.2f}" for k in ("u", "v", "r") if math.isfinite(v[k])]

@@ -23,7 +23,7 @@ from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
 from ..model.stats import fit_percent
 from .ahead import displacement_fit_ahead, excitation, smoother_noise
-from .data import RunData, run_data
+from .data import RunData, lag_thrust, run_data
 from .output import (
     fit_initial_state,
     simulate_run,
@@ -225,7 +225,7 @@ def validate(self: Identifier, log: FieldLog, *, init_window_s: float = 60.0) ->
         If the log lacks a channel or has too few samples.
     """
     self._check_fitted()
-    run = run_data(log, self.vessel_in_)
+    run = lag_thrust(run_data(log, self.vessel_in_), getattr(self, "lag_applied_s_", 0.0))
     return self._validate_run(run, kinematic_states(log, run, self.vessel_in_, tune=self._tune_smoother),
                               init_window_s=init_window_s)
 

@@ -20,7 +20,7 @@ this fit robust on boats and logs of other forms.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -137,6 +137,9 @@ class VelocityFitResult:
         True when the final model's predictions left the finite range.
     nfev : int
         Model evaluations over all stages.
+    residuals : numpy.ndarray, shape (N, 3)
+        The final stage's residuals of u (m/s), v (m/s), r (rad/s), prediction minus smoothed
+        (a prediction that is not finite counts as BIG of its channel's scale).
     """
 
     theta: np.ndarray
@@ -147,6 +150,7 @@ class VelocityFitResult:
     rms: dict
     diverged: bool
     nfev: int
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
 
 
 class _Windows:
@@ -321,7 +325,7 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
     rms_ch = np.sqrt(np.mean((res * prob.sigma) ** 2, axis=0)) if len(res) else np.full(3, np.nan)
     return VelocityFitResult(theta=theta, currents=np.asarray(cur, float).reshape(-1, 2), names=names, cov=cov,
                              cond=cond, rms=dict(zip(("u", "v", "r"), map(float, rms_ch))), diverged=diverged,
-                             nfev=nfev)
+                             nfev=nfev, residuals=res * prob.sigma)
 
 
 def _covariance(prob: _Problem, sol, theta, free, fit_current: bool, n_runs: int):

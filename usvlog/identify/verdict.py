@@ -188,6 +188,15 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
     iz_eff = p.Iz_eff
     if iz_eff <= 0:
         add(1, f"Theorem 3.1 condition 1 fails: Iz - m xg^2 = {fmt_num(iz_eff)} <= 0")
+    lag = getattr(self, "thruster_lag_", None)
+    if lag is not None:
+        hi = lag.ci95[1]
+        span = f"{lag.lag_s:.2f} s (95 % {lag.ci95[0]:.2f}..{'inf' if not math.isfinite(hi) else f'{hi:.2f}'} s)"
+        if lag.at_bound or not math.isfinite(hi):
+            add(1, f"thruster lag identified as {span}: the data ask for a lag as long as allowed or more, which is "
+                   "rarely a thruster's; something else slows the response (a thrust map, saturation)")
+        else:
+            add(0, f"thruster lag identified: {span}, applied to the thrust the model was fitted on")
     # -- the current -----------------------------------------------------------------
     for i, c in enumerate(self.current_):
         speed = math.hypot(*c)
