@@ -124,6 +124,7 @@ def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Fi
     CheckResult
     """
     ctx = CheckContext.of(log, vessel)
+    ctx.smooth_first()
     own: list[Finding] = []
     names: list[str] = []
     for fn, ns in CHECKS:

@@ -152,6 +152,14 @@ class CheckContext:
             return None
         return states, thrust_on_grid(run, states.t), run.t0_ns
 
+    def smooth_first(self) -> None:
+        """Make :attr:`states` now, while the context holds nothing else: the smoothing's peak is
+        the checks' largest. A failure is left to the checks that use the states (they meet it again)."""
+        try:
+            _ = self._smoothed
+        except Exception:   # noqa: S110 -- reported by each check that uses the states
+            pass
+
     @property
     def states(self) -> KinStates | None:
         """Smoothed over-ground states of the run as an identification sees it (local cubic fits,

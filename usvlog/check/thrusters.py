@@ -30,6 +30,8 @@ AT_LIMIT = 0.005
 DEADBAND_S = 10.0
 SMALL_COMMAND = 0.15
 STILL_MPS = 0.1
+MEDIAN_ROWS = 4096
+"""The deadband's running median is taken over this many windows at a time."""
 
 
 def limits(ctx: CheckContext, unit: str) -> tuple[float, float] | None:
@@ -139,7 +141,9 @@ def deadband(ctx: CheckContext) -> list[Finding]:
     tg, sog = ctx.run_seconds(ks.t), np.hypot(ks.vn, ks.ve)
     w = min(51, len(sog) // 2 * 2 - 1)   # running median over ~5 s: the smoothed speed's noise crosses 0.1 m/s
     if w >= 3:
-        sog = np.concatenate([np.full(w // 2, np.nan), np.median(sliding_window_view(sog, w), 1),
+        win = sliding_window_view(sog, w)   # a window's median at a time of MEDIAN_ROWS (not w copies of the run)
+        sog = np.concatenate([np.full(w // 2, np.nan),
+                              *(np.median(win[i:i + MEDIAN_ROWS], 1) for i in range(0, len(win), MEDIAN_ROWS)),
                               np.full(w // 2, np.nan)])
         sog[: w // 2], sog[-(w // 2):] = sog[w // 2], sog[-(w // 2) - 1]
     still = np.interp(t, tg, sog, left=np.nan, right=np.nan) < STILL_MPS

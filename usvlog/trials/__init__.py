@@ -11,11 +11,14 @@ import pandas as pd
 from .detect import (
     Commands,
     CommandsBuilder,
+    Plan,
     Settings,
     Track,
     TrackBuilder,
     commands_from_frame,
     find,
+    find_planned,
+    plan,
     track_from_frame,
     uses_forces,
 )
@@ -64,5 +67,5 @@ def find_manoeuvres(state: pd.DataFrame, thrust: pd.DataFrame, t0_ns: int, *, se
 
 
 __all__ = ["KINDS", "MANOEUVRE_Q_R", "MANOEUVRE_Q_UV", "TITLES", "Commands", "CommandsBuilder", "Manoeuvre",
-           "Manoeuvres", "Metric", "Settings", "Track", "TrackBuilder", "commands_from_frame", "find",
-           "find_manoeuvres", "track_from_frame", "uses_forces"]
+           "Manoeuvres", "Metric", "Plan", "Settings", "Track", "TrackBuilder", "commands_from_frame", "find",
+           "find_manoeuvres", "find_planned", "plan", "track_from_frame", "uses_forces"]

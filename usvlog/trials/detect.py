@@ -307,7 +307,8 @@ def commands_from_frame(frame: pd.DataFrame, t0_ns: int) -> Commands:
 
 def full_scale(cmd: Commands) -> float:
     """The run's full scale: the 99.9th percentile of |left| and |right| (0 for an idle run)."""
-    return float(np.percentile(np.abs(np.r_[cmd.left, cmd.right]), 99.9))
+    both = np.r_[cmd.left, cmd.right]
+    return float(np.percentile(np.abs(both, out=both), 99.9, overwrite_input=True))   # one copy of the commands
 
 
 def holds(cmd: Commands, tol: float) -> list[Hold]:
@@ -335,6 +336,24 @@ def holds(cmd: Commands, tol: float) -> list[Hold]:
     return out
 
 
+@dataclass(frozen=True)
+class Plan:
+    """The commands as the detection reads them (:func:`plan`): its settings, the run's full scale,
+    the holds (none for an idle run) and the commands' unit. Small: the commands can go once it is made."""
+
+    settings: Settings
+    full_scale: float
+    holds: tuple[Hold, ...]
+    unit: str
+
+
+def plan(cmd: Commands, settings: Settings | None = None) -> Plan:
+    """The :class:`Plan` of the commands ``cmd`` (``settings``: the detection's, default :class:`Settings`)."""
+    st = settings or Settings()
+    fs = full_scale(cmd)
+    return Plan(st, fs, tuple(holds(cmd, st.tol_frac * fs)) if fs > 0 else (), cmd.unit)
+
+
 def find(track: Track, cmd: Commands, settings: Settings | None = None, *, t0_ns: int = 0,
          source: str = "") -> Manoeuvres:
     """Find the standard manoeuvres of a run and measure them.
@@ -356,11 +375,16 @@ def find(track: Track, cmd: Commands, settings: Settings | None = None, *, t0_ns
     Manoeuvres
         In time order; empty when the run has none.
     """
-    st = settings or Settings()
-    fs = full_scale(cmd)
+    return find_planned(track, plan(cmd, settings), t0_ns=t0_ns, source=source)
+
+
+def find_planned(track: Track, p: Plan, *, t0_ns: int = 0, source: str = "") -> Manoeuvres:
+    """:func:`find` on the commands' :class:`Plan` ``p`` (made before the track: the commands and the
+    track need not be held together)."""
+    st, fs = p.settings, p.full_scale
     if not fs > 0:
         return Manoeuvres((), int(t0_ns), source)
-    hs = [h for h in holds(cmd, st.tol_frac * fs) if h.end > track.t[0] and h.start < track.t[-1]]
+    hs = [h for h in p.holds if h.end > track.t[0] and h.start < track.t[-1]]
     d_on = st.diff_frac * fs
     zero = st.tol_frac * fs
     used = [False] * len(hs)
@@ -370,7 +394,7 @@ def find(track: Track, cmd: Commands, settings: Settings | None = None, *, t0_ns
     for i in range(len(hs)):
         if used[i]:
             continue
-        z = _zigzag_at(track, hs, i, d_on, st, cmd.unit)
+        z = _zigzag_at(track, hs, i, d_on, st, p.unit)
         if z is not None:
             m, k = z
             found.append(m)
@@ -399,7 +423,7 @@ def find(track: Track, cmd: Commands, settings: Settings | None = None, *, t0_ns
                 if sm is not None:
                     found.append(sm)
                     used[i] = True
-    found.extend(_speed_steps(track, hs, used, d_on, zero, fs, st, cmd.unit))
+    found.extend(_speed_steps(track, hs, used, d_on, zero, fs, st, p.unit))
     found.sort(key=lambda m: m.start_s)
     return Manoeuvres(tuple(found), int(t0_ns), source)
 
@@ -463,5 +487,5 @@ def _speed_steps(track: Track, hs: list[Hold], used: list[bool], d_on: float, ze
     return out
 
 
-__all__ = ["Commands", "CommandsBuilder", "Hold", "Settings", "Track", "TrackBuilder", "commands_from_frame", "find",
-           "full_scale", "holds", "track_from_frame", "uses_forces"]
+__all__ = ["Commands", "CommandsBuilder", "Hold", "Plan", "Settings", "Track", "TrackBuilder", "commands_from_frame",
+           "find", "find_planned", "full_scale", "holds", "plan", "track_from_frame", "uses_forces"]

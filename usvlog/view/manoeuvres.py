@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import UsvlogError
 from ..log.fieldlog import FieldLog
-from ..trials import Manoeuvres, commands_from_frame, find, track_from_frame
+from ..trials import Manoeuvres, commands_from_frame, find_planned, plan, track_from_frame
 
 ENTITY = "manoeuvres"
 """Rerun entity of the manoeuvres' text log under a run (``/runs/<name>/manoeuvres``)."""
@@ -54,11 +54,11 @@ def measure(frames: dict, t0_ns: int | None) -> Manoeuvres | None:
 
 def find_on(commands, track, t0_ns: int) -> Manoeuvres | None:
     """The manoeuvres of the commands ``commands()`` on the track ``track()`` of ``/estimate/state``
-    (:func:`usvlog.trials.find`; each made when the measurement needs it), or None when either
-    holds too little to measure."""
+    (:func:`usvlog.trials.find`; the commands made and read first, let go before the track is made),
+    or None when either holds too little to measure."""
     try:
-        cmd = commands()
-        return find(track(), cmd, None, t0_ns=t0_ns, source=STATE)
+        planned = plan(commands())
+        return find_planned(track(), planned, t0_ns=t0_ns, source=STATE)
     except UsvlogError:
         return None
 

@@ -251,14 +251,14 @@ def survey(log: WindowedLog) -> Survey:
     """One pass over ``log``'s big channels: the :class:`Survey` (see the module's description).
 
     The analyses come one after the other, each letting go of what it read before the next: the
-    pass (the track of the estimate the manoeuvres use made, its current gathered), the manoeuvres
-    (the commands made from a pass over the thrust's blocks), only when there are manoeuvres a pass
+    pass (the estimate's current gathered), the manoeuvres (the commands, then the estimate's track,
+    each made from a pass over its channel's blocks), only when there are manoeuvres a pass
     for their stretches of the estimate, and the findings (the sensor channels read whole, the
     commands gathered from their blocks).
     """
     s = Survey()
     counts = topic_counts(log.source)
-    steps, current, made = _pass(log, s, counts)
+    steps, current, forces = _pass(log, s, counts)
     if any(s.rows.get(t, 0) != counts[t] for t in log.windowed):
         raise NotWindowed("a channel's rows and the summary's count differ")
     s.steps = {t: st.thin_step(vd.OVERLAY_HZ) for t, st in steps.items()}
@@ -266,8 +266,7 @@ def survey(log: WindowedLog) -> Survey:
         s.current = vd.mean_current(current.frame())
     del current
     _return_freed_memory()
-    s.manoeuvres = _manoeuvres(log, s, *made)
-    del made
+    s.manoeuvres = _manoeuvres(log, s, forces)
     _return_freed_memory()
     s.stretches = _stretches(log, s.manoeuvres)
     s.findings = _findings(log)
@@ -277,12 +276,10 @@ def survey(log: WindowedLog) -> Survey:
 
 def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
     """The survey's pass over the big channels: fills ``s``'s facts; returns each state channel's
-    :class:`_Steps`, the estimate's current gathered (or None), and what the manoeuvres take of it
-    (the estimate's track being made, how many forces the commands record) (a function of its own:
-    the last block is let go with it)."""
+    :class:`_Steps`, the estimate's current gathered (or None) and how many forces the commands
+    record (:func:`usvlog.trials.uses_forces`) (a function of its own: the last block is let go with it)."""
     steps = {t: _Steps() for t in log.windowed if t != vman.THRUST}
     current: _Gather | None = None
-    track: TrackBuilder | None = None
     forces = 0   # rows of the commands with a finite thrust_left_n (usvlog.trials.uses_forces)
     for blk in blocks(log):
         for t, f in blk.items():
@@ -290,8 +287,6 @@ def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
                 s.first[t], s.heads[t] = int(f.index[0]), f.iloc[:1].copy()
                 if t == vman.STATE and any(c in f.columns for c in _CURRENT):
                     current = _Gather(counts[t], f, [c for c in _CURRENT if c in f.columns])
-                if t == vman.STATE and "n_m" in f.columns and log.range_ns is not None:
-                    track = TrackBuilder(counts[t], log.range_ns[0])
                 if t == vman.THRUST:
                     s.thrust_unit = str(f["unit"].iloc[0]) if "unit" in f.columns else None
             s.last[t] = int(f.index[-1])
@@ -302,14 +297,12 @@ def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
                 steps[t].add(np.asarray(f.index.to_numpy(), np.int64))
             if t == vman.STATE and current is not None:
                 current.add(f)
-            if t == vman.STATE and track is not None:
-                track.add(f)
             if t == vman.THRUST and "thrust_left_n" in f.columns:
                 forces += int(np.isfinite(f["thrust_left_n"].to_numpy(float)).sum())
             if t == vman.THRUST and not s.thrust_forces and {"thrust_left_n", "thrust_right_n"} <= set(f.columns):
                 s.thrust_forces = bool(np.isfinite(f["thrust_left_n"].to_numpy(float)).any()
                                        or np.isfinite(f["thrust_right_n"].to_numpy(float)).any())
-    return steps, current, (track, forces)
+    return steps, current, forces
 
 
 def _findings(log: WindowedLog):
@@ -321,6 +314,7 @@ def _findings(log: WindowedLog):
     sensors = read_log(log.source, topics=small) if small else FieldLog()
     channels = dict(sensors.channels)
     del sensors
+    _return_freed_memory()   # the read's own copies
     counts = topic_counts(log.source)
     for t in have:
         if t in log.windowed:
@@ -341,16 +335,27 @@ def gathered(log: WindowedLog, topic: str, rows: int) -> pd.DataFrame:
     return g.frame()
 
 
-def _manoeuvres(log: WindowedLog, s: Survey, track: TrackBuilder | None, forces: int):
-    """The manoeuvres (:func:`usvlog.view.manoeuvres.measure`'s of the whole log): on the track made
-    in the survey's pass, with the commands made from a pass over the thrust's blocks."""
-    rows = s.rows.get(vman.THRUST, 0)
-    if track is None or s.rows.get(vman.STATE, 0) < 10 or rows < 2:
+def _manoeuvres(log: WindowedLog, s: Survey, forces: int):
+    """The manoeuvres (:func:`usvlog.view.manoeuvres.measure`'s of the whole log), each of their inputs
+    made from a pass over its channel's blocks: the commands (read into the detection's plan and let
+    go), then the estimate's track."""
+    rows, state = s.rows.get(vman.THRUST, 0), s.heads.get(vman.STATE)
+    if log.range_ns is None or state is None or "n_m" not in state.columns or s.rows[vman.STATE] < 10 or rows < 2:
         return None
-    cmd = CommandsBuilder(rows, track.t0_ns, uses_forces(s.heads[vman.THRUST].columns, forces, rows), s.thrust_unit)
-    for blk in blocks(log, [vman.THRUST]):
-        cmd.add(blk[vman.THRUST])
-    return vman.find_on(cmd.commands, track.track, track.t0_ns)
+    t0 = int(log.range_ns[0])
+
+    def made(builder, topic):
+        n = 0
+        for blk in blocks(log, [topic]):
+            n += len(blk[topic])
+            if n > s.rows[topic]:
+                raise NotWindowed(f"{topic}: more rows than when surveyed")
+            builder.add(blk[topic])
+        return builder
+
+    uses = uses_forces(s.heads[vman.THRUST].columns, forces, rows)
+    return vman.find_on(lambda: made(CommandsBuilder(rows, t0, uses, s.thrust_unit), vman.THRUST).commands(),
+                        lambda: made(TrackBuilder(s.rows[vman.STATE], t0), vman.STATE).track(), t0)
 
 
 def _stretches(log: WindowedLog, found) -> list:
