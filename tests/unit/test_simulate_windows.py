@@ -2,9 +2,9 @@
 the same frames as the whole run, and the same file byte for byte."""
 
 import numpy as np
-import pandas as pd
 import pytest
 
+from tests.unit.sim_windows import joined
 from usvlog.sim import simulate as sim
 from usvlog.sim.simulate import SensorSettings, SimSettings, simulate, simulate_windows
 
@@ -21,17 +21,11 @@ def test_windows_give_the_whole_runs_frames(scenario, sensors):
     st = SimSettings(duration_s=150.0, current_mps=0.2, current_dir_deg=40.0, sensors=sensors)
     whole = simulate(scenario, st, seed=4)
     head, windows = simulate_windows(scenario, st, seed=4, window_steps=997)
-    parts: dict[str, list] = {}
-    n = 0
-    for frames in windows:
-        n += 1
-        for topic, f in frames.items():
-            parts.setdefault(topic, []).append(f)
+    n, parts = joined(windows)
     assert n == -(-st.n_steps // 997)
     assert head.meta == {k: v for k, v in whole.meta.items()}
     assert list(parts) == list(whole.channels)
-    for topic, fs in parts.items():
-        got = pd.concat([f for f in fs if len(f)])
+    for topic, got in parts.items():
         ref = whole[topic]
         assert np.array_equal(got.index, ref.index), topic
         assert got.equals(ref), topic

@@ -78,10 +78,10 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
     -------
     FieldLog
         GNSS, compass, thrust and truth channels (closed loop also ``/control/state`` and the
-        path), with the vessel, datum and provenance. An open-loop run with ``out`` is
-        simulated and written a time window at a time (memory flat in its length; the file
-        is the one :func:`save` writes for the whole log) and the log returned is ``out``
-        read with its channels deferred (decoded when first touched).
+        path), with the vessel, datum and provenance. A run with ``out`` is simulated and
+        written a time window at a time (memory flat in its length; the file is the one
+        :func:`save` writes for the whole log) and the log returned is ``out`` read with its
+        channels deferred (decoded when first touched).
     """
     _check_paths([], out, force)   # fail before the work (and the imports), not after
     from ..resources import replay_dir  # heavy: the sim/io stack pulls numpy, pandas, numba
@@ -95,8 +95,8 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
         if not (p.suffix == ".toml" or p.exists() or "/" in name or (replay_dir() / f"{name}.toml").exists()):
             raise ConfigError(f"no scenario {name!r} (open loop: {', '.join(SCENARIOS)}; closed loop: "
                               f"{', '.join(closed_loop_scenarios())}; or a scenario TOML file)")
-        log = _simulate_closed_loop(scenario, seed=seed, controller=controller, duration_s=duration_s,
-                                    vessel=vessel, truth_rate_hz=truth_rate_hz, progress=progress)
+        log = _simulate_closed_loop(scenario, out, seed=seed, controller=controller, duration_s=duration_s,
+                                    vessel=vessel, truth_rate_hz=truth_rate_hz, force=force, progress=progress)
     else:
         settings = _sim_settings(duration_s=duration_s, current_mps=current_mps, current_dir_deg=current_dir_deg,
                                  vessel=vessel, gps_noise_m=gps_noise_m, compass_noise_deg=compass_noise_deg,
@@ -104,42 +104,44 @@ def simulate(scenario: PathLike, out: PathLike | None = None, *, seed: int | Non
                                  compass_bias_deg=compass_bias_deg, truth_rate_hz=truth_rate_hz)
         seed = 0 if seed is None else seed
         _say(progress, f"simulating {name} ({settings.duration_s:.0f} s, seed {seed})")
-        if out is not None:   # written a time window at a time: memory flat in the run's length
-            log = _write_windows(name, settings, seed, out, force)
-            _say(progress, f"wrote {out}")
-            return log
-        log = simulate_open_loop(name, settings, seed=seed)
+        if out is None:
+            return simulate_open_loop(name, settings, seed=seed)
+        from ..sim.simulate import simulate_windows  # heavy: numpy, pandas, numba
+
+        topics = ["/truth/state", "/thrust/command", "/gnss/fix", "/compass/heading"]   # the run's channel order
+        log = _write_windows(*simulate_windows(name, settings, seed=seed), topics, out, force,
+                             lambda: simulate_open_loop(name, settings, seed=seed))
     if out is not None:
-        save(log, out, force=force)
         _say(progress, f"wrote {out}")
     return log
 
 
-def _write_windows(name: str, settings, seed: int, out: PathLike, force: bool) -> FieldLog:
-    """An open-loop run simulated and written to ``out`` a time window at a time; returns ``out``
-    read with its channels deferred.
+def _write_windows(header: FieldLog, windows, topics: list[str], out: PathLike, force: bool, whole) -> FieldLog:
+    """A run simulated and written to ``out`` a time window at a time (memory flat in its
+    length); returns ``out`` read with its channels deferred.
 
-    The windows' channels go to a spool beside ``out`` as they are made, then ``out`` is
-    written from the log's metadata and the spool, undecoded: the file :func:`save` writes for
-    the whole run's log, byte for byte (:func:`usvlog.io.mcap.writer.write_log_merged`).
+    ``header`` is the run's log without channels and ``windows`` its frames window after
+    window (``topics``: their channels in the log's order), as ``simulate_windows`` and
+    ``scenario_windows`` make them. The windows' channels go to a spool beside ``out`` as
+    they are made, then ``out`` is written from the log's metadata and the spool, undecoded:
+    the file :func:`save` writes for the whole run's log, byte for byte
+    (:func:`usvlog.io.mcap.writer.write_log_merged`). ``whole()`` makes that whole log, written
+    instead where the spool cannot be copied as it is stored.
     """
     from ..io.mcap import read_log  # heavy: the compiled MCAP reader and writer
     from ..io.mcap.windows import NotWindowed  # heavy: with the reader
-    from ..io.mcap.writer import Spool, merged_ids, write_log_merged  # heavy: the compiled MCAP writer
-    from ..sim.simulate import simulate as simulate_open_loop  # heavy: numpy, pandas, numba
-    from ..sim.simulate import simulate_windows  # heavy: numpy, pandas, numba
+    from ..io.mcap.writer import SLICE_MESSAGES, Spool, merged_ids, time_slices, write_log_merged  # heavy
 
-    header, windows = simulate_windows(name, settings, seed=seed)
-    topics = ["/truth/state", "/thrust/command", "/gnss/fix", "/compass/heading"]   # the run's channel order
     out_p = Path(out)
     spool = out_p.parent / f".{out_p.name}.sim.spool"
     try:
         sp = Spool(spool, topics, merged_ids(header, topics))
-        for frames in windows:
-            sp.add({t: f for t, f in frames.items() if len(f)})
+        for frames in windows:   # encoded a time slice at a time, as write_log does (memory: a slice)
+            for batch in time_slices({t: f for t, f in frames.items() if len(f)}, SLICE_MESSAGES):
+                sp.add(batch)
         write_log_merged(header, out, [sp.close()], topics, force=force)
     except NotWindowed:   # the spool cannot be copied as it is stored (not expected): the whole run at once
-        save(simulate_open_loop(name, settings, seed=seed), out, force=force)
+        save(whole(), out, force=force)
     except UsvlogError:
         raise
     except OSError as err:   # a spool beside the output that cannot be written
@@ -175,9 +177,10 @@ def _sim_settings(*, duration_s, current_mps, current_dir_deg, vessel, gps_noise
     return SimSettings(**kw)
 
 
-def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, truth_rate_hz, progress):
-    """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings."""
-    from ..sim.closed_loop import simulate_scenario  # heavy: the compiled closed loop
+def _simulate_closed_loop(scenario, out, *, seed, controller, duration_s, vessel, truth_rate_hz, force, progress):
+    """A closed-loop scenario (replay/<name>.toml or a file); the scenario holds the settings.
+    With ``out``, simulated and written a time window at a time (:func:`_write_windows`)."""
+    from ..sim.closed_loop import scenario_topics, scenario_windows, simulate_scenario  # heavy: the compiled loop
     from ..sim.scenario import load_scenario
 
     scen = load_scenario(scenario, vessel=_vessel_file(vessel))
@@ -189,4 +192,8 @@ def _simulate_closed_loop(scenario, *, seed, controller, duration_s, vessel, tru
     dur = duration_s or scen.sim.duration_s
     _say(progress, f"simulating {scen.name} closed loop ({dur:.0f} s, controller {ctl}, "
                    f"input {scen.controller_input})")
-    return simulate_scenario(scen, controller=ctl, seed=seed, duration_s=duration_s)
+    if out is None:
+        return simulate_scenario(scen, controller=ctl, seed=seed, duration_s=duration_s)
+    return _write_windows(*scenario_windows(scen, controller=ctl, seed=seed, duration_s=duration_s),
+                          scenario_topics(scen), out, force,
+                          lambda: simulate_scenario(scen, controller=ctl, seed=seed, duration_s=duration_s))

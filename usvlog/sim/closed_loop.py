@@ -34,12 +34,15 @@ from ..model.frames import ssa
 from ..model.vessel import Vessel
 from .scenario import META_PATH, Scenario
 from .simulate import (
+    WINDOW_STEPS,
     PlantStepper,
     SimSettings,
+    _header_log,
     draw_sensor_noise,
-    field_log_from_run,
     plant_advance,
     plant_form,
+    start_ns,
+    window_frames,
 )
 
 
@@ -125,57 +128,26 @@ def _closed_loop_kernel(state0, force0, n_steps, every, dt, u_ref, dtheta, plant
 def closed_loop(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
                 integrator: str, current_ne, eta0, nu0, schedule: np.ndarray, rate_hz: float,
                 estimator=None) -> ClosedLoopRun:
-    """Simulate plant + controller. ``estimator(k, x_true, tau) -> x_hat`` (None: the true state)."""
-    n = int(round(duration_s / dt_s))
-    every = max(1, int(round(1.0 / (rate_hz * dt_s))))
-    dt_ctrl = every * dt_s
-    t = np.arange(n) * dt_s
-    u_ref = speed_at(schedule, t)
-    dtheta = speed_at(schedule, t, 2) if schedule.shape[1] > 2 else np.full(n, controller.guidance.delta_theta)
-    prm = tuple(plant.params.as_array().tolist())
-    ext, ext_prm = plant_form(plant)
-    cn, ce = float(current_ne[0]), float(current_ne[1])
-    rk4 = integrator == "rk4"
-    x = tuple(float(a) for a in (*eta0, *nu0))
-    ticks = np.arange(0, n, every)
-    controller.reset(x)
-    if estimator is None:  # compiled: the same plant_step and control_tick, no Python per step
-        c = controller
-        states, tau, ctrl, applied, _x, _f = _closed_loop_kernel(
-            x, (0.0, 0.0), n, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs,
-            c.path.kind, c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm if ext else (0.0,) * 11)
-        return ClosedLoopRun(t, states, tau, ticks, ctrl, "truth", applied if ext else None)
-    # the controller on an estimate: plant and controller stepped from Python
-    states = np.empty((n, 6))
-    tau = np.empty((n, 2))
-    applied = np.empty((n, 2))
-    ctrl = np.empty((len(ticks), NOUT))
-    tu = tr = 0.0
-    j = 0
-    step = controller.step
-    plant_step_of = PlantStepper(plant, dt_s, (cn, ce), rk4)
-    for k in range(n):
-        if k % every == 0:
-            row = step(estimator(k, x, (tu, tr)), u_ref[k], dt_ctrl, ctrl[j], dtheta[k])
-            tu, tr = float(row[OUT_TAU_U]), float(row[OUT_TAU_R])
-            j += 1
-        states[k] = x
-        tau[k, 0] = tu
-        tau[k, 1] = tr
-        x = plant_step_of(x, tu, tr)
-        applied[k] = plant_step_of.applied
-    return ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf", applied if ext else None)
+    """Simulate plant + controller. ``estimator(k, x_true, tau) -> x_hat`` (None: the true state).
+
+    :func:`closed_loop_windows` in one window.
+    """
+    ((_k0, run),) = closed_loop_windows(path, plant, controller, duration_s=duration_s, dt_s=dt_s,
+                                        integrator=integrator, current_ne=current_ne, eta0=eta0, nu0=nu0,
+                                        schedule=schedule, rate_hz=rate_hz, estimator=estimator)
+    return run
 
 
 def closed_loop_windows(path: Path, plant: Vessel, controller: Controller, *, duration_s: float, dt_s: float,
                         integrator: str, current_ne, eta0, nu0, schedule: np.ndarray, rate_hz: float,
-                        window_ticks: int | None = None):
-    """:func:`closed_loop` on the true state a window at a time (memory: a window, not the run).
+                        estimator=None, window_ticks: int | None = None):
+    """:func:`closed_loop` a window at a time (memory: a window, not the run).
 
-    The same arguments (no estimator); ``window_ticks`` controller ticks a window (None: the
-    whole run in one). Yields ``(k0, run)`` per window: the plant-step index of its first step
-    and a :class:`ClosedLoopRun` of its steps (``t`` from the run's start, ``tick`` indexes
-    into the window); the windows joined are :func:`closed_loop`'s run, number for number.
+    The same arguments; ``window_ticks`` controller ticks a window (None: the whole run in
+    one). Yields ``(k0, run)`` per window: the plant-step index of its first step and a
+    :class:`ClosedLoopRun` of its steps (``t`` from the run's start, ``tick`` indexes into
+    the window); the windows joined are :func:`closed_loop`'s run, number for number. The
+    ``estimator`` is called with the run's step index ``k``.
     """
     n = int(round(duration_s / dt_s))
     every = max(1, int(round(1.0 / (rate_hz * dt_s))))
@@ -189,15 +161,60 @@ def closed_loop_windows(path: Path, plant: Vessel, controller: Controller, *, du
     force = (0.0, 0.0)
     controller.reset(x)
     c = controller
+    stepped = None if estimator is None else _Stepped(controller, estimator, plant, dt_s, every, (cn, ce), rk4, x)
     for k0 in range(0, max(n, 1), max(step, 1)):
         k1 = min(n, k0 + step)
         t = np.arange(k0, k1) * dt_s
         u_ref = speed_at(schedule, t)
         dtheta = speed_at(schedule, t, 2) if schedule.shape[1] > 2 else np.full(k1 - k0, c.guidance.delta_theta)
+        ticks = np.arange(0, k1 - k0, every)
+        if stepped is not None:
+            states, tau, ctrl, applied = stepped.run(k0, k1, u_ref, dtheta, len(ticks))
+            yield k0, ClosedLoopRun(t, states, tau, ticks, ctrl, "ekf", applied if ext else None)
+            continue
+        # compiled: the same plant_step and control_tick, no Python per step
         states, tau, ctrl, applied, x, force = _closed_loop_kernel(
             x, force, k1 - k0, every, float(dt_s), u_ref, np.ascontiguousarray(dtheta), prm, cn, ce, rk4, c.cs,
             c.path.kind, c.path.prm, c.G, c.P, c.S, c.T, ext, ext_prm)
-        yield k0, ClosedLoopRun(t, states, tau, np.arange(0, k1 - k0, every), ctrl, "truth", applied if ext else None)
+        yield k0, ClosedLoopRun(t, states, tau, ticks, ctrl, "truth", applied if ext else None)
+
+
+class _Stepped:
+    """The controller on an estimate: plant and controller stepped from Python, window after
+    window (the plant's state, its lagged force and the command held go on between them)."""
+
+    def __init__(self, controller: Controller, estimator, plant: Vessel, dt_s: float, every: int, current_ne,
+                 rk4: bool, x):
+        self.step, self.estimator = controller.step, estimator
+        self.every, self.dt_ctrl = every, every * dt_s
+        self.plant_step_of = PlantStepper(plant, dt_s, current_ne, rk4)
+        self.x, self.tu, self.tr = x, 0.0, 0.0
+
+    def run(self, k0: int, k1: int, u_ref: np.ndarray, dtheta: np.ndarray, n_ticks: int):
+        """Steps ``k0`` to ``k1 - 1`` of the run (``u_ref``, ``dtheta`` per step of them):
+        states, commanded and applied forces per step, the controller rows per tick."""
+        m = k1 - k0
+        states = np.empty((m, 6))
+        tau = np.empty((m, 2))
+        applied = np.empty((m, 2))
+        ctrl = np.empty((n_ticks, NOUT))
+        x, tu, tr = self.x, self.tu, self.tr
+        step, estimator, every, dt_ctrl, plant_step_of = (self.step, self.estimator, self.every, self.dt_ctrl,
+                                                          self.plant_step_of)
+        j = 0
+        for i in range(m):
+            k = k0 + i
+            if k % every == 0:
+                row = step(estimator(k, x, (tu, tr)), u_ref[i], dt_ctrl, ctrl[j], dtheta[i])
+                tu, tr = float(row[OUT_TAU_U]), float(row[OUT_TAU_R])
+                j += 1
+            states[i] = x
+            tau[i, 0] = tu
+            tau[i, 1] = tr
+            x = plant_step_of(x, tu, tr)
+            applied[i] = plant_step_of.applied
+        self.x, self.tu, self.tr = x, tu, tr
+        return states, tau, ctrl, applied
 
 
 def controller_frame(rows: np.ndarray, t_ns: np.ndarray, topic: str, thrusters, unit: str):
@@ -305,12 +322,14 @@ class EKFInTheLoop:
         return np.ascontiguousarray(xh[:6])
 
     def frame(self, t_ns: np.ndarray):
-        """The estimates made at every controller tick so far, as an ``/estimate/state`` frame.
+        """The estimates made at the controller ticks since the last frame (all of them at the
+        first), as an ``/estimate/state`` frame; they are let go.
 
         Parameters
         ----------
         t_ns : numpy.ndarray of int64
-            The ticks' times (ns since the Unix epoch), one per call of the estimator.
+            The ticks' times (ns since the Unix epoch), one per call of the estimator since
+            the last frame.
 
         Returns
         -------
@@ -321,6 +340,7 @@ class EKFInTheLoop:
             same unit) from the EKF covariance.
         """
         X, S = np.array(self.X), np.array(self.S)
+        self.X, self.S = [], []
         names = ["n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps"]
         cols = {c: X[:, i] for i, c in enumerate(names)}
         cols["psi_rad"] = ssa(cols["psi_rad"])
@@ -328,34 +348,87 @@ class EKFInTheLoop:
         return frame_from_columns(cols, t_ns, channel_spec("/estimate/state"))
 
 
-def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: int | None = None,
-                      duration_s: float | None = None) -> FieldLog:
-    """Run a closed-loop scenario into a field log (sensors, truth, /control/state, usvlog.path)."""
+def scenario_windows(scen: Scenario, *, controller: str | None = None, seed: int | None = None,
+                     duration_s: float | None = None, window_steps: int | None = WINDOW_STEPS):
+    """A closed-loop scenario simulated a time window at a time (memory flat in the run's length).
+
+    The sensor noise is drawn before the first window (the whole run's, small); the plant,
+    the controller (and the onboard EKF) go on from window to window
+    (:func:`closed_loop_windows`): the windows' frames one after another are
+    :func:`simulate_scenario`'s channels, the same numbers.
+
+    Parameters
+    ----------
+    scen : Scenario
+    controller : {"full", "baseline"}, optional
+        Default the scenario's.
+    seed : int, optional
+        Default the scenario's.
+    duration_s : float, optional
+        Default the scenario's.
+    window_steps : int or None, default :data:`usvlog.sim.simulate.WINDOW_STEPS`
+        Plant steps a window (rounded down to whole controller ticks, at least one); None:
+        the whole run in one window.
+
+    Returns
+    -------
+    log : FieldLog
+        The run's log without its channels (datum, vessel, provenance, ``usvlog.path``).
+    windows : iterator of dict
+        Topic -> frame of the window (:func:`scenario_topics`), windows in time order.
+    """
     st = scen.sim if duration_s is None else replace(scen.sim, duration_s=duration_s)
     seed = scen.seed if seed is None else seed
     ctl_name = controller or scen.controller
     path = scen.path(st.datum)
     ctl = make_controller(scen, path, controller=ctl_name)
     rng = np.random.default_rng(seed)
-    t = np.arange(int(round(st.duration_s / st.dt_s))) * st.dt_s
-    noise = draw_sensor_noise(st, t, rng)
+    t = np.arange(st.n_steps) * st.dt_s
+    noise = draw_sensor_noise(st, t, rng)   # small: the sensors' samples only
     every = max(1, int(round(1.0 / (scen.guidance.rate_hz * st.dt_s))))
+    ticks = None if window_steps is None else max(1, int(window_steps) // every)
     est = None if scen.controller_input == "truth" else EKFInTheLoop(st, t, noise, every * st.dt_s)
-    run = closed_loop(path, st.vessel, ctl, duration_s=st.duration_s, dt_s=st.dt_s, integrator=st.integrator,
-                      current_ne=st.current_ne, eta0=st.eta0, nu0=st.nu0, schedule=scen.schedule,
-                      rate_hz=scen.guidance.rate_hz, estimator=est)
-    extra = {"controller": ctl_name, "controller_input": run.controller_input,
+    del t
+    extra = {"controller": ctl_name, "controller_input": scen.controller_input,
              "gains": scen.gains.to_dict(), "guidance": scen.guidance.to_dict(), "path": scen.path_spec,
              "speed_schedule": [list(s) for s in scen.speed], "eta0": list(st.eta0), "nu0": list(st.nu0),
              "scenario_file": scen.source}
-    log = field_log_from_run(st, run.t, run.states, run.tau[:, 0], run.tau[:, 1], rng,
-                             producer="usvlog simulate (closed loop)", scenario=scen.name, seed=seed,
-                             extra_settings=extra, noise=noise, tau_applied=run.applied)
-    t0 = int(log["/truth/state"].index[0])
-    t_ns = t0 + np.round(run.t[run.tick] * 1e9).astype(np.int64)
-    if est is not None:  # the onboard estimate the controller ran on, as a boat's log has it
-        log.set("/estimate/state", est.frame(t_ns))
-    thr = st.vessel.thrusters
-    log.set("/control/state", controller_frame(run.ctrl, t_ns, "/control/state", thr, command_unit(thr)))
+    log = _header_log(st, producer="usvlog simulate (closed loop)", scenario=scen.name, seed=seed,
+                      extra_settings=extra)
     log.meta[META_PATH] = path.metadata()
+    thr = st.vessel.thrusters
+
+    def windows():
+        t0 = start_ns(st.start_utc)
+        for k0, run in closed_loop_windows(
+                path, st.vessel, ctl, duration_s=st.duration_s, dt_s=st.dt_s, integrator=st.integrator,
+                current_ne=st.current_ne, eta0=st.eta0, nu0=st.nu0, schedule=scen.schedule,
+                rate_hz=scen.guidance.rate_hz, estimator=est, window_ticks=ticks):
+            frames = window_frames(st, k0, run.t, run.states, run.tau[:, 0], run.tau[:, 1], noise, run.applied)
+            t_ns = t0 + np.round(run.t[run.tick] * 1e9).astype(np.int64)
+            if est is not None:  # the onboard estimate the controller ran on, as a boat's log has it
+                frames["/estimate/state"] = est.frame(t_ns)
+            frames["/control/state"] = controller_frame(run.ctrl, t_ns, "/control/state", thr, command_unit(thr))
+            yield frames
+
+    return log, windows()
+
+
+def scenario_topics(scen: Scenario) -> list[str]:
+    """The channels :func:`scenario_windows` makes for ``scen``, in the log's order."""
+    return ["/truth/state", "/thrust/command", "/gnss/fix", "/compass/heading",
+            *(["/estimate/state"] if scen.controller_input != "truth" else []), "/control/state"]
+
+
+def simulate_scenario(scen: Scenario, *, controller: str | None = None, seed: int | None = None,
+                      duration_s: float | None = None) -> FieldLog:
+    """Run a closed-loop scenario into a field log (sensors, truth, /control/state, usvlog.path).
+
+    :func:`scenario_windows` in one window.
+    """
+    log, windows = scenario_windows(scen, controller=controller, seed=seed, duration_s=duration_s,
+                                    window_steps=None)
+    for frames in windows:
+        for topic, frame in frames.items():
+            log.set(topic, frame)
     return log
