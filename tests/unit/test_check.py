@@ -408,3 +408,21 @@ def test_sorted_unique_keeps_sorted_arrays_and_sorts_the_others():
     assert a[0] is t and a[1] is x
     b = _sorted_unique(np.array([2.0, 0.0, 1.0, 1.0]), np.array([1.0, 2.0, 3.0, 4.0]))
     assert b[0].tolist() == [0.0, 1.0, 2.0] and b[1].tolist() == [2.0, 3.0, 1.0]
+
+
+def test_smoothing_made_before_from_the_forces_alone_gives_the_same_findings(legs):
+    """check_log with the run smoothed before (usvlog.check.smooth) on a copy whose commands hold
+    only their forces (every row records both: all the smoothing reads of them): the same result."""
+    from usvlog.check import smooth
+
+    log = legs.copy()
+    th = log["/thrust/command"]
+    assert np.isfinite(th[["thrust_left_n", "thrust_right_n"]].to_numpy()).all()
+    lean = log.copy()
+    lean.set("/thrust/command", th[["thrust_left_n", "thrust_right_n"]])
+    made = smooth(lean)
+    assert made.states is not None and made.tau is not None
+    assert check_log(log, smoothed=made).to_dict() == check_log(log).to_dict()
+    no_compass = lean.copy()
+    no_compass.channels.pop("/compass/heading")
+    assert smooth(no_compass).states is None and smooth(no_compass).tau is None   # a channel missing

@@ -42,7 +42,7 @@ from ..log.findings import (
 from ..log.status import estimate_status
 from ..model.vessel import Vessel
 from . import content, heading, sensors, thrusters
-from .common import CheckContext
+from .common import CheckContext, Smoothed, smooth
 
 CHECKS = (*sensors.CHECKS, *heading.CHECKS, *thrusters.CHECKS, *content.CHECKS)
 """Every check: (function(ctx) -> findings, the check names it reports under)."""
@@ -107,7 +107,8 @@ def _run(fn, names: Sequence[str], ctx: CheckContext) -> list[Finding]:
                         f"{type(err).__name__}: {err}", action="report it with the log")]
 
 
-def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Finding] = ()) -> CheckResult:
+def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Finding] = (),
+              smoothed: Smoothed | None = None) -> CheckResult:
     """Run every check on a log.
 
     Parameters
@@ -118,12 +119,16 @@ def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Fi
         The boat (thruster map and limits, heading offset); default the log's own.
     extra : iterable of Finding
         Findings from elsewhere to show with these (e.g. what an in-memory import dropped).
+    smoothed : Smoothed, optional
+        :func:`smooth` of this log for this vessel, made before (by a caller that has it made from
+        the channels it reads, before it reads the log's others: less held at once); default made
+        here.
 
     Returns
     -------
     CheckResult
     """
-    ctx = CheckContext.of(log, vessel)
+    ctx = CheckContext.of(log, vessel, smoothed)
     ctx.smooth_first()
     own: list[Finding] = []
     names: list[str] = []
@@ -140,4 +145,4 @@ def check_log(log: FieldLog, vessel: Vessel | None = None, *, extra: Iterable[Fi
                        source=str(log.source or "log"), t0_ns=ctx.t0_ns)
 
 
-__all__ = ["CHECKS", "CheckResult", "check_log"]
+__all__ = ["CHECKS", "CheckResult", "Smoothed", "check_log", "smooth"]

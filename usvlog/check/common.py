@@ -40,6 +40,32 @@ def _sorted_unique(t: np.ndarray, *cols: np.ndarray):
     return (t[keep], *(c[o][keep] for c in cols))
 
 
+@dataclass(frozen=True)
+class Smoothed:
+    """What the checks take of the run as an identification sees it (:func:`smooth`): its smoothed
+    over-ground states (local cubic fits, 10 Hz; times from the run's first thrust sample), the
+    thrust (tau_u N, tau_r N m) on their grid, and that first sample (ns); the states and the
+    thrust None when the run cannot be made (a channel missing, too few samples, commands without
+    forces) or smoothed."""
+
+    states: KinStates | None = None
+    tau: tuple[np.ndarray, np.ndarray] | None = None
+    t0_ns: int = 0
+
+
+def smooth(log: FieldLog, vessel: Vessel | None = None) -> Smoothed:
+    """The :class:`Smoothed` run of ``log`` (:func:`usvlog.identify.data.run_data`, then
+    :func:`usvlog.identify.smooth.savgol_states`) for the boat ``vessel`` (default the log's own,
+    else the built-in one); the run's arrays (the thrust at its own rate) are let go once made.
+    It reads the log's thrust, GNSS (or local positions) and compass only."""
+    try:
+        run = run_data(log, vessel or log.vessel or default_vessel())
+        states = savgol_states(run)
+    except UsvlogError:
+        return Smoothed()
+    return Smoothed(states, thrust_on_grid(run, states.t), run.t0_ns)
+
+
 @dataclass
 class CheckContext:
     """One log prepared for the checks (see the module docstring).
@@ -62,14 +88,17 @@ class CheckContext:
     vessel_given: bool
     t0_ns: int
     health: dict = field(default_factory=dict)
+    given: Smoothed | None = None
 
     @classmethod
-    def of(cls, log: FieldLog, vessel: Vessel | None = None) -> CheckContext:
-        """The context of ``log`` (``vessel``: the boat, default the log's own)."""
+    def of(cls, log: FieldLog, vessel: Vessel | None = None, smoothed: Smoothed | None = None) -> CheckContext:
+        """The context of ``log`` (``vessel``: the boat, default the log's own; ``smoothed``: its
+        :func:`smooth`, when made before)."""
         tr = log.time_range()
         v = vessel or log.vessel
         return cls(log=log, vessel=v or default_vessel(), vessel_given=v is not None,
-                   t0_ns=int(tr[0]) if tr else 0, health=health_from_provenance(log.provenance) or {})
+                   t0_ns=int(tr[0]) if tr else 0, health=health_from_provenance(log.provenance) or {},
+                   given=smoothed)
 
     def seconds(self, t_ns) -> np.ndarray:
         """ns since the Unix epoch -> s from the log's start."""
@@ -140,17 +169,9 @@ class CheckContext:
         return float(np.degrees(np.abs(np.angle(np.exp(1j * np.diff(course)))).sum()))
 
     @cached_property
-    def _smoothed(self) -> tuple[KinStates, tuple[np.ndarray, np.ndarray], int] | None:
-        """(:attr:`states`, :attr:`tau_on_states`, the run's first thrust sample in ns) of the run as an
-        identification sees it (:func:`usvlog.identify.data.run_data`), None when it cannot be made (a
-        channel missing, too few samples, commands without forces) or smoothed. The run's arrays (the
-        thrust at its own rate) are let go once these are made."""
-        try:
-            run = run_data(self.log, self.vessel)
-            states = savgol_states(run)
-        except UsvlogError:
-            return None
-        return states, thrust_on_grid(run, states.t), run.t0_ns
+    def _smoothed(self) -> Smoothed:
+        """:func:`smooth` of the log (the one given, when made before)."""
+        return self.given or smooth(self.log, self.vessel)
 
     def smooth_first(self) -> None:
         """Make :attr:`states` now, while the context holds nothing else: the smoothing's peak is
@@ -164,14 +185,13 @@ class CheckContext:
     def states(self) -> KinStates | None:
         """Smoothed over-ground states of the run as an identification sees it (local cubic fits,
         10 Hz; times from the run's first thrust sample), None without."""
-        return None if self._smoothed is None else self._smoothed[0]
+        return self._smoothed.states
 
     @property
     def tau_on_states(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(tau_u N, tau_r N m) on the grid of :attr:`states`."""
-        return None if self._smoothed is None else self._smoothed[1]
+        return self._smoothed.tau
 
     def run_seconds(self, t_run_s) -> np.ndarray:
         """Times of :attr:`states` (s from the run's first thrust sample) -> s from the log's start."""
-        assert self._smoothed is not None
-        return np.asarray(t_run_s, float) + (self._smoothed[2] - self.t0_ns) / 1e9
+        return np.asarray(t_run_s, float) + (self._smoothed.t0_ns - self.t0_ns) / 1e9

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..check import CheckResult, check_log
+from ..check import CheckResult, Smoothed, check_log
 from ..errors import UsvlogError
 from ..log.fieldlog import FieldLog
 from ..log.findings import counts
@@ -57,13 +57,13 @@ def of_log(log: FieldLog) -> CheckResult | None:
     return checked(_with_checked_channels(log))
 
 
-def checked(log: FieldLog) -> CheckResult | None:
+def checked(log: FieldLog, smoothed: Smoothed | None = None) -> CheckResult | None:
     """The findings about ``log`` as it is, no channel read from its file (None for an empty log or
-    when the checks cannot run)."""
+    when the checks cannot run); ``smoothed``: the run smoothed before (:func:`usvlog.check.smooth`)."""
     if log.time_range() is None:
         return None
     try:
-        return check_log(log)
+        return check_log(log, smoothed=smoothed)
     except UsvlogError:
         return None
 

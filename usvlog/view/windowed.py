@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from ..check import smooth
 from ..io.mcap.decode import _return_freed_memory
 from ..io.mcap.reader import chunk_spans, read_log
 from ..io.mcap.windows import NotWindowed, iter_windows, topic_counts
@@ -61,6 +62,7 @@ class Survey:
     last: dict[str, int] = field(default_factory=dict)    # big channel -> its last time (ns)
     thrust_unit: str | None = None                        # the commands' unit in their first row
     thrust_forces: bool = False                           # any force recorded with the commands
+    forces_rows: tuple[int, int] = (0, 0)                 # commands' rows with thrust_left_n finite, with both
     current: tuple[float, float] | None = None            # the estimate's mean current (vd.mean_current)
     heads: dict = field(default_factory=dict)             # big channel -> its first row
     findings: object = None                               # usvlog.check.CheckResult or None
@@ -258,7 +260,7 @@ def survey(log: WindowedLog) -> Survey:
     """
     s = Survey()
     counts = topic_counts(log.source)
-    steps, current, forces = _pass(log, s, counts)
+    steps, current = _pass(log, s, counts)
     if any(s.rows.get(t, 0) != counts[t] for t in log.windowed):
         raise NotWindowed("a channel's rows and the summary's count differ")
     s.steps = {t: st.thin_step(vd.OVERLAY_HZ) for t, st in steps.items()}
@@ -266,21 +268,20 @@ def survey(log: WindowedLog) -> Survey:
         s.current = vd.mean_current(current.frame())
     del current
     _return_freed_memory()
-    s.manoeuvres = _manoeuvres(log, s, forces)
+    s.manoeuvres = _manoeuvres(log, s)
     _return_freed_memory()
     s.stretches = _stretches(log, s.manoeuvres)
-    s.findings = _findings(log)
+    s.findings = _findings(log, s)
     _return_freed_memory()
     return s
 
 
 def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
     """The survey's pass over the big channels: fills ``s``'s facts; returns each state channel's
-    :class:`_Steps`, the estimate's current gathered (or None) and how many forces the commands
-    record (:func:`usvlog.trials.uses_forces`) (a function of its own: the last block is let go with it)."""
+    :class:`_Steps` and the estimate's current gathered (or None) (a function of its own: the last
+    block is let go with it)."""
     steps = {t: _Steps() for t in log.windowed if t != vman.THRUST}
     current: _Gather | None = None
-    forces = 0   # rows of the commands with a finite thrust_left_n (usvlog.trials.uses_forces)
     for blk in blocks(log):
         for t, f in blk.items():
             if t not in s.first:
@@ -297,18 +298,22 @@ def _pass(log: WindowedLog, s: Survey, counts: dict[str, int]):
                 steps[t].add(np.asarray(f.index.to_numpy(), np.int64))
             if t == vman.STATE and current is not None:
                 current.add(f)
-            if t == vman.THRUST and "thrust_left_n" in f.columns:
-                forces += int(np.isfinite(f["thrust_left_n"].to_numpy(float)).sum())
+            if t == vman.THRUST and {"thrust_left_n", "thrust_right_n"} <= set(f.columns):
+                left = np.isfinite(f["thrust_left_n"].to_numpy(float))
+                both = left & np.isfinite(f["thrust_right_n"].to_numpy(float))
+                s.forces_rows = (s.forces_rows[0] + int(left.sum()), s.forces_rows[1] + int(both.sum()))
             if t == vman.THRUST and not s.thrust_forces and {"thrust_left_n", "thrust_right_n"} <= set(f.columns):
                 s.thrust_forces = bool(np.isfinite(f["thrust_left_n"].to_numpy(float)).any()
                                        or np.isfinite(f["thrust_right_n"].to_numpy(float)).any())
-    return steps, current, forces
+    return steps, current
 
 
-def _findings(log: WindowedLog):
+def _findings(log: WindowedLog, s: Survey):
     """``usvlog check``'s findings on the log's sensor channels, over the whole log's time: the small
     ones read whole, the commands gathered from their blocks (the frame read whole, its text as
-    categories; the read's own copies never made)."""
+    categories; the read's own copies never made). When every command records both forces, the
+    checks' smoothing of the run is made first, on the commands' forces alone (all the smoothing
+    reads of them, :func:`usvlog.identify.data.thrust_forces`), before their other columns are read."""
     have = [t for t in vfind.CHECK_TOPICS if t in log.channels]
     small = [t for t in have if t not in log.windowed]
     sensors = read_log(log.source, topics=small) if small else FieldLog()
@@ -316,26 +321,36 @@ def _findings(log: WindowedLog):
     del sensors
     _return_freed_memory()   # the read's own copies
     counts = topic_counts(log.source)
-    for t in have:
-        if t in log.windowed:
-            channels[t] = gathered(log, t, counts[t])
+    big = [t for t in have if t in log.windowed]
+    smoothed = None
+    if vman.THRUST in big and s.forces_rows[1] == counts[vman.THRUST]:
+        forces = gathered(log, vman.THRUST, counts[vman.THRUST], ("thrust_left_n", "thrust_right_n"))
+        try:
+            smoothed = smooth(FieldLog(channels={**channels, vman.THRUST: forces}, meta=log.meta, source=log.source))
+        except Exception:   # noqa: S110 -- left to the checks: they smooth the run again and report it
+            pass
+        del forces
+        _return_freed_memory()
+    for t in big:
+        channels[t] = gathered(log, t, counts[t])
     checked = WindowedLog(channels=channels, meta=log.meta, source=log.source, range_ns=log.range_ns)
-    return vfind.checked(checked)
+    return vfind.checked(checked, smoothed)
 
 
-def gathered(log: WindowedLog, topic: str, rows: int) -> pd.DataFrame:
-    """The frame of ``log``'s big channel ``topic`` (of ``rows`` rows) as read whole, gathered from its
-    blocks: its arrays allocated once, its text columns as categories (the read's copies never made)."""
+def gathered(log: WindowedLog, topic: str, rows: int, columns=None) -> pd.DataFrame:
+    """The frame of ``log``'s big channel ``topic`` (of ``rows`` rows; its ``columns``, default all) as
+    read whole, gathered from its blocks: its arrays allocated once, its text columns as categories
+    (the read's copies never made)."""
     g = None
     for blk in blocks(log, [topic]):
-        g = g or _Gather(rows, blk[topic])
+        g = g or _Gather(rows, blk[topic], columns)
         g.add(blk[topic])
     if g is None or g.n != rows:
         raise NotWindowed(f"{topic}: its rows and the summary's count differ")
     return g.frame()
 
 
-def _manoeuvres(log: WindowedLog, s: Survey, forces: int):
+def _manoeuvres(log: WindowedLog, s: Survey):
     """The manoeuvres (:func:`usvlog.view.manoeuvres.measure`'s of the whole log), each of their inputs
     made from a pass over its channel's blocks: the commands (read into the detection's plan and let
     go), then the estimate's track."""
@@ -353,7 +368,7 @@ def _manoeuvres(log: WindowedLog, s: Survey, forces: int):
             builder.add(blk[topic])
         return builder
 
-    uses = uses_forces(s.heads[vman.THRUST].columns, forces, rows)
+    uses = uses_forces(s.heads[vman.THRUST].columns, s.forces_rows[0], rows)
     return vman.find_on(lambda: made(CommandsBuilder(rows, t0, uses, s.thrust_unit), vman.THRUST).commands(),
                         lambda: made(TrackBuilder(s.rows[vman.STATE], t0), vman.STATE).track(), t0)
 
