@@ -292,15 +292,17 @@ class EKFInTheLoop:
         self.ekf = OnlineEKF(st.vessel, EstimateSettings(model="dynamic", current=True),
                              x0=np.array([*st.eta0, *st.nu0, 0.0, 0.0], float))
         self.dt = dt_ctrl
-        gi, keep = noise["gps_index"], noise["gps_keep"]
+        keep = noise["gps_keep"]
         off = noise["gps_noise"] + noise["gps_bias"]
         for k, dn, de in noise["gps_jumps"]:
             off[k] = off[k] + (dn, de)
-        self.gps = {int(k): (float(o[0]), float(o[1])) for k, o, ok in zip(gi, off, keep) if ok}
+        # the samples by plant step, rising (arrays, not a dict a sample: memory in the run's length)
+        self.gps_k, self.gps_off = noise["gps_index"][keep], off[keep]
         self.gps_var = max(sn.gps_noise_m, 0.05) ** 2
-        cb = math.radians(sn.compass_bias_deg)
-        self.compass = {int(k): cb + float(w) for k, w in zip(noise["compass_index"], noise["compass_noise"])}
+        self.compass_bias = math.radians(sn.compass_bias_deg)
+        self.compass_k, self.compass_w = noise["compass_index"], noise["compass_noise"]
         self.compass_var = max(math.radians(sn.compass_noise_deg), math.radians(0.1)) ** 2
+        self.next_gps = self.next_compass = 0
         self.last = -1
         self.X: list[np.ndarray] = []
         self.S: list[np.ndarray] = []
@@ -309,12 +311,16 @@ class EKFInTheLoop:
         ekf = self.ekf
         if self.last >= 0:
             ekf.predict(self.dt, tau[0], tau[1])
+        gk, ck = self.gps_k, self.compass_k
         for j in range(self.last + 1, k + 1):  # samples since the previous tick, at this tick's state
-            if j in self.gps:
-                dn, de = self.gps[j]
+            if self.next_gps < len(gk) and gk[self.next_gps] == j:
+                dn, de = (float(o) for o in self.gps_off[self.next_gps])
+                self.next_gps += 1
                 ekf.update_gnss(x[0] + dn, x[1] + de, self.gps_var)
-            if j in self.compass:
-                ekf.update_heading(float(np.round(ssa(x[2] + self.compass[j]), 4)), self.compass_var)
+            if self.next_compass < len(ck) and ck[self.next_compass] == j:
+                w = self.compass_bias + float(self.compass_w[self.next_compass])
+                self.next_compass += 1
+                ekf.update_heading(float(np.round(ssa(x[2] + w), 4)), self.compass_var)
         self.last = k
         xh = ekf.x
         self.X.append(xh)
