@@ -4,13 +4,15 @@
 :class:`WindowedLog` when the file allows it (:func:`open_windowed`): its small channels
 (positions, compass, innovations) decoded, its big ones (:data:`WINDOWED`: the states at 100 Hz
 and the thrust commands) left in the file, to be drawn from a block of rows at a time
-(:func:`blocks`), and a :class:`Survey` of the run made first, by one pass over the big channels
+(:func:`blocks`), and a :class:`Survey` of the run made first, by passes over the big channels
 before the viewer's or the plots' library is imported:
 
-* what the whole-run analyses find: the findings of ``usvlog check`` (on the sensor channels,
-  read whole: the checks need them so) and the standard manoeuvres (measured on the estimate's
-  columns they use and the thrust commands, gathered from the blocks) with each one's stretch of
-  the estimated track;
+* what the whole-run analyses find, one after the other: the standard manoeuvres (the thrust
+  commands made from their blocks and read into the detection's plan, then the estimate's track
+  made from its blocks: :class:`usvlog.trials.CommandsBuilder`, :class:`usvlog.trials.TrackBuilder`)
+  with each one's stretch of the estimated track; the findings of ``usvlog check`` (on the small
+  sensor channels read whole and the commands gathered from their blocks, the checks' smoothing
+  of the run made first on the commands' forces alone when every command records both);
 * the whole-run facts the drawing needs before it starts: each state channel's thinning step for
   the 10 Hz tracks (:func:`usvlog.view.data.thin_indices`' median step, from a count of the
   steps), the thrust commands' first unit and whether any force was recorded.
