@@ -278,17 +278,19 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         nfev += vp.nfev
         theta, cur = vp.unpack(sol.x)
         vp._eval(sol.x)
-    r, G = vp._r, vp._J
-    diverged = bool(vp.diverged)
+    rms = {k: float(np.sqrt(np.mean(vp._r[prob.r_sensor == i] ** 2)))
+           for i, k in enumerate(SENSORS) if np.any(prob.r_sensor == i)}
+    diverged, x0s = bool(vp.diverged), vp.x0s
     pos = prob.r_sensor <= 1          # the raw measurements carry the information
-    r, G = r[pos], G[pos]
+    r, G = vp._r[pos], vp._J[pos]
+    del vp                            # its whole-run Jacobian: the rows kept are a copy
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         colnorm = np.linalg.norm(G, axis=0)
         colnorm[colnorm == 0] = 1.0
-        Gs = G / colnorm
+        Gs = np.divide(G, colnorm, out=G)   # in place: G is not needed unscaled
         ok = bool(np.all(np.isfinite(Gs)) and np.all(np.isfinite(colnorm)) and np.isfinite(sigma2) and len(Gs))
         cond = float(np.linalg.cond(Gs)) if ok else float("inf")
         cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm) if np.isfinite(cond) else \
@@ -296,12 +298,10 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     names = tuple(n for n, f in zip(PARAM_NAMES, free) if f)
     if fit_current:
         names += tuple(f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e"))
-    rms = {k: float(np.sqrt(np.mean(vp._r[prob.r_sensor == i] ** 2)))
-           for i, k in enumerate(SENSORS) if np.any(prob.r_sensor == i)}
     return OutputErrorResult(theta=theta, free=tuple(n for n, f in zip(PARAM_NAMES, free) if f),
                              currents=np.asarray(cur, float) if fit_current else np.zeros((len(runs), 2)),
                              cov=cov, names=names, cond=cond, sigma2=sigma2, rms=rms, n_residuals=n_res,
-                             x0s=vp.x0s, nfev=nfev, outliers=outliers, diverged=diverged)
+                             x0s=x0s, nfev=nfev, outliers=outliers, diverged=diverged)
 
 
 def _robust_scale(prob: Problem, r) -> tuple[float, ...]:

@@ -99,6 +99,9 @@ class _VP:
         key = p.tobytes()
         if key == self._key:
             return
+        # the last evaluation's whole-run arrays let go first: not two alive at once
+        self._key, self._r, self._A = None, np.zeros(0), np.zeros((0, 1))
+        self._J = self._A[:, :-1]
         theta, cur = self.unpack(p)
         if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] <= 0)
                 or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]
