@@ -75,14 +75,21 @@ class RunData:
         return float(self.t_thrust[-1] - self.t_thrust[0])
 
     def window(self, t_lo: float, t_hi: float) -> RunData:
-        """The part of the run in [t_lo, t_hi] (s), same time origin."""
-        k = (self.t_thrust >= t_lo) & (self.t_thrust <= t_hi)
-        g = (self.t_gps >= t_lo) & (self.t_gps <= t_hi)
-        c = (self.t_compass >= t_lo) & (self.t_compass <= t_hi)
+        """The part of the run in [t_lo, t_hi] (s), same time origin (views of the run's
+        arrays where their times are sorted: :func:`within`)."""
+        k, g, c = (within(t, t_lo, t_hi) for t in (self.t_thrust, self.t_gps, self.t_compass))
         return replace(self, t_thrust=self.t_thrust[k], tau_u=self.tau_u[k], tau_r=self.tau_r[k],
                        t_gps=self.t_gps[g], n_gps=self.n_gps[g], e_gps=self.e_gps[g],
                        sigma_gps=self.sigma_gps[g], t_compass=self.t_compass[c],
                        psi_compass=self.psi_compass[c], sigma_compass=self.sigma_compass[c])
+
+
+def within(t: np.ndarray, t_lo: float, t_hi: float) -> slice | np.ndarray:
+    """The samples of ``t`` in [t_lo, t_hi]: a slice when ``t`` is sorted (indexing with it
+    gives views, not copies), else a mask; the same samples in the same order either way."""
+    if len(t) and bool(np.all(t[1:] >= t[:-1])):
+        return slice(int(np.searchsorted(t, t_lo, "left")), int(np.searchsorted(t, t_hi, "right")))
+    return (t >= t_lo) & (t <= t_hi)
 
 
 def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:

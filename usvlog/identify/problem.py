@@ -127,8 +127,8 @@ class Problem:
         sig = np.concatenate(m_sig)
         seg = np.concatenate(m_seg)
         order = np.lexsort((t, seg))
-        self.meas_t, self.kind, self.val = t[order], kind[order], val[order]
-        self.sig, self.meas_seg = sig[order], seg[order]
+        self.meas_t, self.kind, self.meas_seg = t[order], kind[order], seg[order]
+        val, sig = val[order], sig[order]   # made into the residual rows' values and noise below
         self.meas_ptr = np.searchsorted(self.meas_seg, np.arange(len(seg_i0) + 1)).astype(np.int64)
         self.n_seg = len(seg_i0)
         gi = np.flatnonzero(self.kind == 0)
@@ -144,9 +144,9 @@ class Problem:
         self.r_meas, self.r_state, self.r_seg = r_meas[o], r_state[o], r_seg[o]
         self.r_sensor = SENSOR_OF_ROW[self.r_state]   # 0 gps, 1 compass, 2 ground velocity, 3 yaw rate
         col = np.array([0, 1, 0, 0, 1, 2])[self.r_state]
-        self.r_val = self.val[self.r_meas, col]
+        self.r_val = val[self.r_meas, col]
         self.r_sig0 = np.where(self.r_sensor == 2, vel_sigma[0], np.where(self.r_sensor == 3, vel_sigma[1],
-                                                                         self.sig[self.r_meas]))
+                                                                         sig[self.r_meas]))
         self.r_start = np.searchsorted(self.r_seg, np.arange(self.n_seg + 1))
         # each run's residual rows, r_run_start[i]:r_run_start[i + 1] (segments are in run order)
         self.r_run_start = np.searchsorted(self.seg_run[self.r_seg], np.arange(self.n_runs + 1))

@@ -22,7 +22,7 @@ from ..estimate.problem import build_problem
 from ..estimate.run import tune_process_noise
 from ..model.frames import ssa
 from ..model.vessel import default_vessel
-from .data import RunData
+from .data import RunData, within
 from .seen import free_run_log
 
 GRID_DT = 0.1
@@ -110,10 +110,11 @@ class KinStates:
         Raises :class:`~usvlog.errors.FitFailed` when fewer than MIN_SAMPLES are there (the
         GNSS fixes and compass headings do not cover that part of the run): nothing to fit
         or validate on."""
-        k = (self.t >= t_lo) & (self.t <= t_hi)
-        if k.sum() < MIN_SAMPLES:
+        k = within(self.t, t_lo, t_hi)
+        n = len(self.t[k])
+        if n < MIN_SAMPLES:
             span = f"{t_lo:.1f} s onward" if t_hi == np.inf else f"{t_lo:.1f} .. {t_hi:.1f} s"
-            raise FitFailed(f"{int(k.sum())} smoothed sample(s) in {span} of the run: its GNSS fixes and compass "
+            raise FitFailed(f"{n} smoothed sample(s) in {span} of the run: its GNSS fixes and compass "
                             "headings do not cover that part (nothing to fit or validate on there)")
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
                          ve=self.ve[k], r=self.r[k], source=self.source, smoother=self.smoother,
