@@ -281,6 +281,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     rms = {k: float(np.sqrt(np.mean(vp._r[prob.r_sensor == i] ** 2)))
            for i, k in enumerate(SENSORS) if np.any(prob.r_sensor == i)}
     diverged, x0s = bool(vp.diverged), vp.x0s
+    prob.free_rows()                  # the sensitivities the Jacobian was made of
     pos = prob.r_sensor <= 1          # the raw measurements carry the information
     r, G = vp._r[pos], vp._J[pos]
     del vp                            # its whole-run Jacobian: the rows kept are a copy

@@ -248,6 +248,11 @@ class Problem:
             later.result()
         return out_x, rows
 
+    def free_rows(self) -> None:
+        """Let go of :meth:`simulate`'s sensitivity rows (a whole-run buffer; the next call with
+        ``sens`` makes it again)."""
+        self._rows = None
+
     def residuals(self, out_x, currents):
         """Noise-weighted residuals (measured - simulated) of every residual row; heading wrapped.
 
