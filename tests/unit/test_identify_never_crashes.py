@@ -314,3 +314,14 @@ def test_a_piece_of_the_otter_run(tmp_path, scale):
                                     velocities=None))
     sf = _finite_or_failed(fit_surge, [run], [ks], th0[0], th0[2], 0.0, max_current_mps=0.5)
     assert sf is None or (math.isfinite(sf.m) and math.isfinite(sf.d11))
+
+
+def test_a_candidate_too_stiff_to_simulate_is_a_failed_one():
+    """A parameter vector whose velocities decay in under 20 ms (an equation-error fit on a hull
+    it does not describe: m a few grams) is no boat: refused with the reason before any free run,
+    whose integration steps would otherwise shrink without end."""
+    from usvlog.identify.candidates import physical_problem
+
+    assert physical_problem([33.0, 10.0, 5.0, 5.0, 5.0, 0.1]) == ""
+    why = physical_problem([0.004, 10.0, 5.0, 5.0, 5.0, 0.0])   # d11 / m = 1250 /s
+    assert "time constant" in why and "no boat" in why, why

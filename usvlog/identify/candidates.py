@@ -29,8 +29,10 @@ from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams
 from .data import RunData
 from .equation import EquationErrorResult, fit_equation_error
 from .output import (
+    MAX_STIFFNESS,
     OutputErrorResult,
     fit_output_error,
+    stiffness,
     velocity_samples,
 )
 from .smooth import KinStates, derivative, smooth_like, thrust_on_grid
@@ -163,7 +165,8 @@ class Candidate:
 
 
 def physical_problem(theta) -> str:
-    """Why a parameter vector is not a boat (empty when it is): m, Iz, d.. > 0, finite, Iz - m xg^2 > 0."""
+    """Why a parameter vector is not a boat (empty when it is): m, Iz, d.. > 0, finite, Iz - m xg^2 > 0,
+    no velocity time constant under 1 / MAX_STIFFNESS."""
     th = np.asarray(theta, float)
     if not np.all(np.isfinite(th)):
         return "parameters not finite"
@@ -172,6 +175,9 @@ def physical_problem(theta) -> str:
         return f"{', '.join(bad)} not positive"
     if th[1] - th[0] * th[5] ** 2 <= 0:
         return "Iz - m xg^2 not positive"
+    k = stiffness(th)
+    if not k <= MAX_STIFFNESS:   # its simulation would need ever smaller steps (a hang, not a result)
+        return f"a velocity time constant of {1e3 / k:.2g} ms (under {1e3 / MAX_STIFFNESS:.0f} ms): no boat's"
     return ""
 
 
