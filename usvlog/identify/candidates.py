@@ -656,21 +656,11 @@ def _equation_error_current(self: Identifier, runs, kin) -> tuple[EquationErrorR
     from scipy.optimize import minimize  # lazy: only here
 
     n, lim = len(runs), self.max_current_mps
-    # the smoothing and derivative are linear, and a current moves u, v by -R(psi)^T c: the inputs for
-    # any current are those without one less the smoothed columns of R^T times it (made once, not per try)
-    base = [_ee_inputs(r, k) for r, k in zip(runs, kin)]
-    turn = []
-    for k in kin:
-        z = np.zeros_like(k.psi)
-        cols = [np.stack([np.cos(k.psi), -np.sin(k.psi), z], -1), np.stack([np.sin(k.psi), np.cos(k.psi), z], -1)]
-        turn.append([(smooth_like(k.t, a, EE_ACC_S), derivative(k.t, a, EE_ACC_S)) for a in cols])
 
     def fit_at(c) -> tuple[EquationErrorResult, np.ndarray]:
         cur = np.clip(np.asarray(c, float).reshape(n, 2), -lim, lim)
-        nu = np.concatenate([b[0] - cn * tn[0] - ce * te[0] for b, (tn, te), (cn, ce) in zip(base, turn, cur)])
-        nu_dot = np.concatenate([b[1] - cn * tn[1] - ce * te[1] for b, (tn, te), (cn, ce) in zip(base, turn, cur)])
-        tu, tr = (np.concatenate([b[j] for b in base]) for j in (2, 3))
-        return fit_equation_error(nu, nu_dot, tu, tr, fix=self.fix), cur
+        parts = [_ee_inputs(r, k, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
+        return fit_equation_error(*(np.concatenate([p[j] for p in parts]) for j in range(4)), fix=self.fix), cur
 
     def cost(c) -> float:
         rms = np.asarray(fit_at(c)[0].rms, float)
