@@ -181,9 +181,6 @@ def physical_problem(theta) -> str:
     return ""
 
 
-EE_CURRENT_TOL_MPS = 0.002   # equation error's current: Nelder-Mead's tolerance on each component (m/s)
-
-
 def _ee_inputs(run: RunData, ks: KinStates, current=(0.0, 0.0)):
     nu = ks.nu(current)
     tu, tr = thrust_on_grid(run, ks.t)
@@ -379,10 +376,10 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
     if st.model == "extended":
         return self._fit_ext_candidate(st, runs, kin, held)
     free = self._free(st)
+    zeros = np.zeros((len(runs), 2))
     fitted: object
     if st.kind == "equation-error":
-        ee, cur = self._equation_error_current(runs, kin)
-        theta, fitted = self._ee_theta(ee, vessel), ee
+        theta, cur, fitted = st.theta, zeros, self.equation_error_
     elif st.kind == "filter-error":
         from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
 
@@ -518,8 +515,8 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
         theta, fitted = fe.theta, fe
         cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in logs])
     elif st.kind == "equation-error":
-        ee, cur = self._equation_error_current(runs, kin)
-        theta, fitted = self._ee_theta(ee, vessel), ee
+        ee = self._equation_error(runs, kin)
+        theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
     elif st.kind == "velocity-error":
         vf = fit_velocity_error(runs, kin, chosen.theta, free_mask=self._free(st), fit_current=self.current,
                                 currents0=chosen.currents, max_current_mps=self.max_current_mps,
@@ -638,41 +635,6 @@ def _equation_error(self: Identifier, runs, kin) -> EquationErrorResult:
     return fit_equation_error(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                               np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
                               fix=self.fix)
-
-
-def _equation_error_current(self: Identifier, runs, kin) -> tuple[EquationErrorResult, np.ndarray]:
-    """Equation error with a constant water current per run (when the identifier fits currents).
-
-    For a current the water-relative velocities and their derivatives (heading changes turn
-    a constant current in the body frame) are made again and the equations fitted, linear in
-    the parameters; the current is the one whose fit leaves the least residual over the three
-    equations (``log rms_u + log rms_v + log rms_r``: the likelihood with an unknown scatter per
-    equation), found by Nelder-Mead from no current, each component within +-max_current_mps.
-    Without it a current ends in the parameters (a Fossen Otter run in 0.25 m/s: equation
-    error returned with no current while the other fits found 0.23 m/s). Returns the fit and
-    the currents (n_runs, 2); zeros and :meth:`_equation_error` when currents are not fitted."""
-    if not self.current:
-        return self._equation_error(runs, kin), np.zeros((len(runs), 2))
-    from scipy.optimize import minimize  # lazy: only here
-
-    n, lim = len(runs), self.max_current_mps
-
-    def fit_at(c) -> tuple[EquationErrorResult, np.ndarray]:
-        cur = np.clip(np.asarray(c, float).reshape(n, 2), -lim, lim)
-        parts = [_ee_inputs(r, k, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
-        return fit_equation_error(*(np.concatenate([p[j] for p in parts]) for j in range(4)), fix=self.fix), cur
-
-    def cost(c) -> float:
-        rms = np.asarray(fit_at(c)[0].rms, float)
-        return float(np.sum(np.log(rms))) if np.all(np.isfinite(rms) & (rms > 0)) else math.inf
-
-    step = min(0.1, 0.5 * lim)
-    simplex = np.vstack([np.zeros(2 * n), step * np.eye(2 * n)])
-    sol = minimize(cost, np.zeros(2 * n), method="Nelder-Mead",
-                   options={"initial_simplex": simplex, "xatol": EE_CURRENT_TOL_MPS, "fatol": 1e-7,
-                            "maxfev": 200 * n})
-    best = sol.x if cost(sol.x) < cost(np.zeros(2 * n)) else np.zeros(2 * n)
-    return fit_at(best)
 
 
 def _ext_equation_error(self: Identifier, runs, kin) -> ExtendedFit:

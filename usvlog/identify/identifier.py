@@ -492,7 +492,6 @@ class Identifier:
     _leave_one_out = candidates._leave_one_out
     _ee_theta = candidates._ee_theta
     _equation_error = candidates._equation_error
-    _equation_error_current = candidates._equation_error_current
     _ext_equation_error = candidates._ext_equation_error
     _start = candidates._start
 
@@ -583,7 +582,7 @@ class Identifier:
             se = np.array([fitted.stderr[k] for k in PARAM_NAMES])
             names = [k for k in PARAM_NAMES if k not in self.fix]
             cov = np.diag([fitted.stderr[k] ** 2 for k in names])
-            self.current_ = [tuple(float(x) for x in c) for c in cand.currents]   # (its own; zero when not fitted)
+            self.current_ = [(0.0, 0.0)] * len(runs)
             self.current_stderr_ = [(float("nan"), float("nan"))] * len(runs)
             self.cond_ = float("nan")
             self.residual_rms_ = {"surge_n": fitted.rms[0], "sway_n": fitted.rms[1], "yaw_nm": fitted.rms[2]}

@@ -204,9 +204,8 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
             add(1, f"current of run {i} at its bound ({speed:.2f} m/s, bound {self.max_current_mps:g} m/s "
                    "per axis): the fit wanted more current than allowed; a model mismatch or a real strong "
                    "current (--max-current-mps)")
-    if (self.current and self.final_.start.kind == "equation-error"
-            and all(math.hypot(*c) < NOTABLE_CURRENT_MPS for c in self.current_)):
-        # equation error found no current (the extended model's fits none): say so when the others did
+    if self.current and self.final_.start.kind == "equation-error":
+        # equation error fits no current: say so when the fits that do found one
         others = [c for c in getattr(self, "candidates_", []) if not c.failed and c.start.kind != "equation-error"
                   and len(c.currents)]
         if others:
