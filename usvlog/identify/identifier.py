@@ -431,6 +431,10 @@ class Identifier:
 
         return self.extended_.as_array(), free_run_full
 
+    def _current_of(self, i: int):
+        """Run i's fitted current (north, east, m/s); none for a run without one."""
+        return self.current_[i] if i < len(self.current_) else (0.0, 0.0)
+
     def _ahead(self, held) -> dict:
         """k-step-ahead fit % (:func:`~usvlog.identify.ahead.fit_percent_ahead`, H = AHEAD_S) of the
         returned model on the held-out parts (mean over them); empty without held-out data."""
@@ -439,10 +443,9 @@ class Identifier:
         theta, simulate = self._predictor()
         per = []
         for i, (r, k) in enumerate(held):
-            cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
+            cur = self._current_of(i)
             per.append(fit_percent_ahead(r, k, theta, cur, AHEAD_S, simulate=simulate))
         return {h: {c: float(np.mean([p[h][c] for p in per])) for c in ("u", "v", "r")} for h in per[0]}
-
 
     def _whiteness(self, held) -> dict:
         """Whiteness of the yaw rate's residuals predicted WHITENESS_STEP_S ahead on the held-out
@@ -456,7 +459,7 @@ class Identifier:
         theta, simulate = self._predictor()
         res = []
         for i, (r, k) in enumerate(held):
-            cur = self.current_[i] if i < len(self.current_) else (0.0, 0.0)
+            cur = self._current_of(i)
             t0 = max(r.t_thrust[0], k.t[0])
             try:
                 _, e = one_step_residuals(r, k, theta, cur, WHITENESS_STEP_S, t_from=t0, simulate=simulate)

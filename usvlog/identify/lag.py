@@ -51,6 +51,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .data import RunData, lag_thrust
+from .output import fit_output_error
 from .smooth import KinStates
 from .velocity import fit_velocity_error
 
@@ -179,8 +180,6 @@ def _refine_on_positions(runs, kin, ci, theta, currents, fit_current: bool, max_
     from the velocity fit's parameters at its best lag) has the highest likelihood
     (``n_gps log rms_gps + n_compass log rms_compass``, whitened residuals); None when that
     best is that upper end or a fit fails (the velocity profile's lag stands)."""
-    from .output import fit_output_error  # the candidates' own fit
-
     n_gps = sum(2 * len(r.t_gps) for r in runs)
     n_compass = sum(len(r.t_compass) for r in runs)
 
