@@ -56,6 +56,8 @@ PREFER_WITHIN = 1.0         # fit % points: a preferred candidate this close to 
 SURGE_MASS_RATIO = 1.5
 EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
 DEGENERATE_COND = 1e10     # condition number of a fit whose Jacobian is numerically singular
+START_RATIO = 3.0           # output-error start: an equation-error value this close to the vessel's is plausible
+START_SCALE_RATIO = 10.0    # ... or this close to the data's scale (data_scales: a crude time-constant guess)
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
@@ -645,8 +647,13 @@ def _ext_equation_error(self: Identifier, runs, kin) -> ExtendedFit:
 
 
 def _start(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> np.ndarray:
-    """Output-error start: the equation-error values where plausible, else the vessel's."""
+    """Output-error start: the equation-error values where plausible, else the data's scales
+    (:func:`~usvlog.identify.velocity.data_scales`), else the vessel's. A value is plausible
+    within a factor START_RATIO of the vessel's or START_SCALE_RATIO of the data's scale: a
+    user's guess far from the boat (a tiny boat's values for an 80 kg hull) must not replace
+    what the data say."""
     prior = vessel.params.as_array()
+    scales = getattr(self, "_data_scales", None)
     th = ee.theta.copy()
     for i, k in enumerate(PARAM_NAMES):
         if k in self.fix:
@@ -656,9 +663,11 @@ def _start(self: Identifier, ee: EquationErrorResult, vessel: Vessel) -> np.ndar
         if k == "xg":
             ok = math.isfinite(v) and abs(v) < 1.0
         else:
-            ok = math.isfinite(v) and v > 0 and (1 / 3) < v / prior[i] < 3
+            ok = math.isfinite(v) and v > 0 and (
+                1 / START_RATIO < v / prior[i] < START_RATIO
+                or (scales is not None and 1 / START_SCALE_RATIO < v / scales[i] < START_SCALE_RATIO))
         if not ok:
-            th[i] = prior[i]
+            th[i] = prior[i] if scales is None else scales[i]
     if th[1] - th[0] * th[5] ** 2 <= 0.05 * th[1]:
         th[5] = 0.0 if "xg" not in self.fix else th[5]
     return th
