@@ -22,7 +22,7 @@ def register(sub) -> None:
                    help="model structure: paper (default), extended (separate surge/sway inertia, linear plus "
                         "quadratic damping; written as an [extended] vessel), or both (compared on the validation; "
                         "the extended one is written only when it validates better by at least 1 point of the "
-                        "mean track and r fit %%, else the simpler paper model)")
+                        "validation score, else the simpler paper model)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--validate", default=None, metavar="LOG", help="validate on this log (not fitted)")
     g.add_argument("--holdout", type=float, default=None,
@@ -210,7 +210,7 @@ def format_report(d: dict) -> str:
                 lines.append(f"{m} model on the validation ({mc[m]['candidate']}): track {_pct(f['track'])}, "
                              f"u {_pct(f['u'])}, v {_pct(f['v'])}, r {_pct(f['r'])}")
         if mc.get("winner"):
-            by = f" by {mc['margin']:.1f} points (mean fit % of track and r)" if mc.get("margin") is not None else ""
+            by = f" by {mc['margin']:.1f} points of the validation score" if mc.get("margin") is not None else ""
             why = f" ({mc['why']})" if mc.get("why") else ""
             lines.append(f"better model on the validation: {mc['winner']}{by}; returned: {mc.get('returned')}{why}")
         if mc.get("rule"):

@@ -38,7 +38,7 @@ from .output import (
 from .smooth import KinStates, derivative, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S
-from .validation import _finite_dict
+from .validation import SCORE_WORDS, _finite_dict
 from .velocity import VelocityFitResult, extended_start, fit_velocity_error
 
 # typing only: the extended model is imported where used (start-up of the default fit); the Identifier
@@ -61,9 +61,9 @@ START_SCALE_RATIO = 10.0    # ... or this close to the data's scale (data_scales
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
-MODEL_RULE = (f"the extended model is returned only when its best candidate validates better than the paper "
-              f"model's by at least {PREFER_WITHIN:g} point (score: mean fit % of the held-out track and r); "
-              f"never a fit that validates worse than equation error")
+MODEL_RULE = ("the extended model is returned only when its best candidate validates better than the paper "
+              f"model's by at least {PREFER_WITHIN:g} point (score: " + SCORE_WORDS + " on the held-out part); "
+              "never a fit that validates worse than equation error")
 
 
 def _returned(mc: dict, chosen) -> dict:

@@ -193,10 +193,10 @@ class Identifier:
         Standard errors of ``extended_`` (empty for the paper's model).
     model_comparison_ : dict or None
         With ``model="both"``: per model the best candidate's name, validation fit % and
-        score, the ``winner`` (better score) and its ``margin`` in score points (mean fit % of
-        track and r), the model ``returned`` (the paper's when the extended one is better by
-        less than PREFER_WITHIN points, or equation error's when that validates better), ``why``
-        in plain words and the ``rule`` (MODEL_RULE).
+        score, the ``winner`` (better score) and its ``margin`` in score points
+        (:data:`~usvlog.identify.validation.SCORE_WORDS`), the model ``returned`` (the paper's when
+        the extended one is better by less than PREFER_WITHIN points, or equation error's when that
+        validates better), ``why`` in plain words and the ``rule`` (MODEL_RULE).
 
     Raises
     ------

@@ -31,6 +31,8 @@ from .output import (
 from .smooth import KinStates, kinematic_states
 
 TRACK_AHEAD_S = 30.0   # horizon (s) of the displacement fit reported with a validation
+# what the candidates are compared by (:attr:`Validation.score`), in words for the reports
+SCORE_WORDS = "mean fit % of the track (0 when below 0), r and, where the part excites it, u"
 
 # typing only: the class whose methods these are (it imports this module)
 if TYPE_CHECKING:
