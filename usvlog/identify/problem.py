@@ -24,7 +24,7 @@ from .shoot import NS, SENS_CUR_E, SENS_CUR_N, no_rows, shoot
 MAX_DT = 0.05
 # residual rows: GPS north, east; compass heading; ground velocity north, east; yaw rate
 R_N, R_E, R_PSI, R_VN, R_VE, R_R = range(6)
-SENSOR_OF_ROW = np.array([0, 0, 1, 2, 2, 3])
+SENSOR_OF_ROW = np.array([0, 0, 1, 2, 2, 3], np.int8)
 SENSORS = ("gps", "compass", "velocity", "yaw_rate")
 # one-sigma of the smoothed velocities as measurements (m/s, rad/s) before reweighting
 VEL_SIGMA = (0.05, 0.02)
@@ -105,19 +105,18 @@ class Problem:
                     sensors.append((2, tv, np.stack([vel[1][sv], vel[2][sv], vel[3][sv]], 1), np.ones(len(tv))))
                 for sensor, tt, val, sig in sensors:
                     m_t.append(tt)
-                    m_kind.append(np.full(len(tt), sensor))
+                    m_kind.append(np.full(len(tt), sensor, np.int8))
                     m_val.append(val)
                     m_sig.append(sig)
-                    m_seg.append(np.full(len(tt), k))
+                    m_seg.append(np.full(len(tt), k, np.int32))
             tg.append(t)
             tu.append(run.tau_u)
             tr.append(run.tau_r)
             off += n
         self.runs = runs
         self.n_runs = len(runs)
-        self.tg = np.concatenate(tg)
-        self.tau_u = np.concatenate(tu)
-        self.tau_r = np.concatenate(tr)
+        # one run: its own coarse arrays (concatenating one array would copy it)
+        self.tg, self.tau_u, self.tau_r = ((a[0] if len(a) == 1 else np.concatenate(a)) for a in (tg, tu, tr))
         self.seg_i0 = np.array(seg_i0, np.int64)
         self.seg_i1 = np.array(seg_i1, np.int64)
         self.seg_run = np.array(seg_run, np.int64)
@@ -135,10 +134,12 @@ class Problem:
         ci = np.flatnonzero(self.kind == 1)
         vi = np.flatnonzero(self.kind == 2)
         # residual rows: (measurement index, quantity): R_N, R_E (GPS), R_PSI (compass),
-        # R_VN, R_VE (ground velocity), R_R (yaw rate)
-        r_meas = np.concatenate([gi, gi, ci, vi, vi, vi])
-        r_state = np.concatenate([np.full(len(gi), R_N), np.full(len(gi), R_E), np.full(len(ci), R_PSI),
-                                  np.full(len(vi), R_VN), np.full(len(vi), R_VE), np.full(len(vi), R_R)])
+        # R_VN, R_VE (ground velocity), R_R (yaw rate); indices int32 and quantities int8 (a
+        # dozen arrays of a row each, whole-run: the same numbers in less memory)
+        r_meas = np.concatenate([gi, gi, ci, vi, vi, vi]).astype(np.int32)
+        r_state = np.concatenate([np.full(len(gi), R_N, np.int8), np.full(len(gi), R_E, np.int8),
+                                  np.full(len(ci), R_PSI, np.int8), np.full(len(vi), R_VN, np.int8),
+                                  np.full(len(vi), R_VE, np.int8), np.full(len(vi), R_R, np.int8)])
         r_seg = self.meas_seg[r_meas]
         o = np.argsort(r_seg, kind="stable")
         self.r_meas, self.r_state, self.r_seg = r_meas[o], r_state[o], r_seg[o]
@@ -165,7 +166,8 @@ class Problem:
         o = np.argsort(e_meas, kind="stable")
         self.e_dst = np.concatenate([pos, self.n_res + np.arange(4 * len(vmeas))])[o]
         self.e_q = np.concatenate([np.minimum(self.r_state[pos], 2), np.tile(np.arange(2, 6), len(vmeas))])[o]
-        self.e_res = np.concatenate([pos, np.full(4 * len(vmeas), -1)])[o]   # residual row, -1 velocity
+        # residual row, -1 velocity
+        self.e_res = np.concatenate([pos, np.full(4 * len(vmeas), -1)])[o].astype(np.int32)
         self.e_ptr = np.searchsorted(e_meas[o], np.arange(len(self.meas_t) + 1)).astype(np.int64)
         # the velocity measurements, the run of each, and per velocity row quantity (vn, ve, r)
         # its rows and their measurements' positions in vmeas
