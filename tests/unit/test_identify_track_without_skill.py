@@ -14,6 +14,7 @@ whose u validated 20 points worse: 45.3 % against 65.9 %).
 from __future__ import annotations
 
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,40 +22,13 @@ import pytest
 
 from usvlog.identify import Identifier
 from usvlog.model.vessel import Vessel, VesselParams, vessel_from_toml
-from usvlog.sim.simulate import SensorSettings, SimSettings, _open_loop
+
+sys.path.insert(0, str(Path(__file__).parent))
+from otter_like import otter_like_run  # noqa: E402
 
 CATAMARAN = Path(__file__).resolve().parents[2] / "vessels" / "catamaran.toml"
 CURRENT = 0.25 * np.array([math.cos(math.radians(200.0)), math.sin(math.radians(200.0))])
 DURATION_S = 400.0
-
-
-def _otter_like(t, rng):
-    """Thrust of the shared Otter runs' manoeuvres, in the paper vessel's units (the simulator scales
-    them to the boat), their times scaled to the run: speed steps, a zig-zag, turns to starboard and
-    port, a coast, pivots both ways, a random segment changing every 5 s, a coast."""
-    f = DURATION_S / 592.0
-    tu, tr = np.zeros_like(t), np.zeros_like(t)
-    for k, a in enumerate((1.0, 2.0, 3.0, 4.5, 6.0)):
-        tu[t >= f * (10 + 39 * k)] = a
-
-    def part(lo, hi, u, r):
-        m = (t >= f * lo) & (t < f * hi)
-        tu[m], tr[m] = u, r(t[m]) if callable(r) else r
-        return m
-
-    part(205, 266, 4.0, lambda s: 0.9 * np.sign(np.sin(2 * np.pi * (s - f * 205) / (f * 20))))
-    part(266, 306, 4.0, 0.9)
-    part(306, 321, 4.0, 0.0)
-    part(321, 361, 4.0, -0.9)
-    part(361, 386, 0.0, 0.0)
-    part(386, 406, 0.0, 0.9)
-    part(406, 426, 0.0, -0.9)
-    m = part(426, 576, 0.0, 0.0)
-    k = ((t[m] - f * 426) // 5).astype(int)
-    tu[m] = rng.choice([2.0, 4.0, 6.0], k.max() + 1)[k]
-    tr[m] = rng.choice([-0.9, 0.0, 0.9], k.max() + 1)[k]
-    part(576, 1e9, 0.0, 0.0)
-    return tu, tr
 
 
 @pytest.fixture(scope="module")
@@ -62,9 +36,8 @@ def fit():
     cat = vessel_from_toml(CATAMARAN.read_text(), str(CATAMARAN))
     hull = vessel_from_toml(CATAMARAN.read_text().replace("m22 = 162.5", "m22 = 400.0"), str(CATAMARAN))
     assert hull.extended.m22 == 400.0
-    st = SimSettings(duration_s=DURATION_S, vessel=hull, current_mps=0.25, current_dir_deg=200.0,
-                     sensors=SensorSettings(gps_rate_hz=5.0, compass_rate_hz=10.0))
-    log = _open_loop(st, 10, _otter_like, "otter-like")
+    log = otter_like_run(hull, duration_s=DURATION_S, seed=10, current_mps=0.25, current_dir_deg=200.0,
+                         gps_rate_hz=5.0)
     guess = Vessel(name="guess", params=VesselParams(m=30.0, Iz=8.0, d11=4.0, d22=4.0, d33=4.0, xg=0.0),
                    thrusters=cat.thrusters)
     return Identifier(holdout=0.4).fit(log, guess)

@@ -534,6 +534,8 @@ class Identifier:
             cov_ext = np.zeros((ne, ne))
             pos = [ix[k] for k in names if k in ix]
             cov_ext[np.ix_(pos, pos)] = cov[:len(pos), :len(pos)]
+            for k, x in cand.held_stderr.items():   # held in this fit, estimated by another (not in cov_)
+                cov_ext[ix[k], ix[k]] = x * x
             d = np.sqrt(np.maximum(np.diag(cov), 0))
             self.current_: list[tuple[float, ...]] = [tuple(float(x) for x in c) for c in fitted.currents]
             self.current_stderr_: list[tuple[float, ...]] = [
