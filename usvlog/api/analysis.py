@@ -223,17 +223,27 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         runs = [with_delays(r, gnss=gnss_delay_s) for r in runs]
         val_log = with_delays(val_log, gnss=gnss_delay_s) if val_log is not None else None
     _say(progress, f"identifying ({method}) from {len(runs)} log(s)")
-    idf.fit(runs, ves)
+    # what the outputs need of the logs is taken now: the fit is handed the logs, not shared them,
+    # and lets their channels go once it has made its arrays of them (the copy with the fit keeps the first)
+    damage = [f"# {r.source}: {r.recovery.one_line()}\n" for r in runs if r.recovery is not None]
+    first = runs[0] if out_log is not None else None
+    idf.fit(_hand_over(runs), ves)
     if val_log is not None:
         idf.use_validation([idf.validate(val_log)])
     if not force:
         idf.raise_if_unusable()
     if out is not None:
-        damage = [f"# {r.source}: {r.recovery.one_line()}\n" for r in runs if r.recovery is not None]
         write_text_atomic(out, "".join(damage) + idf.to_vessel().to_toml() + idf.toml_record(), force=force)
-    if out_log is not None:
-        save(fit_log(idf, runs[0]), out_log, force=force)
+    if first is not None:
+        save(fit_log(idf, first), out_log, force=force)
     return idf
+
+
+def _hand_over(items: list) -> list:
+    """A new list of ``items``' elements, ``items`` emptied: the function it is passed to holds them alone."""
+    out = list(items)
+    items.clear()
+    return out
 
 
 def fit_log(idf: Identifier, log: FieldLog) -> FieldLog:

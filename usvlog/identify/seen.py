@@ -15,10 +15,13 @@ is left between the two is the model's error plus the smoothed measurement noise
 smoother's lag. The free run's own states are kept for plots (:class:`~usvlog.identify.validation.Validation`).
 
 :func:`free_run_log` builds that log: pure data in, a :class:`~usvlog.log.fieldlog.FieldLog`
-out, no I/O.
+out, no I/O. :class:`SeenLog` holds what it is built from, the whole log's or a part's (a
+window of the run keeps only its own records, and the whole log can go).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -42,6 +45,77 @@ def _log_datum(log: FieldLog) -> Datum | None:
     lat, lon = g["lat_deg"].to_numpy(float), g["lon_deg"].to_numpy(float)
     ok = np.isfinite(lat) & np.isfinite(lon)
     return Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0])) if ok.any() else None
+
+
+@dataclass(frozen=True)
+class SeenLog:
+    """What a free run's log is made of (:meth:`free_run_log`): the recorded log's channels the
+    smoother reads (:data:`COPIED_TOPICS`), its metadata, the datum its fixes were put about, and
+    the run's time origin and sensor latencies. Made from a log with :meth:`of`; :meth:`window`
+    keeps a copy of a part only, so that the whole log can go."""
+
+    channels: dict          # topic -> frame (the log's own, or a window's copy)
+    meta: dict
+    schemas: dict
+    source: str | None
+    datum: Datum | None     # the whole log's (its first valid fix may lie outside a window)
+    t0_ns: int              # the run's time origin (RunData.t0_ns)
+    delay: dict             # topic -> latency (s) of the stamps of that channel
+
+    @classmethod
+    def of(cls, log: FieldLog, run: RunData) -> SeenLog:
+        """The parts of ``log`` a free run of ``run`` is recorded with (the frames shared, not copied)."""
+        channels = {topic: frame for topic in COPIED_TOPICS if (frame := log.get(topic)) is not None}
+        delay = {GNSS_TOPIC: run.gnss_delay_s, LOCAL_TOPIC: run.gnss_delay_s, VELOCITY_TOPIC: run.gnss_delay_s,
+                 COMPASS_TOPIC: run.compass_delay_s}
+        return cls(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source,
+                   datum=_log_datum(log), t0_ns=run.t0_ns, delay=delay)
+
+    def window(self, t_lo: float, t_hi: float) -> SeenLog:
+        """A copy of the records stamped within 1 s of ``[t_lo, t_hi]`` (s from ``t0_ns``; +-inf:
+        open): every record a free run inside that span is recorded with (:meth:`free_run_log`
+        keeps those stamped within the free run's span)."""
+        lo = -np.inf if t_lo == -np.inf else self.t0_ns + (t_lo - 1.0) * 1e9
+        hi = np.inf if t_hi == np.inf else self.t0_ns + (t_hi + 1.0) * 1e9
+        channels = {}
+        for topic, frame in self.channels.items():
+            idx = np.asarray(frame.index, dtype=np.int64)
+            channels[topic] = frame[(idx >= lo) & (idx <= hi)].copy()
+        return replace(self, channels=channels)
+
+    def free_run_log(self, t, sim, current=(0.0, 0.0)) -> FieldLog:
+        """The recorded log over ``[t[0], t[-1]]`` had the boat moved as ``sim``: :func:`free_run_log`."""
+        t = np.asarray(t, float)
+        sim = np.asarray(sim, float)
+        lo, hi = self.t0_ns + int(round(t[0] * 1e9)), self.t0_ns + int(round(t[-1] * 1e9))
+        psi = sim[:, 2]
+        c, s = np.cos(psi), np.sin(psi)
+        vn = c * sim[:, 3] - s * sim[:, 4] + float(current[0])
+        ve = s * sim[:, 3] + c * sim[:, 4] + float(current[1])
+        channels = {}
+        for topic, frame in self.channels.items():
+            idx = np.asarray(frame.index, dtype=np.int64)
+            keep = (idx >= lo) & (idx <= hi)
+            frame = frame[keep].copy()
+            ts = (idx[keep] - self.t0_ns) / 1e9 - self.delay.get(topic, 0.0)
+
+            def at(y, ts=ts):
+                return np.interp(ts, t, y)
+
+            if topic == GNSS_TOPIC and self.datum is not None:
+                lat, lon, _ = ned_to_geodetic(at(sim[:, 0]), at(sim[:, 1]), 0.0, datum=self.datum)
+                frame["lat_deg"], frame["lon_deg"] = lat, lon
+            elif topic == LOCAL_TOPIC:
+                frame["n_m"], frame["e_m"] = at(sim[:, 0]), at(sim[:, 1])
+            elif topic == COMPASS_TOPIC:
+                frame["heading_rad"] = ssa(at(psi))
+            elif topic == YAW_RATE_TOPIC:
+                frame["r_radps"] = at(sim[:, 5])
+            elif topic == VELOCITY_TOPIC:
+                n_, e_ = at(vn), at(ve)
+                frame["sog_mps"], frame["cog_rad"] = np.hypot(n_, e_), np.arctan2(e_, n_)
+            channels[topic] = frame
+        return FieldLog(channels=channels, meta=dict(self.meta), schemas=dict(self.schemas), source=self.source)
 
 
 def free_run_log(log: FieldLog, run: RunData, t, sim, current=(0.0, 0.0)) -> FieldLog:
@@ -68,43 +142,7 @@ def free_run_log(log: FieldLog, run: RunData, t, sim, current=(0.0, 0.0)) -> Fie
         heading, ground velocity and yaw rate replaced by the free run's at each record's
         stamp minus that sensor's latency.
     """
-    t = np.asarray(t, float)
-    sim = np.asarray(sim, float)
-    lo, hi = run.t0_ns + int(round(t[0] * 1e9)), run.t0_ns + int(round(t[-1] * 1e9))
-    psi = sim[:, 2]
-    c, s = np.cos(psi), np.sin(psi)
-    vn = c * sim[:, 3] - s * sim[:, 4] + float(current[0])
-    ve = s * sim[:, 3] + c * sim[:, 4] + float(current[1])
-    delay = {GNSS_TOPIC: run.gnss_delay_s, LOCAL_TOPIC: run.gnss_delay_s, VELOCITY_TOPIC: run.gnss_delay_s,
-             COMPASS_TOPIC: run.compass_delay_s}
-    datum = _log_datum(log)
-    channels = {}
-    for topic in COPIED_TOPICS:
-        frame = log.get(topic)
-        if frame is None:
-            continue
-        idx = np.asarray(frame.index, dtype=np.int64)
-        keep = (idx >= lo) & (idx <= hi)
-        frame = frame[keep].copy()
-        ts = (idx[keep] - run.t0_ns) / 1e9 - delay.get(topic, 0.0)
-
-        def at(y, ts=ts):
-            return np.interp(ts, t, y)
-
-        if topic == GNSS_TOPIC and datum is not None:
-            lat, lon, _ = ned_to_geodetic(at(sim[:, 0]), at(sim[:, 1]), 0.0, datum=datum)
-            frame["lat_deg"], frame["lon_deg"] = lat, lon
-        elif topic == LOCAL_TOPIC:
-            frame["n_m"], frame["e_m"] = at(sim[:, 0]), at(sim[:, 1])
-        elif topic == COMPASS_TOPIC:
-            frame["heading_rad"] = ssa(at(psi))
-        elif topic == YAW_RATE_TOPIC:
-            frame["r_radps"] = at(sim[:, 5])
-        elif topic == VELOCITY_TOPIC:
-            n_, e_ = at(vn), at(ve)
-            frame["sog_mps"], frame["cog_rad"] = np.hypot(n_, e_), np.arctan2(e_, n_)
-        channels[topic] = frame
-    return FieldLog(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source)
+    return SeenLog.of(log, run).free_run_log(t, sim, current)
 
 
-__all__ = ["COPIED_TOPICS", "free_run_log"]
+__all__ = ["COPIED_TOPICS", "SeenLog", "free_run_log"]

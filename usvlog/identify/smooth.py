@@ -23,7 +23,7 @@ from ..estimate.run import tune_process_noise
 from ..model.frames import ssa
 from ..model.vessel import default_vessel
 from .data import RunData, within
-from .seen import free_run_log
+from .seen import SeenLog
 
 GRID_DT = 0.1
 MIN_SAMPLES = 5   # a local cubic needs a window of at least five samples
@@ -119,6 +119,15 @@ class KinStates:
         return KinStates(t=self.t[k], n=self.n[k], e=self.e[k], psi=self.psi[k], vn=self.vn[k],
                          ve=self.ve[k], r=self.r[k], source=self.source, smoother=self.smoother,
                          sd=None if self.sd is None else self.sd[k])
+
+    def trimmed(self) -> KinStates:
+        """These states with a smoother that keeps a copy of only their own span of the recorded log
+        (:meth:`usvlog.identify.seen.SeenLog.window`), not the whole run's: a window of the run
+        validated on lets the rest of the log go. The same free runs are smoothed the same."""
+        sm = self.smoother
+        if not isinstance(sm, FreeRunSmoother) or len(self.t) == 0:
+            return self
+        return replace(self, smoother=sm.window(float(self.t[0]), float(self.t[-1])))
 
     def seen(self, t, sim, current=(0.0, 0.0)) -> np.ndarray | None:
         """A free run as these states' smoother shows it (:mod:`usvlog.identify.seen`).
@@ -298,24 +307,39 @@ def kinematic_states(log, run: RunData, vessel=None, *, tune: bool = False) -> K
         # paper vessel's fits and not the catamaran's)
         q = tune_process_noise(build_problem(log, settings, vessel or log.vessel or default_vessel()), settings)
         settings = replace(settings, q_uv=max(q["q_uv"], settings.q_uv_value))
-    ks, used = _smoothed(log, run, vessel, settings)
+    ks, used = _smoothed(log, run.t0_ns, vessel, settings)
     if len(ks.t) < MIN_SAMPLES:
         raise FitFailed(f"{run.source or 'run'}: the smoothed states span {len(ks.t) * GRID_DT:.1f} s after the "
                         "first thrust sample: too short to identify from")
-
-    def smoother(t, sim, current, log=log, run=run, vessel=vessel, used=used):
-        return _smoothed(free_run_log(log, run, t, sim, current), run, vessel, used)[0]
-
-    return replace(ks, smoother=smoother)
+    return replace(ks, smoother=FreeRunSmoother(seen=SeenLog.of(log, run), vessel=vessel, settings=used))
 
 
-def _smoothed(log, run: RunData, vessel, settings: EstimateSettings) -> tuple[KinStates, EstimateSettings]:
-    """The estimator's smoothed states on the :data:`GRID_DT` grid from the run's ``t0_ns``, and
+@dataclass(frozen=True)
+class FreeRunSmoother:
+    """Smooths a free run (t, sim, current) as a run's states were smoothed (:attr:`KinStates.smoother`):
+    the log the free run would have recorded (:class:`~usvlog.identify.seen.SeenLog`) through the
+    same estimator with the same settings."""
+
+    seen: SeenLog
+    vessel: object
+    settings: EstimateSettings
+
+    def __call__(self, t, sim, current) -> KinStates:
+        """The free run's smoothed states (:func:`_smoothed` of its log)."""
+        return _smoothed(self.seen.free_run_log(t, sim, current), self.seen.t0_ns, self.vessel, self.settings)[0]
+
+    def window(self, t_lo: float, t_hi: float) -> FreeRunSmoother:
+        """The same smoother for free runs inside ``[t_lo, t_hi]`` (s) only, holding that part of the log."""
+        return replace(self, seen=self.seen.window(t_lo, t_hi))
+
+
+def _smoothed(log, t0_ns: int, vessel, settings: EstimateSettings) -> tuple[KinStates, EstimateSettings]:
+    """The estimator's smoothed states on the :data:`GRID_DT` grid from ``t0_ns`` (the run's), and
     the settings it ran with (the tuned process noise in place of ``tune``)."""
     est = estimate(log, settings, vessel)
     st = est.state
     used = replace(est.settings, tune=False)
-    ts = (np.asarray(st.index, dtype=np.int64) - run.t0_ns) / 1e9
+    ts = (np.asarray(st.index, dtype=np.int64) - t0_ns) / 1e9
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT) if len(ts) else np.zeros(0)
     if len(t) == 0:
         return KinStates(t=t, n=t, e=t, psi=t, vn=t, ve=t, r=t, source="usvlog.estimate"), used
@@ -371,5 +395,5 @@ def thrust_on_grid(run: RunData, t):
     return out[0], out[1]
 
 
-__all__ = ["KinStates", "kinematic_states", "savgol_states", "savgol_filter", "derivative", "smooth_like",
-           "thrust_on_grid", "ssa"]
+__all__ = ["FreeRunSmoother", "KinStates", "kinematic_states", "savgol_states", "savgol_filter", "derivative",
+           "smooth_like", "thrust_on_grid", "ssa"]
