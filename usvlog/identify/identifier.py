@@ -321,6 +321,8 @@ class Identifier:
             vessel = replace(vessel, thrusters=replace(vessel.thrusters, lag_s=lag))
             self.vessel_in_ = vessel
             all_runs = [lag_thrust(r, lag) for r in all_runs]
+        if self.method != "filter-error":   # the only fit that reads the logs again: the rest has what it needs
+            logs = [FieldLog(meta=lg.meta, recovery=lg.recovery, source=lg.source) for lg in logs]
         if holdout is None:
             self.validation_mode_ = "leave-one-out"
         else:
@@ -329,13 +331,16 @@ class Identifier:
         for log, run, ks in zip(logs, all_runs, all_kin):
             if holdout is not None and holdout > 0:
                 t_cut = run.t_thrust[0] + (1 - holdout) * run.duration_s
-                held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf)))
-                run, ks = run.window(-np.inf, t_cut), ks.window(-np.inf, t_cut)
+                # free runs are smoothed like the data on the held-out part only: it keeps its own part of the log
+                held.append((run.window(t_cut, run.t_thrust[-1]), ks.window(t_cut, np.inf).trimmed()))
+                run, ks = run.window(-np.inf, t_cut), replace(ks.window(-np.inf, t_cut), smoother=None)
                 if self.method == "filter-error":   # the only fit that reads the logs themselves
                     log = _log_before(log, run.t0_ns + int(t_cut * 1e9))
             fit_logs.append(log)
             runs.append(run)
             kin.append(ks)
+        if held:   # nor on the whole runs: the rest of the log can go
+            all_kin = [replace(k, smoother=None) for k in all_kin]
         # -- candidates, fitted on the fit part, judged on the held-out part ---------------
         self._data_scales = data_scales(runs, kin)
         ee = self._equation_error(runs, kin)
