@@ -100,6 +100,7 @@ def test_signed_parameter_stays_within_the_coupling_bound(model):
             free = np.ones(n, bool)
             fit_current = False
             currents0 = np.zeros((1, 2))
+            ties = ()
         q = velocity._Problem.pack(P, theta, np.zeros((1, 2)))
         q[st.signed] = rng.uniform(-3.0, 3.0)   # tanh(3) = 0.995: inside the 0.999 that pack keeps
         th, _ = velocity._Problem.unpack(P, q)

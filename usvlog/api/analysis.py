@@ -136,7 +136,7 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
              validate=None, holdout: float | None = None, fix: dict[str, float] | None = None, current: bool = True,
              out_log: PathLike | None = None, force: bool = False, progress: Progress = None,
              max_current_mps: float = 0.5, gnss_delay_s: float | None = None, model: str = "paper",
-             fit_lag: bool = False, lag_s: float = 0.0) -> Identifier:
+             fit_lag: bool = False, lag_s: float = 0.0, quadratic_surge: bool = False) -> Identifier:
     """Identify m, Iz, d11, d22, d33, xg of the paper's model (3) from logs (``usvlog identify``).
 
     Parameters
@@ -182,6 +182,10 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
     lag_s : float
         A known first-order thruster lag (s): the thrust goes through it before the fit
         (the vessel's ``[thrusters] lag_s`` is the simulated plant's and is not applied).
+    quadratic_surge : bool
+        Also fit the paper model with a quadratic surge damping d11q (``d11 u + d11q u|u|``),
+        returned only when it validates better, written as an ``[extended]`` vessel with one
+        mass (m22 = m11) and no quadratic sway or yaw damping (paper or both, output error).
 
     Returns
     -------
@@ -208,7 +212,7 @@ def identify(logs, out: PathLike | None = None, *, vessel=None, method: str = "o
         holdout = 0.0
     idf = Identifier(method, fix=dict(fix or {}), current=current, holdout=holdout,
                      max_current_mps=max_current_mps, model=model, fit_lag=fit_lag,
-                     lag_s=lag_s)
+                     lag_s=lag_s, quadratic_surge=quadratic_surge)
     ves = _vessel_file(vessel)
     # the channels the fit reads; every channel only for the first log when a copy of it is written
     topics = list(INPUT_TOPICS)

@@ -40,6 +40,9 @@ def register(sub) -> None:
                     help="identify a first-order thruster lag too (s; written to [thrusters] lag_s)")
     g2.add_argument("--lag-s", type=float, default=0.0, metavar="SECONDS",
                     help="a known first-order thruster lag (s) the thrust goes through before the fit")
+    p.add_argument("--quadratic-surge", action="store_true",
+                   help="also fit the paper model with a quadratic surge damping d11q (d11 u + d11q u|u|): "
+                        "returned when it validates better, written as an [extended] vessel with one mass")
     p.add_argument("--gnss-delay-s", type=float, default=None, metavar="VALUE",
                    help="GNSS latency in s (a fix stamped t describes the boat at t - delay); default: the one "
                         "`usvlog estimate` stored in the log, else 0")
@@ -85,7 +88,8 @@ def run(args) -> int:
                            validate=args.validate or None, holdout=holdout, fix=fix,
                            current=not args.no_current, out_log=args.out_log or None, force=args.force,
                            progress=stage, max_current_mps=args.max_current_mps, gnss_delay_s=args.gnss_delay_s,
-                           model=args.model, fit_lag=args.fit_lag, lag_s=args.lag_s)
+                           model=args.model, fit_lag=args.fit_lag, lag_s=args.lag_s,
+                           quadratic_surge=args.quadratic_surge)
     except UnusableResultError as err:
         reasons = getattr(err, "reasons", None)
         if reasons is None:
@@ -163,10 +167,15 @@ def format_report(d: dict) -> str:
             interval, se_s = "(not computable)".center(26), "n/a"
         lines.append(f"  {k:<5} {_num(v):>12} {se_s:>11}   {interval}   ({_num(d['equation_error']['params'][k], 4)})")
     if d.get("extended"):
-        lines.append("extended model (the parameters above are its paper terms):")
+        qs = d.get("structure") == "paper with quadratic surge damping"
+        lines.append("the paper model with quadratic surge damping, in the extended form written (the parameters "
+                     "above are its paper terms, d11 at 1 m/s):" if qs else
+                     "extended model (the parameters above are its paper terms):")
         ext = d["extended"]
+        held = {"m22": "(= m11)", "d22q": "(held)", "d33q": "(held)"} if qs else {}
         for k in EXTENDED_PARAM_NAMES:
-            lines.append(f"  {k:<5} {_num(ext['params'][k]):>12} {_num(ext['stderr'].get(k), 3):>11}")
+            lines.append(f"  {k:<5} {_num(ext['params'][k]):>12} {_num(ext['stderr'].get(k), 3):>11}"
+                         + (f"   {held[k]}" if k in held else ""))
     ts = d.get("thrust_scale") or {}
     if ts.get("case") == "command units":
         lines.append("thrust scale unknown: the values above are per unit of full forward command (only their "

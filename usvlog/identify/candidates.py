@@ -39,7 +39,7 @@ from .smooth import KinStates, derivative, smooth_like, thrust_on_grid
 from .surge import SurgeFit, fit_surge
 from .thrust_scale import EXT_PROFILE_SEGMENT_S
 from .validation import SCORE_WORDS, _finite_dict
-from .velocity import VelocityFitResult, extended_start, fit_velocity_error
+from .velocity import QUADRATIC_START, VelocityFitResult, extended_start, fit_velocity_error
 
 # typing only: the extended model is imported where used (start-up of the default fit); the Identifier
 # imports this module
@@ -58,6 +58,10 @@ EXT_SEGMENT_S = 120.0       # extended output error: shooting segment length (s)
 DEGENERATE_COND = 1e10     # condition number of a fit whose Jacobian is numerically singular
 START_RATIO = 3.0           # output-error start: an equation-error value this close to the vessel's is plausible
 START_SCALE_RATIO = 10.0    # ... or this close to the data's scale (data_scales: a crude time-constant guess)
+# the paper model with a quadratic surge damping d11q, as the extended structure: m22 tied to m11 (one
+# mass), no quadratic sway or yaw damping (held at 0); m26 = m xg and m66 = Iz are the paper's terms
+QS_HELD = ("m22", "d22q", "d33q")
+QS_TIES = (("m22", "m11"),)
 EXT_REFIT_ITER = 20         # extended output error: iterations of the refit on all data (it starts converged)
 
 
@@ -103,6 +107,10 @@ class Start:
         Output error with m held at the surge equation's own fit (:func:`~usvlog.identify.surge.fit_surge`,
         made again on the data each fit uses) instead of fitted with the coupled sway and yaw; for the
         extended model's velocity output error, m11 held at it (:func:`_ext_surge_mass`).
+    quadratic_surge : bool
+        The paper model with a quadratic surge damping d11q (``Identifier(quadratic_surge=True)``),
+        fitted by velocity output error as the extended structure with m22 tied to m11 and d22q,
+        d33q held at 0 (QS_HELD, QS_TIES); ``model`` is then ``"extended"`` (its TOML form).
     """
 
     name: str
@@ -111,6 +119,7 @@ class Start:
     vel_weight: float = 0.0
     model: str = "paper"
     surge_mass: bool = False
+    quadratic_surge: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -302,7 +311,53 @@ def candidate_starts_paper(self: Identifier, ee: EquationErrorResult, vessel: Ve
     if scales is not None:
         out.append(Start(name="velocity output error from the data's scales", kind="velocity-error",
                          theta=self._with_fixed(scales)))
-    return out + [ee_start]
+    out.append(ee_start)
+    if getattr(self, "quadratic_surge", False) and scales is not None and not getattr(self, "_command_units", False):
+        # last: a tie in validation goes to the paper model without it
+        out += [Start(name="output error, the paper model with quadratic surge damping", kind="output-error",
+                      model="extended", theta=quadratic_surge_start(th), quadratic_surge=True),
+                Start(name="velocity output error, the paper model with quadratic surge damping",
+                      kind="velocity-error", model="extended", theta=quadratic_surge_start(scales),
+                      quadratic_surge=True)]
+    return out
+
+
+def quadratic_surge_start(theta_paper) -> np.ndarray:
+    """The paper model's (m, Iz, d11, d22, d33, xg) in the extended form with a quadratic surge
+    damping: the surge damping QUADRATIC_START of it quadratic per unit speed, the linear part
+    reduced to match at that speed, no quadratic sway or yaw damping (EXTENDED_PARAM_NAMES order)."""
+    m, Iz, d11, d22, d33, xg = (float(x) for x in theta_paper)
+    q = QUADRATIC_START
+    return np.array([m, m, m * xg, Iz, d11 * (1 - q), d11 * q, d22, 0.0, d33, 0.0])
+
+
+def _ext_form(st: Start) -> tuple[tuple, tuple]:
+    """(held, ties) of an extended-structure fit of candidate ``st``: the names held at the start's
+    values (the quadratic-surge form: QS_HELD, m22 tied to m11 by QS_TIES; the surge-mass one: m11)
+    and the (tied, source) pairs."""
+    held = (QS_HELD if st.quadratic_surge else ()) + (("m11",) if st.surge_mass else ())
+    return held, (QS_TIES if st.quadratic_surge else ())
+
+
+def _ext_velocity_form(st: Start, theta) -> tuple[np.ndarray | None, tuple]:
+    """``free_mask`` and ``ties`` of candidate ``st``'s extended velocity fit (None: all ten free)."""
+    held, ties = _ext_form(st)
+    return (np.array([k not in held for k in EXTENDED_PARAM_NAMES]) if held else None), ties
+
+
+def _ext_oe_form(st: Start, theta) -> tuple[dict, tuple]:
+    """``fix`` and ``ties`` of candidate ``st``'s extended output error (the held values from ``theta``)."""
+    held, ties = _ext_form(st)
+    return {k: float(theta[EXTENDED_PARAM_NAMES.index(k)]) for k in held}, ties
+
+
+def _tied_stderr(st: Start, fitted) -> dict:
+    """Standard errors of the tied parameters (m22 is m11 in the quadratic-surge form): not in the
+    fit's covariance, they are their source's."""
+    if not st.quadratic_surge or "m11" not in fitted.names:
+        return {}
+    i = fitted.names.index("m11")
+    return {"m22": float(math.sqrt(max(fitted.cov[i, i], 0.0)))}
 
 
 def _with_fixed(self: Identifier, theta) -> np.ndarray:
@@ -428,18 +483,22 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
     if st.kind == "equation-error":
         theta, cur, fitted = np.asarray(st.theta, float), np.zeros((len(runs), 2)), self._ext_ee
     elif st.kind == "velocity-error":
-        th0, free = np.asarray(st.theta, float), None
+        th0 = np.asarray(st.theta, float)
         if st.surge_mass:
-            th0, free, held_se = _ext_surge_mass(self, runs, kin, th0)
-        fitted = fit_velocity_error(runs, kin, th0, free_mask=free, fit_current=self.current, currents0=currents0,
-                                    max_current_mps=self.max_current_mps, model="extended")
+            th0, held_se = _ext_surge_mass(self, runs, kin, th0)
+        free, ties = _ext_velocity_form(st, th0)
+        fitted = fit_velocity_error(runs, kin, th0, free_mask=free, ties=ties, fit_current=self.current,
+                                    currents0=currents0, max_current_mps=self.max_current_mps, model="extended")
         theta, cur = fitted.theta, np.asarray(fitted.currents, float)
+        held_se.update(_tied_stderr(st, fitted))
     else:
         # in command units the ratio search's short segments (its optimum stalls with long ones)
         seg = EXT_PROFILE_SEGMENT_S if getattr(self, "_command_units", False) else EXT_SEGMENT_S
+        fix, ties = _ext_oe_form(st, st.theta)
         fitted = fit_extended_output_error(runs, kin, st.theta, fit_current=self.current, currents0=currents0,
-                                           max_current_mps=self.max_current_mps, segment_s=seg)
+                                           max_current_mps=self.max_current_mps, segment_s=seg, fix=fix, ties=ties)
         theta, cur = fitted.theta, fitted.currents
+        held_se.update(_tied_stderr(st, fitted))
     failed = ext_physical_problem(theta)
     if not failed and isinstance(fitted, (ExtendedOEResult, VelocityFitResult)) and fitted.diverged:
         failed = "its simulation diverged"
@@ -453,10 +512,10 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
                      fitted=fitted, validations=vals, failed=failed, held_stderr=held_se)
 
 
-def _ext_surge_mass(self: Identifier, runs, kin, theta) -> tuple[np.ndarray, np.ndarray, dict]:
+def _ext_surge_mass(self: Identifier, runs, kin, theta) -> tuple[np.ndarray, dict]:
     """An extended-model start with m11 at the surge equation's own fit on these runs
-    (:func:`~usvlog.identify.surge.fit_surge`, the GPS track), the mask that holds it, and its
-    standard error (``{"m11": ...}``).
+    (:func:`~usvlog.identify.surge.fit_surge`, the GPS track) and its standard error
+    (``{"m11": ...}``); :func:`_ext_velocity_form` holds it.
 
     Why: the velocity fit compares predictions started from the smoothed state with the smoothed
     velocities; the state it starts from is off by the smoother's error, and a surge with no
@@ -468,8 +527,7 @@ def _ext_surge_mass(self: Identifier, runs, kin, theta) -> tuple[np.ndarray, np.
     sf = fit_surge(runs, kin, float(th[0]), float(th[4]), float(th[2] / th[0]) if th[0] > 0 else 0.0,
                    fit_current=self.current, max_current_mps=self.max_current_mps)
     th[0] = sf.m
-    free = np.array([k != "m11" for k in EXTENDED_PARAM_NAMES])
-    return th, free, {"m11": sf.stderr["m"]}
+    return th, {"m11": sf.stderr["m"]}
 
 
 def _compare_models(self: Identifier, cands: list[Candidate]) -> dict:
@@ -521,20 +579,24 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
             ext_ee = self._ext_equation_error(runs, kin)
             theta, cur, fitted = ext_ee.theta, np.zeros((len(runs), 2)), ext_ee
         elif st.kind == "velocity-error":
-            th0, free = chosen.theta, None
+            th0 = chosen.theta
             if st.surge_mass:   # the surge equation's m11 from all the data too
-                th0, free, held_se = _ext_surge_mass(self, runs, kin, th0)
-            fitted = fit_velocity_error(runs, kin, th0, free_mask=free, fit_current=self.current,
+                th0, held_se = _ext_surge_mass(self, runs, kin, th0)
+            free, ties = _ext_velocity_form(st, th0)
+            fitted = fit_velocity_error(runs, kin, th0, free_mask=free, ties=ties, fit_current=self.current,
                                         currents0=chosen.currents, max_current_mps=self.max_current_mps,
                                         horizons_s=(120.0,), model="extended")
+            held_se = {**held_se, **_tied_stderr(st, fitted)}
             theta, cur = fitted.theta, fitted.currents
             if fitted.diverged:
                 return chosen
         else:
+            fix, ties = _ext_oe_form(st, chosen.theta)
             fitted = fit_extended_output_error(runs, kin, chosen.theta, fit_current=self.current,
                                                currents0=chosen.currents, max_current_mps=self.max_current_mps,
-                                               segment_s=EXT_SEGMENT_S, max_iter=EXT_REFIT_ITER)
+                                               segment_s=EXT_SEGMENT_S, max_iter=EXT_REFIT_ITER, fix=fix, ties=ties)
             theta, cur = fitted.theta, fitted.currents
+            held_se = {**held_se, **_tied_stderr(st, fitted)}
             if fitted.diverged:
                 return chosen
         if ext_physical_problem(theta):
@@ -616,15 +678,17 @@ def _leave_one_out(self: Identifier, chosen: Candidate, cands, runs, kin, logs, 
                 out.append(ee_out[-1])
                 continue
             if st.kind == "velocity-error":
-                th0, free = chosen.theta, None
+                th0 = chosen.theta
                 if st.surge_mass:
-                    th0, free, _ = _ext_surge_mass(self, r_, k_, th0)
-                theta = fit_velocity_error(r_, k_, th0, free_mask=free, fit_current=self.current,
+                    th0, _ = _ext_surge_mass(self, r_, k_, th0)
+                free, ties = _ext_velocity_form(st, th0)
+                theta = fit_velocity_error(r_, k_, th0, free_mask=free, ties=ties, fit_current=self.current,
                                            max_current_mps=self.max_current_mps, model="extended").theta
             else:
+                fix, ties = _ext_oe_form(st, chosen.theta)
                 theta = fit_extended_output_error(r_, k_, chosen.theta, fit_current=self.current,
                                                   max_current_mps=self.max_current_mps,
-                                                  segment_s=EXT_SEGMENT_S).theta
+                                                  segment_s=EXT_SEGMENT_S, fix=fix, ties=ties).theta
             out.append(self._validate_run(runs[i], kin[i], theta, None) if not ext_physical_problem(theta)
                        else None)
             continue

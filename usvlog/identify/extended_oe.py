@@ -353,7 +353,7 @@ def _levenberg_marquardt(fun, jac, normal, x0, lo, hi, scale, *, n_glob, max_ite
 
 def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0, *, fix: dict | None = None,
                               fit_current: bool = True, currents0=None, max_current_mps: float = 0.5,
-                              segment_s: float = 120.0, max_iter: int = 60) -> ExtendedOEResult:
+                              segment_s: float = 120.0, max_iter: int = 60, ties: tuple = ()) -> ExtendedOEResult:
     """Fit the extended model (and a current per run) to GPS and compass by output error.
 
     Parameters
@@ -376,6 +376,10 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         Shooting segment length in s, > 0.
     max_iter : int, default 60
         Iteration limit (Jacobians) of the Levenberg-Marquardt solver.
+    ties : sequence of (str, str), optional
+        Parameters that equal another as it is fitted, by name (``(("m22", "m11"),)``); the
+        first of each pair must be in ``fix`` (its value there is replaced), its standard error
+        is the other's.
 
     Returns
     -------
@@ -390,6 +394,11 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
     th0 = np.asarray(theta0, float).copy()
     for k, v in fix.items():
         th0[_IX[k]] = v
+    if any(a not in fix for a, _ in ties):
+        raise ValueError("a tied parameter is not fitted: put it in fix")
+    tie_ix = [(_IX[a], _IX[b]) for a, b in ties]
+    for a, b in tie_ix:
+        th0[a] = th0[b]
     if th0.shape != (NE,) or not np.all(np.isfinite(th0)):
         raise FitFailed(f"extended output error: the start values are not {NE} finite numbers")
     if not segment_s > 0:
@@ -427,6 +436,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
     def unpack(p):
         th = th0.copy()
         th[free] = p[:n_free]
+        for a, b in tie_ix:
+            th[a] = th[b]
         cur = p[n_free:n_glob].reshape(-1, 2) if n_cur else cur0
         dx = p[n_glob:].reshape(-1, 6)
         return th, cur, dx
@@ -504,6 +515,8 @@ def fit_extended_output_error(runs: list[RunData], kin: list[KinStates], theta0,
         cond, cov = math.inf, np.full((n_glob, n_glob), np.nan)
     se = np.zeros(NE)
     se[free] = np.sqrt(np.maximum(np.diag(cov)[:n_free], 0.0))
+    for a, b in tie_ix:
+        se[a] = se[b]
     names = names_free + [f"current_{ax}_{i}" for i in range(len(runs)) for ax in ("n", "e")][:n_cur]
     rg, rc = [], []
     for pr, c, o in zip(probs, cur, seg_off):

@@ -122,6 +122,16 @@ class Identifier:
         model is fitted by output error (multiple shooting from the smoothed states, finite-
         difference Jacobian) from its equation-error fit and from the paper's fit written in
         the extended form; its equation-error fit is its floor.
+    fit_lag : bool, default False
+        Identify a first-order thruster lag (:mod:`usvlog.identify.lag`) and fit through it.
+    lag_s : float, default 0.0
+        A known thruster lag (s) the thrust goes through before the fit (not with ``fit_lag``).
+    quadratic_surge : bool, default False
+        Also fit the paper model with a quadratic surge damping d11q (surge force
+        ``d11 u + d11q u|u|``; a propeller-driven hull's drag grows with u^2) by velocity
+        output error: the extended structure with one mass (m22 = m11), no quadratic sway or yaw
+        damping. Returned only when it validates better by PREFER_WITHIN points, written as an
+        ``[extended]`` vessel. With ``model`` paper or both, output error.
 
     Attributes
     ----------
@@ -219,7 +229,7 @@ class Identifier:
     def __init__(self, method: str = "output-error", *, fix: dict | None = None, current: bool = True,
                  segment_s: float = 300.0, warm_segment_s: float = 60.0, holdout: float | None = None,
                  max_current_mps: float = MAX_CURRENT_MPS, model: str = "paper", fit_lag: bool = False,
-                 lag_s: float = 0.0):
+                 lag_s: float = 0.0, quadratic_surge: bool = False):
         if method not in METHODS:
             raise ConfigError(f"method {method!r} is not one of {', '.join(METHODS)}")
         fix = dict(fix or {})
@@ -243,6 +253,9 @@ class Identifier:
         if (fit_lag or lag_s) and method == "filter-error":
             raise ConfigError("a thruster lag is identified with output error or equation error, not filter error "
                               "(its filter reads the logs' thrust itself)")
+        if quadratic_surge and (model == "extended" or method != "output-error"):
+            raise ConfigError("quadratic surge damping is an option of the paper model fitted by output error "
+                              "(the extended model has its own d11q)")
         if model != "paper" and method == "filter-error":
             raise ConfigError("the extended model is fitted by output error or equation error, not filter error")
         scale_keys = EXT_SCALE_FIX if model == "extended" else ("m", "Iz")
@@ -258,6 +271,7 @@ class Identifier:
         self.holdout = None if holdout is None else float(holdout)
         self.max_current_mps = float(max_current_mps)
         self.fit_lag = bool(fit_lag)
+        self.quadratic_surge = bool(quadratic_surge)
         self.lag_s = float(lag_s)
 
     # ------------------------------------------------------------------------------
@@ -520,6 +534,15 @@ class Identifier:
     fit_percent_ = report.fit_percent_
     to_dict = report.to_dict
     toml_record = report.toml_record
+
+    @property
+    def structure_(self) -> str:
+        """The model structure returned: ``"paper"``, ``"extended"``, or ``"paper with quadratic surge
+        damping"`` (``quadratic_surge``: the extended form with m22 = m11 and no quadratic sway or
+        yaw damping, written as an ``[extended]`` vessel)."""
+        if self.extended_ is None:
+            return "paper"
+        return "paper with quadratic surge damping" if self.final_.start.quadratic_surge else "extended"
 
     def _set_ext_result(self, cand: Candidate, runs) -> None:
         """The fitted attributes from an extended-model candidate: ``extended_`` and its paper

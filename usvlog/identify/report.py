@@ -125,7 +125,7 @@ def to_dict(self: Identifier, validation: Validation | None = None) -> dict:
          "chosen": self.chosen_.start.name,
          "thrust_scale": self.thrust_scale_.to_dict(),
          "model": self.model,
-         "structure": "paper" if self.extended_ is None else "extended",
+         "structure": self.structure_,
          "fit_percent_ahead": {h: _finite_dict(v) for h, v in getattr(self, "fit_percent_ahead_", {}).items()},
          "excitation": {ch: e.to_dict() for ch, e in (getattr(self, "excitation_", {}) or {}).items()},
          "thruster_lag_s": getattr(self, "lag_applied_s_", 0.0),
@@ -167,7 +167,7 @@ def toml_record(self: Identifier) -> str:
     fp = self.validation_fit_percent_()
     lines = ["", "[identification]", f"usable = {'true' if self.usable_ else 'false'}",
              f"verdict = {q(self.verdict_)}", f"method = {q(self.method)}",
-             f"structure = {q('paper' if self.extended_ is None else 'extended')}",
+             f"structure = {q(self.structure_)}",
              f"chosen = {q(self.chosen_.start.name)}", f"validation = {q(self.validation_mode_)}",
              f"thrust_scale = {q(self.thrust_scale_.case)}"]
     lag = getattr(self, "lag_applied_s_", 0.0)

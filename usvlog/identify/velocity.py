@@ -194,8 +194,10 @@ def _not_a_boat(theta) -> bool:
 class _Problem:
     """The stacked residuals of every run's windows, in the fitted (log) coordinates."""
 
-    def __init__(self, runs, kin, H, theta0, free, fit_current, currents0, sigma, structure: Structure = PAPER):
+    def __init__(self, runs, kin, H, theta0, free, fit_current, currents0, sigma, structure: Structure = PAPER,
+                 ties: tuple = ()):
         self.structure = structure
+        self.ties = ties          # (index, index of the parameter it equals)
         self.win = [_Windows(r, k, H, structure) for r, k in zip(runs, kin)]
         self.theta0 = np.asarray(theta0, float)
         self.free = np.asarray(free, bool)
@@ -211,6 +213,8 @@ class _Problem:
         th = self.theta0.copy()
         q = p[:int(self.free.sum())]
         th[self.free] = np.where(st.positive[self.free], np.exp(np.clip(q, -50, 50)), q)
+        for a, b in self.ties:
+            th[a] = th[b]
         if self.free[st.signed]:
             th[st.signed] = st.signed_max(th) * math.tanh(th[st.signed])
         cur = p[len(q):].reshape(-1, 2) if self.fit_current else self.currents0
@@ -246,7 +250,8 @@ class _Problem:
 
 def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, free_mask=None,
                        fit_current: bool = True, currents0=None, max_current_mps: float = 0.5,
-                       horizons_s=HORIZONS_S, max_nfev: int | None = None, model: str = "paper") -> VelocityFitResult:
+                       horizons_s=HORIZONS_S, max_nfev: int | None = None, model: str = "paper",
+                       ties: tuple = ()) -> VelocityFitResult:
     """Fit m, Iz, d11, d22, d33, xg (and a current per run) to the smoothed velocities.
 
     With ``model="extended"`` the ten parameters of the extended model
@@ -276,20 +281,31 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
         quantity: a finite-difference Jacobian costs one evaluation each).
     model : {"paper", "extended"}, default "paper"
         The model structure.
+    ties : sequence of (str, str), optional
+        Parameters that equal another, by name: ``(("m22", "m11"),)`` holds m22 at m11's value
+        as it is fitted (the first of each pair must be held by ``free_mask``). With m22 tied to
+        m11 and d22q, d33q held at 0 the extended structure is the paper model with a quadratic
+        surge damping d11q (m26 = m xg, m66 = Iz).
 
     Returns
     -------
     VelocityFitResult
     """
     st = STRUCTURES[model]
+    tie_ix = tuple((st.names.index(a), st.names.index(b)) for a, b in ties)
     if max_nfev is None:
         max_nfev = NFEV_PER_PARAM * (len(st.names) + (2 * len(runs) if fit_current else 0))
     theta = np.array(theta0, float)
+    free = np.ones(len(st.names), bool) if free_mask is None else np.asarray(free_mask, bool)
+    if any(free[a] for a, _ in tie_ix):
+        raise ValueError("a tied parameter is not fitted: hold it with free_mask")
     # a positive parameter at (or near) zero cannot move as a logarithm: from a thousandth of the largest
-    theta[st.positive] = np.maximum(theta[st.positive], MIN_START * np.max(np.abs(theta[st.positive])))
+    grow = st.positive & free
+    theta[grow] = np.maximum(theta[grow], MIN_START * np.max(np.abs(theta[st.positive])))
+    for a, b in tie_ix:
+        theta[a] = theta[b]
     lim = 0.99 * st.signed_max(theta)
     theta[st.signed] = float(np.clip(theta[st.signed], -lim, lim))
-    free = np.ones(len(st.names), bool) if free_mask is None else np.asarray(free_mask, bool)
     if st.not_a_boat(theta):   # not a boat for another reason (stiffness): start from the centre line
         theta[st.signed] = 0.0
     cur = np.zeros((len(runs), 2)) if currents0 is None else np.array(currents0, float).reshape(-1, 2)
@@ -300,7 +316,7 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
     prob = None
     sol = None
     for H in horizons_s:
-        prob = _Problem(runs, kin, H, theta, free, fit_current, cur, sigma, st)
+        prob = _Problem(runs, kin, H, theta, free, fit_current, cur, sigma, st, tie_ix)
         p0 = prob.pack(theta, cur)
         lb = np.where(st.positive[free], -np.inf, -Z_MAX)
         ub = np.where(st.positive[free], np.inf, Z_MAX)

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 from ..choices import EXTENDED_PARAM_NAMES
 from ..model.vessel import PARAM_NAMES
 from .ahead import WHITENESS_STEP_S
+from .candidates import QS_HELD
 from .checks import _excitation_warnings, _why_dead
 
 # typing only: the class whose methods these are (it imports this module)
@@ -72,10 +73,12 @@ def _ext_term_findings(self: Identifier, add) -> None:
     ext = self.extended_
     assert ext is not None
     vals = ext.to_dict()
+    # the quadratic-surge form holds these at m11's value or 0: not terms of its own
+    tied = set(QS_HELD) if self.final_.start.quadratic_surge else set()
     for k in EXTENDED_PARAM_NAMES:
         v, se = vals[k], self.extended_stderr_.get(k, math.nan)
-        if k in ("m11", "m66") or (k.endswith("q") and v <= 0) or k in self.fix:   # m, Iz: judged above;
-            continue                                                         # q at its bound 0; fixed
+        if k in ("m11", "m66") or (k.endswith("q") and v <= 0) or k in self.fix or k in tied:
+            continue   # m, Iz: judged above; q at its bound 0; fixed; tied
         if not (math.isfinite(se) and se > 1e-9 * max(abs(v), 1e-300)):
             add(1 if k == "m22" else 0, f"extended term {k} = {fmt_num(v)}: standard error not computable")
             continue
