@@ -74,6 +74,12 @@ class RunData:
         """Length of the thrust record in s."""
         return float(self.t_thrust[-1] - self.t_thrust[0])
 
+    def thrust_index_at(self, t0: float) -> int:
+        """Index of the thrust command in force at ``t0`` (s): the last sample at or before it (a
+        log whose thrust and navigation are stamped apart, e.g. a ROS bag's, starts a free run
+        between two commands); the first sample before the record."""
+        return int(np.clip(np.searchsorted(self.t_thrust, t0 + 1e-9, side="right") - 1, 0, len(self.t_thrust) - 1))
+
     def window(self, t_lo: float, t_hi: float) -> RunData:
         """The part of the run in [t_lo, t_hi] (s), same time origin (views of the run's
         arrays where their times are sorted: :func:`within`)."""

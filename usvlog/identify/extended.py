@@ -241,7 +241,7 @@ def free_run(run: RunData, theta, x0, t0: float, times) -> np.ndarray:
         u, v, r; NaN outside the thrust record or after a divergence.
     """
     times = np.ascontiguousarray(times, float)
-    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
+    i0 = run.thrust_index_at(t0)   # the command in force at t0: the free run starts between two commands
     out = np.full((len(times), 3), np.nan)
     simulate_velocity(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
                       np.asarray(x0, float)[None, :], np.asarray(theta, float), times,

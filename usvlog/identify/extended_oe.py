@@ -177,7 +177,7 @@ def free_run_full(run: RunData, theta, current, x0, t0: float, times) -> np.ndar
     if (len(run.t_thrust) == 0 or np.shape(theta) != (NE,) or ext_physical_problem(theta)
             or not np.all(np.isfinite(x0)) or not np.all(np.isfinite(current))):
         return out
-    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 - 1e-9), 0, len(run.t_thrust) - 1))
+    i0 = run.thrust_index_at(t0)   # the command in force at t0: the free run starts between two commands
     simulate_full(run.t_thrust, run.tau_u, run.tau_r, np.array([i0]), np.array([len(run.t_thrust) - 1]),
                   np.asarray(x0, float)[None, :], np.asarray(theta, float), float(current[0]), float(current[1]),
                   times, np.array([0, len(times)], np.int64), MAX_DT, out)

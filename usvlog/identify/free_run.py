@@ -58,9 +58,7 @@ def simulate_run(run: RunData, theta, current, x0, t0: float, times) -> np.ndarr
     if (len(run.t_thrust) == 0 or th.shape != (6,) or not np.all(np.isfinite(th)) or not th[0] > 0
             or not th[1] - th[0] * th[5] ** 2 > 0 or not np.all(np.isfinite(x0)) or not np.all(np.isfinite(current))):
         return out_x
-    # the command in force at t0: the last thrust sample at or before it (a log whose thrust and
-    # navigation are stamped apart, e.g. a ROS bag's, starts the free run between two commands)
-    i0 = int(np.clip(np.searchsorted(run.t_thrust, t0 + 1e-9, side="right") - 1, 0, len(run.t_thrust) - 1))
+    i0 = run.thrust_index_at(t0)
     ok = (times >= min(t0, run.t_thrust[i0]) - 1e-9) & (times <= run.t_thrust[-1] + 1e-9)
     tt = np.ascontiguousarray(times[ok])
     ox = np.zeros((len(tt), 6))
