@@ -46,3 +46,16 @@ def test_the_surge_equation_holds_m11_where_the_velocity_fit_loses_it():
     assert idf.chosen_.start.surge_mass and idf.extended_ is not None
     assert abs(idf.extended_.m11 - truth) < 0.15 * truth
     assert idf.extended_stderr_["m11"] > 0 and idf.stderr_["m"] > 0
+
+
+def test_a_surge_inertia_pulled_to_zero_is_not_passed_as_fine():
+    """Where the collapsed fit still validates best (5 Hz GNSS in a 0.25 m/s current: the surge
+    equation's own fit is the weaker there), its surge time constant of tens of milliseconds, no
+    boat's, is named in the verdict."""
+    cat = vessel_from_toml(CATAMARAN.read_text(), str(CATAMARAN))
+    log = otter_like_run(cat, duration_s=592.0, seed=8, current_mps=0.25, gps_rate_hz=5.0)
+    idf = Identifier(holdout=0.4, model="extended").fit(log, cat)
+    assert idf.extended_ is not None and idf.extended_.m11 < 0.1 * cat.extended.m11, idf.extended_
+    assert idf.verdict_ != "usable"
+    line = [r for r in idf.reasons_ if r.startswith("surge time constant")]
+    assert len(line) == 1 and "not determined" in line[0], idf.reasons_

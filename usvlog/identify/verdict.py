@@ -30,6 +30,9 @@ VERDICTS = ("usable", "usable with caveats", "unusable")
 FIT_UNUSABLE, FIT_CAVEAT = 0.0, 50.0
 U_FIT_UNUSABLE = -50.0      # u: its measurement noise alone can cost tens of points
 REL_SE_CAVEAT, REL_SE_UNUSABLE = 0.10, 0.3
+# a surge or yaw time constant (inertia / damping) below this is no boat's (small USVs: about a second and
+# more; the paper's vessel 6.6 s in surge, a Fossen Otter 1.1 s): the inertia was not determined
+MIN_TIME_CONSTANT_S = 0.1
 COND_CAVEAT = 1e5
 NOTABLE_CURRENT_MPS = 0.1   # a current another candidate fitted that a returned equation-error fit lacks
 
@@ -191,6 +194,11 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
     iz_eff = p.Iz_eff
     if iz_eff <= 0:
         add(1, f"Theorem 3.1 condition 1 fails: Iz - m xg^2 = {fmt_num(iz_eff)} <= 0")
+    for what, inertia, damping, terms in (("surge", p.m, p.d11, "m, d11"), ("yaw", iz_eff, p.d33, "Iz, d33")):
+        tc = inertia / damping if damping > 0 else math.inf
+        if 0 < tc < MIN_TIME_CONSTANT_S and "m" not in held and "Iz" not in held:
+            add(1, f"{what} time constant {fmt_num(tc, 2)} s ({terms}): no boat responds that fast; its inertia is "
+                   "not determined by this data (a fit to smoothed velocities pulls it towards zero)")
     lag = getattr(self, "thruster_lag_", None)
     if lag is not None:
         hi = lag.ci95[1]
