@@ -172,14 +172,24 @@ class _Windows:
         ptr = np.searchsorted(t, self.t_start - 1e-9)
         ptr[0] = 0
         self.ptr = np.append(ptr, len(t)).astype(np.int64)
+        self._smoothed: tuple = (None, None, None)   # (current, window starts' states, u, v, r at t)
+
+    def _states(self, cur) -> tuple[np.ndarray, np.ndarray]:
+        """The smoothed states at the window starts and u, v, r at ``t`` for a current, made once per
+        current (a finite-difference Jacobian asks for them with one current for every parameter)."""
+        key = (float(cur[0]), float(cur[1]))
+        if self._smoothed[0] != key:
+            self._smoothed = (key, np.ascontiguousarray(self.ks.at(self.t_start, cur), dtype=np.float64),
+                              self.ks.at(self.t, cur)[:, 3:])
+        return self._smoothed[1], self._smoothed[2]
 
     def predict(self, theta, cur) -> tuple[np.ndarray, np.ndarray]:
         """(predicted, smoothed) u, v, r at ``t`` (two (N, 3) arrays) for parameters and a current."""
-        x0s = np.ascontiguousarray(self.ks.at(self.t_start, cur), dtype=np.float64)
+        x0s, meas = self._states(cur)
         ox = np.zeros((len(self.t), 6))
         with np.errstate(all="ignore"):
             self.structure.simulate(self, theta, cur, x0s, ox)
-        return ox[:, 3:], self.ks.at(self.t, cur)[:, 3:]
+        return ox[:, 3:], meas
 
 
 def _not_a_boat(theta) -> bool:
