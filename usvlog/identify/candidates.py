@@ -3,8 +3,10 @@
 Output error fits several candidates (:class:`Start`) and keeps the one that validates best
 (:class:`Candidate`): equation error as it is (the floor: the answer never validates worse),
 output error from it with and without the smoothed velocities, from the vessel's values, the
-velocity output error from the data's scales, the extended model's fits, and the surge
-candidate (m held at the surge equation's own fit, :func:`_surge_candidate`). They are fitted
+velocity output error from the data's scales, the extended model's fits (one with m11 held at
+the surge equation's own fit, :func:`_ext_surge_mass`), the paper model with a quadratic surge
+damping when asked (:func:`quadratic_surge_start`, QS_HELD, QS_TIES), and the surge candidate (m
+held at the surge equation's own fit, :func:`_surge_candidate`). They are fitted
 one after another (:func:`_fit_candidates`), picked by validation
 with a tie margin (:func:`_pick`, :data:`PREFER_WITHIN`), refitted on all the data
 (:func:`_refit`) or validated by leaving each log out (:func:`_leave_one_out`). The functions
