@@ -341,7 +341,7 @@ def _ext_form(st: Start) -> tuple[tuple, tuple]:
     return held, (QS_TIES if st.quadratic_surge else ())
 
 
-def _ext_velocity_form(st: Start, theta) -> tuple[np.ndarray | None, tuple]:
+def _ext_velocity_form(st: Start) -> tuple[np.ndarray | None, tuple]:
     """``free_mask`` and ``ties`` of candidate ``st``'s extended velocity fit (None: all ten free)."""
     held, ties = _ext_form(st)
     return (np.array([k not in held for k in EXTENDED_PARAM_NAMES]) if held else None), ties
@@ -488,7 +488,7 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
         th0 = np.asarray(st.theta, float)
         if st.surge_mass:
             th0, held_se = _ext_surge_mass(self, runs, kin, th0)
-        free, ties = _ext_velocity_form(st, th0)
+        free, ties = _ext_velocity_form(st)
         fitted = fit_velocity_error(runs, kin, th0, free_mask=free, ties=ties, fit_current=self.current,
                                     currents0=currents0, max_current_mps=self.max_current_mps, model="extended")
         theta, cur = fitted.theta, np.asarray(fitted.currents, float)
@@ -584,7 +584,7 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
             th0 = chosen.theta
             if st.surge_mass:   # the surge equation's m11 from all the data too
                 th0, held_se = _ext_surge_mass(self, runs, kin, th0)
-            free, ties = _ext_velocity_form(st, th0)
+            free, ties = _ext_velocity_form(st)
             fitted = fit_velocity_error(runs, kin, th0, free_mask=free, ties=ties, fit_current=self.current,
                                         currents0=chosen.currents, max_current_mps=self.max_current_mps,
                                         horizons_s=(120.0,), model="extended")
@@ -683,7 +683,7 @@ def _leave_one_out(self: Identifier, chosen: Candidate, cands, runs, kin, logs, 
                 th0 = chosen.theta
                 if st.surge_mass:
                     th0, _ = _ext_surge_mass(self, r_, k_, th0)
-                free, ties = _ext_velocity_form(st, th0)
+                free, ties = _ext_velocity_form(st)
                 theta = fit_velocity_error(r_, k_, th0, free_mask=free, ties=ties, fit_current=self.current,
                                            max_current_mps=self.max_current_mps, model="extended").theta
             else:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -107,7 +108,7 @@ class Validation:
         return bool(not np.all(np.isfinite(self.simulated)) or
                     np.any(np.abs(self.simulated[:, 3:]) > 1e3))
 
-    @property
+    @cached_property
     def score(self) -> float:
         """The figure candidates are compared by: the mean fit % of the track (floored at 0), of
         r and, where the scored part excites it (:func:`excitation_of`), of u (-inf when
