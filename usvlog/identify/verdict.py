@@ -194,9 +194,10 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
     iz_eff = p.Iz_eff
     if iz_eff <= 0:
         add(1, f"Theorem 3.1 condition 1 fails: Iz - m xg^2 = {fmt_num(iz_eff)} <= 0")
-    for what, inertia, damping, terms in (("surge", p.m, p.d11, "m, d11"), ("yaw", iz_eff, p.d33, "Iz, d33")):
+    for what, inertia, damping, terms, mass in (("surge", p.m, p.d11, "m, d11", "m"),
+                                                ("yaw", iz_eff, p.d33, "Iz, d33", "Iz")):
         tc = inertia / damping if damping > 0 else math.inf
-        if 0 < tc < MIN_TIME_CONSTANT_S and "m" not in held and "Iz" not in held:
+        if 0 < tc < MIN_TIME_CONSTANT_S and mass not in held:   # a held inertia is the user's
             add(1, f"{what} time constant {fmt_num(tc, 2)} s ({terms}): no boat responds that fast; its inertia is "
                    "not determined by this data (a fit to smoothed velocities pulls it towards zero)")
     lag = getattr(self, "thruster_lag_", None)
