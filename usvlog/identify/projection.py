@@ -208,6 +208,17 @@ def _compress_stacked(A):
     """:func:`compress_lsq` of ``A`` = [J r] (N, P + 1), C-contiguous.
 
     Raises :class:`~usvlog.errors.FitFailed` when ``A`` is not finite."""
+    R = triangular_factor(A)
+    return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
+
+
+def triangular_factor(A):
+    """The upper triangular R (K, K) of A = Q R, ``A`` (N, K) finite: the same ``A^T A = R^T R``
+    in K rows. From the Cholesky factor of the column-scaled Gram matrix when it is well
+    conditioned, else from a QR decomposition (whose diagonal may be negative). Numbers so
+    large that their products overflow are scaled first (the same factor).
+
+    Raises :class:`~usvlog.errors.FitFailed` when ``A`` is not finite."""
     with np.errstate(over="ignore", invalid="ignore"):
         gram = A.T @ A
     if not np.isfinite(gram).all():
@@ -216,9 +227,7 @@ def _compress_stacked(A):
         # finite but so large that the products overflow: the same factor of the column-scaled problem
         s = np.abs(A).max(axis=0)
         s[s == 0] = 1.0
-        Jc, rc = _compress_stacked(np.ascontiguousarray(A / s))
-        R = np.column_stack([Jc, rc]) * s
-        return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
+        return triangular_factor(np.ascontiguousarray(A / s)) * s
     d = np.sqrt(np.diag(gram))
     d[d == 0] = 1.0
     gs = gram / np.outer(d, d)
@@ -233,5 +242,4 @@ def _compress_stacked(A):
         R = scipy_qr(A, mode="r")[0][:A.shape[1]]
         if R.shape[0] < A.shape[1]:
             R = np.vstack([R, np.zeros((A.shape[1] - R.shape[0], A.shape[1]))])
-    return np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1])
-
+    return R

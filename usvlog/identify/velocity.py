@@ -31,6 +31,7 @@ from .data import RunData
 from .extended import MAX_DT as EXT_MAX_DT
 from .extended_oe import ext_physical_problem, simulate_full
 from .output import DIVERGED, MAX_STIFFNESS, coarse_run, max_step, stiffness
+from .projection import triangular_factor
 from .shoot import no_rows, shoot
 from .smooth import KinStates, thrust_on_grid
 
@@ -49,6 +50,7 @@ MAX_XG = 1.0                      # |xg| bound (m): the centre of gravity stays 
 MAX_COUPLING = 0.5
 WALL_COUPLING = 0.98              # beyond this share a parameter vector is no boat (its simulation a cliff)
 Z_MAX = 6.0                       # bound of the signed parameter's fitted coordinate (tanh(6) = 1 - 1e-5)
+DIFF_STEP = 1e-4                  # relative step of the finite-difference Jacobian
 QUADRATIC_START = 0.3             # extended start: each quadratic damping this share of the linear one per unit speed
 
 
@@ -335,8 +337,8 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
             ub = np.concatenate([ub, np.full(2 * len(runs), max_current_mps)])
         inner = 1e-6 * np.where(np.isfinite(ub - lb), ub - lb, 0.0)   # strictly inside the bounds
         p0 = np.clip(p0, lb + inner, ub - inner)
-        sol = least_squares(prob.residuals, p0, bounds=(lb, ub), diff_step=1e-4, max_nfev=max_nfev,
-                            x_scale=1.0)
+        small = _Small(prob, lb, ub)
+        sol = least_squares(small.fun, p0, jac=small.jac, bounds=(lb, ub), max_nfev=max_nfev, x_scale=1.0)
         theta, cur = prob.unpack(sol.x)
         nfev += prob.nfev
         # each channel weighted by its own residual RMS for the next stage (unknown noise per channel)
@@ -347,22 +349,72 @@ def fit_velocity_error(runs: list[RunData], kin: list[KinStates], theta0, *, fre
     assert prob is not None and sol is not None
     res = prob.residuals(sol.x, by_channel=True)
     diverged = bool(st.not_a_boat(theta) or np.any(np.abs(res) >= BIG))
-    names, cov, cond = _covariance(prob, sol, theta, free, fit_current, len(runs))
+    names, cov, cond = _covariance(prob, sol, res.size, theta, free, fit_current, len(runs))
     rms_ch = np.sqrt(np.mean((res * prob.sigma) ** 2, axis=0)) if len(res) else np.full(3, np.nan)
     return VelocityFitResult(theta=theta, currents=np.asarray(cur, float).reshape(-1, 2), names=names, cov=cov,
                              cond=cond, rms=dict(zip(("u", "v", "r"), map(float, rms_ch))), diverged=diverged,
                              nfev=nfev, residuals=res * prob.sigma)
 
 
-def _covariance(prob: _Problem, sol, theta, free, fit_current: bool, n_runs: int):
-    """Names, covariance in the parameters' own units and condition number of the final stage."""
+class _Small:
+    """A stage of the fit as :func:`scipy.optimize.least_squares` sees it: P + 1 rows (P fitted
+    quantities) instead of the 3 N residuals, with the same cost, gradient and Gauss-Newton matrix.
+
+    :meth:`fun` gives the residuals' norm and P zeros; :meth:`jac` the forward-difference
+    Jacobian J there, with the residuals r as the triangular factor R of [r J] = Q R (R's first
+    column is then (|r|, 0, ..., 0), :meth:`fun`'s): R^T R = [r J]^T [r J]. least_squares
+    decomposes a (P + 1) x P matrix instead of copies of a whole-run one (its working copies of
+    J and the differences took ~40 MB an hour of log at the fit's peak); the evaluations are
+    those of its own '2-point' differences (``diff_step`` :data:`DIFF_STEP`)."""
+
+    def __init__(self, prob: _Problem, lb, ub):
+        self.prob, self.lb, self.ub = prob, lb, ub
+        self._last: tuple[bytes, np.ndarray] = (b"", np.zeros(0))   # (p, residuals) of the last fun
+
+    def fun(self, p):
+        r = self.prob.residuals(p)
+        self._last = (p.tobytes(), r)
+        out = np.zeros(len(p) + 1)
+        out[0] = math.sqrt(float(r @ r))
+        return out
+
+    def jac(self, p):
+        key, r = self._last
+        if key != p.tobytes():
+            r = self.prob.residuals(p)
+        A = np.empty((len(r), len(p) + 1))
+        A[:, 0] = r
+        _forward_differences(self.prob.residuals, p, r, self.lb, self.ub, A[:, 1:])
+        R = triangular_factor(A)
+        if R[0, 0] < 0:   # (a QR's row may come with either sign)
+            R[0] = -R[0]
+        return R[:, 1:]
+
+
+def _forward_differences(fun, x, f0, lb, ub, out) -> None:
+    """``out[:, j] = (fun(x + h_j e_j) - f0) / h_j``: scipy's '2-point' Jacobian with ``diff_step``
+    :data:`DIFF_STEP` (h_j = DIFF_STEP |x_j| with x_j's sign, sqrt(eps) max(1, |x_j|) where that is
+    lost, the other way where it would leave the bounds), the same numbers."""
+    sign = np.where(x >= 0, 1.0, -1.0)
+    h = DIFF_STEP * sign * np.abs(x)
+    h = np.where((x + h) - x == 0, np.finfo(float).eps ** 0.5 * sign * np.maximum(1.0, np.abs(x)), h)
+    h = np.where((x + h < lb) | (x + h > ub), -h, h)
+    for j in range(len(x)):
+        x1 = x.copy()
+        x1[j] = x[j] + h[j]
+        out[:, j] = (fun(x1) - f0) / (x1[j] - x[j])
+
+
+def _covariance(prob: _Problem, sol, n: int, theta, free, fit_current: bool, n_runs: int):
+    """Names, covariance in the parameters' own units and condition number of the final stage
+    (``sol.jac``: its Jacobian, compressed or not, of ``n`` residuals)."""
     st = prob.structure
     names = tuple([k for k, f in zip(st.names, free) if f] +
                   ([f"current_{ax}_{i}" for i in range(n_runs) for ax in ("n", "e")] if fit_current else []))
     J = np.asarray(sol.jac, float)
     # back from the fitted coordinates (logarithms, the signed parameter's z): d theta = T d q
     T = _coordinate_jacobian(prob, np.asarray(sol.x, float))
-    n, k = J.shape
+    k = J.shape[1]
     s2 = float(2 * sol.cost / max(n - k, 1))
     with np.errstate(all="ignore"):
         col = np.sqrt(np.sum(J * J, axis=0))
