@@ -1,9 +1,10 @@
 """The candidate strategy of the identifier: which fits to try, fitting them, picking one.
 
 Output error fits several candidates (:class:`Start`) and keeps the one that validates best
-(:class:`Candidate`): equation error as it is (the floor: the answer never validates worse),
-output error from it with and without the smoothed velocities, from the vessel's values, the
-velocity output error from the data's scales, the extended model's fits (one with m11 held at
+(:class:`Candidate`): equation error as it is (the floor: the answer never validates worse) and
+with the water current its residuals give (:func:`_equation_error_current`), output error from
+it with and without the smoothed velocities, from the vessel's values, the velocity output
+error from the data's scales, the extended model's fits (one with m11 held at
 the surge equation's own fit, :func:`_ext_surge_mass`), the paper model with a quadratic surge
 damping when asked (:func:`quadratic_surge_start`, QS_HELD, QS_TIES), and the surge candidate (m
 held at the surge equation's own fit, :func:`_surge_candidate`). They are fitted
@@ -113,6 +114,9 @@ class Start:
         The paper model with a quadratic surge damping d11q (``Identifier(quadratic_surge=True)``),
         fitted by velocity output error as the extended structure with m22 tied to m11 and d22q,
         d33q held at 0 (QS_HELD, QS_TIES); ``model`` is then ``"extended"`` (its TOML form).
+    ee_current : bool
+        Equation error with each run's water current, the one its residuals are smallest with
+        (:func:`_equation_error_current`); plain equation error fits none.
     """
 
     name: str
@@ -122,6 +126,7 @@ class Start:
     model: str = "paper"
     surge_mass: bool = False
     quadratic_surge: bool = False
+    ee_current: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -314,6 +319,12 @@ def candidate_starts_paper(self: Identifier, ee: EquationErrorResult, vessel: Ve
         out.append(Start(name="velocity output error from the data's scales", kind="velocity-error",
                          theta=self._with_fixed(scales)))
     out.append(ee_start)
+    if self.current and getattr(self, "validation_mode_", "") == "holdout":
+        # right after it: preferred in a tie with the current the run's own residuals give (a
+        # held-out part judges whether that current is real; without one a current always
+        # fits the fitted runs a little better)
+        out.append(Start(name="equation error with its water current", kind="equation-error",
+                         theta=ee_start.theta, ee_current=True))
     if getattr(self, "quadratic_surge", False) and scales is not None and not getattr(self, "_command_units", False):
         # last: a tie in validation goes to the paper model without it
         out += [Start(name="output error, the paper model with quadratic surge damping", kind="output-error",
@@ -440,7 +451,10 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
     free = self._free(st)
     zeros = np.zeros((len(runs), 2))
     fitted: object
-    if st.kind == "equation-error":
+    if st.kind == "equation-error" and st.ee_current:
+        fitted, cur = self._equation_error_current(runs, kin)
+        theta = self._ee_theta(fitted, vessel)
+    elif st.kind == "equation-error":
         theta, cur, fitted = st.theta, zeros, self.equation_error_
     elif st.kind == "filter-error":
         from .filter import fit_filter_error  # lazy: filter error only (scipy's minimize)
@@ -562,7 +576,7 @@ def _pick(self: Identifier, cands: list[Candidate]) -> Candidate:
         err.reasons = why      # type: ignore[attr-defined]
         raise err
     best = max(c.score for c in ok)
-    ee = [c.score for c in ok if c.start.kind == "equation-error"]
+    ee = [c.score for c in ok if c.start.kind == "equation-error" and not c.start.ee_current]
     floor = max(best - PREFER_WITHIN, max(ee) if ee else -math.inf)
     return next(c for c in ok if c.score >= floor)
 
@@ -611,8 +625,9 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
         theta, fitted = fe.theta, fe
         cur = np.array([_ekf_current(lg, vessel, theta, self.current) for lg in logs])
     elif st.kind == "equation-error":
-        ee = self._equation_error(runs, kin)
-        theta, cur, fitted = self._ee_theta(ee, vessel), np.zeros((len(runs), 2)), ee
+        ee, cur = (self._equation_error_current(runs, kin) if st.ee_current
+                   else (self._equation_error(runs, kin), np.zeros((len(runs), 2))))
+        theta, fitted = self._ee_theta(ee, vessel), ee
     elif st.kind == "velocity-error":
         vf = fit_velocity_error(runs, kin, chosen.theta, free_mask=self._free(st), fit_current=self.current,
                                 currents0=chosen.currents, max_current_mps=self.max_current_mps,
@@ -736,6 +751,48 @@ def _equation_error(self: Identifier, runs, kin) -> EquationErrorResult:
     return fit_equation_error(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
                               np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts]),
                               fix=self.fix)
+
+
+def _equation_error_current(self: Identifier, runs, kin) -> tuple[EquationErrorResult, np.ndarray]:
+    """Equation error with a constant water current per run (north, east, m/s, each within
+    ``max_current_mps``): the currents that make the sum of the log residual RMS of the surge
+    and yaw equations smallest (the likelihood of Gaussian equation errors of unknown scale
+    each), by Nelder-Mead per run, two sweeps over the runs. Not the sway equation's: it has no
+    force of its own, and as in :func:`~usvlog.identify.equation.fit_equation_error` it would
+    pull the fit (on a Fossen Otter run in a 0.25 m/s current, the current 0.045 m/s off with it,
+    0.011 without). A current changes the body velocities
+    relative to the water by a rotation, and the smoothing and derivative after it are linear,
+    so each run's inputs are made three times (no current, 1 m/s north, 1 m/s east) and
+    combined, not made again at every step. Returns the fit and the currents, shape (n_runs, 2)."""
+    from scipy.optimize import minimize  # lazy: this candidate only
+
+    basis = []
+    for r, k in zip(runs, kin):
+        p0, pn, pe = (_ee_inputs(r, k, c) for c in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)))
+        basis.append((p0, [pn[i] - p0[i] for i in (0, 1)], [pe[i] - p0[i] for i in (0, 1)]))
+    cur = np.zeros((len(runs), 2))
+
+    def fit(c):
+        parts = [(p0[0] + cn * dn[0] + ce * de[0], p0[1] + cn * dn[1] + ce * de[1], p0[2], p0[3])
+                 for (p0, dn, de), (cn, ce) in zip(basis, c)]
+        return fit_equation_error(*(np.concatenate([p[i] for p in parts]) for i in range(4)), fix=self.fix)
+
+    def cost(x, i):
+        c = cur.copy()
+        c[i] = x
+        with np.errstate(divide="ignore"):
+            rms = fit(c).rms
+            return float(np.log(rms[0]) + np.log(rms[2]))
+
+    bound = self.max_current_mps
+    for _ in range(2 if len(runs) > 1 else 1):
+        for i in range(len(runs)):
+            res = minimize(cost, cur[i], args=(i,), method="Nelder-Mead", bounds=[(-bound, bound)] * 2,
+                           options={"xatol": 1e-3, "fatol": 1e-6,
+                                    "initial_simplex": cur[i] + np.array([[0, 0], [0.1, 0], [0, 0.1]])})
+            if np.all(np.isfinite(res.x)) and res.fun <= cost(cur[i], i):
+                cur[i] = res.x
+    return fit(cur), cur
 
 
 def _ext_equation_error(self: Identifier, runs, kin) -> ExtendedFit:

@@ -216,8 +216,8 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
             add(1, f"current of run {i} at its bound ({speed:.2f} m/s, bound {self.max_current_mps:g} m/s "
                    "per axis): the fit wanted more current than allowed; a model mismatch or a real strong "
                    "current (--max-current-mps)")
-    if self.current and self.final_.start.kind == "equation-error":
-        # equation error fits no current: say so when the fits that do found one
+    if self.current and self.final_.start.kind == "equation-error" and not self.final_.start.ee_current:
+        # plain equation error fits no current: say so when the fits that do found one
         others = [c for c in getattr(self, "candidates_", []) if not c.failed and c.start.kind != "equation-error"
                   and len(c.currents)]
         if others:
