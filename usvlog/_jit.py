@@ -3,7 +3,7 @@
 numba's own cache (``cache=True``) reloads a compiled function as long as the function's
 *own* source file is unchanged, even when a function it calls from another file has been
 edited (the closed loop calls :func:`usvlog.control.law.control_tick` and
-:func:`usvlog.sim.simulate.plant_step`; the EKF kernels call the vessel model). So every
+:func:`usvlog.sim.plant.plant_step`; the EKF kernels call the vessel model). So every
 kernel of the package is compiled through :func:`njit` here, which keys the cache on the
 whole package: its directory is
 

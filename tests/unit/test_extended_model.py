@@ -22,8 +22,9 @@ from usvlog.model.vessel import (
     vessel_from_toml,
 )
 from usvlog.sim.closed_loop import closed_loop, make_controller
+from usvlog.sim.plant import PlantStepper
 from usvlog.sim.scenario import load_scenario
-from usvlog.sim.simulate import PlantStepper, SimSettings, simulate
+from usvlog.sim.simulate import SimSettings, simulate
 
 CAT = dict(m11=85.0, m22=160.0, m26=12.0, m66=43.0, d11=77.0, d11q=8.0, d22=160.0, d22q=200.0,
            d33=43.0, d33q=430.0)

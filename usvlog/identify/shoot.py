@@ -4,7 +4,7 @@ The dynamics are :func:`usvlog.model.vessel.nu_dot_terms` itself, compiled by nu
 second copy of the model); its derivatives with respect to (u, v, r) and to the six
 parameters are M^-1 (dF - dM nu_dot) with F = tau - C(nu) nu - D nu (eqs. (4)-(6)),
 checked against finite differences of the whole simulation in the tests. Kinematics are eq. (1) plus a
-constant current, as in :func:`usvlog.sim.simulate.plant_step`.
+constant current, as in :func:`usvlog.sim.plant.plant_step`.
 
 Sensitivity columns: 0-5 the segment's initial state (n, e, psi, u, v, r), 6-11 the
 parameters (m, Iz, d11, d22, d33, xg), 12-13 the current (north, east).

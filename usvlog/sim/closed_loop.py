@@ -1,6 +1,6 @@
 """The compiled closed loop: plant + guidance + controller (+ the onboard EKF) of a scenario.
 
-:func:`closed_loop` runs the plant of :func:`usvlog.sim.simulate.plant_step` (euler like the
+:func:`closed_loop` runs the plant of :func:`usvlog.sim.plant.plant_step` (euler like the
 paper's Section IV, or rk4) driven by the controller; :func:`simulate_scenario` turns a
 :class:`~usvlog.sim.scenario.Scenario` into a field log with sensors (``/control/state``
 and the ``usvlog.path`` metadata record added).
@@ -32,15 +32,13 @@ from ..log.channels import channel_spec, frame_from_columns
 from ..log.fieldlog import FieldLog
 from ..model.frames import ssa
 from ..model.vessel import Vessel
+from .plant import PlantStepper, plant_advance, plant_form
 from .scenario import META_PATH, Scenario
 from .simulate import (
     WINDOW_STEPS,
-    PlantStepper,
     SimSettings,
     _header_log,
     draw_sensor_noise,
-    plant_advance,
-    plant_form,
     start_ns,
     window_frames,
 )
