@@ -32,7 +32,7 @@ and yaw rows (and the quadratic damping real small hulls show) read
 with X the map's columns (the held commands through x and s, summed into tau_u and
 tau_r per unit of g_f) and a_u = g_f / m, a_r = g_f / Iz. The noisy derivatives are on the
 left, where noise does no harm, and only the smoothed velocities are regressors: written the
-other way round (thrust on the left, :func:`usvlog.identify.thrust_scale.reverse_ratio`),
+other way round (thrust on the left, :func:`usvlog.identify.thrust_ratio.reverse_ratio`),
 the derivatives' noise as regressors biased the deadband of a T200 boat logged with 1.5 m
 GNSS noise 5..8 us low. For fixed h and q both rows are linear in their coefficients, with
 a rho of their own each; :func:`fit_thrust_map` profiles the likelihood over h (a grid of
@@ -81,7 +81,7 @@ edge to have been visited."""
 
 MIN_REVERSE_FRACTION = 0.02
 """Reverse thrust below this fraction of all the thrust, without a deadband (as
-:func:`usvlog.identify.thrust_scale.reverse_ratio`): the ratio cannot be told and is held."""
+:func:`usvlog.identify.thrust_ratio.reverse_ratio`): the ratio cannot be told and is held."""
 
 SHARE_GRID = np.linspace(0.0, 1.0, 21)
 """Quadratic shares tried at each deadband (then refined by a parabola about the least)."""
