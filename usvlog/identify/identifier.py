@@ -21,7 +21,7 @@ from ..errors import ConfigError, FitFailed, InputError, UnusableResultError
 from ..log.fieldlog import FieldLog
 from ..log.summary import health_from_provenance
 from ..model.vessel import PARAM_NAMES, ExtendedParams, Vessel, VesselParams, default_vessel, extended_vessel
-from . import candidates, report, validation, verdict
+from . import candidates, leave_one_out, report, validation, verdict
 from .ahead import (
     WHITENESS_LAGS,
     WHITENESS_STEP_S,
@@ -512,7 +512,7 @@ class Identifier:
     _compare_models = candidates._compare_models
     _pick = candidates._pick
     _refit = candidates._refit
-    _leave_one_out = candidates._leave_one_out
+    _leave_one_out = leave_one_out._leave_one_out
     _ee_theta = candidates._ee_theta
     _equation_error = candidates._equation_error
     _equation_error_current = candidates._equation_error_current
