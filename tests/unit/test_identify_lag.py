@@ -7,6 +7,7 @@ parameters.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -74,6 +75,32 @@ def test_the_lag_is_identified(lagged_log):
     assert abs(idf.params_.Iz / default_vessel().params.Iz - 1) < 0.06, idf.params_
     assert any(r.startswith("thruster lag identified: ") for r in idf.reasons_), idf.reasons_
     assert idf.to_dict()["thruster_lag"]["lag_s"] == lag.lag_s
+    # one minimum, and the lag (0.8 s) shorter than the hull's surge time constant (m / d11 = 6.6 s): no doubt said
+    assert math.isnan(lag.other_lag_s) and idf.to_dict()["thruster_lag"]["other_lag_s"] is None
+    assert not [r for r in idf.reasons_ if "interchangeable" in r or "two minima" in r], idf.reasons_
+    # a lag longer than that time constant could be the hull's own: said, with the figure
+    idf.thruster_lag_ = replace(lag, lag_s=9.0, ci95=(8.0, 10.0))
+    reasons, _ = idf._verdict(idf.vessel_in_, idf.runs_, idf._kin)
+    t_surge = idf.params_.m / idf.params_.d11
+    line = [r for r in reasons if "interchangeable" in r]
+    assert len(line) == 1 and f"m / d11 = {t_surge:.2f} s" in line[0], reasons
+
+
+def test_a_profile_with_two_minima_spans_both():
+    """The 95 % interval is where the profile is within 1.92 of its best, crossings interpolated linearly;
+    a second dip inside that level (a lag between the two above it) is reported and spanned."""
+    from usvlog.identify.lag import _interval, _other_minimum
+
+    one = [(0.0, 9.0), (0.2, 4.0), (0.4, 1.0), (0.6, 0.0), (0.8, 1.0), (1.0, 3.92)]
+    lo, hi = _interval(one, 0.6)
+    assert lo == pytest.approx(0.2 + 0.2 * (4.0 - 1.92) / (4.0 - 1.0))   # 4.0 at 0.2 down to 1.0 at 0.4
+    assert hi == pytest.approx(0.8 + 0.2 * (1.92 - 1.0) / (3.92 - 1.0))
+    assert math.isnan(_other_minimum(one, 0.6))
+    two = [(0.0, 5.0), (0.2, 1.5), (0.4, 3.0), (0.8, 0.0), (1.6, 6.0)]
+    assert _other_minimum(two, 0.8) == 0.2
+    lo, hi = _interval(two, 0.8)
+    assert lo == pytest.approx(0.2 * (5.0 - 1.92) / (5.0 - 1.5))
+    assert hi == pytest.approx(0.8 + 0.8 * 1.92 / 6.0)
 
 
 def test_bad_lag_settings_refused():

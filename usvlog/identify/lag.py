@@ -74,7 +74,11 @@ class LagFit:
     is missing); ``profile``: ((lag s, profile value), ...) of every lag evaluated, the value
     relative to the best (0 there); ``n_eff``: independent residuals counted;
     ``velocity_lag_s``: the velocity profile's best lag (``lag_s`` is the position output
-    error's refinement of it inside ``ci95`` when that has an interior best, else the same).
+    error's refinement of it inside ``ci95`` when that has an interior best, else the same);
+    ``other_lag_s``: a second minimum of the profile that fits about as well (inside the 95 %
+    level, a lag between the two above it; NaN when there is none): in surge a thruster lag and
+    the hull's time constant are interchangeable, so a profile can have two, and ``ci95`` then
+    spans both.
     """
 
     lag_s: float
@@ -83,13 +87,15 @@ class LagFit:
     profile: tuple
     n_eff: float
     velocity_lag_s: float = math.nan
+    other_lag_s: float = math.nan
 
     def to_dict(self) -> dict:
         """Plain numbers for JSON (an infinite bound as None)."""
         hi = self.ci95[1] if math.isfinite(self.ci95[1]) else None
         return {"lag_s": self.lag_s, "ci95": [self.ci95[0], hi], "at_bound": self.at_bound,
                 "profile": [[a, b] for a, b in self.profile], "n_eff": self.n_eff,
-                "velocity_lag_s": self.velocity_lag_s}
+                "velocity_lag_s": self.velocity_lag_s,
+                "other_lag_s": self.other_lag_s if math.isfinite(self.other_lag_s) else None}
 
 
 def _n_eff(res: np.ndarray) -> float:
@@ -171,7 +177,7 @@ def fit_thruster_lag(runs: list[RunData], kin: list[KinStates], theta0, *, fit_c
     lag = float(best if on_positions is None else on_positions)
     return LagFit(lag_s=lag, ci95=(min(ci[0], lag), max(ci[1], lag)),
                   at_bound=bool(best >= grid[-1]), profile=tuple(prof), n_eff=float(n_eff),
-                  velocity_lag_s=float(best))
+                  velocity_lag_s=float(best), other_lag_s=_other_minimum(prof, best))
 
 
 def _refine_on_positions(runs, kin, ci, theta, currents, fit_current: bool, max_current_mps: float) -> float | None:
@@ -208,11 +214,15 @@ def _refine_on_positions(runs, kin, ci, theta, currents, fit_current: bool, max_
 
 
 def _interval(prof: list, best: float) -> tuple[float, float]:
-    """Where the profile ((lag, value), ... increasing lags) crosses CHI2_95_HALF on each side of
-    ``best``, linearly between the evaluated lags; 0 below and ``inf`` above when it never does."""
+    """The lags where the profile ((lag, value), ... increasing lags, 0 at ``best``) is within
+    CHI2_95_HALF: from where it crosses that level below the lowest such lag to where it crosses
+    it above the highest, linearly between the evaluated lags; 0 below and ``inf`` above when it
+    never does. A second minimum inside the level widens it to span both."""
     lags = np.array([a for a, _ in prof])
     vals = np.array([b for _, b in prof])
-    i = int(np.searchsorted(lags, best))
+    inside = np.flatnonzero(vals <= CHI2_95_HALF)
+    if len(inside) == 0:   # only the best itself (a value of 0) can be: not a profile
+        return float(best), float(best)
 
     def cross(j_in: int, j_out: int) -> float:
         a, b = vals[j_in], vals[j_out]
@@ -221,16 +231,27 @@ def _interval(prof: list, best: float) -> tuple[float, float]:
         w = (CHI2_95_HALF - a) / (b - a) if b != a else 1.0
         return float(lags[j_in] + w * (lags[j_out] - lags[j_in]))
 
-    lo, hi = 0.0, math.inf
-    for j in range(i - 1, -1, -1):
-        if vals[j] > CHI2_95_HALF:
-            lo = cross(j + 1, j)
-            break
-    for j in range(i + 1, len(lags)):
-        if vals[j] > CHI2_95_HALF:
-            hi = cross(j - 1, j)
-            break
+    j0, j1 = int(inside[0]), int(inside[-1])
+    lo = cross(j0, j0 - 1) if j0 > 0 else 0.0
+    hi = cross(j1, j1 + 1) if j1 < len(lags) - 1 else math.inf
     return lo, hi
+
+
+def _other_minimum(prof: list, best: float) -> float:
+    """The lowest other local minimum of the profile inside CHI2_95_HALF, with a lag above that
+    level between it and ``best``; NaN when there is none."""
+    lags = np.array([a for a, _ in prof])
+    vals = np.array([b for _, b in prof])
+    ib = int(np.argmin(np.abs(lags - best)))
+    out, v_out = math.nan, math.inf
+    for j in range(len(lags)):
+        lo, hi = min(j, ib), max(j, ib)
+        if vals[j] > CHI2_95_HALF or not np.any(vals[lo:hi + 1] > CHI2_95_HALF):
+            continue
+        local = (j == 0 or vals[j] <= vals[j - 1]) and (j == len(lags) - 1 or vals[j] <= vals[j + 1])
+        if local and vals[j] < v_out:
+            out, v_out = float(lags[j]), float(vals[j])
+    return out
 
 
 __all__ = ["LAG_GRID_S", "LagFit", "fit_thruster_lag"]

@@ -209,6 +209,17 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
                    "rarely a thruster's; something else slows the response (a thrust map, saturation)")
         else:
             add(0, f"thruster lag identified: {span}, applied to the thrust the model was fitted on")
+        if math.isfinite(lag.other_lag_s):
+            add(1, f"a thruster lag of {lag.other_lag_s:.2f} s fits the data about as well as {lag.lag_s:.2f} s (the "
+                   "lag's profile has two minima): the lag is not determined by these data; a known lag (--lag-s) "
+                   "decides")
+        t_surge = self.params_.m / self.params_.d11 if self.params_.d11 > 0 else math.inf
+        if lag.lag_s > t_surge:
+            # u = tau / (d11 (1 + s T_lag) (1 + s T_surge)): in surge the two time constants can be swapped
+            add(1, f"thruster lag {lag.lag_s:.2f} s is longer than the surge time constant m / d11 = "
+                   f"{t_surge:.2f} s: in surge a thruster lag and the hull's time constant are interchangeable "
+                   "(two first-order lags in series), so the fit may have put the hull's inertia into the lag "
+                   f"(m {self.params_.m:.3g} kg); a known lag (--lag-s) or a run with more turning decides")
     # -- the current -----------------------------------------------------------------
     for i, c in enumerate(self.current_):
         speed = math.hypot(*c)
