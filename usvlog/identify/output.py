@@ -9,8 +9,9 @@ is solved by Gauss-Newton, and :func:`scipy.optimize.least_squares` sees the pro
 Jacobian (so its normal matrix is the marginal information of the parameters of interest;
 standard errors come from it scaled by the residual variance).
 
-The pieces: :mod:`.problem` (the segments, residuals and sensitivities), :mod:`.projection`
-(the initial states solved and projected out), :mod:`.free_run` (free runs of the fitted
+The pieces: :mod:`.problem` (the segments, residuals and sensitivities, in blocks of segments
+of about half an hour of log: memory of a block, not of the run), :mod:`.projection`
+(the initial states solved and projected out, block by block), :mod:`.free_run` (free runs of the fitted
 model); here the fit driver :func:`fit_output_error` and its :class:`OutputErrorResult`.
 """
 
@@ -44,6 +45,7 @@ from .problem import (
     _fmt,
     coarse_run,
     max_step,
+    problem_blocks,
     stiffness,
 )
 from .projection import _VP, compress_lsq
@@ -117,7 +119,7 @@ def _bounds(free_mask, n_cur, max_current=np.inf):
     return (np.concatenate([lo, np.full(n_cur, -max_current)]), np.concatenate([hi, np.full(n_cur, max_current)]))
 
 
-def _group_scales(prob: Problem, robust, vel_weight: float) -> np.ndarray:
+def _group_scales(prob: _Blocks, robust, vel_weight: float) -> np.ndarray:
     """Noise scale per sensor group: the robust scatter, and for the velocity groups a factor
     that gives them ``vel_weight`` times the weight of the position rows in total."""
     out = np.asarray(robust, float).copy()
@@ -213,7 +215,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     x0_kin = x0_fn
 
     def problem(rr, seg_s):
-        return Problem(rr, seg_s, velocities if vel_weight > 0 else None)
+        return _Blocks(problem_blocks(rr, seg_s, velocities if vel_weight > 0 else None))
 
     for si, seg_s in enumerate(stages):
         last = si == len(stages) - 1
@@ -226,7 +228,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
             raise FitFailed("no GNSS fix or compass heading inside the fitted time: nothing to fit")
         prob.set_sensor_scale(_group_scales(prob, robust, vel_weight))
         x0s = prob.initial_states(x0_fn)
-        vp = _VP(prob, theta, free, fit_current, x0s, cur)
+        vp = _VP(prob.blocks, theta, free, fit_current, x0s, cur)
         p0 = vp.pack(theta, cur)
         lo, hi = _bounds(free, len(p0) - int(free.sum()), max_current_mps)
         p0 = np.clip(p0, lo + 1e-9, hi)
@@ -254,9 +256,9 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         theta_prev, cur_prev = theta.copy(), cur.copy()
 
         def x0_fn(run, t, _p=x0_prev, _theta=theta_prev, _cur=cur_prev):
-            if t > _p[0].runs[run].t_thrust[-1] - 1.0:
+            if t > _p[0].end_s(run) - 1.0:
                 return x0_kin(run, t)
-            return _state_at(_p[0], _p[1], _theta, _cur, run, t)
+            return _p[0].state_at(_p[1], _theta, _cur, run, t)
     # outliers (GPS jumps, compass glitches): drop measurements beyond OUTLIER_SIGMA robust
     # sigmas and solve again from where it stands (same segments, warm initial states)
     outliers = {"gps": 0, "compass": 0}
@@ -265,12 +267,12 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         bad = (np.abs(vp._r) > OUTLIER_SIGMA * sc[prob.r_sensor]) & (prob.r_sensor <= 1)
         if not bad.any():
             break
-        runs, n_gps, n_comp = _drop_measurements(prob, runs, bad)
+        runs, n_gps, n_comp = prob.without(runs, bad)
         outliers["gps"] += n_gps
         outliers["compass"] += n_comp
         prob = problem(runs, stages[-1])
         prob.set_sensor_scale(_group_scales(prob, robust, vel_weight))
-        vp = _VP(prob, theta, free, fit_current, vp.x0s, cur)
+        vp = _VP(prob.blocks, theta, free, fit_current, vp.x0s, cur)
         p0 = vp.pack(theta, cur)
         lo, hi = _bounds(free, len(p0) - int(free.sum()), max_current_mps)
         sol = least_squares(vp.fun_small, np.clip(p0, lo + 1e-9, hi), jac=vp.jac_small, bounds=(lo, hi), x_scale="jac",
@@ -281,18 +283,17 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     rms = {k: float(np.sqrt(np.mean(vp._r[prob.r_sensor == i] ** 2)))
            for i, k in enumerate(SENSORS) if np.any(prob.r_sensor == i)}
     diverged, x0s = bool(vp.diverged), vp.x0s
-    prob.free_rows()                  # the sensitivities the Jacobian was made of
     pos = prob.r_sensor <= 1          # the raw measurements carry the information
-    r, G = vp._r[pos], vp._J[pos]
-    del vp                            # its whole-run Jacobian: the rows kept are a copy
+    r = vp._r[pos]
+    G = vp.jac_positions(sol.x)       # their rows of the projected Jacobian, as few (the same G^T G)
     n_res = len(r)
     n_par = G.shape[1] + 6 * prob.n_seg
     sigma2 = float(r @ r) / max(n_res - n_par, 1)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         colnorm = np.linalg.norm(G, axis=0)
         colnorm[colnorm == 0] = 1.0
-        Gs = np.divide(G, colnorm, out=G)   # in place: G is not needed unscaled
-        ok = bool(np.all(np.isfinite(Gs)) and np.all(np.isfinite(colnorm)) and np.isfinite(sigma2) and len(Gs))
+        Gs = G / colnorm
+        ok = bool(np.all(np.isfinite(Gs)) and np.all(np.isfinite(colnorm)) and np.isfinite(sigma2) and n_res)
         cond = float(np.linalg.cond(Gs)) if ok else float("inf")
         cov = sigma2 * np.linalg.pinv(Gs.T @ Gs) / np.outer(colnorm, colnorm) if np.isfinite(cond) else \
             np.full((G.shape[1], G.shape[1]), np.nan)
@@ -305,7 +306,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
                              x0s=x0s, nfev=nfev, outliers=outliers, diverged=diverged)
 
 
-def _robust_scale(prob: Problem, r) -> tuple[float, ...]:
+def _robust_scale(prob: _Blocks, r) -> tuple[float, ...]:
     """Per-sensor-group scatter of whitened residuals, 1.4826 median |r| (sigma for Gaussian noise)."""
     out = []
     for k in range(4):
@@ -314,18 +315,54 @@ def _robust_scale(prob: Problem, r) -> tuple[float, ...]:
     return tuple(x or 1.0 for x in out)
 
 
-def _drop_measurements(prob: Problem, runs: list[RunData], bad_rows) -> tuple[list[RunData], int, int]:
-    """Runs without the measurements behind the flagged residual rows."""
-    m = np.unique(prob.r_meas[bad_rows])
-    run_of = prob.seg_run[prob.meas_seg[m]]
-    kind, t = prob.kind[m], prob.meas_t[m]
-    out = []
-    for i, run in enumerate(runs):
-        tg = t[(run_of == i) & (kind == 0)]
-        tc = t[(run_of == i) & (kind == 1)]
-        g = ~np.isin(run.t_gps, tg)
-        c = ~np.isin(run.t_compass, tc)
-        out.append(replace(run, t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g],
-                            sigma_gps=run.sigma_gps[g], t_compass=run.t_compass[c],
-                            psi_compass=run.psi_compass[c], sigma_compass=run.sigma_compass[c]))
-    return out, int((kind == 0).sum()), int((kind == 1).sum())
+class _Blocks:
+    """The output-error problem in blocks of segments (:func:`~usvlog.identify.problem.problem_blocks`),
+    as the fit asks of it: its residual rows' sensor groups, counts and weights, the initial
+    states, the fitted model's state at a time, the measurements an outlier scan drops."""
+
+    def __init__(self, blocks: list[tuple[Problem, int]]):
+        self.blocks = blocks
+        self.n_res = sum(b.n_res for b, _ in blocks)
+        self.n_seg = sum(b.n_seg for b, _ in blocks)
+        self.r_sensor = np.concatenate([b.r_sensor for b, _ in blocks]) if blocks else np.zeros(0, np.int8)
+        self._seg0 = np.cumsum([0] + [b.n_seg for b, _ in blocks])
+        self._res0 = np.cumsum([0] + [b.n_res for b, _ in blocks])
+
+    def set_sensor_scale(self, scales) -> None:
+        """:meth:`Problem.set_sensor_scale` of every block."""
+        for b, _ in self.blocks:
+            b.set_sensor_scale(scales)
+
+    def initial_states(self, states_fn):
+        """x0 per segment (all blocks') from a function (run index, t (s)) -> states (6,)."""
+        return np.concatenate([b.initial_states(lambda _, t, ri=ri: states_fn(ri, t)) for b, ri in self.blocks])
+
+    def end_s(self, run: int) -> float:
+        """The last time (s) of a run's coarse thrust grid."""
+        return max(float(b.tg[-1]) for b, ri in self.blocks if ri == run)
+
+    def state_at(self, x0s, theta, cur, run: int, t: float):
+        """State of the fitted multiple-shooting model at time t of a run (from its segment)."""
+        mine = [i for i, (_, ri) in enumerate(self.blocks) if ri == run]
+        i = next((i for i in reversed(mine) if self.blocks[i][0].tg[0] <= t + 1e-9), mine[0])
+        return _state_at(self.blocks[i][0], x0s[self._seg0[i]:self._seg0[i + 1]], theta, cur[[run]], 0, t)
+
+    def without(self, runs: list[RunData], bad_rows) -> tuple[list[RunData], int, int]:
+        """Runs without the measurements behind the flagged residual rows; how many GPS fixes and
+        compass headings that drops."""
+        tg: list[list[np.ndarray]] = [[] for _ in runs]
+        tc: list[list[np.ndarray]] = [[] for _ in runs]
+        for i, (b, ri) in enumerate(self.blocks):
+            m = np.unique(b.r_meas[bad_rows[self._res0[i]:self._res0[i + 1]]])
+            tg[ri].append(b.meas_t[m[b.kind[m] == 0]])
+            tc[ri].append(b.meas_t[m[b.kind[m] == 1]])
+        out = []
+        for run, g_drop, c_drop in zip(runs, tg, tc):
+            g = ~np.isin(run.t_gps, np.concatenate(g_drop) if g_drop else [])
+            c = ~np.isin(run.t_compass, np.concatenate(c_drop) if c_drop else [])
+            out.append(replace(run, t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g],
+                               sigma_gps=run.sigma_gps[g], t_compass=run.t_compass[c],
+                               psi_compass=run.psi_compass[c], sigma_compass=run.sigma_compass[c]))
+        n_gps = sum(len(np.concatenate(x)) for x in tg if x)
+        n_comp = sum(len(np.concatenate(x)) for x in tc if x)
+        return out, n_gps, n_comp

@@ -65,10 +65,12 @@ class Problem:
     The model is integrated on the runs' thrust averaged over steps of about MAX_DT
     (:func:`coarse_thrust`: the same impulse, one RK4 step per MAX_DT instead of one per
     thrust record); ``runs`` keeps those coarse runs (segment indices refer to their grids).
+    ``edges``: per run its segments' boundaries (indices into its coarse grid, first and last
+    included), default :func:`segment_edges` (a block of a run: :func:`problem_blocks`).
     """
 
     def __init__(self, runs: list[RunData], segment_s: float, velocities=None,
-                 vel_sigma: tuple[float, float] = VEL_SIGMA):
+                 vel_sigma: tuple[float, float] = VEL_SIGMA, edges=None):
         runs = [coarse_run(r) for r in runs]
         tg, tu, tr = [], [], []
         seg_i0: list[int] = []
@@ -81,14 +83,8 @@ class Problem:
             n = len(t)
             vel = velocities[ri] if velocities is not None else None
             within = _Within(run.t_gps), _Within(run.t_compass), _Within(vel[0] if vel is not None else np.zeros(0))
-            edges = [0]
-            tcut = t[0] + segment_s
-            while tcut < t[-1] - 0.5 * segment_s:
-                edges.append(int(np.searchsorted(t, tcut)))
-                tcut += segment_s
-            edges.append(n - 1)
-            edges = sorted(set(edges))
-            for a, b in zip(edges[:-1], edges[1:]):
+            cuts = segment_edges(t, segment_s) if edges is None else edges[ri]
+            for a, b in zip(cuts[:-1], cuts[1:]):
                 ta, tb = t[a], t[b]
                 g, c, sv = (w.select(ta, tb, b == n - 1) for w in within)
                 k = len(seg_i0)
@@ -326,6 +322,57 @@ class Problem:
             i0 = self.seg_i0[k] - sum(len(r.t_thrust) for r in self.runs[:run])
             x0[k] = states_fn(run, self.runs[run].t_thrust[i0])
         return x0
+
+
+def segment_edges(t: np.ndarray, segment_s: float) -> list[int]:
+    """Boundaries (indices into the grid ``t``, first and last included) of a run's segments:
+    every ``segment_s`` from its start, the last one taking a remainder under half a segment."""
+    edges = [0]
+    tcut = t[0] + segment_s
+    while tcut < t[-1] - 0.5 * segment_s:
+        edges.append(int(np.searchsorted(t, tcut)))
+        tcut += segment_s
+    edges.append(len(t) - 1)
+    return sorted(set(edges))
+
+
+BLOCK_S = 1800.0
+"""Log time (s) of a block of :func:`problem_blocks`: the output-error fit holds one block's
+sensitivities, states and Jacobian at a time (~60 MB an hour of log when whole)."""
+
+
+def problem_blocks(runs: list[RunData], segment_s: float, velocities=None, vel_sigma: tuple[float, float] = VEL_SIGMA,
+                   block_s: float = BLOCK_S) -> list[tuple[Problem, int]]:
+    """The runs' segments (those of ``Problem(runs, segment_s, velocities)``) in blocks of whole
+    segments of about ``block_s`` s of one run each: (the block's Problem, its run's index).
+
+    A block keeps its run's thrust from its first segment's start to its last one's end
+    (the coarse grid's samples, views) and the measurements in between, up to but not at its
+    end where another block follows (at it in the run's last block): each measurement in one
+    block, in the segment the whole run's Problem has it in."""
+    out = []
+    for ri, run in enumerate(runs):
+        run = coarse_run(run)
+        vel = velocities[ri] if velocities is not None else None
+        t = run.t_thrust
+        edges = segment_edges(t, segment_s)
+        per = max(1, int(round(block_s / segment_s)))
+        for j in range(0, len(edges) - 1, per):
+            cuts = edges[j:j + per + 1]
+            a, b = cuts[0], cuts[-1]
+            last = b == len(t) - 1
+            lo, hi = t[a], t[b]
+            g, c = (_Within(tt).select(lo, hi, last) for tt in (run.t_gps, run.t_compass))
+            part = replace(run, t_thrust=t[a:b + 1], tau_u=run.tau_u[a:b + 1], tau_r=run.tau_r[a:b + 1],
+                           t_gps=run.t_gps[g], n_gps=run.n_gps[g], e_gps=run.e_gps[g], sigma_gps=run.sigma_gps[g],
+                           t_compass=run.t_compass[c], psi_compass=run.psi_compass[c],
+                           sigma_compass=run.sigma_compass[c])
+            v = None
+            if vel is not None:
+                sv = _Within(vel[0]).select(lo, hi, last)
+                v = [tuple(x[sv] for x in vel)]
+            out.append((Problem([part], segment_s, v, vel_sigma, edges=[[i - a for i in cuts]]), ri))
+    return out
 
 
 class _Within:

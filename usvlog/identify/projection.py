@@ -66,19 +66,31 @@ def _inner(prob: Problem, theta, currents, x0s, max_iter=10, tol=1e-7):
 
 
 class _VP:
-    """Variable-projection objective over [free model params, currents per run]."""
+    """Variable-projection objective over [free model params, currents per run].
 
-    def __init__(self, prob: Problem, theta0, free_mask, fit_current, x0s, currents0):
-        self.prob = prob
+    ``prob``: the Problem, or its blocks (:func:`~usvlog.identify.problem.problem_blocks`:
+    (block, run index) pairs), evaluated one after another: each block's residuals kept, its
+    projected Jacobian with its residual column folded into the triangular factor that
+    :meth:`fun_small` and :meth:`jac_small` give (:func:`compress_lsq`, of the rows so far and
+    the block's) and let go with the block's sensitivities before the next block's are made.
+    The whole Jacobian (:meth:`jac`) only of a Problem given whole."""
+
+    def __init__(self, prob: Problem | list[tuple[Problem, int]], theta0, free_mask, fit_current, x0s, currents0):
+        self.whole = isinstance(prob, Problem)
+        self.blocks = [(prob, np.arange(prob.n_runs))] if isinstance(prob, Problem) else \
+            [(blk, np.array([ri])) for blk, ri in prob]
+        self.seg_start = np.cumsum([0] + [blk.n_seg for blk, _ in self.blocks])
+        self.n_res = sum(blk.n_res for blk, _ in self.blocks)
         self.theta0 = np.asarray(theta0, float)
         self.free = np.asarray(free_mask, bool)
         self.fit_current = fit_current
         self.x0s = x0s.copy()
         self.currents0 = np.asarray(currents0, float)
         self._key = None
-        self._ckey: bytes | None = None
-        self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of _J, _r
-        self._A = np.zeros((0, 1))   # [_J r]: _J is its view
+        self._r = np.zeros(0)
+        self._c: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # compress_lsq of [G r]
+        self._c_pos: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 0)), np.zeros(0))   # of its GPS, compass rows
+        self._J = np.zeros((0, 0))   # the projected Jacobian (a Problem given whole)
         self.nfev = 0
         self.diverged = False
 
@@ -99,38 +111,56 @@ class _VP:
         key = p.tobytes()
         if key == self._key:
             return
-        # the last evaluation's whole-run arrays let go first: not two alive at once
-        self._key, self._r, self._A = None, np.zeros(0), np.zeros((0, 1))
-        self._J = self._A[:, :-1]
+        # the last evaluation's arrays let go first: not two alive at once
+        self._key, self._r, self._J = None, np.zeros(0), np.zeros((0, 0))
         theta, cur = self.unpack(p)
         if (theta[0] <= 0 or theta[1] <= 0 or np.any(theta[2:5] <= 0)
                 or theta[1] - theta[0] * theta[5] ** 2 <= 1e-3 * theta[1]
                 or stiffness(theta) > MAX_STIFFNESS):   # outside the model's domain
-            self._key, self._r = key, np.full(self.prob.n_res, 1e3)
-            self._A = np.zeros((self.prob.n_res, len(p) + 1))
-            self._J = self._A[:, :-1]
-            self.diverged = True
+            self._outside(key, len(p))
             return
-        with np.errstate(over="ignore", invalid="ignore"):
-            r, J, x0s, JtJ = _inner(self.prob, theta, cur, self.x0s)
-        self.diverged = bool(np.any(np.abs(r) >= BAD_RESIDUAL))
         self.nfev += 1
-        if np.all(np.isfinite(r)):
-            self.x0s = x0s
-        prob = self.prob
-        # global Jacobian columns, written into one array: the free parameters', then each
-        # run's current (its rows, contiguous, from the current's columns; zero elsewhere);
-        # one more column for the residuals, written by _compress (compress_lsq's [J r])
+        rs, x0_new, R, R_pos = [], self.x0s.copy(), None, None
+        for i, (blk, runs) in enumerate(self.blocks):
+            s0, s1 = self.seg_start[i], self.seg_start[i + 1]
+            with np.errstate(over="ignore", invalid="ignore"):
+                r, J, x0s, JtJ = _inner(blk, theta, cur[runs], self.x0s[s0:s1])
+            if np.all(np.isfinite(r)):
+                x0_new[s0:s1] = x0s
+            A = self._projected(blk, runs, r, J, JtJ, len(p))
+            if not self.whole:
+                blk.free_rows()          # (made again for the block's next evaluation)
+            if A is None:                # overflow: as outside the domain
+                self._outside(key, len(p))
+                return
+            R = _fold(R, A)
+            R_pos = _fold(R_pos, A[blk.r_sensor <= 1])   # the raw measurements (the covariance's rows)
+            rs.append(r)
+            if self.whole:
+                self._J = A[:, :-1]
+        self.x0s = x0_new
+        self._r = rs[0] if len(rs) == 1 else np.concatenate(rs)
+        self.diverged = bool(np.any(np.abs(self._r) >= BAD_RESIDUAL))
+        self._key = key
+        n = len(p) + 1   # (no rows at all: a zero factor)
+        R = np.zeros((n, n)) if R is None else R
+        R_pos = np.zeros((n, n)) if R_pos is None else R_pos
+        self._c = (np.ascontiguousarray(R[:, :-1]), np.ascontiguousarray(R[:, -1]))
+        self._c_pos = (np.ascontiguousarray(R_pos[:, :-1]), np.ascontiguousarray(R_pos[:, -1]))
+
+    def _projected(self, prob: Problem, runs, r, J, JtJ, n_p: int):
+        """[G r] of a block (n_res, P + 1): the global Jacobian columns (the free parameters',
+        then each run's current: its rows, from the current's columns; zero elsewhere) with each
+        segment's initial state projected out; None when not finite."""
         nf = int(self.free.sum())
-        A = np.empty((prob.n_res, len(p) + 1))
+        A = np.empty((prob.n_res, n_p + 1))
         G = A[:, :-1]
         G[:, :nf] = J[:, 6:12] if nf == 6 else J[:, 6:12][:, self.free]
         if self.fit_current:
-            for ri in range(prob.n_runs):
-                c, a, b = nf + 2 * ri, prob.r_run_start[ri], prob.r_run_start[ri + 1]
-                G[:a, c:c + 2] = 0.0
+            G[:, nf:] = 0.0
+            for ri, run in enumerate(runs):
+                c, a, b = nf + 2 * run, prob.r_run_start[ri], prob.r_run_start[ri + 1]
                 G[a:b, c:c + 2] = J[a:b, 12:14]
-                G[b:, c:c + 2] = 0.0
         # project out the segment initial states (in place: G is this call's own array)
         Jx = J[:, :6]
         with np.errstate(over="ignore", invalid="ignore"):
@@ -139,13 +169,18 @@ class _VP:
             for k in range(prob.n_seg):
                 a, b = prob.r_start[k], prob.r_start[k + 1]
                 G[a:b] -= Jx[a:b] @ coef[k]
-        if not (np.isfinite(G.sum()) and np.isfinite(r.sum())):   # overflow: as outside the domain
-            self._key, self._r = key, np.full(prob.n_res, 1e3)
-            self._A = np.zeros((prob.n_res, len(p) + 1))
-            self._J = self._A[:, :-1]
-            self.diverged = True
-            return
-        self._key, self._r, self._J, self._A = key, r, G, A
+        A[:, -1] = r
+        return A if np.isfinite(A.sum()) else None
+
+    def _outside(self, key, n_p: int) -> None:
+        """An evaluation outside the model's domain (or whose numbers overflowed): every
+        residual 1e3, the Jacobian zero."""
+        self._key, self._r = key, np.full(self.n_res, 1e3)
+        self._J = np.zeros((self.n_res, n_p)) if self.whole else np.zeros((0, n_p))
+        self._c = (np.zeros((n_p + 1, n_p)), np.zeros(n_p + 1))
+        self._c[1][-1] = np.sqrt(self._r @ self._r)
+        self._c_pos = (np.zeros((n_p + 1, n_p)), np.zeros(n_p + 1))
+        self.diverged = True
 
     def fun(self, p):
         self._eval(p)
@@ -153,28 +188,37 @@ class _VP:
         return np.where(np.isfinite(r), r, 1e6)
 
     def jac(self, p):
+        """The projected Jacobian (n_res, P) of a Problem given whole."""
+        if not self.whole:
+            raise ValueError("_VP.jac: the whole Jacobian of a problem in blocks is not kept")
         self._eval(p)
         return self._J
-
-    def _compress(self, p):
-        self._eval(p)
-        if self._ckey != self._key:
-            self._ckey = self._key
-            A = self._A           # [J r] in one array without copying J
-            A[:, -1] = self.fun(p)
-            self._c = _compress_stacked(A)
 
     def fun_small(self, p):
         """:meth:`fun` compressed to P + 1 rows (:func:`compress_lsq`): the same cost, gradient
         and Gauss-Newton matrix for :func:`scipy.optimize.least_squares` at a fraction of its
         work per iteration (its decompositions of the full Jacobian cost more than the rest)."""
-        self._compress(p)
+        self._eval(p)
         return self._c[1]
 
     def jac_small(self, p):
         """:meth:`jac` compressed alike (:meth:`fun_small`)."""
-        self._compress(p)
+        self._eval(p)
         return self._c[0]
+
+    def jac_positions(self, p):
+        """The projected Jacobian's GPS and compass rows compressed to P + 1 rows (the same
+        G^T G): the information the raw measurements carry."""
+        self._eval(p)
+        return self._c_pos[0]
+
+
+def _fold(R, A):
+    """[Jc rc] of :func:`compress_lsq` of the rows of ``R`` (None: none yet) and of ``A`` ([J r],
+    C-contiguous): the rows so far, as few, and a block's."""
+    if len(A) == 0:
+        return R
+    return np.column_stack(_compress_stacked(A if R is None else np.vstack([R, A])))
 
 
 def compress_lsq(J, r):
