@@ -17,11 +17,11 @@ import pytest
 from usvlog.io.mcap import write_log
 from usvlog.log.channels import channel_spec, frame_from_columns
 from usvlog.model.frames import ssa
+from usvlog.sim.plant import plant_step
 from usvlog.sim.simulate import (
     SensorSettings,
     SimSettings,
     field_log_from_run,
-    plant_step,
 )
 
 R_PATH = 8.0
