@@ -91,6 +91,16 @@ ThrustFrames = Callable[[], Iterable[pd.DataFrame]]
 channel, or its consecutive time windows (a long log's channel read from its file a window at a
 time; see :func:`build_problem`)."""
 
+THRUST_RECORDS = 65_536
+"""Thrust records turned into forces at a time (:func:`held_thrust`) when the problem is built from
+a log's decoded channel: a window's arrays, not the channel's (its unit strings and forces made
+whole were ~35 MB an hour of 100 Hz thrust at the build's peak). The same numbers for any cut."""
+
+
+def in_windows(frame: pd.DataFrame, records: int = THRUST_RECORDS) -> ThrustFrames:
+    """A decoded ``/thrust/command`` frame as :data:`ThrustFrames`: windows of ``records`` rows (views)."""
+    return lambda: (frame.iloc[i:i + records] for i in range(0, len(frame), records))
+
 
 def held_thrust(log: FieldLog, t_prev: np.ndarray, frames: ThrustFrames, vessel: Vessel,
                 vessel_free: bool = False) -> tuple[np.ndarray, int]:
@@ -207,7 +217,7 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel,
     comp = _channel(log, COMPASS_TOPIC, required=False)
     if thrust is None:
         frame = _channel(log, THRUST_TOPIC, required=s.model == "dynamic")
-        thrust = None if frame is None else (lambda: [frame])
+        thrust = None if frame is None else in_windows(frame)
     if uses_local(log):   # positions in metres (an INS pose, motion capture): measured like fixes
         tg, n, e, Rg, gnss_noise, nbad = _local_measurements(log, s)
         skipped = {"gnss": nbad}
