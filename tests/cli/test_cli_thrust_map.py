@@ -33,9 +33,13 @@ def test_identify_finds_the_t200_map_from_pwm_commands(tmp_path, capsys):
     write_log(pwm_run(SimSettings(vessel=Vessel(thrusters=Thrusters(map="t200", supply_v=16.0)), duration_s=600.0),
                       seed=1), log_path)
     guess.write_text(Vessel(name="guess", thrusters=Thrusters(map="quadratic", known=False)).to_toml())
-    rc = main(["identify", str(log_path), "--vessel", str(guess), "--out", str(out), "--json"])
+    # --quadratic-surge: not tried in command units, and said so (the rest is the same fit)
+    rc = main(["identify", str(log_path), "--vessel", str(guess), "--out", str(out), "--json", "--quadratic-surge"])
     d = json.loads(capsys.readouterr().out)
     assert rc == (0 if d["usable"] else 1)
+    assert any(r.startswith("the paper model with quadratic surge damping (--quadratic-surge) was not tried")
+               for r in d["reasons"]), d["reasons"]
+    assert not any("quadratic surge" in c["name"] for c in d["candidates"])
     ts = d["thrust_scale"]
     truth_db, truth_rho = t200_truth(16.0)
     assert ts["case"] == "command units" and ts["map_from"] == "equation error profile" and ts["deadband_determined"]

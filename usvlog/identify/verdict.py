@@ -251,6 +251,10 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
     guessed = not vessel.thrusters.known and any(r.thrust_source != "logged newtons" for r in runs)
     if not self.thrust_scale_.known:   # identified in command units (and the gain from a fixed value)
         add(1 if self.thrust_scale_.case == "command units" else 0, self.thrust_scale_.message())
+        if getattr(self, "quadratic_surge", False):
+            add(0, "the paper model with quadratic surge damping (--quadratic-surge) was not tried: the thrust "
+                   "has no known force scale; with forces (logged newtons, or a thruster map such as "
+                   "map = \"t200\" in the vessel file) it is")
     elif unknown or guessed:
         scale_fixed = any(k in self.fix for k in ("m", "Iz", "d11", "d22", "d33"))
         src = ", ".join(unknown) if unknown else "the thruster map"
