@@ -692,8 +692,8 @@ def _equation_error_current(self: Identifier, runs, kin) -> tuple[EquationErrorR
     and yaw equations smallest (the likelihood of Gaussian equation errors of unknown scale
     each), by Nelder-Mead per run, two sweeps over the runs. Not the sway equation's: it has no
     force of its own, and as in :func:`~usvlog.identify.equation.fit_equation_error` it would
-    pull the fit (on a Fossen Otter run in a 0.25 m/s current, the current 0.045 m/s off with it,
-    0.011 without). A current changes the body velocities
+    pull the fit (on the whole of a Fossen Otter run in a 0.25 m/s current, the current 0.045 m/s off
+    with it, 0.011 without). A current changes the body velocities
     relative to the water by a rotation, and the smoothing and derivative after it are linear,
     so each run's inputs are made three times (no current, 1 m/s north, 1 m/s east) and
     combined, not made again at every step. Returns the fit and the currents, shape (n_runs, 2)."""
