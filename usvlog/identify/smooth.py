@@ -17,9 +17,11 @@ from scipy.linalg import lstsq
 from scipy.ndimage import convolve1d
 
 from ..errors import FitFailed, UsvlogError
-from ..estimate import EstimateSettings, estimate
+from ..estimate import EstimateSettings
+from ..estimate.layout import STATE_TOPIC
 from ..estimate.problem import build_problem
 from ..estimate.run import tune_process_noise
+from ..estimate.windowed import WindowedEstimate
 from ..model.frames import ssa
 from ..model.vessel import default_vessel
 from .data import RunData, within
@@ -333,31 +335,72 @@ class FreeRunSmoother:
         return replace(self, seen=self.seen.window(t_lo, t_hi))
 
 
+# the state columns the smoothed states are made of (the current's and one-sigmas where there)
+_COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps", "current_e_mps",
+            "u_mps_std", "v_mps_std", "r_radps_std")
+
+
 def _smoothed(log, t0_ns: int, vessel, settings: EstimateSettings) -> tuple[KinStates, EstimateSettings]:
     """The estimator's smoothed states on the :data:`GRID_DT` grid from ``t0_ns`` (the run's), and
-    the settings it ran with (the tuned process noise in place of ``tune``)."""
-    est = estimate(log, settings, vessel)
-    st = est.state
+    the settings it ran with (the tuned process noise in place of ``tune``).
+
+    The estimate's state frames are made a time window at a time (:class:`WindowedEstimate`: the
+    numbers of :func:`usvlog.estimate.estimate`'s) and only the columns used here kept of each;
+    its innovations are not turned into a frame."""
+    est = WindowedEstimate(log, settings, vessel, None, _RowsInMemory())
+    ts_parts: list[np.ndarray] = []
+    parts: dict[str, list[np.ndarray]] = {c: [] for c in _COLUMNS}
+    for frames in est.frames():
+        st = frames[STATE_TOPIC]
+        ts_parts.append(np.asarray(st.index, dtype=np.int64))
+        for c, got in parts.items():
+            if c in st:
+                got.append(st[c].to_numpy(float))
     used = replace(est.settings, tune=False)
-    ts = (np.asarray(st.index, dtype=np.int64) - t0_ns) / 1e9
+    ts = (np.concatenate(ts_parts) - t0_ns) / 1e9 if ts_parts else np.zeros(0)
+    st = {c: np.concatenate(got) for c, got in parts.items() if got and len(got) == len(ts_parts)}
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT) if len(ts) else np.zeros(0)
     if len(t) == 0:
         return KinStates(t=t, n=t, e=t, psi=t, vn=t, ve=t, r=t, source="usvlog.estimate"), used
-    psi = np.interp(t, ts, np.unwrap(st["psi_rad"].to_numpy(float)))
-    u = np.interp(t, ts, st["u_mps"].to_numpy(float))
-    v = np.interp(t, ts, st["v_mps"].to_numpy(float))
+    psi = np.interp(t, ts, np.unwrap(st["psi_rad"]))
+    u = np.interp(t, ts, st["u_mps"])
+    v = np.interp(t, ts, st["v_mps"])
     c, s = np.cos(psi), np.sin(psi)
     vn, ve = c * u - s * v, s * u + c * v
     for col, arr in (("current_n_mps", "vn"), ("current_e_mps", "ve")):
-        if col in st and np.isfinite(st[col].to_numpy(float)).all():
-            add = np.interp(t, ts, st[col].to_numpy(float))
+        if col in st and np.isfinite(st[col]).all():
+            add = np.interp(t, ts, st[col])
             vn, ve = (vn + add, ve) if arr == "vn" else (vn, ve + add)
     sd_cols = ("u_mps_std", "v_mps_std", "r_radps_std")
-    sd = (np.stack([np.interp(t, ts, st[c].to_numpy(float)) for c in sd_cols], -1)
+    sd = (np.stack([np.interp(t, ts, st[c]) for c in sd_cols], -1)
           if all(c in st for c in sd_cols) else None)
-    return KinStates(t=t, n=np.interp(t, ts, st["n_m"].to_numpy(float)),
-                     e=np.interp(t, ts, st["e_m"].to_numpy(float)), psi=psi, vn=vn, ve=ve,
-                     r=np.interp(t, ts, st["r_radps"].to_numpy(float)), source="usvlog.estimate", sd=sd), used
+    return KinStates(t=t, n=np.interp(t, ts, st["n_m"]), e=np.interp(t, ts, st["e_m"]), psi=psi, vn=vn, ve=ve,
+                     r=np.interp(t, ts, st["r_radps"]), source="usvlog.estimate", sd=sd), used
+
+
+class _RowsInMemory:
+    """The smoothed rows of a :class:`WindowedEstimate` kept in arrays until its frames take them
+    (its :class:`~usvlog.estimate.windowed.RowStore`): the smoother hands them on from the last
+    block to the first, so the first block put has the last rows and says how many there are."""
+
+    def __init__(self):
+        self._rows: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def put(self, r0: int, X, SD, PB) -> None:
+        if self._rows is None:
+            n = r0 + len(X)
+            self._rows = (np.empty((n, X.shape[1])), np.empty((n, SD.shape[1])),
+                          np.empty((n if len(PB) else 0, 3, 3)))
+        r1 = r0 + len(X)
+        for mine, got in zip(self._rows, (X, SD, PB)):
+            if len(got):
+                mine[r0:r1] = got   # (a copy: the smoother writes its next block into the same buffers)
+
+    def get(self, r0: int, r1: int):
+        if self._rows is None:   # no rows at all
+            return np.zeros((0, 8)), np.zeros((0, 8)), np.zeros((0, 3, 3))
+        X, SD, PB = self._rows
+        return X[r0:r1], SD[r0:r1], PB[r0:r1]
 
 
 def derivative(t, y, window_s=2.0):
