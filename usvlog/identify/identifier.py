@@ -29,7 +29,7 @@ from .ahead import (
     one_step_residuals,
     residual_whiteness,
 )
-from .candidates import Candidate, Start, _returned
+from .candidates import Candidate, Start, _returned, place_surge_candidate
 from .checks import _excitation_warnings, _refuse_dead_channels, _refuse_outside_model, _refuse_wrong_signs
 from .data import lag_thrust, run_data
 from .equation import EquationErrorResult
@@ -362,9 +362,7 @@ class Identifier:
         self.equation_error_ = ee
         self._ext_ee = self._ext_equation_error(runs, kin) if self.model != "paper" else None
         cands = self._fit_candidates(self.candidate_starts(ee, vessel), runs, kin, fit_logs, vessel, held)
-        sc = self._surge_candidate(cands, runs, kin, fit_logs, vessel, held)
-        if sc is not None:   # preferred in a tie: its m also agrees with the surge's own evidence
-            cands.insert(0, sc)
+        cands = place_surge_candidate(cands, self._surge_candidate(cands, runs, kin, fit_logs, vessel, held))
         if self.model == "both" and self.method == "output-error":   # the paper's fit in the extended form
             ok = [c for c in cands if not c.failed and c.start.model == "paper"]
             if ok:
