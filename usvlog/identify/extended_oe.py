@@ -59,7 +59,8 @@ def ext_physical_problem(theta) -> str:
     neg = [k for k in EXTENDED_PARAM_NAMES if k.startswith("d") and th[_IX[k]] < 0]
     if neg:
         return f"{', '.join(neg)} negative"
-    if th[_IX["m22"]] * th[_IX["m66"]] - th[_IX["m26"]] ** 2 <= 0:
+    m22, m26, m66 = (float(th[_IX[k]]) for k in ("m22", "m26", "m66"))   # Python floats: no overflow warning
+    if m22 * m66 - m26 * m26 <= 0:
         return "m22 m66 - m26^2 not positive"
     return ""
 

@@ -74,7 +74,8 @@ class Structure:
         th = np.asarray(theta, float)
         if self.name == "paper":
             return float(min(MAX_XG, math.sqrt(MAX_COUPLING * max(th[1], 0.0) / max(th[0], 1e-12))))
-        return float(math.sqrt(MAX_COUPLING * max(th[1], 0.0) * max(th[3], 0.0)))
+        # Python floats: a product of absurd values is inf, without numpy's overflow warning
+        return math.sqrt(MAX_COUPLING * max(float(th[1]), 0.0) * max(float(th[3]), 0.0))
 
     def simulate(self, w: _Windows, theta, cur, x0s, out) -> None:
         """States (n, e, psi, u, v, r) of every window of ``w`` at its grid times into ``out``."""
@@ -96,8 +97,8 @@ class Structure:
         th = np.asarray(theta, float)
         if ext_physical_problem(th):
             return True
-        m22, m26, m66 = th[1], th[2], th[3]
-        return bool(m26 * m26 > WALL_COUPLING * m22 * m66)
+        m22, m26, m66 = float(th[1]), float(th[2]), float(th[3])   # Python floats: no overflow warning
+        return m26 * m26 > WALL_COUPLING * m22 * m66
 
 
 PAPER = Structure("paper", PARAM_NAMES, np.array([k != "xg" for k in PARAM_NAMES]))
