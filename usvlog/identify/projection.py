@@ -218,7 +218,7 @@ def _fold(R, A):
     C-contiguous): the rows so far, as few, and a block's."""
     if len(A) == 0:
         return R
-    return np.column_stack(_compress_stacked(A if R is None else np.vstack([R, A])))
+    return triangular_factor(A if R is None else np.vstack([R, A]))
 
 
 def compress_lsq(J, r):
