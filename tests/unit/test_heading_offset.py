@@ -166,3 +166,19 @@ def test_rtk_fixes_get_centimetre_noise_and_a_consistent_nis():
     pb = build_problem(gps, EstimateSettings(), default_vessel())
     assert np.allclose(pb.mR[pb.mkind == 0, 0], 1.5 ** 2)
     assert 1.0 < estimate(gps, EstimateSettings()).report.sensor("gnss").mean_nis < 4.0
+
+
+def test_a_wrong_heading_over_too_short_a_motion_is_a_warning():
+    """Under SIDESLIP_MIN_MOVING_S of motion the sideslip does not refuse the estimate, but a
+    median beyond SIDESLIP_MAX_DEG is said in plain words and the status is degraded, not ok."""
+    from usvlog.estimate.report import SIDESLIP_MAX_DEG, SIDESLIP_MIN_MOVING_S
+
+    rep = estimate(_log(truth(courses_deg=(20,), leg_s=8.0), 70.0), EstimateSettings()).report
+    sl = rep.sideslip
+    assert sl["moving_s"] < SIDESLIP_MIN_MOVING_S and sl["median_abs_deg"] > SIDESLIP_MAX_DEG, sl
+    assert rep.status == "degraded" and not rep.blocking
+    line = [w for w in rep.consistency() if w.startswith("sideslip: ")]
+    assert len(line) == 1 and f"over only {sl['moving_s']:.1f} s of motion" in line[0], rep.consistency()
+    # the same boat with its heading right: nothing said
+    ok = estimate(_log(truth(courses_deg=(20,), leg_s=8.0), 0.0), EstimateSettings()).report
+    assert not [w for w in ok.consistency() if w.startswith("sideslip: ")]

@@ -169,6 +169,13 @@ class EstimateReport:
             if n and r.rejected > 0.2 * n:
                 out.append(f"{r.sensor}: {100.0 * r.rejected / n:.0f} % of its measurements rejected by the gate - "
                            "the sensor and the track disagree")
+        sl = self.sideslip
+        if (self.mode == "gnss+compass" and sl and sl["median_abs_deg"] > SIDESLIP_MAX_DEG
+                and sl["moving_s"] < SIDESLIP_MIN_MOVING_S):   # (over that time it blocks: heading_blocking)
+            out.append(f"sideslip: median |beta| {sl['median_abs_deg']:.0f} deg while moving, but over only "
+                       f"{sl['moving_s']:.1f} s of motion (too short to judge; over {SIDESLIP_MIN_MOVING_S:g} s it "
+                       "refuses the estimate): if it holds, the heading is wrong (a mounting offset or a wrong "
+                       "heading source) or the boat went backwards")
         return out
 
     def mode_notes(self) -> list[str]:
