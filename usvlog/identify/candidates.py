@@ -465,6 +465,27 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
     """:meth:`_fit_candidate` without the catch."""
     if st.model == "extended":
         return self._fit_ext_candidate(st, runs, kin, held)
+    fitted, theta, cur = self._fit_paper_kind(st, runs, kin, fit_logs, vessel)
+    failed = physical_problem(theta)
+    if not failed and isinstance(fitted, (OutputErrorResult, VelocityFitResult)) and fitted.diverged:
+        failed = "its simulation diverged"
+    vals = []
+    if not failed:
+        # the same runs: their fitted current held (equation error's model has none: zero)
+        if held:
+            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
+        else:   # without held-out data: free runs of the fitted runs judge it
+            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
+        if any(v.diverged for v in vals):
+            failed = "its free run diverged"
+    return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
+                     fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
+
+
+def _fit_paper_kind(self: Identifier, st: Start, runs, kin, fit_logs, vessel) -> tuple[object, np.ndarray, np.ndarray]:
+    """(fitted result, parameters, currents (n_runs, 2)) of a paper-model start's fit on these runs:
+    its kind's fit (equation error, with its current or none, filter error, velocity or
+    output error) from the start's values."""
     free = self._free(st)
     zeros = np.zeros((len(runs), 2))
     fitted: object
@@ -490,20 +511,7 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
                                   warm_segment_s=self.warm_segment_s, warm_span_s=900.0, velocities=vel,
                                   vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
         theta, cur = fitted.theta, np.asarray(fitted.currents, float)
-    failed = physical_problem(theta)
-    if not failed and isinstance(fitted, (OutputErrorResult, VelocityFitResult)) and fitted.diverged:
-        failed = "its simulation diverged"
-    vals = []
-    if not failed:
-        # the same runs: their fitted current held (equation error's model has none: zero)
-        if held:
-            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
-        else:   # without held-out data: free runs of the fitted runs judge it
-            vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(zip(runs, kin))]
-        if any(v.diverged for v in vals):
-            failed = "its free run diverged"
-    return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
-                     fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
+    return fitted, theta, cur
 
 
 def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=None) -> Candidate:

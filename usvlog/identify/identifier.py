@@ -36,6 +36,7 @@ from .equation import EquationErrorResult
 from .lag import LagFit, fit_thruster_lag
 from .output import OutputErrorResult, simulate_run
 from .smooth import kinematic_states
+from .smoother_bias import pick_unbiased
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
 from .validation import Validation, _mean_score, excitation_of
 from .velocity import VelocityFitResult, data_scales
@@ -188,6 +189,16 @@ class Identifier:
         All of them (one per held-out run or left-out log).
     validation_mode_ : str
         ``"holdout"``, ``"leave-one-out"`` or ``"none"``.
+    smoother_bias_ : dict of str to float
+        The validated candidate's fit made again on its own free runs over the held-out data as
+        the smoother shows them (:mod:`usvlog.identify.smoother_bias`): refitted / fitted - 1 per
+        parameter (xg: the difference in m); empty where not checked (a fit on the raw fixes, the
+        extended model, no held-out part).
+    bias_switch_ : dict or None
+        Set when the candidate picked was biased by the smoother beyond
+        :data:`~usvlog.identify.smoother_bias.BIAS_UNUSABLE` and one that is not, validating within
+        :data:`~usvlog.identify.smoother_bias.BIAS_SWITCH_WITHIN` points, was returned instead:
+        ``from`` (its name), ``score``, ``param`` and ``bias`` (its worst parameter's share).
     loo_switch_ : dict or None
         Leave-one-out only: set when the left-out logs validated equation error (of the same
         model) better than the candidate picked, which is then returned instead (never worse
@@ -381,6 +392,12 @@ class Identifier:
                 err.reasons = list(getattr(err, "reasons", [])) + hint    # type: ignore[attr-defined]
                 err.args = (f"{err}; {'; '.join(hint)}",)
             raise
+        # what the smoother does to a fit on smoothed states: the chosen model's own free runs fitted again
+        # (one it misleads is passed over for one it does not that validates about as well)
+        self.smoother_bias_: dict = {}
+        self.bias_switch_: dict | None = None
+        if self.validation_mode_ == "holdout":
+            chosen, self.smoother_bias_, self.bias_switch_ = pick_unbiased(self, chosen, cands, held, vessel)
         if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
             self.model_comparison_.update(_returned(self.model_comparison_, chosen))
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
@@ -506,6 +523,7 @@ class Identifier:
     _fit_candidates = candidates._fit_candidates
     _fit_candidate = candidates._fit_candidate
     _fit_candidate_raw = candidates._fit_candidate_raw
+    _fit_paper_kind = candidates._fit_paper_kind
     _fit_ext_candidate = candidates._fit_ext_candidate
     _compare_models = candidates._compare_models
     _pick = candidates._pick

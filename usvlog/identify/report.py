@@ -131,6 +131,8 @@ def to_dict(self: Identifier, validation: Validation | None = None) -> dict:
          "thruster_lag_s": getattr(self, "lag_applied_s_", 0.0),
          "thruster_lag": lag.to_dict() if (lag := getattr(self, "thruster_lag_", None)) is not None else None,
          "sign_checks": list(getattr(self, "sign_checks_", [])),
+         "smoother_bias": dict(getattr(self, "smoother_bias_", {}) or {}),
+         "smoother_bias_switch": getattr(self, "bias_switch_", None),
          "whiteness": {ch: {"step_s": WHITENESS_STEP_S, "lags": len(w.lags), "outside": w.outside,
                             "allowed": w.allowed, "white": w.white, "p_value": w.p_value}
                        for ch, w in (getattr(self, "whiteness_", {}) or {}).items()}}

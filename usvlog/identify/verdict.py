@@ -19,6 +19,7 @@ from ..model.vessel import PARAM_NAMES
 from .ahead import WHITENESS_STEP_S
 from .candidates import QS_HELD
 from .checks import _excitation_warnings, _why_dead
+from .smoother_bias import biased
 
 # typing only: the class whose methods these are (it imports this module)
 if TYPE_CHECKING:
@@ -89,6 +90,29 @@ def _ext_term_findings(self: Identifier, add) -> None:
         if rel > REL_SE_CAVEAT:
             add(1 if k == "m22" else 0, f"extended term {k} poorly determined: {fmt_num(v)} +- {fmt_num(se, 2)}"
                                         f" ({_rel_pct(rel)})")
+
+
+def _smoother_bias_findings(self: Identifier, add) -> None:
+    """The smoother's bias on a fit to smoothed states (:mod:`usvlog.identify.smoother_bias`): a
+    parameter the model's own smoothed motion does not give back within REL_SE_CAVEAT is a
+    caveat, beyond REL_SE_UNUSABLE unusable for m, Iz, d11, d33 (as a standard error that
+    large: the value returned is that far from the boat's, and its interval does not say so)."""
+    sw = getattr(self, "bias_switch_", None)
+    if sw:
+        add(0, f"{sw['from']} (score {fmt_pct(sw['score'])}) fitted again on its own smoothed motion gives "
+               f"{sw['param']} {100 * sw['bias']:+.0f} % (the smoother biases it): {self.chosen_.start.name}, "
+               "which validates about as well and is not biased so, returned")
+    bias = getattr(self, "smoother_bias_", {}) or {}
+    for k in ("m", "Iz", "d11", "d22", "d33"):
+        b = bias.get(k)
+        if b is None or not abs(b) > REL_SE_CAVEAT:
+            continue
+        level = 2 if k in biased(bias) else 1
+        add(level, f"{k} biased by the smoother: the model's own motion, as the sensors and the smoother show it, "
+                   f"fitted again gives {k} {100 * b:+.0f} %: this fit does not recover {k} through the smoother, so "
+                   f"the {k} returned ({fmt_num(getattr(self.params_, k))}) may be off by as much (the smoothed "
+                   "velocities round off changes faster than the GNSS and compass resolve; a higher GNSS rate "
+                   "avoids it)")
 
 
 def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
@@ -179,6 +203,7 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
             level = 2 if rel[k] > REL_SE_UNUSABLE and k in ("m", "Iz", "d11", "d33") else 1
             add(level, f"{k} poorly determined: {fmt_num(getattr(p, k))} +- {fmt_num(self.stderr_[k], 2)} "
                        f"({_rel_pct(rel[k])})")
+    _smoother_bias_findings(self, add)
     names = list(self.corr_.index)
     C = self.corr_.to_numpy()
     for i in range(len(names)):
