@@ -118,6 +118,7 @@ def _smoother_bias_findings(self: Identifier, add) -> None:
 def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
     """(reasons, verdict): each finding with its level, the worst level the verdict."""
     found: list[tuple[int, str]] = []   # (0 note, 1 caveat, 2 unusable, text)
+    unchecked = True   # nothing validates the model: no validation, or one that excites neither u nor r
 
     def add(level: int, text: str) -> None:
         found.append((level, text))
@@ -133,6 +134,7 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
         # a channel the held-out data move no more than its noise has a fit % of noise: not judged
         # (its figure is shown as "not excited there"), and what it determines is not validated
         quiet = [ch for ch in ("u", "r") if excited.get(ch) is False]
+        unchecked = len(quiet) == 2
         fu = math.inf if "u" in quiet else fp["u"] if math.isfinite(fp["u"]) else -math.inf
         fr = math.inf if "r" in quiet else fp["r"] if math.isfinite(fp["r"]) else -math.inf
         txt = f"validation fit on {on}: " + ", ".join(
@@ -223,8 +225,10 @@ def _verdict(self: Identifier, vessel, runs, kin) -> tuple[list[str], str]:
                                                 ("yaw", iz_eff, p.d33, "Iz, d33", "Iz")):
         tc = inertia / damping if damping > 0 else math.inf
         if 0 < tc < MIN_TIME_CONSTANT_S and mass not in held:   # a held inertia is the user's
-            add(1, f"{what} time constant {fmt_num(tc, 2)} s ({terms}): no boat responds that fast; its inertia is "
-                   "not determined by this data (a fit to smoothed velocities pulls it towards zero)")
+            # tolerated (a caveat) only where a validation shows the model predicts all the same
+            add(2 if unchecked else 1, f"{what} time constant {fmt_num(tc, 2)} s ({terms}): no boat responds that "
+                "fast; its inertia is not determined by this data (a fit to smoothed velocities pulls it towards zero)"
+                + ("; and nothing validates the model" if unchecked else ""))
     lag = getattr(self, "thruster_lag_", None)
     if lag is not None:
         hi = lag.ci95[1]
