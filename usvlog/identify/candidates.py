@@ -482,10 +482,13 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
                      fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
 
 
-def _fit_paper_kind(self: Identifier, st: Start, runs, kin, fit_logs, vessel) -> tuple[object, np.ndarray, np.ndarray]:
+def _fit_paper_kind(self: Identifier, st: Start, runs, kin, fit_logs, vessel, noise_free: bool = False
+                    ) -> tuple[object, np.ndarray, np.ndarray]:
     """(fitted result, parameters, currents (n_runs, 2)) of a paper-model start's fit on these runs:
     its kind's fit (equation error, with its current or none, filter error, velocity or
-    output error) from the start's values."""
+    output error) from the start's values. ``noise_free``: measurements without noise (the
+    smoother-bias check's): output error weighs the fixes and headings by their stated noise
+    instead of their residuals' scatter (nothing there), and drops none as outliers."""
     free = self._free(st)
     zeros = np.zeros((len(runs), 2))
     fitted: object
@@ -509,7 +512,8 @@ def _fit_paper_kind(self: Identifier, st: Start, runs, kin, fit_logs, vessel) ->
         fitted = fit_output_error(runs, st.theta, lambda i, t: kin[i].at(t), free_mask=free,
                                   fit_current=self.current, segment_s=self.segment_s,
                                   warm_segment_s=self.warm_segment_s, warm_span_s=900.0, velocities=vel,
-                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps)
+                                  vel_weight=st.vel_weight, max_current_mps=self.max_current_mps,
+                                  reweight=not noise_free, drop_outliers=not noise_free)
         theta, cur = fitted.theta, np.asarray(fitted.currents, float)
     return fitted, theta, cur
 

@@ -144,7 +144,7 @@ def velocity_samples(t, vn, ve, r, step_s: float = VEL_STEP_S):
 def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_current=True,
                      currents0=None, segment_s=300.0, warm_segment_s=60.0, reweight=True,
                      max_nfev=60, verbose=0, warm_span_s=None, velocities=None, vel_weight=0.0,
-                     max_current_mps=np.inf) -> OutputErrorResult:
+                     max_current_mps=np.inf, drop_outliers=True) -> OutputErrorResult:
     """Fit the model parameters (and per-run currents) to GPS and compass by output error.
 
     ``theta0``: starting (m, Iz, d11, d22, d33, xg); ``x0_fn(run_index, t_s) -> (6,)``
@@ -185,6 +185,10 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
         Total weight of the velocity rows relative to the GPS and compass rows (0: not fitted).
     max_current_mps : float, default inf
         Bound on each current component, m/s.
+    drop_outliers : bool, default True
+        Drop GNSS fixes and compass headings beyond OUTLIER_SIGMA robust sigmas of the fit and
+        solve again (off for noise-free measurements, whose robust sigma is nothing: the smoother-
+        bias check's, :mod:`usvlog.identify.smoother_bias`).
 
     Returns
     -------
@@ -262,7 +266,7 @@ def fit_output_error(runs: list[RunData], theta0, x0_fn, *, free_mask=None, fit_
     # outliers (GPS jumps, compass glitches): drop measurements beyond OUTLIER_SIGMA robust
     # sigmas and solve again from where it stands (same segments, warm initial states)
     outliers = {"gps": 0, "compass": 0}
-    for _ in range(3):
+    for _ in range(3 if drop_outliers else 0):
         sc = np.asarray(_robust_scale(prob, vp._r))
         bad = (np.abs(vp._r) > OUTLIER_SIGMA * sc[prob.r_sensor]) & (prob.r_sensor <= 1)
         if not bad.any():

@@ -18,7 +18,11 @@ m comes back 67 % higher (66 -> 110 kg).
 
 Output error fits the raw fixes and headings, which carry no smoother, but starts its segments
 from smoothed states and weighs smoothed velocities with them: it is checked the same way, on the
-fixes and headings the sensors would have measured of the free run (no noise).
+fixes and headings the sensors would have measured of the free run (no noise: weighed by their
+stated noise, as the data's are by their scatter, so that the fixes and the smoothed velocities
+pull on the fit as they did). A 24 kg boat at 5 Hz GNSS: output error with velocities, m 31 kg
+for 24, comes back +80 % (weighed by the noise-free fixes' own scatter, +8 %: they would outweigh
+the velocities as the real fixes do not).
 
 Pure: arrays and fitted results in, a dict out.
 """
@@ -98,7 +102,7 @@ def smoother_bias(self: Identifier, cand: Candidate, held, vessel) -> dict[str, 
         if st.kind == "equation-error" and not st.ee_current:
             th = self._ee_theta(self._equation_error(runs, kin), vessel)
         else:
-            fitted, th, _ = self._fit_paper_kind(replace(st, theta=theta), runs, kin, None, vessel)
+            fitted, th, _ = self._fit_paper_kind(replace(st, theta=theta), runs, kin, None, vessel, noise_free=True)
             if getattr(fitted, "diverged", False):
                 return {}
     except (UsvlogError, ValueError, np.linalg.LinAlgError):
