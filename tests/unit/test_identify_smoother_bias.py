@@ -130,3 +130,12 @@ def test_an_undetermined_inertia_with_nothing_validated_is_unusable(fits):
         assert any(r.startswith("yaw time constant") and "nothing validates the model" in r for r in reasons)
     finally:
         object.__setattr__(idf, "params_", p)
+
+
+def test_a_bias_is_printed_in_whole_percent_and_capped():
+    from usvlog.identify.verdict import _signed_pct
+
+    assert _signed_pct(0.764) == "+76 %"
+    assert _signed_pct(-0.3) == "-30 %"
+    assert _signed_pct(2.2e19) == "> +999 %"   # a refit that ran away (a real bag's Iz)
+    assert _signed_pct(-12.0) == "< -999 %"

@@ -53,6 +53,13 @@ def fmt_pct(x: float) -> str:
     return "< -999" if x < -999 else f"{x:.1f}"
 
 
+def _signed_pct(rel: float) -> str:
+    """A signed relative change for people: whole percent, ``> +999 %`` / ``< -999 %`` beyond."""
+    if not abs(rel) <= 9.99:
+        return "> +999 %" if rel > 0 else "< -999 %"
+    return f"{100 * rel:+.0f} %"
+
+
 def _rel_pct(rel: float) -> str:
     """A relative standard error for people: whole percent, ``> 999 %`` beyond (it means nothing more)."""
     return "> 999 %" if not math.isfinite(rel) or rel > 9.99 else f"{100 * rel:.0f} %"
@@ -100,7 +107,7 @@ def _smoother_bias_findings(self: Identifier, add) -> None:
     sw = getattr(self, "bias_switch_", None)
     if sw:
         add(0, f"{sw['from']} (score {fmt_pct(sw['score'])}) fitted again on its own smoothed motion gives "
-               f"{sw['param']} {100 * sw['bias']:+.0f} % (the smoother biases it): {self.chosen_.start.name}, "
+               f"{sw['param']} {_signed_pct(sw['bias'])} (the smoother biases it): {self.chosen_.start.name}, "
                "which validates about as well and is not biased so, returned")
     bias = getattr(self, "smoother_bias_", {}) or {}
     for k in ("m", "Iz", "d11", "d22", "d33"):
@@ -109,7 +116,7 @@ def _smoother_bias_findings(self: Identifier, add) -> None:
             continue
         level = 2 if k in biased(bias) else 1
         add(level, f"{k} biased by the smoother: the model's own motion, as the sensors and the smoother show it, "
-                   f"fitted again gives {k} {100 * b:+.0f} %: this fit does not recover {k} through the smoother, so "
+                   f"fitted again gives {k} {_signed_pct(b)}: this fit does not recover {k} through the smoother, so "
                    f"the {k} returned ({fmt_num(getattr(self.params_, k))}) may be off by as much (the smoothed "
                    "velocities round off changes faster than the GNSS and compass resolve; a higher GNSS rate "
                    "avoids it)")
