@@ -190,10 +190,11 @@ class Identifier:
     validation_mode_ : str
         ``"holdout"``, ``"leave-one-out"`` or ``"none"``.
     smoother_bias_ : dict of str to float
-        The validated candidate's fit made again on its own free runs over the held-out data as
-        the smoother shows them (:mod:`usvlog.identify.smoother_bias`): refitted / fitted - 1 per
-        parameter (xg: the difference in m); empty where not checked (a fit on the raw fixes, the
-        extended model, no held-out part).
+        The validated candidate's fit made again on its own free runs as the sensors and the
+        smoother show them, over the held-out data (without it, over the fitted runs)
+        (:mod:`usvlog.identify.smoother_bias`): refitted / fitted - 1 per parameter (xg: the
+        difference in m); empty where not checked (equation error, filter error, the extended
+        model).
     bias_switch_ : dict or None
         Set when the candidate picked was biased by the smoother beyond
         :data:`~usvlog.identify.smoother_bias.BIAS_UNUSABLE` and one that is not, validating within
@@ -393,11 +394,11 @@ class Identifier:
                 err.args = (f"{err}; {'; '.join(hint)}",)
             raise
         # what the smoother does to a fit on smoothed states: the chosen model's own free runs fitted again
-        # (one it misleads is passed over for one it does not that validates about as well)
-        self.smoother_bias_: dict = {}
-        self.bias_switch_: dict | None = None
-        if self.validation_mode_ == "holdout":
-            chosen, self.smoother_bias_, self.bias_switch_ = pick_unbiased(self, chosen, cands, held, vessel)
+        # (one it misleads is passed over for one it does not that validates about as well), on the runs
+        # the candidates were validated on: the held-out parts, else the fitted runs themselves
+        self.bias_switch_: dict | None
+        chosen, self.smoother_bias_, self.bias_switch_ = pick_unbiased(
+            self, chosen, cands, held if held else list(zip(runs, kin)), vessel)
         if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
             self.model_comparison_.update(_returned(self.model_comparison_, chosen))
         self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []

@@ -88,10 +88,11 @@ def measured_free_run(run: RunData, v) -> RunData:
 def smoother_bias(self: Identifier, cand: Candidate, held, vessel) -> dict[str, float]:
     """The relative change of each fitted parameter when ``cand``'s fit is made again, from its own
     values, on its own validated free runs as the sensors and the smoother show them (``held``: the
-    held-out (RunData, KinStates) its validations were made on). ``{name: refitted / fitted - 1}``
-    for m, Iz, d11, d22, d33 (xg: its change in metres); empty where the check does not apply (equation
-    error, filter error, the extended model, no smoothed free run, m held at the surge equation's) or the fit again
-    failed."""
+    (RunData, KinStates) its validations were made on: the held-out parts, or the fitted runs).
+
+    ``{name: refitted / fitted - 1}`` for m, Iz, d11, d22, d33 (xg: its change in metres); empty
+    where the check does not apply (equation error, filter error, the extended model, no smoothed
+    free run, m held at the surge equation's) or the fit again failed."""
     st = cand.start
     if st.model != "paper" or st.kind not in CHECKED_KINDS or st.surge_mass or cand.failed:
         return {}
