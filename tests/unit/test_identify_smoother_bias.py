@@ -139,3 +139,17 @@ def test_a_bias_is_printed_in_whole_percent_and_capped():
     assert _signed_pct(-0.3) == "-30 %"
     assert _signed_pct(2.2e19) == "> +999 %"   # a refit that ran away (a real bag's Iz)
     assert _signed_pct(-12.0) == "< -999 %"
+
+
+def test_checked_on_the_fitted_run_without_a_held_out_part():
+    """--holdout 0: no held-out part; the candidates' free runs over the fitted run are checked."""
+    boat = _boat()
+    log = otter_like_run(boat, duration_s=300.0, seed=8, gps_rate_hz=1.0)
+    idf = Identifier(holdout=0.0).fit(log, replace(default_vessel(), thrusters=boat.thrusters))
+    assert idf.validation_mode_ == "none"
+    if idf.chosen_.start.kind in ("velocity-error", "output-error") and not idf.chosen_.start.surge_mass:
+        assert idf.smoother_bias_   # checked
+    if idf.verdict_ != "unusable":
+        assert abs(idf.params_.m / boat.params.m - 1.0) <= BIAS_UNUSABLE, (idf.chosen_.start.name, idf.params_)
+    else:
+        assert any("biased by the smoother" in r for r in idf.reasons_), idf.reasons_
