@@ -106,8 +106,8 @@ def smoother_bias(self: Identifier, cand: Candidate, held, vessel) -> dict[str, 
         fitted, th, _ = self._fit_paper_kind(replace(st, theta=theta), runs, kin, None, vessel, noise_free=True)
         if getattr(fitted, "diverged", False):
             return {}
-    except (UsvlogError, ValueError, np.linalg.LinAlgError):
-        return {}
+    except (UsvlogError, ValueError, ArithmeticError, IndexError, np.linalg.LinAlgError):
+        return {}   # the fit again failed on the model's own motion: not checked (never an internal error)
     held_names = self._held_names()
     out = {}
     for i, k in enumerate(PARAM_NAMES):
