@@ -1,20 +1,20 @@
 """The smoother's bias on a fit to smoothed states, measured on the model's own motion.
 
 Velocity output error fits the model to the velocities the kinematic smoother made from GNSS
-positions and compass headings. The smoother rounds off changes
-faster than those sensors resolve: with 1 Hz GNSS, the smoothed surge speed of a boat with a
-3 s time constant rises over several seconds, and a model fitted to it takes too large a
-mass. (A simulated 24 kg boat of the paper's structure, Otter-like manoeuvres, 1 Hz GNSS:
-velocity output error m 66 kg with a standard error of 1 kg, 23.7 kg from the true states;
-the like-with-like validation cannot see it, it compares through the same smoother.)
+positions and compass headings. The smoother rounds off changes faster than those sensors
+resolve: with 1 Hz GNSS, the smoothed surge speed of a boat with a 3 s time constant rises over
+several seconds, and a model fitted to it takes too large a mass. (A simulated 24 kg boat of the
+paper's structure, Otter-like manoeuvres, 1 Hz GNSS: velocity output error m 66 kg with a standard
+error of 1 kg, 23.7 kg from the true states; the like-with-like validation cannot see it, it
+compares through the same smoother.)
 
 The check is a parametric bootstrap of that bias. The validated model's free run over the
 held-out part, as the sensors and the smoother would show it (the validation's ``seen``:
 sampled at the log's own stamps and smoothed with the data's settings), is fitted again by the
 same fit, from the model's own values. A fit that gets its own values back is not biased
 there; where it does not, the relative change of each parameter is the bias the smoother
-puts on that fit (the model's motion standing in for the boat's). On the 24 kg boat above:
-m comes back 67 % higher (66 -> 110 kg).
+puts on that fit (the model's motion standing in for the boat's). On the 24 kg boat above
+(seed 8 of ``benchmarks/bench_identify_honesty.py``): m comes back +76 %.
 
 Output error fits the raw fixes and headings, which carry no smoother, but starts its segments
 from smoothed states and weighs smoothed velocities with them: it is checked the same way, on the
@@ -50,8 +50,8 @@ standard error: :data:`usvlog.identify.verdict.REL_SE_UNUSABLE`)."""
 BIAS_SWITCH_WITHIN = 5.0
 """Validation score points within which a candidate the smoother does not bias is returned instead
 of one it does (the scores of fits that differ by a few points are within the validation's own
-noise; a Fossen Otter run: velocity output error 48.0 with m +99 % against equation error with its
-current 48.4 with m 80, the truth's about 85)."""
+noise; seed 32 of ``benchmarks/bench_identify_honesty.py``: velocity output error 37.1 with m +186 %
+on the truth, its check +202 %, against output error with velocities 33.5, m +1.8 %)."""
 
 CHECKED_KINDS = ("velocity-error", "output-error")
 """Candidate kinds the check applies to. Not equation error: its bias is mostly the measurement
