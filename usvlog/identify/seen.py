@@ -47,6 +47,13 @@ def _log_datum(log: FieldLog) -> Datum | None:
     return Datum(lat_deg=float(lat[ok][0]), lon_deg=float(lon[ok][0])) if ok.any() else None
 
 
+def ground_velocity(psi, u, v, current=(0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity over ground, north and east (m/s), of body velocities ``u``, ``v`` relative to the
+    water (m/s) at heading ``psi`` (rad) in a constant ``current`` (north, east, m/s)."""
+    c, s = np.cos(psi), np.sin(psi)
+    return c * u - s * v + float(current[0]), s * u + c * v + float(current[1])
+
+
 @dataclass(frozen=True)
 class SeenLog:
     """What a free run's log is made of (:meth:`free_run_log`): the recorded log's channels the
@@ -89,9 +96,7 @@ class SeenLog:
         sim = np.asarray(sim, float)
         lo, hi = self.t0_ns + int(round(t[0] * 1e9)), self.t0_ns + int(round(t[-1] * 1e9))
         psi = sim[:, 2]
-        c, s = np.cos(psi), np.sin(psi)
-        vn = c * sim[:, 3] - s * sim[:, 4] + float(current[0])
-        ve = s * sim[:, 3] + c * sim[:, 4] + float(current[1])
+        vn, ve = ground_velocity(psi, sim[:, 3], sim[:, 4], current)
         channels = {}
         for topic, frame in self.channels.items():
             idx = np.asarray(frame.index, dtype=np.int64)
@@ -145,4 +150,4 @@ def free_run_log(log: FieldLog, run: RunData, t, sim, current=(0.0, 0.0)) -> Fie
     return SeenLog.of(log, run).free_run_log(t, sim, current)
 
 
-__all__ = ["COPIED_TOPICS", "SeenLog", "free_run_log"]
+__all__ = ["COPIED_TOPICS", "SeenLog", "free_run_log", "ground_velocity"]

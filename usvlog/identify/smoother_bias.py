@@ -38,6 +38,7 @@ from ..errors import UsvlogError
 from ..model.frames import ssa
 from ..model.vessel import PARAM_NAMES
 from .data import RunData
+from .seen import ground_velocity
 from .smooth import KinStates
 
 if TYPE_CHECKING:
@@ -68,10 +69,8 @@ def seen_states(v) -> KinStates | None:
     if v is None or v.seen is None:
         return None
     s = np.asarray(v.seen, float)
-    c, sn = np.cos(s[:, 2]), np.sin(s[:, 2])
-    cn, ce = v.current
-    return KinStates(t=np.asarray(v.t, float), n=s[:, 0], e=s[:, 1], psi=s[:, 2],
-                     vn=c * s[:, 3] - sn * s[:, 4] + cn, ve=sn * s[:, 3] + c * s[:, 4] + ce, r=s[:, 5],
+    vn, ve = ground_velocity(s[:, 2], s[:, 3], s[:, 4], v.current)
+    return KinStates(t=np.asarray(v.t, float), n=s[:, 0], e=s[:, 1], psi=s[:, 2], vn=vn, ve=ve, r=s[:, 5],
                      source="the model's free run, smoothed as the data were")
 
 
