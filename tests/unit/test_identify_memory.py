@@ -56,3 +56,45 @@ def test_trimmed_states_smooth_a_free_run_to_the_same_numbers(run_120s):
     assert trimmed.smoother is not held.smoother
     t, sim = _free_run(held, 80.0, np.inf)
     np.testing.assert_array_equal(trimmed.seen(t, sim, (0.1, -0.05)), held.seen(t, sim, (0.1, -0.05)))
+
+
+def _pwm_version(log):
+    """The log's thrust as T200 pulse widths without logged forces, one record not finite."""
+    out = log.copy()
+    fr = log["/thrust/command"].copy()
+    k = np.arange(len(fr))
+    fr["left"] = 1500.0 + 300.0 * np.sin(k / 700.0)
+    fr["right"] = 1500.0 + 250.0 * np.cos(k / 500.0)
+    fr["unit"] = "pwm_us"
+    fr["thrust_left_n"] = np.nan
+    fr["thrust_right_n"] = np.nan
+    fr.iloc[len(fr) // 2, fr.columns.get_loc("left")] = np.nan
+    out.set("/thrust/command", fr)
+    return out
+
+
+@pytest.mark.parametrize("kind", ["logged newtons", "pwm through the t200 map"])
+def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(run_120s, kind):
+    from dataclasses import replace
+
+    from usvlog.identify.data import thrust_as_forces
+    from usvlog.model.thrusters import Thrusters
+
+    log, _, _ = run_120s
+    boat = default_vessel()
+    if kind != "logged newtons":
+        log = _pwm_version(log)
+        boat = replace(boat, thrusters=Thrusters(map="t200", supply_v=16.0))
+    lean = thrust_as_forces(log, boat)
+    assert list(lean["/thrust/command"].columns) == ["thrust_left_n", "thrust_right_n"]
+    assert list(log["/thrust/command"].columns) != ["thrust_left_n", "thrust_right_n"]   # the log's own is kept
+    if kind == "logged newtons":
+        for c in ("thrust_left_n", "thrust_right_n"):
+            np.testing.assert_array_equal(lean["/thrust/command"][c], log["/thrust/command"][c])
+    run = run_data(log, boat)
+    assert len(lean["/thrust/command"]) == len(log["/thrust/command"]) - (kind != "logged newtons")
+    a, b = smooth.kinematic_states(log, run, boat), smooth.kinematic_states(lean, run, boat)   # (as the fit does)
+    for name in ("t", "n", "e", "psi", "vn", "ve", "r"):
+        np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
+    t, sim = _free_run(a, 60.0, 119.0)
+    np.testing.assert_array_equal(b.seen(t, sim, (0.1, -0.05)), a.seen(t, sim, (0.1, -0.05)))
