@@ -197,13 +197,15 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     # a bad record is skipped (counted): the command before it stays in force
     good = np.isfinite(fl) & np.isfinite(frr)
     skipped = int((~good).sum())
-    t_ns, fl, frr = t_ns[good], fl[good], frr[good]
+    if skipped:   # (copies of 100 Hz records only where needed: memory)
+        t_ns, fl, frr = t_ns[good], fl[good], frr[good]
     if len(t_ns) < 10:
         raise InputError(f"{src} /thrust/command: only {len(t_ns)} samples")
-    order = np.argsort(t_ns, kind="stable")
-    t_ns, fl, frr = t_ns[order], fl[order], frr[order]
-    keep = np.concatenate([[True], np.diff(t_ns) > 0])
-    t_ns, fl, frr = t_ns[keep], fl[keep], frr[keep]
+    if not np.all(t_ns[1:] > t_ns[:-1]):   # in time order, the first record of a repeated stamp kept
+        order = np.argsort(t_ns, kind="stable")
+        t_ns, fl, frr = t_ns[order], fl[order], frr[order]
+        keep = np.concatenate([[True], np.diff(t_ns) > 0])
+        t_ns, fl, frr = t_ns[keep], fl[keep], frr[keep]
     tau_u, tau_r = vessel.thrusters.tau_from_forces(fl, frr)
     t0 = int(t_ns[0])
 

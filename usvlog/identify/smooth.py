@@ -355,8 +355,9 @@ def _smoothed(log, t0_ns: int, vessel, settings: EstimateSettings) -> tuple[KinS
         ts_parts.append(np.asarray(st.index, dtype=np.int64))
         for c, got in parts.items():
             if c in st:
-                got.append(st[c].to_numpy(float))
+                got.append(st[c].to_numpy(float, copy=True))   # (not a view holding the window's every column)
     used = replace(est.settings, tune=False)
+    del est   # memory: its problem and smoothed rows go before the columns are joined
     ts = (np.concatenate(ts_parts) - t0_ns) / 1e9 if ts_parts else np.zeros(0)
     st = {c: np.concatenate(got) for c, got in parts.items() if got and len(got) == len(ts_parts)}
     t = np.arange(max(ts[0], 0.0), ts[-1] + 1e-9, GRID_DT) if len(ts) else np.zeros(0)
