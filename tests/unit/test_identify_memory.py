@@ -98,3 +98,30 @@ def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(
         np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
     t, sim = _free_run(a, 60.0, 119.0)
     np.testing.assert_array_equal(b.seen(t, sim, (0.1, -0.05)), a.seen(t, sim, (0.1, -0.05)))
+
+
+def test_run_data_takes_the_thrust_in_time_order_first_of_a_repeated_stamp(run_120s):
+    """Sorted records are used as they are; shuffled ones with repeated stamps and a bad record come
+    out in time order, the first record of a stamp kept (in the channel's order), the bad one skipped."""
+    log, run, _ = run_120s
+    fr = log["/thrust/command"]
+    n = len(fr)
+    np.testing.assert_array_equal(run.t_thrust, (np.asarray(fr.index, np.int64) - fr.index[0]) / 1e9)
+    rng = np.random.default_rng(3)
+    k = rng.permutation(n)
+    messy = fr.iloc[np.concatenate([k, k[:50]])].copy()        # every record, then 50 of them again
+    messy.iloc[n:, messy.columns.get_loc("thrust_left_n")] += 7.0   # the repeats' forces differ
+    messy.iloc[n // 2, messy.columns.get_loc("thrust_right_n")] = np.nan
+    messy.iloc[n // 2, messy.columns.get_loc("right")] = np.nan
+    out = log.copy()
+    out.set("/thrust/command", messy)
+    got = run_data(out, default_vessel())
+    # the same by hand: pandas' stable sort, the first of each stamp, the bad record's stamp from its repeat
+    want = messy[np.isfinite(messy["thrust_right_n"].to_numpy(float))]
+    want = want.iloc[np.argsort(np.asarray(want.index, np.int64), kind="stable")]
+    want = want[~want.index.duplicated(keep="first")]
+    t_ns = np.asarray(want.index, np.int64)
+    np.testing.assert_array_equal(got.t_thrust, (t_ns - t_ns[0]) / 1e9)
+    tau_u = want["thrust_left_n"].to_numpy(float) + want["thrust_right_n"].to_numpy(float)
+    np.testing.assert_allclose(got.tau_u, tau_u, rtol=1e-12)
+    assert got.thrust_skipped == 1 and len(got.t_thrust) == n - 1   # (the bad record's stamp is not repeated)
