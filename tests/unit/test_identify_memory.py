@@ -77,7 +77,7 @@ def _pwm_version(log):
 def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(run_120s, kind):
     from dataclasses import replace
 
-    from usvlog.identify.data import thrust_as_forces
+    from usvlog.identify.data import thrust_as_forces, thrust_forces
     from usvlog.model.thrusters import Thrusters
 
     log, _, _ = run_120s
@@ -85,7 +85,7 @@ def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(
     if kind != "logged newtons":
         log = _pwm_version(log)
         boat = replace(boat, thrusters=Thrusters(map="t200", supply_v=16.0))
-    lean = thrust_as_forces(log, boat)
+    lean = thrust_as_forces(log, thrust_forces(log, boat))
     assert list(lean["/thrust/command"].columns) == ["thrust_left_n", "thrust_right_n"]
     assert list(log["/thrust/command"].columns) != ["thrust_left_n", "thrust_right_n"]   # the log's own is kept
     if kind == "logged newtons":

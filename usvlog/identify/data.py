@@ -148,9 +148,9 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     return t_ns, fl, frr, how
 
 
-def thrust_as_forces(log: FieldLog, vessel: Vessel) -> FieldLog:
-    """A copy of ``log`` whose ``/thrust/command`` holds only the forces :func:`thrust_forces` makes
-    of its usable records (``thrust_left_n``, ``thrust_right_n``, N), on their own stamps.
+def thrust_as_forces(log: FieldLog, forces: tuple) -> FieldLog:
+    """A copy of ``log`` whose ``/thrust/command`` holds only its usable records' ``forces``, the
+    :func:`thrust_forces` of ``log`` (``thrust_left_n``, ``thrust_right_n``, N), on their own stamps.
 
     That is all the kinematic smoother and the free runs' logs read of the channel once
     :func:`run_data` has its arrays: the same forces through the same map, and the records that
@@ -158,7 +158,7 @@ def thrust_as_forces(log: FieldLog, vessel: Vessel) -> FieldLog:
     bytes a record instead of the decoded channel's ~56 (commands, forces and unit strings): a
     3-hour ``usvlog identify`` of 100 Hz thrust peaked at 461 MB instead of 484.
     """
-    _, fl, frr, _ = thrust_forces(log, vessel)
+    _, fl, frr, _ = forces
     good = np.isfinite(fl) & np.isfinite(frr)
     index = log[THRUST_TOPIC].index
     if not good.all():
@@ -169,7 +169,7 @@ def thrust_as_forces(log: FieldLog, vessel: Vessel) -> FieldLog:
     return out
 
 
-def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
+def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None = None) -> RunData:
     """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass).
 
     Parameters
@@ -178,6 +178,8 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
         Needs ``/thrust/command``, ``/gnss/fix`` and ``/compass/heading``.
     vessel : Vessel, optional
         Thruster map and geometry (default the log's vessel, else the built-in one).
+    forces : tuple, optional
+        The log's :func:`thrust_forces` through that vessel, when already made (not made again).
 
     Returns
     -------
@@ -193,7 +195,7 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     """
     vessel = vessel or log.vessel or default_vessel()
     src = log.source or "log"
-    t_ns, fl, frr, how = thrust_forces(log, vessel)
+    t_ns, fl, frr, how = forces if forces is not None else thrust_forces(log, vessel)
     # a bad record is skipped (counted): the command before it stays in force
     good = np.isfinite(fl) & np.isfinite(frr)
     skipped = int((~good).sum())
@@ -249,6 +251,18 @@ def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
                    sigma_gps=sig[ok], t_compass=(tc[okc] - t0) / 1e9, psi_compass=ssa(hd[okc]),
                    sigma_compass=sc[okc], thrust_source=how, thrust_skipped=skipped, source=src,
                    gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))
+
+
+def runs_and_lean_logs(logs: list[FieldLog], vessel: Vessel) -> tuple[list[RunData], list[FieldLog]]:
+    """(:func:`run_data` of each log, each log with its thrust kept as its forces only
+    (:func:`thrust_as_forces`)), each log's thrust through the vessel's map once. Raises what
+    :func:`run_data` raises, for the first log that fails."""
+    runs, lean = [], []
+    for log in logs:
+        forces = thrust_forces(log, vessel)
+        runs.append(run_data(log, vessel, forces))
+        lean.append(thrust_as_forces(log, forces))
+    return runs, lean
 
 
 @njit

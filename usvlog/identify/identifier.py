@@ -31,7 +31,7 @@ from .ahead import (
 )
 from .candidates import Candidate, Start, _returned, place_surge_candidate
 from .checks import _excitation_warnings, _refuse_dead_channels, _refuse_outside_model, _refuse_wrong_signs
-from .data import lag_thrust, run_data, thrust_as_forces
+from .data import lag_thrust, runs_and_lean_logs
 from .equation import EquationErrorResult
 from .lag import LagFit, fit_thruster_lag
 from .output import OutputErrorResult, simulate_run
@@ -337,8 +337,7 @@ class Identifier:
                                   "logs' thrust is in newtons (or through a known thruster map)")
             self.thrust_scale_ = ThrustScale()
         holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
-        all_runs = [run_data(lg, vessel) for lg in logs]
-        logs = [thrust_as_forces(lg, vessel) for lg in logs]   # memory: the thrust as the forces read from here on
+        all_runs, logs = runs_and_lean_logs(logs, vessel)   # memory: the logs' decoded thrust goes
         all_kin = [kinematic_states(lg, r, vessel, tune=self._tune_smoother) for lg, r in zip(logs, all_runs)]
         self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin, vessel.thrusters.arm_m)
         # a thruster lag, known or found on the part fitted: the thrust the model is fitted on goes through it
