@@ -74,10 +74,13 @@ def _pwm_version(log):
 
 
 @pytest.mark.parametrize("kind", ["logged newtons", "pwm through the t200 map"])
-def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(run_120s, kind):
+def test_a_log_without_its_thrust_smooths_with_the_runs_to_the_same_numbers(run_120s, kind):
+    """The fit's logs lose their thrust channel (runs_and_lean_logs): the smoother, and the free runs'
+    smoothing of the whole run and of a held-out window, take the run's thrust instead, to the same
+    numbers as from the channel (a bad record skipped in both)."""
     from dataclasses import replace
 
-    from usvlog.identify.data import thrust_as_forces, thrust_forces
+    from usvlog.identify.data import runs_and_lean_logs
     from usvlog.model.thrusters import Thrusters
 
     log, _, _ = run_120s
@@ -85,19 +88,44 @@ def test_the_thrust_as_forces_smooths_and_records_free_runs_to_the_same_numbers(
     if kind != "logged newtons":
         log = _pwm_version(log)
         boat = replace(boat, thrusters=Thrusters(map="t200", supply_v=16.0))
-    lean = thrust_as_forces(log, thrust_forces(log, boat))
-    assert list(lean["/thrust/command"].columns) == ["thrust_left_n", "thrust_right_n"]
-    assert list(log["/thrust/command"].columns) != ["thrust_left_n", "thrust_right_n"]   # the log's own is kept
-    if kind == "logged newtons":
-        for c in ("thrust_left_n", "thrust_right_n"):
-            np.testing.assert_array_equal(lean["/thrust/command"][c], log["/thrust/command"][c])
-    run = run_data(log, boat)
-    assert len(lean["/thrust/command"]) == len(log["/thrust/command"]) - (kind != "logged newtons")
+    (run,), (lean,) = runs_and_lean_logs([log], boat)
+    assert "/thrust/command" not in lean and "/thrust/command" in log   # the caller's log is not touched
+    assert run.thrust_skipped == (kind != "logged newtons")
     a, b = smooth.kinematic_states(log, run, boat), smooth.kinematic_states(lean, run, boat)   # (as the fit does)
     for name in ("t", "n", "e", "psi", "vn", "ve", "r"):
         np.testing.assert_array_equal(getattr(b, name), getattr(a, name))
     t, sim = _free_run(a, 60.0, 119.0)
     np.testing.assert_array_equal(b.seen(t, sim, (0.1, -0.05)), a.seen(t, sim, (0.1, -0.05)))
+    held_a, held_b = a.window(70.0, np.inf).trimmed(), b.window(70.0, np.inf).trimmed()
+    assert held_b.smoother.seen.thrust.t_thrust[0] < 70.0 and held_b.smoother.seen.thrust.t_thrust.base is not None
+    t, sim = _free_run(held_a, 75.0, 119.0)
+    np.testing.assert_array_equal(held_b.seen(t, sim, (0.1, -0.05)), held_a.seen(t, sim, (0.1, -0.05)))
+
+
+def test_run_thrust_gives_the_logs_records_in_a_span_on_their_own_stamps(run_120s):
+    """run_thrust's frames: the log's stamps exactly (ns), the forces of run_data, only the records
+    stamped in [lo, hi] (both ends kept), in windows of any size."""
+    from dataclasses import replace
+
+    from usvlog.estimate.problem import TAU_COLUMNS
+    from usvlog.identify.data import run_thrust
+
+    log, run, _ = run_120s
+    t_log = np.asarray(log["/thrust/command"].index, np.int64)
+    lo, hi = int(t_log[1234]), int(t_log[5678])
+    for records in (100, 4444, 1 << 20):
+        got = pd.concat(list(run_thrust(run, lo, hi, records=records)()))
+        np.testing.assert_array_equal(np.asarray(got.index, np.int64), t_log[1234:5679])
+        np.testing.assert_array_equal(got[TAU_COLUMNS[0]].to_numpy(), run.tau_u[1234:5679])
+        np.testing.assert_array_equal(got[TAU_COLUMNS[1]].to_numpy(), run.tau_r[1234:5679])
+    whole = pd.concat(list(run_thrust(run)()))
+    np.testing.assert_array_equal(np.asarray(whole.index, np.int64), t_log)
+    # the stamps come back exact from the run's seconds, weeks into a run and for any t0
+    rng = np.random.default_rng(1)
+    t0 = 1_780_000_000_123_456_789
+    t_ns = t0 + np.sort(rng.integers(0, 21 * 86400 * 10**9, 100_000))
+    far = replace(run, t0_ns=t0, t_thrust=(t_ns - t0) / 1e9, tau_u=np.zeros(len(t_ns)), tau_r=np.zeros(len(t_ns)))
+    np.testing.assert_array_equal(np.asarray(pd.concat(list(run_thrust(far)())).index, np.int64), t_ns)
 
 
 def test_run_data_takes_the_thrust_in_time_order_first_of_a_repeated_stamp(run_120s):

@@ -55,6 +55,10 @@ from .settings import EstimateSettings
 PWM_NEUTRAL_US = 1500.0
 """RC pulse width (us) of a stopped thruster: the centre of a pwm_us command."""
 
+TAU_COLUMNS = ("tau_u_n", "tau_r_nm")
+"""Columns of a :data:`ThrustFrames` frame that gives the thrust as the surge force (N) and yaw
+moment (N m) on the hull, used as they are (no thruster map)."""
+
 
 def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, command_units: bool = False):
     """(tau_u, tau_r, ok): forces from thrust_*_n, else from the command through the
@@ -63,7 +67,14 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, command_unit
     ``command_units`` (the kinematic model, which uses the yaw moment only to find its steps,
     scale-free, when the vessel's map cannot turn the commands into newtons): a moment in
     command units instead, port minus starboard about the neutral command (pwm_us: 1500),
-    so no thruster map is needed."""
+    so no thruster map is needed.
+
+    A frame with ``tau_u_n`` and ``tau_r_nm`` columns gives the surge force (N) and yaw moment
+    (N m) on the hull already (:data:`TAU_COLUMNS`: a fit's own thrust arrays, not a log's channel)."""
+    if TAU_COLUMNS[0] in frame.columns and TAU_COLUMNS[1] in frame.columns:
+        tu, tr = _col(frame, TAU_COLUMNS[0]), _col(frame, TAU_COLUMNS[1])
+        ok = np.isfinite(tu) & np.isfinite(tr)
+        return tu[ok], tr[ok], ok
     if command_units:
         left, right = _col(frame, "left"), _col(frame, "right")
         units = frame["unit"].astype(str).to_numpy() if "unit" in frame.columns else np.full(len(frame), "")
@@ -89,7 +100,8 @@ def _thrust_tau(log: FieldLog, frame: pd.DataFrame, vessel: Vessel, command_unit
 ThrustFrames = Callable[[], Iterable[pd.DataFrame]]
 """Gives a log's ``/thrust/command`` frames in time order, each time it is called: the whole
 channel, or its consecutive time windows (a long log's channel read from its file a window at a
-time; see :func:`build_problem`)."""
+time; see :func:`build_problem`). A frame may hold the surge force and yaw moment instead
+(:data:`TAU_COLUMNS`)."""
 
 THRUST_RECORDS = 65_536
 """Thrust records turned into forces at a time (:func:`held_thrust`) when the problem is built from

@@ -21,6 +21,7 @@ from .._jit import njit
 from ..errors import ConfigError, InputError
 from ..estimate.latency import stored_delays
 from ..estimate.layout import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
+from ..estimate.problem import TAU_COLUMNS, THRUST_RECORDS, ThrustFrames
 from ..log.fieldlog import FieldLog
 from ..log.positions import LOCAL_TOPIC, local_positions, uses_local
 from ..model.frames import Datum, geodetic_to_ned, ssa
@@ -148,27 +149,6 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     return t_ns, fl, frr, how
 
 
-def thrust_as_forces(log: FieldLog, forces: tuple) -> FieldLog:
-    """A copy of ``log`` whose ``/thrust/command`` holds only its usable records' ``forces``, the
-    :func:`thrust_forces` of ``log`` (``thrust_left_n``, ``thrust_right_n``, N), on their own stamps.
-
-    That is all the kinematic smoother and the free runs' logs read of the channel once
-    :func:`run_data` has its arrays: the same forces through the same map, and the records that
-    are not finite left out as the smoother would skip them, so the same numbers. It holds 24
-    bytes a record instead of the decoded channel's ~56 (commands, forces and unit strings): a
-    3-hour ``usvlog identify`` of 100 Hz thrust peaked at 461 MB instead of 484.
-    """
-    _, fl, frr, _ = forces
-    good = np.isfinite(fl) & np.isfinite(frr)
-    index = log[THRUST_TOPIC].index
-    if not good.all():
-        index, fl, frr = index[good], fl[good], frr[good]
-    out = log.copy()
-    out.channels[THRUST_TOPIC] = pd.DataFrame({"thrust_left_n": fl, "thrust_right_n": frr}, index=index,
-                                              copy=False)
-    return out
-
-
 def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None = None) -> RunData:
     """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass).
 
@@ -253,16 +233,47 @@ def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None =
                    gnss_delay_s=delay.get("gnss", 0.0), compass_delay_s=delay.get("compass", 0.0))
 
 
-def runs_and_lean_logs(logs: list[FieldLog], vessel: Vessel) -> tuple[list[RunData], list[FieldLog]]:
-    """(:func:`run_data` of each log, each log with its thrust kept as its forces only
-    (:func:`thrust_as_forces`)), each log's thrust through the vessel's map once. Raises what
-    :func:`run_data` raises, for the first log that fails."""
+def runs_and_lean_logs(logs: list[FieldLog], vessel: Vessel, keep_thrust: bool = False
+                       ) -> tuple[list[RunData], list[FieldLog]]:
+    """(:func:`run_data` of each log, each log without its ``/thrust/command`` channel), each log's
+    thrust through the vessel's map once. Raises what :func:`run_data` raises, for the first log
+    that fails.
+
+    Memory: the run's arrays are the fit's one copy of the 100 Hz thrust; the kinematic smoother
+    and the free runs' logs take it from them (:func:`run_thrust`). ``keep_thrust`` (a fit that
+    reads the logs' thrust itself: filter error) keeps the channel."""
     runs, lean = [], []
     for log in logs:
-        forces = thrust_forces(log, vessel)
-        runs.append(run_data(log, vessel, forces))
-        lean.append(thrust_as_forces(log, forces))
+        runs.append(run_data(log, vessel, thrust_forces(log, vessel)))
+        if not keep_thrust:
+            log = log.copy()
+            del log.channels[THRUST_TOPIC]
+        lean.append(log)
     return runs, lean
+
+
+def run_thrust(run: RunData, lo_ns: int | None = None, hi_ns: int | None = None,
+               records: int = THRUST_RECORDS) -> ThrustFrames:
+    """The run's thrust as the estimator takes a log's (:data:`usvlog.estimate.problem.ThrustFrames`):
+    frames of ``records`` records with the surge force and yaw moment
+    (:data:`~usvlog.estimate.problem.TAU_COLUMNS`) on their stamps (ns since the epoch), those
+    stamped in [lo_ns, hi_ns] only when given. Made a frame at a time from the run's arrays, so
+    the smoother needs no copy of the channel; the stamps are the log's own (``t0_ns`` plus the
+    time in s, rounded to the ns: exact for runs of up to weeks)."""
+    lo_ns = np.iinfo(np.int64).min if lo_ns is None else int(lo_ns)
+    hi_ns = np.iinfo(np.int64).max if hi_ns is None else int(hi_ns)
+    # the records' span in s, a little wide (their stamps in ns decide)
+    i0 = int(np.searchsorted(run.t_thrust, (lo_ns - run.t0_ns) / 1e9 - 1e-6, "left"))
+    i1 = int(np.searchsorted(run.t_thrust, (hi_ns - run.t0_ns) / 1e9 + 1e-6, "right"))
+
+    def frames():
+        for i in range(i0, i1, records):
+            j = min(i + records, i1)
+            t_ns = run.t0_ns + np.round(run.t_thrust[i:j] * 1e9).astype(np.int64)
+            keep = (t_ns >= lo_ns) & (t_ns <= hi_ns)
+            yield pd.DataFrame({TAU_COLUMNS[0]: run.tau_u[i:j][keep], TAU_COLUMNS[1]: run.tau_r[i:j][keep]},
+                               index=pd.Index(t_ns[keep], name="t_ns"))
+    return frames
 
 
 @njit

@@ -337,7 +337,8 @@ class Identifier:
                                   "logs' thrust is in newtons (or through a known thruster map)")
             self.thrust_scale_ = ThrustScale()
         holdout = self.holdout if self.holdout is not None else (DEFAULT_HOLDOUT if len(logs) == 1 else None)
-        all_runs, logs = runs_and_lean_logs(logs, vessel)   # memory: the logs' decoded thrust goes
+        # memory: the logs' thrust channels go (the runs' arrays are the one copy of it the fit keeps)
+        all_runs, logs = runs_and_lean_logs(logs, vessel, keep_thrust=self.method == "filter-error")
         all_kin = [kinematic_states(lg, r, vessel, tune=self._tune_smoother) for lg, r in zip(logs, all_runs)]
         self.sign_checks_ = _refuse_wrong_signs(all_runs, all_kin, vessel.thrusters.arm_m)
         # a thruster lag, known or found on the part fitted: the thrust the model is fitted on goes through it

@@ -26,10 +26,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..estimate.layout import COMPASS_TOPIC, GNSS_TOPIC, THRUST_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC
+from ..estimate.problem import ThrustFrames
 from ..log.fieldlog import FieldLog
 from ..log.positions import LOCAL_TOPIC
 from ..model.frames import Datum, ned_to_geodetic, ssa
-from .data import RunData
+from .data import RunData, run_thrust
 
 COPIED_TOPICS = (THRUST_TOPIC, GNSS_TOPIC, COMPASS_TOPIC, VELOCITY_TOPIC, YAW_RATE_TOPIC, LOCAL_TOPIC)
 """The channels the kinematic smoother reads; the others are left out of a free run's log."""
@@ -68,15 +69,18 @@ class SeenLog:
     datum: Datum | None     # the whole log's (its first valid fix may lie outside a window)
     t0_ns: int              # the run's time origin (RunData.t0_ns)
     delay: dict             # topic -> latency (s) of the stamps of that channel
+    thrust: RunData | None = None   # the run, when the log had no thrust channel: its thrust is the free runs'
 
     @classmethod
     def of(cls, log: FieldLog, run: RunData) -> SeenLog:
-        """The parts of ``log`` a free run of ``run`` is recorded with (the frames shared, not copied)."""
+        """The parts of ``log`` a free run of ``run`` is recorded with (the frames shared, not copied);
+        the thrust the run's (its arrays shared) when ``log`` has no thrust channel."""
         channels = {topic: frame for topic in COPIED_TOPICS if (frame := log.get(topic)) is not None}
         delay = {GNSS_TOPIC: run.gnss_delay_s, LOCAL_TOPIC: run.gnss_delay_s, VELOCITY_TOPIC: run.gnss_delay_s,
                  COMPASS_TOPIC: run.compass_delay_s}
         return cls(channels=channels, meta=dict(log.meta), schemas=dict(log.schemas), source=log.source,
-                   datum=_log_datum(log), t0_ns=run.t0_ns, delay=delay)
+                   datum=_log_datum(log), t0_ns=run.t0_ns, delay=delay,
+                   thrust=None if THRUST_TOPIC in channels else run)
 
     def window(self, t_lo: float, t_hi: float) -> SeenLog:
         """A copy of the records stamped within 1 s of ``[t_lo, t_hi]`` (s from ``t0_ns``; +-inf:
@@ -88,13 +92,24 @@ class SeenLog:
         for topic, frame in self.channels.items():
             idx = np.asarray(frame.index, dtype=np.int64)
             channels[topic] = frame[(idx >= lo) & (idx <= hi)].copy()
-        return replace(self, channels=channels)
+        thrust = None if self.thrust is None else self.thrust.window(t_lo - 1.0, t_hi + 1.0)   # (views)
+        return replace(self, channels=channels, thrust=thrust)
+
+    def _span_ns(self, t) -> tuple[int, int]:
+        """The stamps (ns) of a free run's first and last times ``t`` (s from ``t0_ns``)."""
+        return self.t0_ns + int(round(t[0] * 1e9)), self.t0_ns + int(round(t[-1] * 1e9))
+
+    def thrust_over(self, t) -> ThrustFrames | None:
+        """The thrust a free run over times ``t`` (s) is smoothed with when its log has none: the
+        run's records stamped within the free run's span (:func:`~usvlog.identify.data.run_thrust`),
+        as its log would keep them; None when the log has its thrust channel."""
+        return None if self.thrust is None else run_thrust(self.thrust, *self._span_ns(np.asarray(t, float)))
 
     def free_run_log(self, t, sim, current=(0.0, 0.0)) -> FieldLog:
         """The recorded log over ``[t[0], t[-1]]`` had the boat moved as ``sim``: :func:`free_run_log`."""
         t = np.asarray(t, float)
         sim = np.asarray(sim, float)
-        lo, hi = self.t0_ns + int(round(t[0] * 1e9)), self.t0_ns + int(round(t[-1] * 1e9))
+        lo, hi = self._span_ns(t)
         psi = sim[:, 2]
         vn, ve = ground_velocity(psi, sim[:, 3], sim[:, 4], current)
         channels = {}

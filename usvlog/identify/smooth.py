@@ -18,13 +18,13 @@ from scipy.ndimage import convolve1d
 
 from ..errors import FitFailed, UsvlogError
 from ..estimate import EstimateSettings
-from ..estimate.layout import STATE_TOPIC
-from ..estimate.problem import build_problem
+from ..estimate.layout import STATE_TOPIC, THRUST_TOPIC
+from ..estimate.problem import ThrustFrames, build_problem
 from ..estimate.run import tune_process_noise
 from ..estimate.windowed import WindowedEstimate
 from ..model.frames import ssa
 from ..model.vessel import default_vessel
-from .data import RunData, within
+from .data import RunData, run_thrust, within
 from .seen import SeenLog
 
 GRID_DT = 0.1
@@ -298,7 +298,10 @@ def kinematic_states(log, run: RunData, vessel=None, *, tune: bool = False) -> K
     trails the true one by seconds.
     The states carry their smoother (:meth:`KinStates.seen`): a free run is smoothed with
     the same settings, without tuning again.
+    A ``log`` without its ``/thrust/command`` channel is smoothed with the run's thrust
+    (:func:`~usvlog.identify.data.run_thrust`; the fit's one copy of it).
     """
+    thrust = None if THRUST_TOPIC in log else run_thrust(run)   # a log without its thrust: the run's
     settings = EstimateSettings(model="kinematic", sway_damping=False, output_step_s=GRID_DT,
                                 gnss_delay_s=run.gnss_delay_s, compass_delay_s=run.compass_delay_s)
     if tune:
@@ -307,9 +310,10 @@ def kinematic_states(log, run: RunData, vessel=None, *, tune: bool = False) -> K
         # smoother lags its speed more (the fit's m comes out high), while an agile boat needs far
         # more (an 80 kg catamaran: 50x). The yaw rate's keeps its default (tuned, it moved the
         # paper vessel's fits and not the catamaran's)
-        q = tune_process_noise(build_problem(log, settings, vessel or log.vessel or default_vessel()), settings)
+        q = tune_process_noise(build_problem(log, settings, vessel or log.vessel or default_vessel(), thrust),
+                               settings)
         settings = replace(settings, q_uv=max(q["q_uv"], settings.q_uv_value))
-    ks, used = _smoothed(log, run.t0_ns, vessel, settings)
+    ks, used = _smoothed(log, run.t0_ns, vessel, settings, thrust)
     if len(ks.t) < MIN_SAMPLES:
         raise FitFailed(f"{run.source or 'run'}: the smoothed states span {len(ks.t) * GRID_DT:.1f} s after the "
                         "first thrust sample: too short to identify from")
@@ -328,7 +332,8 @@ class FreeRunSmoother:
 
     def __call__(self, t, sim, current) -> KinStates:
         """The free run's smoothed states (:func:`_smoothed` of its log)."""
-        return _smoothed(self.seen.free_run_log(t, sim, current), self.seen.t0_ns, self.vessel, self.settings)[0]
+        return _smoothed(self.seen.free_run_log(t, sim, current), self.seen.t0_ns, self.vessel, self.settings,
+                         self.seen.thrust_over(t))[0]
 
     def window(self, t_lo: float, t_hi: float) -> FreeRunSmoother:
         """The same smoother for free runs inside ``[t_lo, t_hi]`` (s) only, holding that part of the log."""
@@ -340,14 +345,16 @@ _COLUMNS = ("n_m", "e_m", "psi_rad", "u_mps", "v_mps", "r_radps", "current_n_mps
             "u_mps_std", "v_mps_std", "r_radps_std")
 
 
-def _smoothed(log, t0_ns: int, vessel, settings: EstimateSettings) -> tuple[KinStates, EstimateSettings]:
+def _smoothed(log, t0_ns: int, vessel, settings: EstimateSettings, thrust: ThrustFrames | None = None
+              ) -> tuple[KinStates, EstimateSettings]:
     """The estimator's smoothed states on the :data:`GRID_DT` grid from ``t0_ns`` (the run's), and
-    the settings it ran with (the tuned process noise in place of ``tune``).
+    the settings it ran with (the tuned process noise in place of ``tune``); ``thrust``: the thrust
+    when not the log's own channel (:func:`~usvlog.identify.data.run_thrust`).
 
     The estimate's state frames are made a time window at a time (:class:`WindowedEstimate`: the
     numbers of :func:`usvlog.estimate.estimate`'s) and only the columns used here kept of each;
     its innovations are not turned into a frame."""
-    est = WindowedEstimate(log, settings, vessel, None, _RowsInMemory())
+    est = WindowedEstimate(log, settings, vessel, thrust, _RowsInMemory())
     ts_parts: list[np.ndarray] = []
     parts: dict[str, list[np.ndarray]] = {c: [] for c in _COLUMNS}
     for frames in est.frames():
