@@ -115,7 +115,7 @@ def in_windows(frame: pd.DataFrame, records: int = THRUST_RECORDS) -> ThrustFram
 
 
 def held_thrust(log: FieldLog, t_prev: np.ndarray, frames: ThrustFrames, vessel: Vessel,
-                vessel_free: bool = False) -> tuple[np.ndarray, int]:
+                vessel_free: bool = False, out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """(tau_u, tau_r) of each step held from the thrust record in force at its start, and the
     records skipped.
 
@@ -129,20 +129,22 @@ def held_thrust(log: FieldLog, t_prev: np.ndarray, frames: ThrustFrames, vessel:
     Returns
     -------
     tuple
-        (len(t_prev), 2) array in N and N m (or command units), and the count of records skipped.
+        (len(t_prev), 2) array in N and N m (or command units): ``out`` when given (filled, no
+        copy made), and the count of records skipped.
     """
+    out = np.zeros((len(t_prev), 2)) if out is None else out
     if vessel_free:
         try:
-            return _hold(log, t_prev, frames(), vessel, False)
+            return _hold(log, t_prev, frames(), vessel, False, out)
         except InputError:
-            return _hold(log, t_prev, frames(), vessel, True)
-    return _hold(log, t_prev, frames(), vessel, False)
+            out[:] = 0.0
+            return _hold(log, t_prev, frames(), vessel, True, out)
+    return _hold(log, t_prev, frames(), vessel, False, out)
 
 
 def _hold(log: FieldLog, t_prev: np.ndarray, frames: Iterable[pd.DataFrame], vessel: Vessel,
-          command_units: bool) -> tuple[np.ndarray, int]:
-    """:func:`held_thrust` of the frames given, with forces or command units."""
-    out = np.zeros((len(t_prev), 2))
+          command_units: bool, out: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`held_thrust` of the frames given, with forces or command units, into ``out`` (zeros)."""
     skipped, k, last = 0, 0, None
     for frame in frames:
         tu, tr, ok = _thrust_tau(log, frame, vessel, command_units)
@@ -275,8 +277,12 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel,
     mkind = np.concatenate([np.full(len(p[0]), p[1], np.int64) for p in parts])
     mz = np.concatenate([p[2] for p in parts])
     mR = np.concatenate([p[3] for p in parts])
+    del parts   # (memory: the sensors' pieces, and below each array's unsorted copy, go as soon as they can)
     order = np.lexsort((mkind, m_t))
-    m_t, mkind, mz, mR = m_t[order], mkind[order], mz[order], mR[order]
+    m_t = m_t[order]
+    mkind = mkind[order]
+    mz = mz[order]
+    mR = mR[order]
 
     # step grid: the output grid plus every measurement time
     t_start, t_end = int(m_t[0]), int(m_t[-1])
@@ -298,7 +304,8 @@ def build_problem(log: FieldLog, settings: EstimateSettings, vessel: Vessel,
     taus = np.zeros((len(t_ns), 2))
     skipped["thrust"] = 0
     if thrust is not None:   # zero-order hold: the step ending at k uses the command in force at t[k-1]
-        taus[1:], skipped["thrust"] = held_thrust(log, t_ns[:-1], thrust, vessel, vessel_free=s.model == "kinematic")
+        _, skipped["thrust"] = held_thrust(log, t_ns[:-1], thrust, vessel, vessel_free=s.model == "kinematic",
+                                           out=taus[1:])
 
     qjump = yaw_jump_variance(taus[:, 1], s)
 
