@@ -149,7 +149,7 @@ class Problem:
         self.r_run_start = np.searchsorted(self.seg_run[self.r_seg], np.arange(self.n_runs + 1))
         self.n_res = len(self.r_meas)
         self.r_srow = self.r_meas * 6 + np.minimum(self.r_state, 2)   # its state in out_x.reshape(-1)
-        self.r_psi = np.flatnonzero(self.r_state == R_PSI)    # heading rows (wrapped)
+        self.r_psi = np.flatnonzero(self.r_state == R_PSI).astype(np.int32)    # heading rows (wrapped)
         # the sensitivity rows the kernel writes (shoot's row_*), per measurement: each GPS and
         # compass residual row's own (of state n, e or psi), weighted as its residual with the
         # sign of d(residual) = -d(state), in that row; each velocity measurement's rows psi,
@@ -160,8 +160,9 @@ class Problem:
         self.n_vmeas = len(vmeas)
         e_meas = np.concatenate([self.r_meas[pos], np.repeat(vmeas, 4)])
         o = np.argsort(e_meas, kind="stable")
-        self.e_dst = np.concatenate([pos, self.n_res + np.arange(4 * len(vmeas))])[o]
-        self.e_q = np.concatenate([np.minimum(self.r_state[pos], 2), np.tile(np.arange(2, 6), len(vmeas))])[o]
+        self.e_dst = np.concatenate([pos, self.n_res + np.arange(4 * len(vmeas))])[o].astype(np.int32)
+        self.e_q = np.concatenate([np.minimum(self.r_state[pos], 2), np.tile(np.arange(2, 6), len(vmeas))])[o] \
+            .astype(np.int8)
         # residual row, -1 velocity
         self.e_res = np.concatenate([pos, np.full(4 * len(vmeas), -1)])[o].astype(np.int32)
         self.e_ptr = np.searchsorted(e_meas[o], np.arange(len(self.meas_t) + 1)).astype(np.int64)

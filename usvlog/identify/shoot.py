@@ -239,4 +239,4 @@ def shoot(tg, tau_u, tau_r, seg_i0, seg_i1, x0s, prm, seg_cur, meas_t, meas_ptr,
 def no_rows() -> tuple:
     """:func:`shoot`'s last five arguments (row_ptr .. out_rows) when ``sens`` is False
     (not read)."""
-    return np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, NS))
+    return np.zeros(1, np.int64), np.zeros(0, np.int32), np.zeros(0, np.int8), np.zeros(0), np.zeros((0, NS))
