@@ -153,3 +153,36 @@ def test_run_data_takes_the_thrust_in_time_order_first_of_a_repeated_stamp(run_1
     tau_u = want["thrust_left_n"].to_numpy(float) + want["thrust_right_n"].to_numpy(float)
     np.testing.assert_allclose(got.tau_u, tau_u, rtol=1e-12)
     assert got.thrust_skipped == 1 and len(got.t_thrust) == n - 1   # (the bad record's stamp is not repeated)
+
+
+@pytest.fixture(scope="module")
+def fitted_with_holdout():
+    """The paper's vessel identified from a 240 s excitation run, its last 40 % held out."""
+    from usvlog.identify import Identifier
+
+    log = simulate("excitation", SimSettings(duration_s=240.0, vessel=default_vessel()), seed=11)
+    return Identifier("output-error", holdout=0.4).fit([log])
+
+
+def test_candidates_keep_their_figures_and_their_free_runs_are_made_again_to_the_same_numbers(
+        fitted_with_holdout):
+    """A candidate keeps its validations' summaries only (fit %, score: ~8 MB a validation of a 3-hour
+    log's held-out part let go); the free runs made again where they are needed (the returned
+    candidate's, the smoother-bias check's) give the figures the candidate was picked by, exactly."""
+    idf = fitted_with_holdout
+    ok = [c for c in idf.candidates_ if not c.failed]
+    assert len(ok) >= 3
+    for c in ok:
+        kept = list(c.validations)
+        if c is not idf.chosen_:
+            assert all(not v.has_arrays and v.measured is None and v.seen is None for v in kept)
+            with pytest.raises(ValueError, match="summary"):
+                kept[0].to_dataframe()
+        again = idf.candidate_validations(c)
+        assert [v.has_arrays for v in again] == [True] * len(kept)
+        for s, v in zip(kept, again):
+            assert v.fit_percent == s.fit_percent and v.score == s.score and v.to_dict() == s.to_dict()
+            assert v.to_dataframe().shape[0] == len(v.t) > 100
+    # what the verdict and the reports read: the chosen candidate's validations, with their arrays
+    assert idf.validations_ and all(v.has_arrays for v in idf.validations_)
+    assert [v.fit_percent for v in idf.validations_] == [v.fit_percent for v in idf.chosen_.validations]

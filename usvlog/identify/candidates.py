@@ -145,7 +145,10 @@ class Candidate:
     fitted : object
         The fit's result (EquationErrorResult, OutputErrorResult or FilterErrorResult).
     validations : list of Validation
-        Free runs it was judged on (held-out parts, or the fitted runs without validation).
+        Free runs it was judged on (held-out parts, or the fitted runs without validation): their
+        :meth:`~usvlog.identify.validation.Validation.summary` (fit %, score) until
+        :func:`~usvlog.identify.validation.with_arrays` makes them again with their arrays (the
+        returned candidate's).
     failed : str
         Why it failed (diverged, impossible values), empty when it did not.
     held_stderr : dict of str to float
@@ -479,7 +482,8 @@ def _fit_candidate_raw(self: Identifier, st: Start, runs, kin, fit_logs, vessel,
         if any(v.diverged for v in vals):
             failed = "its free run diverged"
     return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
-                     fitted=fitted, validations=vals, failed=failed, held_stderr=dict(held_stderr or {}))
+                     fitted=fitted, validations=[v.summary() for v in vals], failed=failed,
+                     held_stderr=dict(held_stderr or {}))
 
 
 def _fit_paper_kind(self: Identifier, st: Start, runs, kin, fit_logs, vessel, noise_free: bool = False
@@ -554,7 +558,7 @@ def _fit_ext_candidate(self: Identifier, st: Start, runs, kin, held, currents0=N
         if any(v.diverged for v in vals):
             failed = "its free run diverged"
     return Candidate(start=st, theta=np.asarray(theta, float), currents=np.asarray(cur, float),
-                     fitted=fitted, validations=vals, failed=failed, held_stderr=held_se)
+                     fitted=fitted, validations=[v.summary() for v in vals], failed=failed, held_stderr=held_se)
 
 
 def _ext_surge_mass(self: Identifier, runs, kin, theta) -> tuple[np.ndarray, dict]:
@@ -685,8 +689,8 @@ def _refit(self: Identifier, chosen: Candidate, runs, kin, logs, vessel, held) -
         # outside a boat's range): the validated fit's values stand
         return chosen
     vals = [self._validate_run(r, k, theta, cur[i]) for i, (r, k) in enumerate(held)]
-    again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted, validations=vals,
-                      held_stderr=held_se)
+    again = Candidate(start=st, theta=np.asarray(theta, float), currents=cur, fitted=fitted,
+                      validations=[v.summary() for v in vals], held_stderr=held_se)
     if again.score < chosen.score - PREFER_WITHIN:
         return chosen
     return again

@@ -38,7 +38,7 @@ from .output import OutputErrorResult, simulate_run
 from .smooth import kinematic_states
 from .smoother_bias import pick_unbiased
 from .thrust_scale import ThrustScale, fit_in_command_units, thrust_scale_known
-from .validation import Validation, _mean_score, excitation_of
+from .validation import Validation, _mean_score, excitation_of, with_arrays
 from .velocity import VelocityFitResult, data_scales
 from .verdict import VERDICTS
 
@@ -169,7 +169,8 @@ class Identifier:
     usable_ : bool
         False when the verdict is unusable.
     candidates_ : list of Candidate
-        Every candidate fitted, with its validation; ``chosen_`` is the one returned.
+        Every candidate fitted, with its validation's figures (fit %, score;
+        :meth:`candidate_validations` gives its free runs); ``chosen_`` is the one returned.
     chosen_ : Candidate
         The candidate the parameters come from.
     thrust_scale_ : ThrustScale
@@ -398,11 +399,11 @@ class Identifier:
         # (one it misleads is passed over for one it does not that validates about as well), on the runs
         # the candidates were validated on: the held-out parts, else the fitted runs themselves
         self.bias_switch_: dict | None
-        chosen, self.smoother_bias_, self.bias_switch_ = pick_unbiased(
-            self, chosen, cands, held if held else list(zip(runs, kin)), vessel)
+        pairs = held if held else list(zip(runs, kin))
+        chosen, self.smoother_bias_, self.bias_switch_ = pick_unbiased(self, chosen, cands, pairs, vessel)
         if self.model_comparison_ is not None:   # the simpler paper model is kept within PREFER_WITHIN
             self.model_comparison_.update(_returned(self.model_comparison_, chosen))
-        self.validations_ = list(chosen.validations) if self.validation_mode_ == "holdout" else []
+        self.validations_ = list(with_arrays(self, chosen, pairs)) if self.validation_mode_ == "holdout" else []
         # -- the returned parameters: refitted on all the data from the chosen candidate --
         if self.validation_mode_ == "holdout":
             try:
@@ -698,6 +699,19 @@ class Identifier:
         the default smoother, on whose states their targets were set (an extended boat's per-unit
         d22 came out 12.5 % off on tuned states, 5.6 % on the default)."""
         return not getattr(self, "_command_units", False)
+
+    def candidate_validations(self, cand: Candidate) -> list[Validation]:
+        """The validations of one of :attr:`candidates_` with their arrays (measured and simulated
+        states, the smoothed free run): a candidate keeps their figures only, and they are made
+        again, to the same numbers, on the parts it was validated on.
+
+        Raises
+        ------
+        usvlog.errors.ConfigError
+            If the identifier is not fitted.
+        """
+        self._check_fitted()
+        return with_arrays(self, cand, self._held or list(zip(self.runs_, self._kin)))
 
     # ------------------------------------------------------------------------------
     def _check_fitted(self):

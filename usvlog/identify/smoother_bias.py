@@ -40,6 +40,7 @@ from ..model.vessel import PARAM_NAMES
 from .data import RunData
 from .seen import ground_velocity
 from .smooth import KinStates
+from .validation import with_arrays
 
 if TYPE_CHECKING:
     from .candidates import Candidate
@@ -95,7 +96,7 @@ def smoother_bias(self: Identifier, cand: Candidate, held, vessel) -> dict[str, 
     st = cand.start
     if st.model != "paper" or st.kind not in CHECKED_KINDS or st.surge_mass or cand.failed:
         return {}
-    parts = [(r, seen_states(v), v) for (r, _), v in zip(held, cand.validations)]
+    parts = [(r, seen_states(v), v) for (r, _), v in zip(held, with_arrays(self, cand, held))]
     parts = [(measured_free_run(r, v), k, v) for r, k, v in parts if k is not None and len(k.t) > 20]
     if not parts:
         return {}

@@ -12,7 +12,7 @@ one by them. The functions taking ``self`` are methods of
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import TYPE_CHECKING
 
@@ -37,6 +37,7 @@ SCORE_WORDS = "mean fit % of the track (0 when below 0), r and, where the part e
 
 # typing only: the class whose methods these are (it imports this module)
 if TYPE_CHECKING:
+    from .candidates import Candidate
     from .identifier import Identifier
 
 
@@ -74,17 +75,40 @@ class Validation:
         The smoother's one-sigma of the measured u, v, r at ``t`` (None: the smoother reports
         none); with ``measured`` it says which channels the scored part excites
         (:func:`excitation_of`).
+    figures : (float, bool) or None
+        A :meth:`summary`'s :attr:`score` and :attr:`diverged`, kept when its arrays
+        (``measured``, ``simulated``, ``seen``, ``sd``: None then) were let go; None otherwise.
     """
 
     fit_percent: dict            # "u", "v", "r", "track": 100 (1 - |y - yhat| / |y - mean y|)
     t: np.ndarray                # s from the run's start (smoothed-state grid)
-    measured: np.ndarray         # (N, 6) n, e, psi, u, v, r from the smoothed measurements
-    simulated: np.ndarray        # (N, 6) the model's free run
+    measured: np.ndarray | None  # (N, 6) n, e, psi, u, v, r from the smoothed measurements
+    simulated: np.ndarray | None  # (N, 6) the model's free run (None: a summary)
     current: tuple[float, float]  # current used (fitted with the initial state)
     init_window_s: float         # initial state (and current) fitted on [0, init_window_s]
     seen: np.ndarray | None = None  # (N, 6) the free run smoothed as the measurements were (None: not made)
     track_ahead: float = float("nan")  # fit % of the displacement predicted TRACK_AHEAD_S ahead
     sd: np.ndarray | None = None  # (N, 3) the smoother's one-sigma of the measured u, v, r (None: not reported)
+    figures: tuple[float, bool] | None = None   # (score, diverged) of a summary (arrays let go), else None
+
+    def summary(self) -> Validation:
+        """This validation without its arrays: its fit %, score, divergence, current and span kept
+        (:attr:`t` its first and last times only; :attr:`has_arrays` False). What a candidate holds
+        (memory: ~8 MB a validation of a 3-hour log's held-out part); the arrays are made again, to
+        the same numbers, where they are needed (:func:`with_arrays`)."""
+        return replace(self, t=self.t[[0, -1]] if len(self.t) else self.t, measured=None, simulated=None,
+                       seen=None, sd=None, figures=(self.score, self.diverged))
+
+    @property
+    def has_arrays(self) -> bool:
+        """False for a :meth:`summary`."""
+        return self.figures is None
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(measured, simulated); a :meth:`summary` has none (ValueError: a caller's mistake)."""
+        if self.measured is None or self.simulated is None:
+            raise ValueError("a validation's summary has no arrays (usvlog.identify.validation.with_arrays)")
+        return self.measured, self.simulated
 
     def to_dataframe(self) -> pd.DataFrame:
         """Measured and simulated states side by side, indexed by ``t_s`` (s).
@@ -94,10 +118,11 @@ class Validation:
         :attr:`seen` was made).
         """
         cols = {}
+        measured, simulated = self.arrays()
         for i, (name, unit) in enumerate((("n", "m"), ("e", "m"), ("psi", "rad"), ("u", "mps"),
                                           ("v", "mps"), ("r", "radps"))):
-            cols[f"{name}_{unit}"] = self.measured[:, i]
-            cols[f"{name}_sim_{unit}"] = self.simulated[:, i]
+            cols[f"{name}_{unit}"] = measured[:, i]
+            cols[f"{name}_sim_{unit}"] = simulated[:, i]
             if self.seen is not None:
                 cols[f"{name}_seen_{unit}"] = self.seen[:, i]
         return pd.DataFrame(cols, index=pd.Index(self.t, name="t_s"))
@@ -105,8 +130,10 @@ class Validation:
     @property
     def diverged(self) -> bool:
         """True when the free run left the finite range (a failed model, not a fit %)."""
-        return bool(not np.all(np.isfinite(self.simulated)) or
-                    np.any(np.abs(self.simulated[:, 3:]) > 1e3))
+        if self.figures is not None:
+            return self.figures[1]
+        sim = self.arrays()[1]
+        return bool(not np.all(np.isfinite(sim)) or np.any(np.abs(sim[:, 3:]) > 1e3))
 
     @cached_property
     def score(self) -> float:
@@ -124,6 +151,8 @@ class Validation:
         noise. (Ranking by the displacement predicted 30 s ahead, :attr:`track_ahead`, or by u
         instead of the track was tried: it picks the better model on a Fossen Otter run, but
         a worse d11 than this on short runs of the paper's vessel.)"""
+        if self.figures is not None:
+            return self.figures[0]
         if self.diverged:
             return -math.inf
         fp = self.fit_percent
@@ -170,6 +199,21 @@ def _validation(t, meas, sim, cur, t0: float, t_init: float, ks: KinStates | Non
                       track_ahead=track_ahead, sd=sd)
 
 
+def with_arrays(self: Identifier, cand: Candidate, pairs) -> list[Validation]:
+    """``cand``'s validations with their arrays (measured, simulated, smoothed free run): made again
+    where it holds summaries, to the same numbers (a free run is a deterministic function of the
+    parameters, currents and data), and kept in the candidate from then on.
+
+    ``pairs``: the (RunData, KinStates) its validations were made on (the held-out parts, or the
+    fitted runs). Memory: a candidate keeps summaries only (the arrays of a 3-hour log's held-out part
+    are ~8 MB a validation, and there are six candidates or more); the arrays are wanted for the
+    candidate returned and the ones the smoother-bias check looks at."""
+    if all(v.has_arrays for v in cand.validations):
+        return cand.validations
+    cand.validations[:] = [self._validate_run(r, k, cand.theta, cand.currents[i]) for i, (r, k) in enumerate(pairs)]
+    return cand.validations
+
+
 def excitation_of(validations: list[Validation]) -> dict:
     """Which of u, v, r the scored parts of these validations excite beyond the smoother's
     noise (:func:`~usvlog.identify.ahead.excitation` over their samples together, the noise
@@ -177,7 +221,7 @@ def excitation_of(validations: list[Validation]) -> dict:
     if not validations:
         return {}
     scored = [v.t > v.t[0] + v.init_window_s for v in validations]
-    nu = np.concatenate([v.measured[k, 3:6] for v, k in zip(validations, scored)])
+    nu = np.concatenate([v.arrays()[0][k, 3:6] for v, k in zip(validations, scored)])
     sd = (None if any(v.sd is None for v in validations)
           else np.concatenate([np.asarray(v.sd)[k] for v, k in zip(validations, scored)]))
     return excitation(nu, smoother_noise(sd))
