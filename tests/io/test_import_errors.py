@@ -23,7 +23,7 @@ def _source(kind: str, tmp_path):
     if kind == "csv":
         p = tmp_path / "run.csv"
         merged_csv(p, n=50)
-        return p, ("csvlog", "_numeric")
+        return p, ("csvrows", "numeric_cells")
     if kind == "nmea":
         p = tmp_path / "run.nmea"
         p.write_text("\n".join(nmea_lines(10)) + "\n")

@@ -3,7 +3,9 @@
 Rows from merged loggers often fill only some columns: an empty cell means "no
 sample of that stream at this time", never zero. A GNSS fix needs both latitude and
 longitude in the row, a thrust sample both commands. Malformed rows (wrong field
-count), unparseable cells and bad times are skipped and counted.
+count), unparseable cells and bad times are skipped and counted. This module finds the
+header, the mapping and the guesses and reads the file in chunks;
+:mod:`usvlog.io.importers.csvrows` turns each chunk of rows into role streams.
 
 Time: ``time_ns`` (ns since the epoch), ``time_s``, ``time_ms``, ``time_us`` (seconds,
 milliseconds, microseconds; since the epoch when the values are > 1e8 s, else relative
@@ -35,12 +37,12 @@ import pandas as pd
 
 from ...errors import InputError
 from .catalog import Catalog, FieldInfo, TopicInfo
-from .core import ImportReport, listing, text_column
-from .held import Held, detect_held, held_mask
+from .core import ImportReport, listing
+from .csvrows import ROLE_NS, TIME_ROLES, VALUE_ROLES, Chunker, datetimes_ns, times_ns
+from .held import Held, detect_held
 from .infer import TimeVerdict, angle_unit, judge_time, rate_scale
 from .probe import Series, course_agreement
 from .sniff import check_gzip
-from .thrust_guess import guess_thrust_unit
 
 # role -> normalized header names that mean it
 GUESSES: dict[str, tuple[str, ...]] = {
@@ -72,12 +74,6 @@ GUESSES: dict[str, tuple[str, ...]] = {
     "speed_mps": ("speed_mps", "speed", "sog", "sog_mps", "ground_speed"),
     "course_deg": ("course_deg", "course", "cog", "cog_deg"),
 }
-_VALUE_ROLES = ("lat_deg", "lon_deg", "alt_m", "heading_deg", "heading_rad", "thrust_left", "thrust_right",
-                "yaw_rate_degps", "yaw_rate_radps", "speed_mps", "course_deg", "thrust_left_dir",
-                "thrust_right_dir", "local_n", "local_e")
-_NAN_TEXT = {"nan", "NaN", "NAN", "-nan", "+nan", "n/a", "NA", "null", "None"}
-
-
 def normalize_header(h: str) -> str:
     """A header as the role guesses compare it: lower case, runs of other characters -> ``_``.
 
@@ -146,86 +142,6 @@ def guess_mapping(headers: list[str], given: dict) -> tuple[dict, dict]:
     if "yaw_rate_radps" in mapping and "yaw_rate_degps" in guessed:
         del mapping["yaw_rate_degps"], guessed["yaw_rate_degps"]
     return mapping, guessed
-
-
-def _numeric(col: pd.Series, role: str, header: str, line0: int, report) -> tuple[np.ndarray, np.ndarray]:
-    """(values, present) of one chunk column; unparseable non-empty cells are counted and absent."""
-    dt = col.dtype
-    if pd.api.types.is_numeric_dtype(dt) and not pd.api.types.is_bool_dtype(dt):
-        v = col.to_numpy(dtype=float, na_value=np.nan)
-        return v, ~np.isnan(v)
-    s = col.astype("str")
-    s = s.where(col.notna(), "")
-    text = s.str.strip()
-    v = pd.to_numeric(text, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
-    empty = (text == "").to_numpy()
-    nan_text = text.isin(_NAN_TEXT).to_numpy()
-    bad = np.isnan(v) & ~empty & ~nan_text
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        report.skip("csv_bad_value", int(bad.sum()),
-                    where=f"line {line0 + i}: column {header!r} value {text.iloc[i][:40]!r}")
-    return v, ~empty & ~bad
-
-
-_NS_PER = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
-_ROLE_NS = {"time_s": 1e9, "time_ms": 1e6, "time_us": 1e3, "time_ns": 1.0}   # ns per tick of a time role
-TIME_ROLES = ("time_ns", "time_s", "time_ms", "time_us", "time_iso")
-
-
-def _datetimes_ns(arr: np.ndarray) -> np.ndarray:
-    """datetime64 values (any of s/ms/us/ns: pandas picks the resolution) -> int64 ns since
-    the epoch; -1 for NaT and for times before 1970 or past what int64 ns holds (2262)."""
-    unit = np.datetime_data(arr.dtype)[0]
-    per = _NS_PER[unit]
-    v = arr.view(np.int64)
-    ok = ~np.isnat(arr) & (v >= 0) & (v < np.iinfo(np.int64).max // per)
-    return np.where(ok, np.where(ok, v, 0) * per, -1).astype(np.int64)
-
-
-def _times(col: pd.Series, kind: str, start_ns: int | None, report, header: str, line0: int,
-           state: dict) -> np.ndarray:
-    """Record times in ns (int64); rows with no usable time get -1."""
-    if kind == "time_iso" or (kind == "time_s" and not pd.api.types.is_numeric_dtype(col.dtype)
-                              and state.get("iso", None) is not False):
-        num = pd.to_numeric(col, errors="coerce") if kind == "time_s" else None
-        if num is not None and num.notna().sum() >= max(1, int(0.5 * col.notna().sum())):
-            state["iso"] = False
-            return _times(num, "time_s", start_ns, report, header, line0, state)
-        state["iso"] = True
-        ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
-        return _datetimes_ns(ts.dt.tz_localize(None).to_numpy())
-    if kind == "time_ns" and pd.api.types.is_integer_dtype(col.dtype) and not state.get("relative"):
-        t = col.to_numpy(dtype=np.int64)
-        return np.where(t >= 0, t, -1)
-    v, present = _numeric(col, kind, header, line0, report) if not pd.api.types.is_numeric_dtype(col.dtype) \
-        else (col.to_numpy(dtype=float, na_value=np.nan), col.notna().to_numpy())
-    if kind == "time_ns" and not state.get("relative"):
-        t = np.where(present & np.isfinite(v), v, -1.0)
-        return t.astype(np.int64)
-    ns_per = _ROLE_NS[kind]
-    if "first" not in state:
-        fin = v[np.isfinite(v) & (v >= 0)]
-        if len(fin):
-            state.setdefault("relative", bool(np.median(fin) * ns_per < 1e17))   # 1e8 s: before 1973
-            state["first"] = float(fin[0])   # --start-utc is the time of the first sample
-            if state["relative"] and start_ns is None:
-                report.guesses["start_utc"] = "1970-01-01T00:00:00Z"
-                report.note(f"time column {header!r} is relative and no --start-utc was given: "
-                            "times start at the Unix epoch")
-    rel = state.get("relative", False)
-    with np.errstate(invalid="ignore", over="ignore"):
-        # relative times to the ns; epoch times (float64: ~0.2 us resolution in seconds) to the us
-        t = np.round(v * ns_per) if rel else np.round(v * (ns_per / 1000))
-        ok = np.isfinite(t) & (t >= 0) & (t < (2**62 if rel else 2**62 / 1000))
-        ti = np.where(ok, t, -1).astype(np.int64)
-        if not rel:
-            ti = np.where(ok, ti * 1000, -1)
-    if rel:
-        first = int(round(state.get("first", 0.0) * ns_per)) if start_ns is not None else 0
-        ti = np.where(ok, ti - first + int(start_ns or 0), -1)
-        ti = np.where(ti >= 0, ti, -1)
-    return ti
 
 
 def _parser_message(err: BaseException) -> str:
@@ -305,7 +221,7 @@ def _time_values(col: pd.Series) -> tuple[np.ndarray | None, bool]:
         return num.to_numpy(dtype=float, na_value=np.nan), False
     ts = pd.to_datetime(col.astype("str"), format="ISO8601", utc=True, errors="coerce")
     if ts.notna().sum() >= 0.9 * filled:
-        ns = _datetimes_ns(ts.dt.tz_localize(None).to_numpy()).astype(float)
+        ns = datetimes_ns(ts.dt.tz_localize(None).to_numpy()).astype(float)
         return np.where(ns >= 0, ns, np.nan), True
     return None, False
 
@@ -354,7 +270,7 @@ def _sample_seconds(col: pd.Series, role: str) -> np.ndarray:
         v, _ = _time_values(col)
         return np.full(len(col), np.nan) if v is None else v / 1e9
     v = pd.to_numeric(col, errors="coerce").to_numpy(dtype=float, na_value=np.nan)
-    return v * (_ROLE_NS[role] / 1e9)
+    return v * (ROLE_NS[role] / 1e9)
 
 
 def _num(sample: pd.DataFrame, header: str) -> np.ndarray:
@@ -424,7 +340,7 @@ def _decide(p, sep: str, headers: list[str], mapping: dict, guessed: dict, opts,
             ) -> tuple[dict, Held | None]:
     """What the first rows decide: the time column and its unit (unless given), the units of
     guessed heading and yaw-rate columns, and held GNSS values. Updates ``mapping`` and
-    ``guessed``; returns (the time state for :class:`_Chunker`, the held GNSS stream or None)."""
+    ``guessed``; returns (the time state for :class:`Chunker`, the held GNSS stream or None)."""
     state: dict = {}
     given_time = any(r in opts.columns for r in TIME_ROLES)
     want = {h for h in headers if not given_time and time_like(h)}
@@ -531,12 +447,12 @@ def read(path, opts, report, *, fmt="csv", on_mapping=None) -> Iterator[dict]:
             have, miss = (a, b) if a in mapping else (b, a)
             raise InputError(f"{p}: column {mapping[have]!r} ({have}) has no {miss} column to pair with "
                              f"(give --column {miss}=HEADER; columns: {listing(headers)})")
-    if not any(r in mapping for r in _VALUE_ROLES):
+    if not any(r in mapping for r in VALUE_ROLES):
         raise InputError(f"{p}: no column maps to a role (give --column ROLE=HEADER; columns: "
                          f"{listing(headers)})")
     if on_mapping is not None:
         on_mapping(report)
-    chunker = _Chunker(mapping, time_role, opts, report, state=state, held=held)
+    chunker = Chunker(mapping, time_role, opts, report, state=state, held=held)
     short, n_lines = short_rows(p, sep, header_line.count(sep))
     cut = [k for k in short if k == n_lines - 1]   # the last row of a file cut mid-way
     if cut:
@@ -631,93 +547,6 @@ def _count_malformed(caught: list, report) -> None:
     caught.clear()
 
 
-def _both(pres: dict, a: str, b: str, good_t: np.ndarray, report, reason: str) -> np.ndarray:
-    """Rows with a good time and both columns of a pair (lat/lon, left/right); rows with one are counted."""
-    none = np.zeros(len(good_t), bool)
-    pa, pb = pres.get(a, none) & good_t, pres.get(b, none) & good_t
-    report.skip(reason, int(np.sum(pa ^ pb)))
-    return pa & pb
-
-
-class _Chunker:
-    """One chunk of rows -> a batch of role streams (state: relative time, thrust unit)."""
-
-    def __init__(self, mapping: dict, time_role: str, opts, report, *, state: dict | None = None,
-                 held: Held | None = None):
-        self.mapping = mapping
-        self.time_role = time_role
-        self.start_ns = opts.start_utc_ns
-        self.thrust_unit = opts.thrust_unit
-        self.report = report
-        self.state: dict = dict(state or {})
-        self.held = held
-        self.hold_state = None
-
-    def batch(self, chunk: pd.DataFrame, line0: int) -> dict:
-        mapping, time_role, report = self.mapping, self.time_role, self.report
-        n = len(chunk)
-        t = _times(chunk[mapping[time_role]], time_role, self.start_ns, report, mapping[time_role], line0,
-                   self.state)
-        good_t = t >= 0
-        vals, pres = {}, {}
-        for role in _VALUE_ROLES:
-            if role in mapping:
-                vals[role], pres[role] = _numeric(chunk[mapping[role]], role, mapping[role], line0, report)
-        any_val = np.zeros(n, bool)
-        for role in pres:
-            any_val |= pres[role]
-        bad_t = ~good_t & any_val
-        if bad_t.any():
-            i = int(np.flatnonzero(bad_t)[0])
-            report.skip("csv_bad_time", int(bad_t.sum()),
-                        where=f"line {line0 + i}: time {str(chunk[mapping[time_role]].iloc[i])[:40]!r}")
-        batch = {}
-        if "lat_deg" in pres or "lon_deg" in pres:
-            both = _both(pres, "lat_deg", "lon_deg", good_t, report, "gnss_incomplete")
-            g = {"t_ns": t[both], "lat_deg": vals["lat_deg"][both], "lon_deg": vals["lon_deg"][both]}
-            if "alt_m" in vals:
-                g["alt_m"] = np.where(pres["alt_m"][both], vals["alt_m"][both], np.nan)
-            if self.held is not None:
-                g["held"], self.hold_state = held_mask(g["t_ns"], [g["lat_deg"], g["lon_deg"]],
-                                                       self.held.update_s, self.hold_state)
-            batch["gnss"] = g
-        if "local_n" in pres or "local_e" in pres:
-            both = _both(pres, "local_n", "local_e", good_t, report, "local_incomplete")
-            batch["local"] = {"t_ns": t[both], "n_m": vals["local_n"][both], "e_m": vals["local_e"][both],
-                              "frame_id": text_column(int(both.sum()), f"csv {self.mapping['local_n']}/"
-                                                                       f"{self.mapping['local_e']} (north/east m)")}
-        for role, scale in (("heading_deg", np.pi / 180.0), ("heading_rad", 1.0)):
-            if role in pres:
-                m = pres[role] & good_t
-                batch["heading"] = {"t_ns": t[m], "heading_rad": vals[role][m] * scale,
-                                    "reference": text_column(int(m.sum()), "true")}
-                break
-        for role, scale in (("yaw_rate_degps", np.pi / 180.0), ("yaw_rate_radps", 1.0)):
-            if role in pres:
-                m = pres[role] & good_t
-                batch["yaw_rate"] = {"t_ns": t[m], "r_radps": vals[role][m] * scale}
-                break
-        if "speed_mps" in pres:
-            m = pres["speed_mps"] & good_t
-            v = {"t_ns": t[m], "sog_mps": vals["speed_mps"][m]}
-            if "course_deg" in pres:
-                v["cog_rad"] = np.where(pres["course_deg"][m], np.radians(vals["course_deg"][m]), np.nan)
-            batch["velocity"] = v
-        if "thrust_left" in pres or "thrust_right" in pres:
-            both = _both(pres, "thrust_left", "thrust_right", good_t, report, "thrust_incomplete")
-            left = vals["thrust_left"][both] if "thrust_left" in vals else np.zeros(0)
-            right = vals["thrust_right"][both] if "thrust_right" in vals else np.zeros(0)
-            if self.thrust_unit is None and both.any():
-                self.thrust_unit = guess_thrust_unit(left, right)
-                report.guesses["thrust_unit"] = self.thrust_unit
-            batch["thrust"] = {"t_ns": t[both], "left": left, "right": right,
-                               "unit": text_column(int(both.sum()), self.thrust_unit or "newton")}
-            for role, col in (("thrust_left_dir", "left_dir"), ("thrust_right_dir", "right_dir")):
-                if role in vals:   # direction flags: an empty cell is forward (0)
-                    batch["thrust"][col] = np.where(pres[role][both], vals[role][both], 0.0)
-        return batch
-
-
 # role -> canonical stream it feeds (for the catalog's mapping)
 _ROLE_STREAM = {"lat_deg": "gnss", "lon_deg": "gnss", "alt_m": "gnss", "heading_deg": "heading",
                 "heading_rad": "heading", "thrust_left": "thrust", "thrust_right": "thrust",
@@ -779,7 +608,7 @@ def catalog(path, opts) -> Catalog:
                              "float" if pd.api.types.is_numeric_dtype(dt) else
                              ("text" if len(nz) else "empty"))
             if time_role is not None:
-                t = _times(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2,
+                t = times_ns(chunk[mapping[time_role]], time_role, None, _Quiet(), mapping[time_role], 2,
                            dict(state))
                 t = t[t >= 0]
                 if len(t):
