@@ -127,6 +127,10 @@ class Chunker:
         self.hold_state = None
 
     def batch(self, chunk: pd.DataFrame, line0: int) -> dict:
+        """The role streams of one chunk of rows (``line0``: the file's line of its first row, for
+        the messages): ``{stream: {column: array}}`` for the streams the mapping feeds (``gnss``,
+        ``local``, ``heading``, ``yaw_rate``, ``velocity``, ``thrust``), bad cells and rows counted
+        in the report."""
         mapping, time_role, report = self.mapping, self.time_role, self.report
         n = len(chunk)
         t = times_ns(chunk[mapping[time_role]], time_role, self.start_ns, report, mapping[time_role], line0,
