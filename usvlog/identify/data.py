@@ -149,7 +149,7 @@ def thrust_forces(log: FieldLog, vessel: Vessel) -> tuple[np.ndarray, np.ndarray
     return t_ns, fl, frr, how
 
 
-def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None = None) -> RunData:
+def run_data(log: FieldLog, vessel: Vessel | None = None) -> RunData:
     """Extract :class:`RunData` from a field log (needs thrust, GNSS and compass).
 
     Parameters
@@ -158,8 +158,6 @@ def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None =
         Needs ``/thrust/command``, ``/gnss/fix`` and ``/compass/heading``.
     vessel : Vessel, optional
         Thruster map and geometry (default the log's vessel, else the built-in one).
-    forces : tuple, optional
-        The log's :func:`thrust_forces` through that vessel, when already made (not made again).
 
     Returns
     -------
@@ -175,7 +173,7 @@ def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None =
     """
     vessel = vessel or log.vessel or default_vessel()
     src = log.source or "log"
-    t_ns, fl, frr, how = forces if forces is not None else thrust_forces(log, vessel)
+    t_ns, fl, frr, how = thrust_forces(log, vessel)
     # a bad record is skipped (counted): the command before it stays in force
     good = np.isfinite(fl) & np.isfinite(frr)
     skipped = int((~good).sum())
@@ -235,16 +233,15 @@ def run_data(log: FieldLog, vessel: Vessel | None = None, forces: tuple | None =
 
 def runs_and_lean_logs(logs: list[FieldLog], vessel: Vessel, keep_thrust: bool = False
                        ) -> tuple[list[RunData], list[FieldLog]]:
-    """(:func:`run_data` of each log, each log without its ``/thrust/command`` channel), each log's
-    thrust through the vessel's map once. Raises what :func:`run_data` raises, for the first log
-    that fails.
+    """(:func:`run_data` of each log, each log without its ``/thrust/command`` channel). Raises what
+    :func:`run_data` raises, for the first log that fails.
 
     Memory: the run's arrays are the fit's one copy of the 100 Hz thrust; the kinematic smoother
     and the free runs' logs take it from them (:func:`run_thrust`). ``keep_thrust`` (a fit that
     reads the logs' thrust itself: filter error) keeps the channel."""
     runs, lean = [], []
     for log in logs:
-        runs.append(run_data(log, vessel, thrust_forces(log, vessel)))
+        runs.append(run_data(log, vessel))
         if not keep_thrust:
             log = log.copy()
             del log.channels[THRUST_TOPIC]
